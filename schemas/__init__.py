@@ -1,0 +1,47 @@
+"""spectralize.schemas: the data contract of a run store, its validation, and store access.
+
+Nothing here imports Prefect; a notebook can open a run with ``open_run(path)``.
+"""
+
+from .errors import (
+    CalibrationError,
+    NodeNotFoundError,
+    ParameterError,
+    PipelineError,
+    Problem,
+    ReconstructionError,
+    SchemaError,
+    SpectralizeError,
+    StoreError,
+)
+from .run import GROUP_SCHEMAS, register_schema, render_table, schema_for
+from .spec import ArraySpec, GroupSchema, check_dataset, validate_dataset
+from .store import RunStore, compute_fingerprint
+
+__all__ = [
+    "ArraySpec",
+    "GroupSchema",
+    "GROUP_SCHEMAS",
+    "RunStore",
+    "register_schema",
+    "render_table",
+    "schema_for",
+    "validate_dataset",
+    "check_dataset",
+    "compute_fingerprint",
+    "open_run",
+    "SpectralizeError",
+    "SchemaError",
+    "StoreError",
+    "NodeNotFoundError",
+    "ParameterError",
+    "PipelineError",
+    "CalibrationError",
+    "ReconstructionError",
+    "Problem",
+]
+
+
+def open_run(path) -> RunStore:
+    """Open a run store for analysis: ``open_run("run.zarr").read("spectra")``."""
+    return RunStore.open(path)

@@ -1,0 +1,214 @@
+"""The data contract of a measurement run store.
+
+One measurement run is one zarr v3 directory. Each group below is an :class:`xarray.Dataset`
+a user can open with ``xarray.open_zarr(path, group=..., consolidated=False)``.
+The table in ``schemas/README.md`` is rendered from these definitions
+(``python -m spectralize.schemas``) and a test keeps the two in step.
+
+Units follow CF conventions: ``"DN"`` for raw digital numbers, ``"1"`` for relative
+(dimensionless) radiance, ``"nm"``, ``"s"``, ``"degree"``, ``"px"``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from .errors import SpectralizeError
+from .spec import ArraySpec, GroupSchema
+
+__all__ = [
+    "GROUP_SCHEMAS",
+    "register_schema",
+    "schema_for",
+    "image_coords",
+    "shot_coords",
+    "RAW_DARK",
+    "RAW_RGB",
+    "RAW_SPECTRAL",
+    "DARK",
+    "HDR",
+    "BANDS",
+    "SPECTRA",
+    "TRUTH_SPECTRA",
+]
+
+
+def image_coords(dim: str = "image") -> tuple[ArraySpec, ...]:
+    """Per-image coords: which camera, rotation and LED took it, and its BTF angles."""
+    return (
+        ArraySpec("camera", (dim,), "kind:iu", None, "RGB camera index on the gantry arc"),
+        ArraySpec("rotation", (dim,), "kind:iu", None, "sample rotation step (15 degree steps)"),
+        ArraySpec("led", (dim,), "kind:iu", None, "index of the LED that lit the sample"),
+        ArraySpec("theta_i", (dim,), "kind:f", "degree", "light elevation from the normal", (0, 90)),
+        ArraySpec("phi_i", (dim,), "kind:f", "degree", "light azimuth", (0, 360)),
+        ArraySpec("theta_o", (dim,), "kind:f", "degree", "view elevation from the normal", (0, 90)),
+        ArraySpec("phi_o", (dim,), "kind:f", "degree", "view azimuth", (0, 360)),
+    )
+
+
+def shot_coords(dim: str = "shot") -> tuple[ArraySpec, ...]:
+    """Per-shot coords of band-filtered monochrome frames."""
+    return (
+        ArraySpec("wavelength", (dim,), "kind:f", "nm", "centre wavelength of the tunable filter",
+                  (300, 1100), finite=True),
+        ArraySpec("exposure_time", (dim,), "kind:f", "s", "exposure time", (0, 1e4), finite=True),
+        ArraySpec("image", (dim,), "kind:iu", None, "index of the RGB image the shot pairs with"),
+        ArraySpec("rotation", (dim,), "kind:iu", None, "sample rotation step"),
+        ArraySpec("led", (dim,), "kind:iu", None, "index of the LED that lit the sample"),
+    )
+
+
+RAW_DARK = GroupSchema(
+    name="raw/dark",
+    description="raw dark frames (closed shutter) of the spectral camera, many per exposure time",
+    variables=(
+        ArraySpec("frames", ("exposure_time", "frame", "y", "x"), "uint16", "DN",
+                  "raw dark frame"),
+    ),
+    coords=(
+        ArraySpec("exposure_time", ("exposure_time",), "kind:f", "s", "exposure time",
+                  (0, 1e4), finite=True),
+    ),
+    attrs={"camera": "which camera took the frames", "bit_depth": "ADC bit depth, 8..16"},
+)
+
+RAW_RGB = GroupSchema(
+    name="raw/rgb",
+    description="LDR exposure series of the RGB cameras, one series per image",
+    variables=(
+        ArraySpec("counts", ("image", "exposure", "y", "x", "channel"), "uint16", "DN",
+                  "raw RGB pixel value"),
+    ),
+    coords=(
+        ArraySpec("exposure_time", ("image", "exposure"), "kind:f", "s", "exposure time",
+                  (0, 1e4), finite=True),
+        ArraySpec("channel", ("channel",), "kind:UO", None, "colour channel"),
+        *image_coords(),
+    ),
+    attrs={"bit_depth": "ADC bit depth, 8..16"},
+)
+
+RAW_SPECTRAL = GroupSchema(
+    name="raw/spectral",
+    description="very short, very noisy band-filtered frames of the monochrome camera",
+    variables=(
+        ArraySpec("counts", ("shot", "y", "x"), "uint16", "DN", "raw band-filtered pixel value"),
+    ),
+    coords=shot_coords(),
+    attrs={"bit_depth": "ADC bit depth, 8..16"},
+)
+
+DARK = GroupSchema(
+    name="dark",
+    description="per-pixel mean and standard deviation of the dark frames, per exposure time",
+    variables=(
+        ArraySpec("mean", ("exposure_time", "y", "x"), "float32", "DN", "mean dark frame"),
+        ArraySpec("std", ("exposure_time", "y", "x"), "float32", "DN",
+                  "per-pixel standard deviation of the dark frames"),
+    ),
+    coords=(
+        ArraySpec("exposure_time", ("exposure_time",), "kind:f", "s", "exposure time",
+                  (0, 1e4), finite=True),
+    ),
+    attrs={"frame_count": "number of dark frames averaged per exposure time"},
+)
+
+HDR = GroupSchema(
+    name="hdr",
+    description="HDR RGB radiance merged from the exposure series",
+    variables=(
+        ArraySpec("radiance", ("image", "y", "x", "channel"), "float32", "1",
+                  "relative RGB radiance"),
+    ),
+    coords=(ArraySpec("channel", ("channel",), "kind:UO", None, "colour channel"), *image_coords()),
+)
+
+BANDS = GroupSchema(
+    name="bands",
+    description="calibrated, registered noisy band radiance with the filter size of its band",
+    variables=(
+        ArraySpec("radiance", ("shot", "y", "x"), "float32", "1", "relative band radiance"),
+    ),
+    coords=(
+        *shot_coords(),
+        ArraySpec("filter_size", ("shot",), "kind:f", "px", "Gaussian filter size s_i (eq. 3)",
+                  (0, 1e5), finite=True),
+    ),
+)
+
+_SPECTRA_VARIABLES = (
+    ArraySpec("radiance", ("image", "wavelength", "y", "x"), "float32", "1",
+              "relative spectral radiance"),
+)
+_SPECTRA_COORDS = (
+    ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100),
+              finite=True),
+    *image_coords(),
+)
+
+SPECTRA = GroupSchema(
+    name="spectra",
+    description="reconstructed spectral cube (eq. 1), chunked per image and tile",
+    variables=_SPECTRA_VARIABLES,
+    coords=_SPECTRA_COORDS,
+)
+
+TRUTH_SPECTRA = GroupSchema(
+    name="truth/spectra",
+    description="ground-truth spectral cube of a simulated run (evaluation only)",
+    variables=_SPECTRA_VARIABLES,
+    coords=_SPECTRA_COORDS,
+)
+
+GROUP_SCHEMAS: dict[str, GroupSchema] = {}
+
+
+def register_schema(schema: GroupSchema, *, replace: bool = False) -> GroupSchema:
+    """Add ``schema`` to the contract (nodes of later issues add their groups here)."""
+    if schema.name in GROUP_SCHEMAS and not replace and GROUP_SCHEMAS[schema.name] != schema:
+        raise SpectralizeError(
+            f"schema {schema.name!r} is already registered with a different definition; "
+            "pass replace=True to override it deliberately"
+        )
+    GROUP_SCHEMAS[schema.name] = schema
+    return schema
+
+
+for _schema in (RAW_DARK, RAW_RGB, RAW_SPECTRAL, DARK, HDR, BANDS, SPECTRA, TRUTH_SPECTRA):
+    register_schema(_schema)
+
+
+def schema_for(name: str) -> GroupSchema:
+    """The registered schema called ``name``.
+
+    Raises
+    ------
+    SpectralizeError
+        Listing the known schema names when ``name`` is not one of them.
+    """
+    try:
+        return GROUP_SCHEMAS[name]
+    except KeyError:
+        known = ", ".join(sorted(GROUP_SCHEMAS))
+        raise SpectralizeError(f"unknown schema {name!r}; known schemas: {known}") from None
+
+
+def render_table(schemas: Iterable[GroupSchema] | None = None) -> str:
+    """The contract as a Markdown table (what ``schemas/README.md`` shows)."""
+    rows = [
+        "| group | what | variables: dims dtype [units] | coords: dims dtype [units] | required attrs |",
+        "|---|---|---|---|---|",
+    ]
+
+    def fmt(spec: ArraySpec) -> str:
+        units = f" [{spec.units}]" if spec.units else ""
+        return f"`{spec.name}` ({', '.join(spec.dims)}) {spec.describe_dtype()}{units}"
+
+    for schema in schemas if schemas is not None else GROUP_SCHEMAS.values():
+        variables = "<br>".join(fmt(s) for s in schema.variables)
+        if schema.optional_variables:
+            variables += "<br>optional: " + "<br>".join(fmt(s) for s in schema.optional_variables)
+        coords = "<br>".join(fmt(s) for s in schema.coords) or "-"
+        attrs = ", ".join(f"`{k}`" for k in schema.attrs) or "-"
+        rows.append(f"| `{schema.name}` | {schema.description} | {variables} | {coords} | {attrs} |")
+    return "\n".join(rows)

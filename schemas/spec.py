@@ -1,0 +1,188 @@
+"""Declarative contracts for the groups of a run store and their validation.
+
+A :class:`GroupSchema` names the variables and coordinates a group must have, with their
+dims, dtypes, units and value ranges, and the attrs it must carry. :func:`validate_dataset`
+checks an :class:`xarray.Dataset` against it and returns *every* problem at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import xarray as xr
+
+from .errors import Problem, SchemaError
+
+__all__ = ["ArraySpec", "GroupSchema", "validate_dataset", "check_dataset"]
+
+
+@dataclass(frozen=True)
+class ArraySpec:
+    """Contract of one variable or coordinate.
+
+    Attributes
+    ----------
+    name
+        Variable name in the group.
+    dims
+        Exact dimension names, in order.
+    dtype
+        Either an exact dtype name (``"uint16"``, ``"float32"``) or a numpy kind
+        prefixed by ``"kind:"``: ``"kind:f"`` any float, ``"kind:iu"`` any integer,
+        ``"kind:U"`` strings (``"kind:UO"`` also accepts object strings).
+    units
+        Required value of ``attrs["units"]``; ``None`` when the array has no units.
+    long_name
+        Human-readable description, written by producers into ``attrs["long_name"]``.
+    valid_range
+        Inclusive ``(low, high)`` every finite value must lie in; checked on coordinates and
+        on small in-memory arrays, never on large lazy ones.
+    finite
+        Whether NaN/inf are forbidden (checked where values are checked).
+    """
+
+    name: str
+    dims: tuple[str, ...]
+    dtype: str
+    units: str | None = None
+    long_name: str = ""
+    valid_range: tuple[float, float] | None = None
+    finite: bool = False
+
+    def dtype_ok(self, dtype: np.dtype) -> bool:
+        if self.dtype.startswith("kind:"):
+            return dtype.kind in self.dtype[5:]
+        return dtype == np.dtype(self.dtype)
+
+    def describe_dtype(self) -> str:
+        kinds = {"f": "float", "i": "signed int", "u": "unsigned int", "U": "str", "O": "object"}
+        if self.dtype.startswith("kind:"):
+            return " or ".join(kinds.get(k, k) for k in self.dtype[5:])
+        return self.dtype
+
+
+@dataclass(frozen=True)
+class GroupSchema:
+    """Contract of one group of a run store.
+
+    Attributes
+    ----------
+    name
+        Schema name, also the default group path in the store (``"raw/dark"``).
+    description
+        One line for the human-readable table.
+    variables
+        Data variables that must be present.
+    coords
+        Coordinates that must be present.
+    attrs
+        Group attrs that must be present, with a short description each.
+    optional_variables
+        Variables that may be present; when present they must follow their spec.
+    """
+
+    name: str
+    description: str
+    variables: tuple[ArraySpec, ...]
+    coords: tuple[ArraySpec, ...] = ()
+    attrs: Mapping[str, str] = field(default_factory=dict)
+    optional_variables: tuple[ArraySpec, ...] = ()
+
+    @property
+    def dims(self) -> tuple[str, ...]:
+        """All dims named by the schema, in order of first appearance."""
+        seen: dict[str, None] = {}
+        for spec in self.variables + self.coords:
+            seen.update(dict.fromkeys(spec.dims))
+        return tuple(seen)
+
+
+_VALUE_CHECK_LIMIT = 1_000_000  # elements; larger (or lazy) arrays get no value check
+
+
+def _check_array(where: str, array: xr.DataArray, spec: ArraySpec) -> list[Problem]:
+    problems: list[Problem] = []
+    if tuple(array.dims) != spec.dims:
+        problems.append(Problem(where, f"dims {spec.dims}", f"dims {tuple(array.dims)}"))
+    if not spec.dtype_ok(array.dtype):
+        problems.append(Problem(where, f"dtype {spec.describe_dtype()}", f"dtype {array.dtype}"))
+    if spec.units is not None and array.attrs.get("units") != spec.units:
+        found = array.attrs.get("units")
+        problems.append(
+            Problem(where, f"attrs['units'] == {spec.units!r}",
+                    "no units attr" if found is None else f"units {found!r}")
+        )
+    lazy = getattr(array.variable, "chunks", None) is not None
+    if (spec.valid_range or spec.finite) and not lazy and array.size <= _VALUE_CHECK_LIMIT \
+            and array.dtype.kind in "fiu":
+        values = np.asarray(array.values, dtype=float)
+        if spec.finite and not np.isfinite(values).all():
+            bad = int((~np.isfinite(values)).sum())
+            problems.append(Problem(where, "finite values", f"{bad} NaN/inf value(s)"))
+        if spec.valid_range is not None:
+            low, high = spec.valid_range
+            finite = values[np.isfinite(values)]
+            if finite.size and (finite.min() < low or finite.max() > high):
+                problems.append(
+                    Problem(where, f"values in [{low:g}, {high:g}]",
+                            f"range [{finite.min():g}, {finite.max():g}]")
+                )
+    return problems
+
+
+def validate_dataset(ds: xr.Dataset, schema: GroupSchema, *, group: str | None = None) -> list[Problem]:
+    """Check ``ds`` against ``schema`` and return every problem found.
+
+    Parameters
+    ----------
+    ds
+        The group's data, in memory or lazy.
+    schema
+        Its contract.
+    group
+        Group path used in the messages (default: the schema name).
+
+    Returns
+    -------
+    list of Problem
+        Empty when the dataset follows the contract.
+    """
+    label = group or schema.name
+    problems: list[Problem] = []
+    for spec in schema.variables:
+        if spec.name not in ds.data_vars:
+            where = f"{label}:{spec.name}"
+            if spec.name in ds.coords:
+                problems.append(Problem(where, "a data variable", "a coordinate"))
+            else:
+                problems.append(Problem(where, f"data variable with dims {spec.dims}", "nothing"))
+            continue
+        problems += _check_array(f"{label}:{spec.name}", ds[spec.name], spec)
+    for spec in schema.optional_variables:
+        if spec.name in ds.data_vars:
+            problems += _check_array(f"{label}:{spec.name}", ds[spec.name], spec)
+    for spec in schema.coords:
+        where = f"{label}:{spec.name}"
+        if spec.name not in ds.coords:
+            problems.append(Problem(where, f"coordinate with dims {spec.dims}", "nothing"))
+            continue
+        problems += _check_array(where, ds.coords[spec.name], spec)
+    for key, meaning in schema.attrs.items():
+        if key not in ds.attrs:
+            problems.append(Problem(f"{label}.attrs", f"attr {key!r} ({meaning})", "nothing"))
+    # Every dim of the contract must have one consistent size across arrays (xarray enforces
+    # that within a Dataset), and must not be empty.
+    for dim in schema.dims:
+        if dim in ds.sizes and ds.sizes[dim] == 0:
+            problems.append(Problem(f"{label}:{dim}", "a non-empty dimension", "size 0"))
+    return problems
+
+
+def check_dataset(ds: xr.Dataset, schema: GroupSchema, *, group: str | None = None) -> None:
+    """Raise :class:`SchemaError` listing every problem if ``ds`` breaks ``schema``."""
+    problems = validate_dataset(ds, schema, group=group)
+    if problems:
+        label = group or schema.name
+        raise SchemaError(f"group {label!r} does not follow schema {schema.name!r}:", problems)
