@@ -320,7 +320,7 @@ def check_graph(
 
     producer: dict[str, PlannedStep] = {}
     for item in planned:
-        for schema, group in item.outputs.items():
+        for group in item.outputs.values():
             if group in producer:
                 problems.append(Problem(f"group {group!r}", "one producing node",
                                         f"nodes {producer[group].node.name!r} and "

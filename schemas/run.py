@@ -28,6 +28,8 @@ __all__ = [
     "DARK",
     "HDR",
     "BANDS",
+    "REGISTRATION",
+    "IMAGE_SETS",
     "SPECTRA",
     "TRUTH_SPECTRA",
 ]
@@ -160,6 +162,36 @@ TRUTH_SPECTRA = GroupSchema(
     coords=_SPECTRA_COORDS,
 )
 
+REGISTRATION = GroupSchema(
+    name="registration",
+    description="misregistration of the spectral camera to its RGB camera (phase correlation)",
+    variables=(
+        ArraySpec("shift", ("axis",), "kind:f", "px", "spectral(p) = rgb(p - shift)",
+                  finite=True),
+        ArraySpec("pair_shift", ("pair", "axis"), "kind:f", "px", "shift per rotation pair"),
+        ArraySpec("residual", ("pair",), "kind:f", "px", "distance from the run's shift"),
+    ),
+    coords=(
+        ArraySpec("axis", ("axis",), "kind:UO", None, "y or x"),
+        ArraySpec("rgb_rotation", ("pair",), "kind:iu", None, "rotation of the RGB shot"),
+        ArraySpec("spectral_rotation", ("pair",), "kind:iu", None,
+                  "rotation of the spectral shot"),
+    ),
+)
+
+IMAGE_SETS = GroupSchema(
+    name="image_sets",
+    description="reconstruction sets: images with band shots plus images with similar light",
+    variables=(
+        ArraySpec("image_set", ("image",), "kind:iu", None, "set that owns the image"),
+        ArraySpec("has_bands", ("image",), "bool", None, "image has band shots"),
+        ArraySpec("member", ("set", "slot"), "kind:iu", None, "image labels, -1: none"),
+        ArraySpec("owned", ("set", "slot"), "bool", None, "member is owned by the set"),
+    ),
+    coords=(ArraySpec("image", ("image",), "kind:iu", None, "image label"),),
+    attrs={"seed_set": "set solved first to warm-start the others"},
+)
+
 GROUP_SCHEMAS: dict[str, GroupSchema] = {}
 
 
@@ -174,7 +206,8 @@ def register_schema(schema: GroupSchema, *, replace: bool = False) -> GroupSchem
     return schema
 
 
-for _schema in (RAW_DARK, RAW_RGB, RAW_SPECTRAL, DARK, HDR, BANDS, SPECTRA, TRUTH_SPECTRA):
+for _schema in (RAW_DARK, RAW_RGB, RAW_SPECTRAL, DARK, HDR, BANDS, REGISTRATION, IMAGE_SETS,
+                SPECTRA, TRUTH_SPECTRA):
     register_schema(_schema)
 
 

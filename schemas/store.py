@@ -29,6 +29,7 @@ import shutil
 import time
 import uuid
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -86,8 +87,15 @@ def _stem(group: str) -> str:
     return group.strip("/").replace("/", "~")
 
 
-def _regular_chunks(ds: xr.Dataset, chunks: Mapping[str, int] | None) -> xr.Dataset:
-    """Rechunk so every dask array has regular chunks zarr can store."""
+def _regular_chunks(
+    ds: xr.Dataset, chunks: Mapping[str, int] | None, *, region_dim: str | None = None,
+) -> xr.Dataset:
+    """Rechunk so every dask array has chunks zarr can store.
+
+    Without ``region_dim`` all chunks are made regular. With it, the chunks along
+    ``region_dim`` are kept as they are (they are the regions of a resumable write, possibly
+    of unequal size; on disk that dim gets chunks of 1) and the other dims are made regular.
+    """
     if chunks:
         unknown = set(chunks) - set(ds.dims)
         if unknown:
@@ -95,14 +103,27 @@ def _regular_chunks(ds: xr.Dataset, chunks: Mapping[str, int] | None) -> xr.Data
                 f"chunks name dims {sorted(unknown)} that the dataset does not have "
                 f"(its dims: {sorted(map(str, ds.dims))})"
             )
-        return ds.chunk(dict(chunks))
     sizes: dict[str, int] = {}
     for var in ds.variables.values():
         if var.chunks is None:
             continue
         for dim, dim_chunks in zip(var.dims, var.chunks, strict=True):
             sizes[dim] = max(sizes.get(dim, 0), max(dim_chunks))
+    sizes.update(dict(chunks or {}))
+    if region_dim is not None:
+        sizes.pop(region_dim, None)
+        ds = ds.unify_chunks() if any(v.chunks for v in ds.variables.values()) else ds
     return ds.chunk(sizes) if sizes else ds
+
+
+def _region_encoding(ds: xr.Dataset, dim: str, encoding: dict[str, dict[str, Any]]) -> None:
+    """On-disk chunks of 1 along the region dim, the dask chunks elsewhere."""
+    for name, var in ds.variables.items():
+        if dim not in var.dims or name in ds.indexes:
+            continue
+        chunks = var.chunks or tuple((size,) for size in var.shape)
+        disk = tuple(1 if d == dim else max(c) for d, c in zip(var.dims, chunks, strict=True))
+        encoding.setdefault(str(name), {}).setdefault("chunks", disk)
 
 
 def _chunk_files(root: Path) -> dict[str, int]:
@@ -352,6 +373,7 @@ class RunStore:
         chunks: Mapping[str, int] | None = None,
         encoding: Mapping[str, Mapping[str, Any]] | None = None,
         resumable_along: str | None = None,
+        concurrent_regions: int = 1,
         progress: Callable[[str], None] | None = None,
     ) -> str:
         """Write ``ds`` as ``group``, atomically, and return its fingerprint.
@@ -374,7 +396,11 @@ class RunStore:
             Per-variable zarr encoding (zarr 3 keys, e.g. ``{"compressors": (codec,)}``).
         resumable_along
             Write region by region along this dim, flagging each finished region, so an
-            interrupted write with the same fingerprint resumes where it stopped.
+            interrupted write with the same fingerprint resumes where it stopped. The regions
+            are the dask chunks of ``ds`` along the dim (they may differ in size); on disk
+            the dim is chunked by 1, so no two regions share a chunk.
+        concurrent_regions
+            How many regions are computed and written at the same time (resumable writes).
         progress
             Called with a short message after each region.
 
@@ -397,7 +423,7 @@ class RunStore:
             raise StoreError(f"resumable_along={resumable_along!r} is not a dim of the data "
                              f"for {group!r} (dims: {sorted(map(str, ds.dims))})")
         fingerprint = fingerprint or f"unrecorded:{uuid.uuid4().hex}"
-        ds = _regular_chunks(ds, chunks)
+        ds = _regular_chunks(ds, chunks, region_dim=resumable_along)
         attrs = {k: v for k, v in ds.attrs.items() if k not in _BOOKKEEPING}
         attrs[FINGERPRINT_ATTR] = fingerprint
         attrs[PROVENANCE_ATTR] = {**dict(provenance or {}),
@@ -419,15 +445,21 @@ class RunStore:
             ds.to_zarr(str(self.path), group=staged, mode="w", consolidated=False,
                        zarr_format=3, encoding=enc or None)
         else:
-            self._write_regions(ds, staged, staged_path, resumable_along, enc, progress)
+            _region_encoding(ds, resumable_along, enc)
+            self._write_regions(ds, staged, staged_path, resumable_along, enc, progress,
+                                max(1, int(concurrent_regions)))
         self._commit(staged_path, target, group)
         return fingerprint
 
     def _write_regions(
         self, ds: xr.Dataset, staged: str, staged_path: Path, dim: str,
         encoding: dict[str, dict[str, Any]], progress: Callable[[str], None] | None,
+        concurrent: int,
     ) -> None:
-        bounds = np.cumsum((0,) + tuple(ds.chunks.get(dim, (ds.sizes[dim],))))
+        dim_chunks = next((dict(zip(v.dims, v.chunks, strict=True))[dim]
+                           for v in ds.variables.values() if v.chunks and dim in v.dims),
+                          (ds.sizes[dim],))
+        bounds = np.cumsum((0,) + tuple(dim_chunks))
         regions = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         flags_path = f"{STAGING}/{staged_path.name}.done"
         flags = None
@@ -445,19 +477,36 @@ class RunStore:
                                       chunks=(1,), dtype="bool", fill_value=False)
         done = flags[:]
         along = [name for name, var in ds.variables.items() if dim in var.dims]
-        for index, region in enumerate(regions):
-            if done[index]:
-                if progress:
-                    progress(f"region {index + 1}/{len(regions)} of {dim} already written")
-                continue
+        total = len(regions)
+        skipped = [i for i in range(total) if done[i]]
+        if skipped and progress:
+            progress(f"{len(skipped)}/{total} region(s) of {dim} already written, resuming")
+
+        def write_region(index: int) -> int:
+            region = regions[index]
             piece = ds[along].isel({dim: region})
             piece = piece.drop_vars([n for n in piece.variables if dim not in piece[n].dims])
             piece.attrs = {}
             piece.to_zarr(str(self.path), group=staged, mode="r+", region={dim: region},
                           consolidated=False)
-            flags[index] = True
-            if progress:
-                progress(f"region {index + 1}/{len(regions)} of {dim} written")
+            flags[index] = True  # its own chunk of the flag array: no two writers share one
+            return index
+
+        todo = [i for i in range(total) if not done[i]]
+        finished = len(skipped)
+        if concurrent == 1:
+            results = map(write_region, todo)
+        else:
+            pool = ThreadPoolExecutor(max_workers=concurrent)
+            results = (f.result() for f in as_completed(pool.submit(write_region, i) for i in todo))
+        try:
+            for index in results:
+                finished += 1
+                if progress:
+                    progress(f"region {index + 1} of {total} written ({finished}/{total} done)")
+        finally:
+            if concurrent != 1:
+                pool.shutdown(wait=True, cancel_futures=True)
         shutil.rmtree(self.path / flags_path)
 
     def _commit(self, staged_path: Path, target: Path, group: str) -> None:

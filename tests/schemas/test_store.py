@@ -146,7 +146,7 @@ def test_resumable_write_resumes_only_unfinished_regions(store):
         def block(i):
             calls.append(i)
             if i == fail_at:
-                raise RuntimeError("crash in region %d" % i)
+                raise RuntimeError(f"crash in region {i}")
             return np.full((1, 4, 4), i, np.float32)
 
         pieces = [da.from_delayed(dask.delayed(block)(i), (1, 4, 4), np.float32) for i in range(4)]
@@ -161,7 +161,7 @@ def test_resumable_write_resumes_only_unfinished_regions(store):
     store.write("cube", lazy_cube(), fingerprint="fp", resumable_along="image",
                 progress=messages.append)
     assert sorted(calls) == [2, 3]  # regions 0 and 1 were not recomputed
-    assert sum("already written" in m for m in messages) == 2
+    assert "2/4 region(s) of image already written, resuming" in messages
     values = store.read("cube").v.values
     assert [float(values[i, 0, 0]) for i in range(4)] == [0, 1, 2, 3]
     assert [p.name for p in (store.path / STAGING).iterdir()] == ["zarr.json"]
@@ -183,3 +183,19 @@ def test_invalid_group_names_are_rejected(store):
     for name in ("", "../x", ".staging/x", "a//b"):
         with pytest.raises(StoreError, match="invalid group name"):
             store.write(name, small_raw_dark())
+
+
+def test_resumable_regions_may_differ_in_size_and_run_concurrently(store):
+    sizes = (3, 1, 2)
+    pieces = [da.full((n, 4, 6), float(i), dtype=np.float32, chunks=(n, 4, 6))
+              for i, n in enumerate(sizes)]
+    cube = xr.Dataset({"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})},
+                      coords={"image": np.arange(6)})
+    messages = []
+    store.write("cube", cube, fingerprint="fp", resumable_along="image", chunks={"x": 3},
+                concurrent_regions=2, progress=messages.append)
+    back = store.read("cube")
+    assert back.v.encoding["chunks"] == (1, 4, 3)
+    np.testing.assert_array_equal(back.v.values[:, 0, 0], [0, 0, 0, 1, 2, 2])
+    assert sum("written" in m for m in messages) == 3
+    assert messages[-1].endswith("(3/3 done)")
