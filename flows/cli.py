@@ -4,6 +4,7 @@
     spectralize flows                       named flows
     spectralize validate STORE              check a run store against the contract
     spectralize run FLOW STORE [--set k=v]  run a flow (resumes: finished nodes are skipped)
+    spectralize serve ROOT [--cron ...]     nightly processing of new runs (needs a Prefect server)
     spectralize demo                        make the sample run and process it
 """
 
@@ -112,6 +113,26 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import os
+
+    from spectralize.flows.schedule import serve_nightly
+
+    if not os.environ.get("PREFECT_API_URL"):
+        from prefect.settings import PREFECT_API_URL
+
+        if not PREFECT_API_URL.value():
+            raise SpectralizeError(
+                "schedules need a Prefect server: start one with `prefect server start "
+                "--background` and `prefect config set PREFECT_API_URL="
+                "http://127.0.0.1:4200/api`, then run `spectralize serve` again")
+    print(f"serving nightly processing of {args.root} ({args.flow!r} flow, cron {args.cron!r});"
+          " Ctrl-C stops it")
+    serve_nightly(args.root, flow_name=args.flow, cron=args.cron, pattern=args.pattern,
+                  dask_address=args.dask_address)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="spectralize", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -130,6 +151,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--dask-address", default=None,
                      help="address of an existing dask.distributed scheduler (default: local)")
     run.set_defaults(handler=_cmd_run)
+    serve = commands.add_parser("serve", help="serve scheduled processing of a folder of runs")
+    serve.add_argument("root", help="folder whose run stores (*.zarr) are processed")
+    serve.add_argument("--flow", default="btf", help="flow to run on each store")
+    serve.add_argument("--cron", default="0 2 * * *", help="schedule (cron syntax)")
+    serve.add_argument("--pattern", default="*.zarr", help="which entries of ROOT are runs")
+    serve.add_argument("--dask-address", default=None, help="existing dask scheduler")
+    serve.set_defaults(handler=_cmd_serve)
     demo = commands.add_parser("demo", help="make the sample run and process it")
     demo.add_argument("--store", default=None, help="where to put the demo run store")
     demo.set_defaults(handler=_cmd_demo)

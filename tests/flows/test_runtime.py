@@ -139,3 +139,18 @@ def test_not_a_store_is_an_error(nodes, tmp_path):
     (tmp_path / "plain").mkdir()
     with pytest.raises(StoreError, match="not a zarr v3 store"):
         run_flow("dark", tmp_path / "plain")
+
+
+def test_nightly_flow_processes_every_store_and_resumes(prefect_api, nodes, tmp_path):
+    from spectralize.flows.schedule import find_run_stores, process_new_runs
+
+    for name in ("a.zarr", "b.zarr"):
+        RunStore.create(tmp_path / name).write(
+            "raw/dark", make_raw_dark(frames=4, shape=(4, 4), exposure_times=(0.1,)),
+            fingerprint=name)
+    (tmp_path / "notes.zarr").mkdir()  # not a run store: ignored
+    assert [p.name for p in find_run_stores(tmp_path)] == ["a.zarr", "b.zarr"]
+    first = process_new_runs(str(tmp_path), flow_name="dark")
+    assert sorted(first.values()) == ["1 node(s) ran, 0 up to date"] * 2
+    second = process_new_runs(str(tmp_path), flow_name="dark")
+    assert sorted(second.values()) == ["0 node(s) ran, 1 up to date"] * 2
