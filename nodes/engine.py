@@ -243,13 +243,16 @@ class Step:
     """One node run in a graph: which node, its parameters, and where it reads and writes.
 
     ``inputs`` and ``outputs`` rebind groups (argument or schema name -> group path); by
-    default a node reads and writes the groups named like its schemas.
+    default a node reads and writes the groups named like its schemas. An ``optional`` step
+    (e.g. evaluation against ground truth, which only simulated runs have) is left out of
+    the graph when one of its inputs is not there, instead of being an error.
     """
 
     node: str
     parameters: Mapping[str, Any] = field(default_factory=dict)
     inputs: Mapping[str, str] = field(default_factory=dict)
     outputs: Mapping[str, str] = field(default_factory=dict)
+    optional: bool = False
 
     def input_groups(self, node: Node) -> dict[str, str]:
         return {arg: self.inputs.get(arg, schema) for arg, schema in node.inputs.items()}
@@ -317,6 +320,16 @@ def check_graph(
             continue
         planned.append(PlannedStep(step, node, params, step.input_groups(node),
                                    step.output_groups(node)))
+
+    # Leave out optional steps whose inputs can never be there (repeat: dropping one may
+    # orphan another optional step downstream of it).
+    while True:
+        made = set(available) | {g for item in planned for g in item.outputs.values()}
+        orphans = [item for item in planned if item.step.optional
+                   and not set(item.inputs.values()) <= made]
+        if not orphans:
+            break
+        planned = [item for item in planned if item not in orphans]
 
     producer: dict[str, PlannedStep] = {}
     for item in planned:

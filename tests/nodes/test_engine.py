@@ -152,3 +152,13 @@ def test_all_graph_problems_are_reported_together():
     assert "(5 problem(s))" in text  # raw/dark is missing for both dark steps
     for fragment in ("unknown node", "scale.bogus", "both write it", "group 'raw/dark'"):
         assert fragment in text
+
+
+def test_optional_steps_without_their_inputs_are_left_out():
+    steps = [Step("dark_average", outputs={"dark": "d"}, optional=True),
+             Step("scale", inputs={"dark": "d"}, optional=True)]
+    assert check_graph(steps, available={}, nodes=NODES) == []  # the chain is dropped
+    order = check_graph(steps, available={"raw/dark": "raw/dark"}, nodes=NODES)
+    assert [p.node.name for p in order] == ["dark_average", "scale"]
+    with pytest.raises(PipelineError, match="no such group"):  # not optional: an error
+        check_graph([Step("scale", inputs={"dark": "d"})], available={}, nodes=NODES)
