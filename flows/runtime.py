@@ -11,6 +11,7 @@ fingerprint).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -173,7 +174,8 @@ def run_steps(
 
 def _as_dict(step: Step) -> dict[str, Any]:
     return {"node": step.node, "parameters": dict(step.parameters),
-            "inputs": dict(step.inputs), "outputs": dict(step.outputs)}
+            "inputs": dict(step.inputs), "outputs": dict(step.outputs),
+            "optional": step.optional}
 
 
 @flow(name="spectralize", flow_run_name="{flow_name}: {store_path}", validate_parameters=False)
@@ -250,4 +252,4 @@ def step_parameters(
                                     f"a parameter of nodes {names}; write NODE.{parameter}"))
     if problems and not collect:
         raise ParameterError("invalid --set:", problems)
-    return [Step(s.node, u, s.inputs, s.outputs) for s, u in zip(steps, updates, strict=True)]
+    return [dataclasses.replace(s, parameters=u) for s, u in zip(steps, updates, strict=True)]
