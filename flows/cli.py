@@ -104,12 +104,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from spectralize.flows.demo import DEMO_STORE, run_demo
 
-    store, generated, report = run_demo(args.store or DEMO_STORE)
-    print("generated the sample raw data" if generated else "sample raw data already present")
+    store, report = run_demo(args.store or DEMO_STORE)
     _print_report(report)
-    print(f"results: {store.path}  (groups: {', '.join(store.groups())})")
-    print(f"open in Python: xarray.open_zarr({str(store.path)!r}, group='dark', "
-          "consolidated=False)")
+    print(f"results: {store.path}")
+    print(f"  groups: {', '.join(store.groups())}")
+    print(f"  in Python: spectralize.schemas.open_run({str(store.path)!r}).read('spectra')")
     return 0
 
 

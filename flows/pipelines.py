@@ -22,6 +22,13 @@ class FlowDefinition:
     steps: tuple[Step, ...]
 
 
+#: The full-BTF processing of a raw run store, in paper order.
+BTF_STEPS: tuple[Step, ...] = (
+    Step("dark_average"),
+    Step("estimate_registration"),
+    Step("select_image_sets"),
+)
+
 FLOWS: dict[str, FlowDefinition] = {
     flow.name: flow
     for flow in (
@@ -29,6 +36,16 @@ FLOWS: dict[str, FlowDefinition] = {
             name="dark",
             description="dark-frame averaging: raw/dark -> dark",
             steps=(Step("dark_average"),),
+        ),
+        FlowDefinition(
+            name="btf",
+            description="full-BTF processing of a raw run store",
+            steps=BTF_STEPS,
+        ),
+        FlowDefinition(
+            name="demo",
+            description="simulate the bundled sample run (recipe 'demo'), then process it",
+            steps=(Step("simulate", parameters={"recipe": "demo"}), *BTF_STEPS),
         ),
     )
 }

@@ -25,6 +25,11 @@ __all__ = [
     "RAW_DARK",
     "RAW_RGB",
     "RAW_SPECTRAL",
+    "RAW_EXPOSURE_PLAN",
+    "RAW_WHITE_REFERENCE",
+    "RAW_COLOUR_CHECKER",
+    "RAW_REGISTRATION",
+    "TRUTH_CAMERA",
     "DARK",
     "HDR",
     "BANDS",
@@ -84,7 +89,7 @@ RAW_RGB = GroupSchema(
     coords=(
         ArraySpec("exposure_time", ("image", "exposure"), "kind:f", "s", "exposure time",
                   (0, 1e4), finite=True),
-        ArraySpec("channel", ("channel",), "kind:UO", None, "colour channel"),
+        ArraySpec("channel", ("channel",), "kind:UOT", None, "colour channel"),
         *image_coords(),
     ),
     attrs={"bit_depth": "ADC bit depth, 8..16"},
@@ -122,7 +127,7 @@ HDR = GroupSchema(
         ArraySpec("radiance", ("image", "y", "x", "channel"), "float32", "1",
                   "relative RGB radiance"),
     ),
-    coords=(ArraySpec("channel", ("channel",), "kind:UO", None, "colour channel"), *image_coords()),
+    coords=(ArraySpec("channel", ("channel",), "kind:UOT", None, "colour channel"), *image_coords()),
 )
 
 BANDS = GroupSchema(
@@ -162,6 +167,116 @@ TRUTH_SPECTRA = GroupSchema(
     coords=_SPECTRA_COORDS,
 )
 
+# -- calibration shots, registration shots, the exposure plan and simulated truth --------
+def _counts(name: str, dims: tuple[str, ...], long_name: str) -> ArraySpec:
+    return ArraySpec(name, dims, "uint16", "DN", long_name)
+
+
+_WL = ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "centre wavelength of the band",
+                (300, 1100), finite=True)
+_CHANNEL = ArraySpec("channel", ("channel",), "kind:UOT", None, "colour channel")
+_CALIBRATION_VARIABLES = (
+    _counts("rgb_counts", ("rgb_exposure", "y", "x", "channel"),
+            "RGB exposure series of the RGB camera paired with the spectral camera"),
+    _counts("spectral_counts", ("wavelength", "spectral_exposure", "y", "x"),
+            "exposure series of every band of the spectral camera"),
+    ArraySpec("illuminant", ("wavelength",), "kind:f", "1",
+              "measured relative spectral radiance of the LEDs", (0, 1e6), finite=True),
+)
+_CALIBRATION_COORDS = (
+    _WL, _CHANNEL,
+    ArraySpec("rgb_exposure_time", ("rgb_exposure",), "kind:f", "s", "exposure time",
+              (0, 1e4), finite=True),
+    ArraySpec("spectral_exposure_time", ("spectral_exposure",), "kind:f", "s",
+              "exposure time", (0, 1e4), finite=True),
+)
+_CALIBRATION_ATTRS = {"rgb_bit_depth": "ADC bit depth of the RGB camera",
+                      "spectral_bit_depth": "ADC bit depth of the spectral camera"}
+
+RAW_EXPOSURE_PLAN = GroupSchema(
+    name="raw/exposure_plan",
+    description="exposure time and Gaussian filter size per band (eq. 2, 3) and their cost",
+    variables=(
+        ArraySpec("exposure_time", ("wavelength",), "kind:f", "s", "exposure time (eq. 2)",
+                  (0, 1e4), finite=True),
+        ArraySpec("filter_size", ("wavelength",), "kind:f", "px", "filter size s_i (eq. 3)",
+                  (0, 1e5), finite=True),
+        ArraySpec("filter_sigma", ("wavelength",), "kind:f", "px", "s_i / 5", (0, 1e5),
+                  finite=True),
+        ArraySpec("spectral_capture_time", (), "kind:f", "s", "total spectral exposure"),
+        ArraySpec("rgb_capture_time", (), "kind:f", "s", "total RGB exposure"),
+    ),
+    coords=(_WL,),
+    attrs={"t0": "constant of eq. 2", "s0": "constant of eq. 3", "omega": "exponent of eq. 2"},
+)
+RAW_WHITE_REFERENCE = GroupSchema(
+    name="raw/white_reference",
+    description="white diffuse target under the LEDs: RGB and per-band exposure series",
+    variables=_CALIBRATION_VARIABLES + (
+        ArraySpec("target_reflectance", ("wavelength",), "kind:f", "1",
+                  "certified reflectance of the white target", (0, 1), finite=True),),
+    coords=_CALIBRATION_COORDS, attrs=_CALIBRATION_ATTRS,
+)
+RAW_COLOUR_CHECKER = GroupSchema(
+    name="raw/colour_checker",
+    description="ColorChecker chart under the LEDs: RGB and per-band exposure series",
+    variables=_CALIBRATION_VARIABLES + (
+        ArraySpec("patch_reflectance", ("patch", "wavelength"), "kind:f", "1",
+                  "published reflectance of the patches", (0, 1), finite=True),
+        ArraySpec("patch_index", ("y", "x"), "kind:iu", "1",
+                  "patch under each RGB pixel, -1 on the frame"),
+    ),
+    coords=_CALIBRATION_COORDS + (
+        ArraySpec("patch_name", ("patch",), "kind:UOT", None, "patch name"),),
+    attrs=_CALIBRATION_ATTRS | {"chart": "name of the chart's reflectance data"},
+)
+RAW_REGISTRATION = GroupSchema(
+    name="raw/registration",
+    description="long-exposure shots per rotation of the 45 deg RGB and the spectral camera",
+    variables=(
+        _counts("rgb_counts", ("rotation", "y", "x", "channel"), "RGB camera at 45 deg"),
+        _counts("spectral_counts", ("rotation", "y", "x"), "spectral camera"),
+    ),
+    coords=(
+        ArraySpec("rotation", ("rotation",), "kind:iu", "1", "rotation stage position"),
+        ArraySpec("rotation_angle", ("rotation",), "kind:f", "degree", "sample rotation",
+                  (0, 360), finite=True),
+        _CHANNEL,
+        ArraySpec("rgb_exposure_time", (), "kind:f", "s", "exposure time", (0, 1e4)),
+        ArraySpec("spectral_exposure_time", (), "kind:f", "s", "exposure time", (0, 1e4)),
+        ArraySpec("spectral_wavelength", (), "kind:f", "nm", "filter band", (300, 1100)),
+    ),
+    attrs=_CALIBRATION_ATTRS,
+)
+TRUTH_CAMERA = GroupSchema(
+    name="truth/camera",
+    description="true camera parameters of a simulated run (evaluation only)",
+    variables=(
+        ArraySpec("camera_matrix", ("channel", "wavelength"), "kind:f", "s-1",
+                  "RGB camera matrix C", (0, 1e9), finite=True),
+        ArraySpec("quantum_efficiency", ("wavelength",), "kind:f", "s-1",
+                  "quantum efficiency Q per band", (0, 1e9), finite=True),
+        ArraySpec("illuminant", ("wavelength",), "kind:f", "1", "LED spectrum L", (0, 1e6),
+                  finite=True),
+        ArraySpec("bandpass", ("band", "wavelength"), "kind:f", "1", "filter bandpass"),
+        ArraySpec("oecf", ("sensor", "code"), "kind:f", "1",
+                  "exposure per code (NaN beyond the bit depth)"),
+        ArraySpec("adc_offset", ("sensor",), "kind:f", "DN", "mean ADC offset"),
+        ArraySpec("noise_sigma", ("sensor",), "kind:f", "DN", "Gaussian noise sigma"),
+        ArraySpec("bit_depth", ("sensor",), "kind:iu", "1", "ADC bit depth", (8, 16)),
+        ArraySpec("spectral_adc_offset", ("y", "x"), "float32", "DN", "offset per pixel"),
+        ArraySpec("spectral_dark_current", ("y", "x"), "float32", "DN s-1",
+                  "dark signal rate per pixel"),
+        ArraySpec("misregistration", ("axis",), "kind:f", "px",
+                  "spectral(p) = rgb(p - shift)", finite=True),
+    ),
+    coords=(_WL, _CHANNEL,
+            ArraySpec("band", ("band",), "kind:f", "nm", "band centre", (300, 1100)),
+            ArraySpec("sensor", ("sensor",), "kind:UOT", None, "R, G, B or mono"),
+            ArraySpec("code", ("code",), "kind:iu", "DN", "code value"),
+            ArraySpec("axis", ("axis",), "kind:UOT", None, "y or x")),
+)
+
 REGISTRATION = GroupSchema(
     name="registration",
     description="misregistration of the spectral camera to its RGB camera (phase correlation)",
@@ -172,7 +287,7 @@ REGISTRATION = GroupSchema(
         ArraySpec("residual", ("pair",), "kind:f", "px", "distance from the run's shift"),
     ),
     coords=(
-        ArraySpec("axis", ("axis",), "kind:UO", None, "y or x"),
+        ArraySpec("axis", ("axis",), "kind:UOT", None, "y or x"),
         ArraySpec("rgb_rotation", ("pair",), "kind:iu", None, "rotation of the RGB shot"),
         ArraySpec("spectral_rotation", ("pair",), "kind:iu", None,
                   "rotation of the spectral shot"),
@@ -206,8 +321,9 @@ def register_schema(schema: GroupSchema, *, replace: bool = False) -> GroupSchem
     return schema
 
 
-for _schema in (RAW_DARK, RAW_RGB, RAW_SPECTRAL, DARK, HDR, BANDS, REGISTRATION, IMAGE_SETS,
-                SPECTRA, TRUTH_SPECTRA):
+for _schema in (RAW_DARK, RAW_RGB, RAW_SPECTRAL, RAW_EXPOSURE_PLAN, RAW_WHITE_REFERENCE,
+                RAW_COLOUR_CHECKER, RAW_REGISTRATION, DARK, HDR, BANDS, REGISTRATION,
+                IMAGE_SETS, SPECTRA, TRUTH_SPECTRA, TRUTH_CAMERA):
     register_schema(_schema)
 
 

@@ -31,7 +31,7 @@ class ArraySpec:
     dtype
         Either an exact dtype name (``"uint16"``, ``"float32"``) or a numpy kind
         prefixed by ``"kind:"``: ``"kind:f"`` any float, ``"kind:iu"`` any integer,
-        ``"kind:U"`` strings (``"kind:UO"`` also accepts object strings).
+        ``"kind:UOT"`` strings (fixed-width, object or numpy StringDType).
     units
         Required value of ``attrs["units"]``; ``None`` when the array has no units.
     long_name
@@ -57,9 +57,10 @@ class ArraySpec:
         return dtype == np.dtype(self.dtype)
 
     def describe_dtype(self) -> str:
-        kinds = {"f": "float", "i": "signed int", "u": "unsigned int", "U": "str", "O": "object"}
+        kinds = {"f": "float", "i": "signed int", "u": "unsigned int", "U": "str", "O": "object",
+                 "T": "str"}
         if self.dtype.startswith("kind:"):
-            return " or ".join(kinds.get(k, k) for k in self.dtype[5:])
+            return " or ".join(dict.fromkeys(kinds.get(k, k) for k in self.dtype[5:]))
         return self.dtype
 
 

@@ -26,15 +26,16 @@ def tree(path: Path):
 def test_demo_runs_then_skips(tmp_path):
     first = cli("demo", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
-    assert "generated the sample raw data" in first.stdout
+    assert "simulate                 ran" in first.stdout
     assert "dark_average             ran" in first.stdout
     store = tmp_path / "demo" / "run.zarr"
     assert f"results: {store}" in first.stdout
 
     second = cli("demo", cwd=tmp_path)
     assert second.returncode == 0, second.stderr
-    assert "sample raw data already present" in second.stdout
+    assert "simulate                 skipped" in second.stdout
     assert "dark_average             skipped" in second.stdout
+    assert "ran " not in second.stdout
 
     valid = cli("validate", str(store), cwd=tmp_path)
     assert valid.returncode == 0 and "valid" in valid.stdout
