@@ -45,8 +45,9 @@ def estimate_shift(
     of the true misregistration: the two shots differ in band and in lighting (the LEDs do
     not rotate with the sample), which limits any intensity-based method. The paper's
     Gaussian filters make the reconstruction robust to such sub-pixel residuals. The window
-    pulls the estimate towards zero for larger shifts, so the estimate is refined: ``moving`` is shifted back by what was found
-    and the (now small) remainder estimated again, ``refinements`` times.
+    pulls the estimate towards zero for larger shifts, so the estimate is refined: ``moving``
+    is shifted back by what was found and the (now small) remainder estimated again,
+    ``refinements`` times.
 
     Parameters
     ----------
