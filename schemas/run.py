@@ -30,6 +30,7 @@ __all__ = [
     "RAW_COLOUR_CHECKER",
     "RAW_REGISTRATION",
     "TRUTH_CAMERA",
+    "EVALUATION",
     "DARK",
     "HDR",
     "BANDS",
@@ -307,6 +308,73 @@ IMAGE_SETS = GroupSchema(
     attrs={"seed_set": "set solved first to warm-start the others"},
 )
 
+# -- evaluation against ground truth (simulated runs) ------------------------------------
+def _map_spec(name: str, units: str, long_name: str) -> ArraySpec:
+    return ArraySpec(name, ("image", "y", "x"), "float32", units, long_name)
+
+
+EVALUATION = GroupSchema(
+    name="evaluation",
+    description="accuracy of the reconstruction against the ground truth (sec. 5, Fig. 5-7)",
+    variables=(
+        _map_spec("nrmse", "1", "normalised RMSE over wavelength"),
+        _map_spec("spectral_angle", "degree", "spectral angle"),
+        _map_spec("delta_e", "1", "CIEDE2000 colour difference"),
+        ArraySpec("truth_mean", ("image",), "float64", "1", "mean ground-truth intensity"),
+        ArraySpec("nrmse_statistics", ("image", "statistic"), "float64", "1",
+                  "per-image nRMSE statistics"),
+        ArraySpec("spectral_angle_statistics", ("image", "statistic"), "float64", "degree",
+                  "per-image spectral angle statistics"),
+        ArraySpec("delta_e_statistics", ("image", "statistic"), "float64", "1",
+                  "per-image CIEDE2000 statistics"),
+        ArraySpec("nrmse_fraction_below", ("image",), "float64", "1",
+                  "fraction of pixels with nRMSE below the threshold"),
+        ArraySpec("invalid_count", ("image",), "int64", "1", "pixels with undefined nRMSE"),
+        ArraySpec("nrmse_histogram", ("image", "nrmse_bin"), "int64", "1",
+                  "per-image nRMSE histogram"),
+        ArraySpec("nrmse_above_range", ("image",), "int64", "1",
+                  "pixels above the histogram range"),
+        ArraySpec("nrmse_subset_statistics", ("subset", "statistic"), "float64", "1",
+                  "nRMSE statistics per subset of images"),
+        ArraySpec("spectral_angle_subset_statistics", ("subset", "statistic"), "float64",
+                  "degree", "spectral angle statistics per subset of images"),
+        ArraySpec("delta_e_subset_statistics", ("subset", "statistic"), "float64", "1",
+                  "CIEDE2000 statistics per subset of images"),
+        ArraySpec("nrmse_subset_fraction_below", ("subset",), "float64", "1",
+                  "fraction of pixels with nRMSE below the threshold, per subset"),
+        ArraySpec("subset_pixel_count", ("subset",), "int64", "1",
+                  "pixels with a finite nRMSE, per subset"),
+        ArraySpec("sample_y", ("image", "sample"), "int64", "px", "row of a picked pixel"),
+        ArraySpec("sample_x", ("image", "sample"), "int64", "px", "column of a picked pixel"),
+        ArraySpec("sample_nrmse", ("image", "sample"), "float32", "1",
+                  "nRMSE of a picked pixel"),
+        ArraySpec("sample_truth", ("image", "sample", "wavelength"), "float32", "1",
+                  "ground-truth spectrum of a picked pixel"),
+        ArraySpec("sample_reconstruction", ("image", "sample", "wavelength"), "float32", "1",
+                  "reconstructed spectrum of a picked pixel"),
+    ),
+    coords=(
+        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100),
+                  finite=True),
+        ArraySpec("statistic", ("statistic",), "kind:UOT", None,
+                  "statistic: mean, median, p95, p99"),
+        ArraySpec("subset", ("subset",), "kind:UOT", None,
+                  "subset of images: all, with_band_shots, without_band_shots"),
+        ArraySpec("nrmse_bin_lower", ("nrmse_bin",), "kind:f", "1", "lower bin edge"),
+        ArraySpec("nrmse_bin_upper", ("nrmse_bin",), "kind:f", "1", "upper bin edge"),
+        ArraySpec("sample_quantile", ("sample",), "kind:f", "1",
+                  "quantile a representative pixel was picked at", (0, 1)),
+    ),
+    optional_variables=(
+        ArraySpec("has_band_shots", ("image",), "bool", "1",
+                  "image has at least one band shot"),
+    ),
+    attrs={"illuminant": "illuminant of the CIEDE2000 colour difference",
+           "threshold": "nRMSE level of the fraction-below statistics"},
+)
+
+
+
 GROUP_SCHEMAS: dict[str, GroupSchema] = {}
 
 
@@ -323,7 +391,7 @@ def register_schema(schema: GroupSchema, *, replace: bool = False) -> GroupSchem
 
 for _schema in (RAW_DARK, RAW_RGB, RAW_SPECTRAL, RAW_EXPOSURE_PLAN, RAW_WHITE_REFERENCE,
                 RAW_COLOUR_CHECKER, RAW_REGISTRATION, DARK, HDR, BANDS, REGISTRATION,
-                IMAGE_SETS, SPECTRA, TRUTH_SPECTRA, TRUTH_CAMERA):
+                IMAGE_SETS, SPECTRA, TRUTH_SPECTRA, TRUTH_CAMERA, EVALUATION):
     register_schema(_schema)
 
 
