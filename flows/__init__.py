@@ -45,4 +45,4 @@ def run_flow(name: str, store: str | os.PathLike[str], *, parameters=None, retri
     problems: list = []
     steps = step_parameters(definition.steps, dict(parameters or {}), problems=problems)
     return run_steps(store, steps, flow_name=name, problems=problems, retries=retries,
-                     dask_address=dask_address)
+                     dask_address=dask_address, report=definition.report)

@@ -90,6 +90,8 @@ def _print_report(report) -> None:
     for step in report.steps:
         timing = f"{step.seconds:.1f} s" if step.status == "ran" else "up to date"
         print(f"  {step.node:<24} {step.status:<8} {timing:<12} -> {', '.join(step.outputs)}")
+    if report.report:
+        print(f"report: {report.report}")
 
 
 def _cmd_run(args: argparse.Namespace) -> int:

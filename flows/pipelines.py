@@ -20,6 +20,7 @@ class FlowDefinition:
     name: str
     description: str
     steps: tuple[Step, ...]
+    report: bool = False  # write the HTML report when the run has an evaluation
 
 
 #: The full-BTF processing of a raw run store, in paper order.
@@ -27,6 +28,8 @@ BTF_STEPS: tuple[Step, ...] = (
     Step("dark_average"),
     Step("estimate_registration"),
     Step("select_image_sets"),
+    # simulated runs only: evaluation against ground truth (left out without truth/spectra)
+    Step("evaluate", optional=True),
 )
 
 FLOWS: dict[str, FlowDefinition] = {
@@ -41,11 +44,13 @@ FLOWS: dict[str, FlowDefinition] = {
             name="btf",
             description="full-BTF processing of a raw run store",
             steps=BTF_STEPS,
+            report=True,
         ),
         FlowDefinition(
             name="demo",
             description="simulate the bundled sample run (recipe 'demo'), then process it",
             steps=(Step("simulate", parameters={"recipe": "demo"}), *BTF_STEPS),
+            report=True,
         ),
     )
 }

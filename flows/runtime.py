@@ -51,6 +51,7 @@ class RunReport:
     store: str
     flow: str
     steps: list[StepReport] = field(default_factory=list)
+    report: str | None = None          # path of the HTML report, when one was written
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -148,6 +149,7 @@ def run_steps(
     retries: int = 0,
     retry_delay_seconds: float = 10.0,
     dask_address: str | None = None,
+    report: bool = False,
 ) -> RunReport:
     """Run ``steps`` against the store at ``store_path`` as one Prefect flow run.
 
@@ -169,7 +171,37 @@ def run_steps(
             raise StoreError(f"{str(path)!r} is not a run store: no such directory")
         RunStore.create(path)
     return _graph_flow(str(path), flow_name, [_as_dict(item.step) for item in planned],
-                       retries, retry_delay_seconds, dask_address)
+                       retries, retry_delay_seconds, dask_address, report)
+
+
+def report_directory(store_path: str | Path) -> Path:
+    """Where the HTML report of a run store goes: ``<folder>/<store name>-report/``."""
+    path = Path(store_path)
+    return path.parent / f"{path.stem}-report"
+
+
+@task(name="report", cache_policy=NO_CACHE, persist_result=False)
+def write_report_task(store_path: str) -> str | None:
+    """Write the HTML report of a run whose ``evaluation`` is finished (skip if current)."""
+    from spectralize.nodes.report import write_run_report
+
+    log = _log()
+    store = RunStore.open(store_path)
+    if not store.has("evaluation"):
+        log("report: no evaluation group (no ground truth?), no report written")
+        return None
+    directory = report_directory(store_path)
+    stamp = directory / ".evaluation-fingerprint"
+    index = directory / "index.html"
+    fingerprint = store.fingerprint("evaluation")
+    if index.exists() and stamp.exists() and stamp.read_text() == fingerprint:
+        log(f"report: up to date at {index}")
+        return str(index)
+    start = time.perf_counter()
+    path = write_run_report(store, directory=directory)
+    stamp.write_text(str(fingerprint))
+    log(f"report: written to {path} in {time.perf_counter() - start:.1f} s")
+    return str(path)
 
 
 def _as_dict(step: Step) -> dict[str, Any]:
@@ -186,11 +218,12 @@ def _graph_flow(
     retries: int = 0,
     retry_delay_seconds: float = 10.0,
     dask_address: str | None = None,
+    report: bool = False,
 ) -> RunReport:
     log = get_run_logger()
     planned = plan(store_path, [Step(**s) for s in steps], create=False)
     store = RunStore.open(store_path)
-    report = RunReport(store_path, flow_name)
+    run_report = RunReport(store_path, flow_name)
     fingerprints: dict[str, str] = {}
     for index, item in enumerate(planned, start=1):
         log.info(f"[{index}/{len(planned)}] {item.node.name}")
@@ -207,10 +240,12 @@ def _graph_flow(
                                 item.parameters.model_dump(mode="json"), item.inputs,
                                 item.outputs, input_fps, dask_address)
         fingerprints.update(step_report.outputs)
-        report.steps.append(step_report)
-    ran = sum(s.status == "ran" for s in report.steps)
-    log.info(f"{flow_name}: {ran} node(s) ran, {len(report.steps) - ran} skipped")
-    return report
+        run_report.steps.append(step_report)
+    ran = sum(s.status == "ran" for s in run_report.steps)
+    log.info(f"{flow_name}: {ran} node(s) ran, {len(run_report.steps) - ran} skipped")
+    if report:
+        run_report.report = write_report_task(store_path)
+    return run_report
 
 
 def step_parameters(
