@@ -41,6 +41,13 @@ FLOWS: dict[str, FlowDefinition] = {
             steps=(Step("dark_average"),),
         ),
         FlowDefinition(
+            name="calibrate",
+            description="radiometric calibration (sec. 4): dark -> OECFs -> QE, C and "
+                        "cross-validation",
+            steps=(Step("dark_average"), Step("recover_rgb_oecf"),
+                   Step("recover_spectral_oecf"), Step("calibrate_spectral")),
+        ),
+        FlowDefinition(
             name="btf",
             description="full-BTF processing of a raw run store",
             steps=BTF_STEPS,

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
+import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -58,15 +59,19 @@ class RunReport:
 
 
 @contextlib.contextmanager
-def dask_scheduler(address: str | None) -> Iterator[None]:
-    """Local threads by default; an existing ``dask.distributed`` cluster when given its address."""
+def dask_scheduler(address: str | None) -> Iterator[int]:
+    """Local threads by default; an existing ``dask.distributed`` cluster when given its address.
+
+    Yields how many regions (image sets) to compute at the same time: the number of worker
+    threads of the cluster, or of this machine's cores.
+    """
     if not address:
-        yield
+        yield max(1, os.cpu_count() or 1)
         return
     from distributed import Client
 
-    with Client(address, set_as_default=True):
-        yield
+    with Client(address, set_as_default=True) as client:
+        yield max(1, sum(client.nthreads().values()))
 
 
 def _log() -> Callable[[str], None]:
@@ -104,7 +109,7 @@ def run_node(
 
     start = time.perf_counter()
     log(f"{node.name}: reading {', '.join(sorted(inputs.values())) or 'no inputs'}")
-    with dask_scheduler(dask_address):
+    with dask_scheduler(dask_address) as parallel:
         data = {argument: store.read(group) for argument, group in inputs.items()}
         results = node(data, params)
         for schema, ds in results.items():
@@ -117,6 +122,7 @@ def run_node(
                         fingerprint=expected[group], provenance=provenance,
                         chunks=node.chunks.get(schema),
                         resumable_along=node.resumable_along.get(schema),
+                        concurrent_regions=parallel,
                         progress=lambda message, g=group: log(f"{node.name}: {g}: {message}"))
     seconds = time.perf_counter() - start
     log(f"{node.name}: done in {seconds:.1f} s")

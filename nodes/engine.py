@@ -270,6 +270,15 @@ class PlannedStep:
     outputs: dict[str, str]   # schema -> group
 
 
+def _provides(have: str, wanted: str) -> bool:
+    """Whether a group of schema ``have`` can be read where schema ``wanted`` is expected."""
+    if have == wanted or wanted not in GROUP_SCHEMAS:
+        return True
+    if have not in GROUP_SCHEMAS:
+        return False
+    return GROUP_SCHEMAS[have].provides(GROUP_SCHEMAS[wanted])
+
+
 def check_graph(
     steps: Iterable[Step],
     *,
@@ -346,14 +355,14 @@ def check_graph(
             wanted = item.node.inputs[argument]
             if group in producer:
                 made = next(s for s, g in producer[group].outputs.items() if g == group)
-                if made != wanted:
+                if not _provides(made, wanted):
                     problems.append(Problem(
                         f"node {item.node.name!r} input {argument!r} (group {group!r})",
                         f"schema {wanted!r}",
                         f"schema {made!r} written by node {producer[group].node.name!r}"))
             elif group in available:
                 have = available[group]
-                if have is not None and have != wanted and wanted in GROUP_SCHEMAS:
+                if have is not None and not _provides(have, wanted):
                     problems.append(Problem(
                         f"node {item.node.name!r} input {argument!r} (group {group!r})",
                         f"schema {wanted!r}", f"schema {have!r} in the store"))

@@ -6,7 +6,8 @@ images from other elevations with the most similar light directions, which get t
 through the appearance-neighbourhood term alone.
 
 Here the images with band shots (*anchors*) are grouped in acquisition order into anchor
-groups of ``anchors_per_set`` (consecutive LED positions share one sweep of the bands). Every
+groups that together hold every band of the run (one sweep of the tunable filter: the
+paper's 10 LED positions), or into groups of a fixed ``anchors_per_set``. Every
 other image joins the anchor group whose mean light direction is closest to its own; each
 anchor group's others are split, most similar first, into chunks of ``others_per_set``, and
 each chunk plus the group's anchors makes one set. Every image is *owned* by exactly one set
@@ -38,12 +39,33 @@ def light_direction(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
 class ImageSetParameters(Parameters):
     """Parameters of :func:`select_image_sets`."""
 
-    anchors_per_set: int = Field(10, ge=1, description="images with band shots per set")
+    anchors_per_set: int | None = Field(None, ge=1, description="images with band shots per "
+                                        "set; default: as many as one sweep of all bands")
     others_per_set: int = Field(10, ge=0, description="images without band shots per set")
 
 
+def _sweeps(anchors: list[int], labels: np.ndarray, shot_images: np.ndarray,
+            shot_wavelengths: np.ndarray) -> list[list[int]]:
+    """Consecutive anchors grouped until each group has a shot of every wavelength."""
+    every = set(np.round(shot_wavelengths, 3).tolist())
+    groups: list[list[int]] = [[]]
+    seen: set[float] = set()
+    for index in anchors:
+        groups[-1].append(index)
+        seen |= set(np.round(shot_wavelengths[shot_images == labels[index]], 3).tolist())
+        if seen >= every:
+            groups.append([])
+            seen = set()
+    if not groups[-1]:
+        groups.pop()
+    elif len(groups) > 1:  # an incomplete last sweep joins the one before it
+        groups[-2].extend(groups.pop())
+    return groups
+
+
 def select_image_sets(
-    images: xr.Dataset, shots: xr.Dataset, *, anchors_per_set: int = 10, others_per_set: int = 10
+    images: xr.Dataset, shots: xr.Dataset, *, anchors_per_set: int | None = None,
+    others_per_set: int = 10
 ) -> xr.Dataset:
     """Split a run's images into reconstruction sets.
 
@@ -54,8 +76,12 @@ def select_image_sets(
         ``phi_i``.
     shots
         Any group with per-shot coord ``image`` (``raw/spectral`` or ``bands``).
-    anchors_per_set, others_per_set
-        Set composition; the paper's sets are 10 + 10.
+    anchors_per_set
+        Images with band shots per set; ``None``: consecutive anchors until every band of the
+        run is in the set (one sweep of the filter; 10 in the paper), so that every set has
+        every band.
+    others_per_set
+        Images without band shots per set (10 in the paper).
 
     Returns
     -------
@@ -91,7 +117,14 @@ def select_image_sets(
     for index, label in enumerate(shot_images):
         first_shot.setdefault(int(label), index)
     anchors = sorted(np.flatnonzero(has_bands), key=lambda i: first_shot[int(labels[i])])
-    groups = [anchors[k:k + anchors_per_set] for k in range(0, len(anchors), anchors_per_set)]
+    if anchors_per_set is None:
+        if "wavelength" not in shots.coords:
+            raise SchemaError("cannot select image sets:", [Problem(
+                "shots:wavelength", "a per-shot coordinate (or give anchors_per_set)", "nothing")])
+        groups = _sweeps(anchors, labels, shot_images, np.asarray(shots["wavelength"].values))
+    else:
+        groups = [anchors[k:k + anchors_per_set]
+                  for k in range(0, len(anchors), anchors_per_set)]
     centres = np.stack([directions[g].mean(axis=0) for g in groups])
     centres /= np.linalg.norm(centres, axis=1, keepdims=True)
 
@@ -146,7 +179,7 @@ def select_image_sets(
             "owned": (("set", "slot"), owned, {"long_name": "member is owned by the set"}),
         },
         coords={"image": ("image", labels), "set": ("set", np.arange(len(sets)))},
-        attrs={"seed_set": seed, "anchors_per_set": anchors_per_set,
+        attrs={"seed_set": seed, "anchors_per_set": anchors_per_set or "one sweep",
                "others_per_set": others_per_set, "anchor_groups": len(groups)},
     )
 

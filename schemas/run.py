@@ -37,7 +37,12 @@ __all__ = [
     "REGISTRATION",
     "IMAGE_SETS",
     "SPECTRA",
+    "SPECTRA_SEED",
+    "CAMERA_MATRIX",
     "TRUTH_SPECTRA",
+    "CALIBRATION_OECF_RGB",
+    "CALIBRATION_OECF_SPECTRAL",
+    "CALIBRATION_SPECTRAL",
 ]
 
 
@@ -159,6 +164,27 @@ SPECTRA = GroupSchema(
     description="reconstructed spectral cube (eq. 1), chunked per image and tile",
     variables=_SPECTRA_VARIABLES,
     coords=_SPECTRA_COORDS,
+)
+
+CAMERA_MATRIX = GroupSchema(
+    name="camera_matrix",
+    description="any group with the RGB camera matrix C (calibration/spectral, truth/camera)",
+    variables=(
+        ArraySpec("camera_matrix", ("channel", "wavelength"), "kind:f", None,
+                  "RGB camera matrix C: RGB = C S"),
+    ),
+    coords=(
+        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100),
+                  finite=True),
+    ),
+)
+
+SPECTRA_SEED = GroupSchema(
+    name="spectra_seed",
+    description="spectra of the seed image set, solved first to warm-start the others",
+    variables=_SPECTRA_VARIABLES,
+    coords=_SPECTRA_COORDS,
+    attrs={"seed_set": "index of the seed set", "iterations": "solver iterations"},
 )
 
 TRUTH_SPECTRA = GroupSchema(
@@ -308,6 +334,65 @@ IMAGE_SETS = GroupSchema(
     attrs={"seed_set": "set solved first to warm-start the others"},
 )
 
+# -- radiometric calibration (paper section 4) --------------------------------------------
+CALIBRATION_OECF_RGB = GroupSchema(
+    name="calibration/oecf_rgb",
+    description="RGB camera response per camera and channel (Robertson 2003)",
+    variables=(
+        ArraySpec("response", ("camera", "channel", "code"), "kind:f", "1",
+                  "relative exposure per pixel value (1 at the mid code)", finite=True),
+    ),
+    coords=(
+        ArraySpec("camera", ("camera",), "kind:iu", None, "RGB camera index"),
+        _CHANNEL,
+        ArraySpec("code", ("code",), "kind:iu", "DN", "pixel value"),
+    ),
+    attrs={"bit_depth": "ADC bit depth", "black_level": "under-exposed codes (weight 0)",
+           "saturation": "saturated codes (weight 0)"},
+)
+
+CALIBRATION_OECF_SPECTRAL = GroupSchema(
+    name="calibration/oecf_spectral",
+    description="spectral camera response over dark-subtracted values (low-SNR extension "
+                "joined to Robertson)",
+    variables=(
+        ArraySpec("response", ("code",), "kind:f", "1",
+                  "relative exposure per dark-subtracted pixel value", finite=True),
+    ),
+    coords=(
+        ArraySpec("code", ("code",), "kind:f", "DN", "pixel value above the dark frame",
+                  finite=True),
+    ),
+    attrs={"bit_depth": "ADC bit depth", "band": "wavelength of the low-SNR series [nm]",
+           "dark_level": "mean dark level [DN]"},
+)
+
+CALIBRATION_SPECTRAL = GroupSchema(
+    name="calibration/spectral",
+    description="quantum efficiency, RGB camera matrix C and cross-validation (Fig. 4)",
+    variables=(
+        ArraySpec("quantum_efficiency", ("wavelength",), "kind:f", "1",
+                  "relative quantum efficiency per band", finite=True),
+        ArraySpec("camera_matrix", ("channel", "wavelength"), "kind:f", "1",
+                  "RGB camera matrix C", finite=True),
+        ArraySpec("measured_rgb", ("patch", "channel"), "kind:f", "1",
+                  "HDR RGB of the colour-checker patches"),
+        ArraySpec("predicted_rgb", ("patch", "channel"), "kind:f", "1",
+                  "RGB predicted through C from the spectral capture"),
+        ArraySpec("relative_error", ("patch",), "kind:f", "1",
+                  "relative error of the prediction per patch"),
+    ),
+    coords=(
+        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "band centre", (300, 1100),
+                  finite=True),
+        _CHANNEL,
+        ArraySpec("patch", ("patch",), "kind:iu", None, "colour-checker patch index"),
+    ),
+    attrs={"mean_relative_error": "mean relative error over patches",
+           "max_relative_error": "largest relative error over patches"},
+)
+
+
 # -- evaluation against ground truth (simulated runs) ------------------------------------
 def _map_spec(name: str, units: str, long_name: str) -> ArraySpec:
     return ArraySpec(name, ("image", "y", "x"), "float32", units, long_name)
@@ -391,7 +476,8 @@ def register_schema(schema: GroupSchema, *, replace: bool = False) -> GroupSchem
 
 for _schema in (RAW_DARK, RAW_RGB, RAW_SPECTRAL, RAW_EXPOSURE_PLAN, RAW_WHITE_REFERENCE,
                 RAW_COLOUR_CHECKER, RAW_REGISTRATION, DARK, HDR, BANDS, REGISTRATION,
-                IMAGE_SETS, SPECTRA, TRUTH_SPECTRA, TRUTH_CAMERA, EVALUATION):
+                IMAGE_SETS, CAMERA_MATRIX, SPECTRA, SPECTRA_SEED, TRUTH_SPECTRA, TRUTH_CAMERA, EVALUATION,
+                CALIBRATION_OECF_RGB, CALIBRATION_OECF_SPECTRAL, CALIBRATION_SPECTRAL):
     register_schema(_schema)
 
 

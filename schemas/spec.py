@@ -91,6 +91,25 @@ class GroupSchema:
     attrs: Mapping[str, str] = field(default_factory=dict)
     optional_variables: tuple[ArraySpec, ...] = ()
 
+    def provides(self, other: GroupSchema) -> bool:
+        """Whether data following this schema also follows ``other`` (structural subtyping).
+
+        True when every required variable and coordinate of ``other`` is required here too,
+        with the same dims and dtype (and units, where ``other`` names them), and every
+        required attr of ``other`` is required
+        here. A node that needs only a camera matrix can so read any group that has one.
+        """
+        if other.name == self.name:
+            return True
+        mine = {spec.name: spec for spec in self.variables + self.coords}
+        for spec in other.variables + other.coords:
+            have = mine.get(spec.name)
+            if have is None or (have.dims, have.dtype) != (spec.dims, spec.dtype):
+                return False
+            if spec.units is not None and have.units != spec.units:
+                return False
+        return set(other.attrs) <= set(self.attrs)
+
     @property
     def dims(self) -> tuple[str, ...]:
         """All dims named by the schema, in order of first appearance."""

@@ -162,3 +162,23 @@ def test_optional_steps_without_their_inputs_are_left_out():
     assert [p.node.name for p in order] == ["dark_average", "scale"]
     with pytest.raises(PipelineError, match="no such group"):  # not optional: an error
         check_graph([Step("scale", inputs={"dark": "d"})], available={}, nodes=NODES)
+
+
+def test_a_group_that_provides_the_wanted_variables_is_accepted():
+    from spectralize.schemas.run import CAMERA_MATRIX, TRUTH_CAMERA, TRUTH_SPECTRA
+
+    assert TRUTH_CAMERA.provides(CAMERA_MATRIX)
+    assert not TRUTH_SPECTRA.provides(CAMERA_MATRIX)
+
+    def need_c(calibration: xr.Dataset) -> xr.Dataset:
+        return calibration
+
+    node = Node(name="need_c", function=need_c, inputs={"calibration": "camera_matrix"},
+                outputs=("out",))
+    nodes = {"need_c": node}
+    steps = [Step("need_c", inputs={"calibration": "truth/camera"})]
+    assert check_graph(steps, available={"truth/camera": "truth/camera"}, nodes=nodes)
+    with pytest.raises(PipelineError, match="expected schema 'camera_matrix', found schema "
+                                            "'truth/spectra' in the store"):
+        check_graph([Step("need_c", inputs={"calibration": "truth/spectra"})],
+                    available={"truth/spectra": "truth/spectra"}, nodes=nodes)

@@ -21,8 +21,10 @@ def gantry_images(rotations=2, leds_per_ring=24, thetas=(15.0, 45.0, 75.0)):
         "led": ("image", rows[:, 2].astype(int)), "theta_i": ("image", rows[:, 3]),
         "phi_i": ("image", rows[:, 4]), "theta_o": ("image", rows[:, 5])})
     anchors = np.flatnonzero((images.camera.values == 1) & (images.led.values < 20))
-    shot_image = np.repeat(anchors, 3)[:32 * (len(anchors) // 10)]
-    shots = xr.Dataset(coords={"image": ("shot", shot_image)})
+    # each sweep of the filter spreads the 32 bands round-robin over 10 anchor images
+    shot_image = [anchors[g * 10 + b % 10] for g in range(len(anchors) // 10) for b in range(32)]
+    wavelength = np.tile(np.arange(410.0, 730.0, 10.0), len(anchors) // 10)
+    shots = xr.Dataset(coords={"image": ("shot", shot_image), "wavelength": ("shot", wavelength)})
     return images, shots, anchors
 
 
@@ -64,3 +66,12 @@ def test_no_band_shots_is_an_error():
         select_image_sets(images, shots)
     with pytest.raises(SchemaError, match="images:theta_i"):
         select_image_sets(images.drop_vars("theta_i"), shots)
+
+
+def test_default_sets_follow_the_sweeps_of_all_bands():
+    images, shots, _ = gantry_images()
+    sets = select_image_sets(images, shots)
+    for s in range(sets.sizes["set"]):
+        member, _ = set_members(sets, s)
+        waves = shots.wavelength.values[np.isin(shots.image.values, member)]
+        assert len(np.unique(waves)) == 32  # every set has every band

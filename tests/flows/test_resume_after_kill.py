@@ -1,0 +1,106 @@
+"""Reliability: SIGKILL the flow process in the middle of reconstruction, then rerun.
+
+Real processes: the CLI in a subprocess (its own embedded Prefect API), a real zarr store.
+"""
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from importlib import util
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from spectralize.schemas import RunStore
+from spectralize.schemas.store import STAGING
+
+_HELPERS = Path(__file__).parents[1] / "nodes" / "test_set_reconstruction.py"
+_spec = util.spec_from_file_location("set_reconstruction_inputs", _HELPERS)
+_module = util.module_from_spec(_spec)
+_spec.loader.exec_module(_module)
+reconstruction_inputs = _module.reconstruction_inputs
+
+# slow every set down a little so the kill lands between sets
+SETTINGS = ["--set", "tolerance=1e-6", "--set", "max_iterations=3000"]
+
+
+def cli(*args, **kwargs):
+    env = {**os.environ, "PREFECT_LOGGING_LEVEL": "INFO"}
+    return subprocess.Popen([sys.executable, "-m", "spectralize.flows.cli", *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True, **kwargs)
+
+
+def prepared_store(path: Path) -> RunStore:
+    from spectralize.nodes.set_reconstruction import reconstruct_seed_set
+
+    hdr, bands, camera, sets, _ = reconstruction_inputs()
+    store = RunStore.create(path)
+    store.write("hdr", hdr, fingerprint="hdr")
+    store.write("bands", bands, fingerprint="bands")
+    store.write("camera_matrix", xr.Dataset({"camera_matrix": camera.camera_matrix}),
+                fingerprint="c")
+    store.write("image_sets", sets, fingerprint="sets")
+    store.write("spectra_seed", reconstruct_seed_set(hdr, bands, camera, sets),
+                fingerprint="seed")
+    return store
+
+
+def region_flags(store: Path) -> list[Path]:
+    return sorted(store.glob(f"{STAGING}/spectra.*.done/c/*"))
+
+
+def test_killed_reconstruction_resumes_without_recomputing_finished_sets(tmp_path):
+    killed = prepared_store(tmp_path / "killed.zarr").path
+    clean = tmp_path / "clean.zarr"
+    shutil.copytree(killed, clean)
+
+    # an uninterrupted run, for comparison
+    reference = cli("run", "reconstruct_image_sets", str(clean), *SETTINGS)
+    out, _ = reference.communicate(timeout=600)
+    assert reference.returncode == 0, out
+
+    # the same run, killed with SIGKILL once some sets are written and others are not
+    process = cli("run", "reconstruct_image_sets", str(killed), *SETTINGS)
+    n_sets = int(RunStore.open(killed).read("image_sets").sizes["set"])
+    deadline = time.time() + 600
+    try:
+        while time.time() < deadline and not region_flags(killed):
+            assert process.poll() is None, "the flow ended before any set was written"
+            time.sleep(0.02)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)  # the flow and its embedded Prefect server
+        process.wait()
+    finished = [int(p.name) for p in region_flags(killed)]
+    assert finished and len(finished) < n_sets, finished
+    staged = next(killed.glob(f"{STAGING}/spectra.*[!e]"))
+    written = {p.relative_to(staged).as_posix(): p.stat().st_mtime_ns
+               for p in (staged / "radiance" / "c").rglob("*") if p.is_file()}
+    assert not RunStore.open(killed).has("spectra")  # nothing looks finished
+
+    rerun = cli("run", "reconstruct_image_sets", str(killed), *SETTINGS)
+    out, _ = rerun.communicate(timeout=600)
+    assert rerun.returncode == 0, out
+    assert f"{len(finished)}/" in out and "already written, resuming" in out
+
+    store = RunStore.open(killed)
+    # chunks of the sets finished before the kill were not written again
+    final = store.path / "spectra"
+    set_of_image = store.read("spectra").image_set.values
+    set_of_region = list(dict.fromkeys(set_of_image.tolist()))  # regions are sets, in order
+    finished_sets = [set_of_region[i] for i in finished]
+    kept = 0
+    for rel, mtime in written.items():
+        if set_of_image[int(rel.split("/")[2])] in finished_sets:
+            assert (final / rel).stat().st_mtime_ns == mtime, rel
+            kept += 1
+    assert kept > 0
+    # and the cube equals the uninterrupted run's
+    got = store.read("spectra")
+    want = RunStore.open(clean).read("spectra")
+    np.testing.assert_allclose(got.radiance.values, want.radiance.values, rtol=1e-5, atol=1e-7)
+    assert got.image.values.tolist() == want.image.values.tolist()
