@@ -1,19 +1,25 @@
-"""Simulated captures for the reconstruction benchmark (and nothing else).
+"""Simulated captures for the reconstruction benchmark.
 
-Built directly from colour-science data until the project's capture simulator exists:
+Ground truth and exposure plan come from the project's simulator modules:
 
-* materials: the 24 reflectances of ``ColorChecker N Ohta``;
-* light: ``LED-B3`` (the paper's gantry has LEDs); camera: ``Nikon 5100 (NPL)``
-  sensitivities as the camera matrix ``C``;
-* layout: a random Voronoi tiling of materials, a smooth multiplicative shading field per
-  image, and a slight optical blur (sigma 0.5 px) so that edge pixels mix materials;
-* RGB: ``C S`` plus 0.5 % Gaussian noise (a good HDR merge);
-* bands: one shot per band with the exposure plan of eq. 2 (omega = 0.8) and the filter
-  sizes of eq. 3, photon noise plus 3 e- read noise, calibrated back to radiance; the
-  constants put a mid-grey pixel's single-shot SNR at about 1 to 3, as in the paper.
+* :func:`spectralize.nodes.ground_truth.spectral_texture` / ``render``: measured
+  ColorChecker reflectances laid out by smooth random fields (sharp and soft material
+  boundaries), albedo detail, bump shading and specular highlights, lit by ``LED-B3``;
+* :func:`spectralize.nodes.exposure_plan.exposure_plan`: eq. 2 (omega = 0.8, ``t0`` for
+  6 s per set of 32 bands as in the ``demo``/``paper`` recipes) and eq. 3 with the spectral
+  camera's quantum efficiency :func:`spectralize.nodes.camera_model.spectral_quantum_efficiency`;
+* RGB camera matrix ``C``: :func:`spectralize.nodes.camera_model.camera_sensitivities`
+  (Nikon 5100).
 
-All spectra are on 410..720 nm in 10 nm steps. The scene's radiance is scaled to about
-1e-2 .. 1e0 relative units.
+Capture noise follows eq. 5 with a linear response after calibration: a band shot of
+exposure ``t_i`` records ``S_b(p) Q_i t_i`` of full scale (10 bit) plus Gaussian noise of
+3 DN (the paper's measured dark noise); the calibrated band radiance is that divided by
+``Q_i t_i`` (negative values kept, never clipped). With these constants a 20 % grey pixel
+has a single-shot SNR of about 1.4 to 4.6 depending on the band. The HDR RGB gets 0.5 %
+Gaussian noise.
+
+A second layout, ``"voronoi"`` (flat ColorChecker patches on Voronoi cells with smooth
+shading), is kept for comparison.
 """
 
 from __future__ import annotations
@@ -25,28 +31,13 @@ import xarray as xr
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-__all__ = ["SimulatedCapture", "simulate_capture", "spectral_setup", "nrmse_per_pixel"]
+__all__ = ["SimulatedCapture", "simulate_capture", "nrmse_per_pixel", "PAPER_VIEW_THETA"]
 
-WAVELENGTHS = np.arange(410.0, 721.0, 10.0)
+PAPER_VIEW_THETA = 45.0
+"""Elevation of the spectral camera (and its paired RGB camera) in degrees."""
 
-
-def spectral_setup(wavelength: np.ndarray = WAVELENGTHS) -> dict[str, np.ndarray]:
-    """Reflectances ``(24, W)``, illuminant ``(W,)`` (max 1), camera matrix ``(3, W)`` and
-    monochrome quantum efficiency ``(W,)`` on ``wavelength``."""
-    import colour
-
-    shape = colour.SpectralShape(float(wavelength[0]), float(wavelength[-1]),
-                                 float(wavelength[1] - wavelength[0]))
-    checker = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
-    reflectances = np.stack([sd.copy().align(shape).values for sd in checker.values()])
-    illuminant = colour.SDS_ILLUMINANTS["LED-B3"].copy().align(shape).values
-    illuminant = illuminant / illuminant.max()
-    sensitivities = colour.MSDS_CAMERA_SENSITIVITIES["Nikon 5100 (NPL)"].copy().align(shape)
-    camera_matrix = np.asarray(sensitivities.values).T
-    # a CCD-like QE behind a tunable filter: broad, peaking in the green, weak at both ends
-    qe = 0.15 + 0.85 * np.exp(-0.5 * ((wavelength - 560.0) / 90.0) ** 2)
-    return {"reflectances": reflectances, "illuminant": illuminant,
-            "camera_matrix": camera_matrix, "quantum_efficiency": qe}
+FULL_SCALE_DN = 1023.0
+NOISE_DN = 3.0
 
 
 @dataclass
@@ -57,121 +48,143 @@ class SimulatedCapture:
     bands: xr.DataArray          # (shot, y, x), coords wavelength, image, filter_size
     camera_matrix: xr.DataArray  # (channel, wavelength)
     truth: xr.DataArray          # (image, wavelength, y, x)
+    plan: xr.Dataset             # the exposure plan (eq. 2, 3)
 
 
-def _smooth_field(rng: np.random.Generator, height: int, width: int, n_waves: int = 6
-                  ) -> np.ndarray:
-    y, x = np.mgrid[0:height, 0:width] / max(height, width)
-    field = np.zeros((height, width))
-    for _ in range(n_waves):
-        fy, fx = rng.uniform(-2.5, 2.5, size=2)
-        field += rng.uniform(0.5, 1.0) * np.cos(2 * np.pi * (fy * y + fx * x)
-                                                + rng.uniform(0, 2 * np.pi))
-    field -= field.min()
-    return field / max(field.max(), 1e-12)
+def _voronoi_truth(rng: np.random.Generator, size: int, n_images: int, wavelength: np.ndarray,
+                   illuminant: np.ndarray, cell: float = 40.0) -> np.ndarray:
+    import colour
 
-
-def _labels(rng: np.random.Generator, height: int, width: int, cell: float,
-            n_materials: int) -> np.ndarray:
-    n_cells = max(4, int(round(height * width / cell**2)))
-    seeds = rng.uniform(0, 1, size=(n_cells, 2)) * (height, width)
-    material = rng.integers(0, n_materials, size=n_cells)
-    material[:min(n_cells, n_materials)] = rng.permutation(n_materials)[:min(n_cells,
-                                                                             n_materials)]
-    yy, xx = np.mgrid[0:height, 0:width]
+    shape = colour.SpectralShape(float(wavelength[0]), float(wavelength[-1]),
+                                 float(wavelength[1] - wavelength[0]))
+    checker = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
+    reflectances = np.stack([sd.copy().align(shape).values for sd in checker.values()])
+    n_cells = max(4, int(round(size * size / cell**2)))
+    seeds = rng.uniform(0, size, size=(n_cells, 2))
+    material = rng.integers(0, len(reflectances), size=n_cells)
+    yy, xx = np.mgrid[0:size, 0:size]
     _, cell_of = cKDTree(seeds).query(np.stack([yy.ravel(), xx.ravel()], axis=1))
-    return material[cell_of].reshape(height, width)
+    labels = material[cell_of].reshape(size, size)
+    truth = np.empty((n_images, wavelength.size, size, size))
+    y, x = np.mgrid[0:size, 0:size] / size
+    for m in range(n_images):
+        field = np.zeros((size, size))
+        for _ in range(6):
+            fy, fx = rng.uniform(-2.5, 2.5, size=2)
+            field += np.cos(2 * np.pi * (fy * y + fx * x) + rng.uniform(0, 2 * np.pi))
+        field = (field - field.min()) / np.ptp(field)
+        cube = (reflectances[labels] * illuminant).transpose(2, 0, 1) * (0.3 + 0.7 * field)
+        cube *= 0.8 if m == 0 else rng.uniform(0.4, 0.9)
+        truth[m] = ndimage.gaussian_filter(cube, sigma=(0, 0.5, 0.5), mode="nearest")
+    return truth
 
 
-def simulate_capture(size: int | tuple[int, int] = 128, *, n_images: int = 1,
-                     images_with_bands: int | None = None, cell: float = 40.0,
-                     brightness: float = 0.6, snr_grey: float = 2.0,
-                     filter_size_range: tuple[float, float] = (5.0, 25.0),
+def simulate_capture(size: int = 256, *, n_images: int = 1,
+                     images_with_bands: int | None = None, scene: str = "texture",
+                     n_materials: int = 6, max_filter_size: float | None = 25.0,
+                     spectral_total_time: float = 6.0, rgb_noise: float = 0.005,
                      seed: int = 0) -> SimulatedCapture:
-    """Simulate RGB and noisy band shots of a piecewise-constant, shaded scene.
+    """Simulate HDR RGB images and noisy band shots with ground truth.
 
     Parameters
     ----------
     size
-        Image height and width (one int: square).
+        Image height and width in pixels.
     n_images
-        Images in the set; they share the material layout and differ in shading and
-        overall brightness (like one material under several lights and views).
+        Images in the set. Image 0 is seen by the RGB camera paired with the spectral
+        camera (45 deg) with the light in the mirror direction; a set adds images under
+        other LEDs of the 40 deg ring, the first ``images_with_bands`` from the paired
+        camera, the rest from the other RGB cameras (0 .. 75 deg) without band shots (the
+        paper's sparse case, sec. 5).
     images_with_bands
-        How many of the images get band shots (default all for one image, half for a set);
-        the 32 bands are spread round-robin over them (one shot per band in all).
-    cell
-        Typical Voronoi cell size in pixels.
-    brightness
-        Radiance scale (a white patch under the brightest light is about this bright).
-    snr_grey
-        Single-shot SNR of a 20 % grey pixel in the band with the median exposure.
-    filter_size_range
-        ``(s_min, s_max)``: eq. 3's constant ``s0`` makes the largest filter ``s_max``;
-        the smallest follows from eq. 2/3 and is clipped to ``s_min`` from below.
+        Images that get band shots; the 32 bands are spread round-robin over them (one shot
+        per band in all). Default: 1 for a single image, ``n_images // 2`` for a set.
+    scene
+        ``"texture"`` (the project's ground truth) or ``"voronoi"``.
+    n_materials
+        Materials of the texture.
+    max_filter_size
+        Eq. 3's ``s0`` is chosen so that the largest filter is this many pixels (``None``:
+        the recipes' ``s0 = 0.25``, which gives 4.5 .. 14.6 px).
+    spectral_total_time
+        Seconds for one set of 32 band shots (sets ``t0`` of eq. 2).
+    rgb_noise
+        Relative Gaussian noise of the HDR RGB.
     seed
-        Random seed.
+        Seed of texture and noise.
     """
+    from spectralize.nodes.camera_model import camera_sensitivities, spectral_quantum_efficiency
+    from spectralize.nodes.exposure_plan import exposure_plan, t0_for_total_time
+    from spectralize.nodes.ground_truth import (
+        WAVELENGTHS,
+        illuminant_spd,
+        render,
+        spectral_texture,
+    )
+
     rng = np.random.default_rng(seed)
-    height, width = (size, size) if np.isscalar(size) else size
-    setup = spectral_setup()
-    reflectances, illuminant = setup["reflectances"], setup["illuminant"]
-    camera_matrix, qe = setup["camera_matrix"], setup["quantum_efficiency"]
-    n_wavelength = WAVELENGTHS.size
-
-    labels = _labels(rng, height, width, cell, reflectances.shape[0])
-    truth = np.empty((n_images, n_wavelength, height, width))
-    for m in range(n_images):
-        shading = 0.3 + 0.7 * _smooth_field(rng, height, width)
-        level = brightness * (1.0 if m == 0 else rng.uniform(0.4, 1.0))
-        cube = (reflectances[labels] * illuminant).transpose(2, 0, 1) * shading * level
-        truth[m] = ndimage.gaussian_filter(cube, sigma=(0, 0.5, 0.5), mode="nearest")
-
-    rgb = np.einsum("cw,mwyx->myxc", camera_matrix, truth)
-    rgb += rng.normal(size=rgb.shape) * 0.005 * np.abs(rgb)
-
-    # eq. 2 (omega = 0.8) and eq. 3
-    ql = qe * illuminant
-    exposure = (1.0 / ql) ** 0.8
-    exposure /= np.median(exposure)
-    signal_level = ql * exposure                 # electrons per unit reflectance, relative
-    filter_size = 1.0 / signal_level
-    filter_size *= filter_size_range[1] / filter_size.max()
-    filter_size = np.clip(filter_size, filter_size_range[0], None)
-    # photo-electrons of a 20 % grey pixel in the median band are g (SNR = g / sqrt(g + 9))
-    read_noise = 3.0
-    grey = (snr_grey**2 + np.sqrt(snr_grey**4 + 4 * snr_grey**2 * read_noise**2)) / 2
-    gain = grey / (0.2 * brightness * np.median(signal_level))  # e- per unit radiance/illum.
+    wavelength = np.asarray(WAVELENGTHS, dtype=np.float64)
+    illuminant = illuminant_spd(wavelength, name="LED-B3")
+    quantum_efficiency = spectral_quantum_efficiency(wavelength, peak=2.5)
+    t0 = t0_for_total_time(quantum_efficiency, illuminant, total_time=spectral_total_time)
+    plan = exposure_plan(quantum_efficiency, illuminant, t0=t0, s0=0.25)
+    if max_filter_size is not None:
+        s0 = 0.25 * max_filter_size / float(plan["filter_size"].max())
+        plan = exposure_plan(quantum_efficiency, illuminant, t0=t0, s0=s0)
 
     if images_with_bands is None:
         images_with_bands = 1 if n_images == 1 else max(1, n_images // 2)
-    shot_image = np.arange(n_wavelength) % images_with_bands
-    shots = np.empty((n_wavelength, height, width))
-    for b in range(n_wavelength):
-        radiance = truth[shot_image[b], b]
-        electrons_per_radiance = gain * signal_level[b] / illuminant[b]
-        electrons = radiance * electrons_per_radiance
-        noisy = rng.poisson(np.maximum(electrons, 0)) + rng.normal(scale=read_noise,
-                                                                   size=electrons.shape)
-        shots[b] = noisy / electrons_per_radiance
+    if scene == "texture":
+        texture = spectral_texture(size, seed=seed, n_materials=n_materials)
+        truth = np.empty((n_images, wavelength.size, size, size), dtype=np.float64)
+        other_views = np.linspace(0.0, 75.0, 11)
+        other_views = other_views[~np.isclose(other_views, PAPER_VIEW_THETA)]
+        for m in range(n_images):
+            phi_i = 180.0 + 15.0 * (m % 12)
+            theta_o = (PAPER_VIEW_THETA if m < max(images_with_bands, 1)
+                       else other_views[m % other_views.size])
+            truth[m] = render(texture, illuminant, theta_i=40.0, phi_i=phi_i,
+                              theta_o=theta_o, phi_o=0.0).values
+    elif scene == "voronoi":
+        truth = _voronoi_truth(rng, size, n_images, wavelength, illuminant.values)
+    else:
+        raise ValueError(f"scene must be 'texture' or 'voronoi', got {scene!r}")
+
+    sensitivities = camera_sensitivities(wavelength)
+    camera_matrix = sensitivities.values
+    rgb = np.einsum("cw,mwyx->myxc", camera_matrix, truth)
+    rgb += rng.normal(size=rgb.shape) * rgb_noise * np.abs(rgb)
+
+    exposure = plan["exposure_time"].values
+    per_radiance_dn = quantum_efficiency.values * exposure * FULL_SCALE_DN
+    shot_image = np.arange(wavelength.size) % images_with_bands
+    shots = np.empty((wavelength.size, size, size), dtype=np.float64)
+    for b in range(wavelength.size):
+        counts = truth[shot_image[b], b] * per_radiance_dn[b]
+        counts += rng.normal(scale=NOISE_DN, size=counts.shape)
+        shots[b] = counts / per_radiance_dn[b]
 
     image = np.arange(n_images)
     channel = ["R", "G", "B"]
+    wl_attrs = {"units": "nm", "long_name": "wavelength"}
     rgb_da = xr.DataArray(rgb.astype(np.float32), dims=("image", "y", "x", "channel"),
                           coords={"image": image, "channel": channel},
                           attrs={"units": "1", "long_name": "relative RGB radiance"})
     bands_da = xr.DataArray(
         shots.astype(np.float32), dims=("shot", "y", "x"),
-        coords={"wavelength": ("shot", WAVELENGTHS), "image": ("shot", shot_image),
-                "filter_size": ("shot", filter_size),
-                "exposure_time": ("shot", exposure)},
+        coords={"wavelength": ("shot", wavelength, wl_attrs),
+                "image": ("shot", shot_image),
+                "filter_size": ("shot", plan["filter_size"].values, {"units": "px"}),
+                "exposure_time": ("shot", exposure, {"units": "s"})},
         attrs={"units": "1", "long_name": "relative band radiance"})
     c_da = xr.DataArray(camera_matrix, dims=("channel", "wavelength"),
-                        coords={"channel": channel, "wavelength": WAVELENGTHS})
+                        coords={"channel": channel, "wavelength": ("wavelength", wavelength,
+                                                                   wl_attrs)})
     truth_da = xr.DataArray(truth.astype(np.float32), dims=("image", "wavelength", "y", "x"),
-                            coords={"image": image, "wavelength": WAVELENGTHS},
+                            coords={"image": image,
+                                    "wavelength": ("wavelength", wavelength, wl_attrs)},
                             attrs={"units": "1", "long_name": "relative spectral radiance"})
-    return SimulatedCapture(rgb_da, bands_da, c_da, truth_da)
+    return SimulatedCapture(rgb_da, bands_da, c_da, truth_da, plan)
 
 
 def nrmse_per_pixel(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:

@@ -26,8 +26,15 @@ class FlowDefinition:
 #: The full-BTF processing of a raw run store, in paper order.
 BTF_STEPS: tuple[Step, ...] = (
     Step("dark_average"),
+    Step("recover_rgb_oecf"),
+    Step("recover_spectral_oecf"),
+    Step("calibrate_spectral"),
+    Step("hdr_merge"),
     Step("estimate_registration"),
+    Step("calibrate_bands"),
     Step("select_image_sets"),
+    Step("reconstruct_seed_set", inputs={"calibration": "calibration/spectral"}),
+    Step("reconstruct_image_sets", inputs={"calibration": "calibration/spectral"}),
     # simulated runs only: evaluation against ground truth (left out without truth/spectra)
     Step("evaluate", optional=True),
 )

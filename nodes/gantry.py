@@ -232,7 +232,10 @@ class GantryRecipe(BaseModel):
                                                  "shift of the spectral image content")
     # RGB cameras
     camera_sensitivities: str = "Nikon 5100 (NPL)"
-    rgb_exposure_times: tuple[float, ...] = (0.001, 0.004, 0.016, 0.064)
+    # Exposure series with unequal ratios (3, 3.33, 4): with equal ratios (a geometric
+    # bracket) Robertson's response is determined only up to a factor periodic in log
+    # exposure (Grossberg & Nayar 2003).
+    rgb_exposure_times: tuple[float, ...] = (0.001, 0.003, 0.010, 0.040)
     rgb_saturation_time: float = Field(0.02, gt=0, description="exposure at which a white "
                                        "diffuse target at normal incidence saturates")
     rgb_responses: tuple[ResponseSpec, ResponseSpec, ResponseSpec] = _DEFAULT_RGB_RESPONSES
@@ -264,8 +267,12 @@ class GantryRecipe(BaseModel):
     # calibration shots
     n_dark_frames: int = Field(16, ge=1)
     reference_exposure: float = Field(0.8, gt=0, le=1)
-    calibration_exposure_factor: float = Field(4.0, gt=1)
-    calibration_exposure_span: float = Field(64.0, ge=1, description="the spectral "
+    calibration_exposure_ratios: tuple[float, ...] = Field(
+        (2.0, 3.0), description="ratios between consecutive exposure times of the "
+        "calibration series (RGB and spectral), used in turn; unequal ratios make the "
+        "response identifiable (Robertson), many small steps give the low-SNR extension "
+        "several unsaturated exposures at low signal")
+    calibration_exposure_span: float = Field(256.0, ge=1, description="the spectral "
                                              "series starts this factor below the "
                                              "shortest reference time")
 
@@ -282,6 +289,9 @@ class GantryRecipe(BaseModel):
         if list(self.rgb_exposure_times) != sorted(self.rgb_exposure_times):
             raise ValueError("rgb_exposure_times must be increasing; received "
                              f"{self.rgb_exposure_times}.")
+        if not self.calibration_exposure_ratios or min(self.calibration_exposure_ratios) <= 1:
+            raise ValueError("calibration_exposure_ratios must be non-empty and > 1; "
+                             f"received {self.calibration_exposure_ratios}.")
         if not self.rgb_camera_thetas or any(not 0 <= t < 90 for t in self.rgb_camera_thetas):
             raise ValueError("rgb_camera_thetas must be polar angles in [0, 90) deg; "
                              f"received {self.rgb_camera_thetas}.")
@@ -497,18 +507,32 @@ class Gantry:
             theta_o=np.full(len(a), r.spectral_camera_theta),
             phi_o=(r.spectral_camera_phi - rho) % 360.0)
 
+    def _irregular_series(self, lo: float, hi: float, *, cover: bool) -> np.ndarray:
+        """Times from ``lo`` stepping by ``calibration_exposure_ratios`` in turn, quantised.
+
+        ``cover``: the last time is the first at or above ``hi``; else the last at or below.
+        """
+        ratios = self.recipe.calibration_exposure_ratios
+        times = [lo]
+        k = 0
+        while times[-1] * (1 + 1e-9) < hi:
+            nxt = times[-1] * ratios[k % len(ratios)]
+            k += 1
+            if nxt > hi * (1 + 1e-9) and not cover:
+                break
+            times.append(nxt)
+        return np.unique(self._quantise(np.asarray(times)))
+
     def _calibration_spectral_times(self) -> np.ndarray:
         r = self.recipe
         t_ref = self.reference["exposure_time"].values
         lo, hi = t_ref.min() / r.calibration_exposure_span, t_ref.max()
-        n = int(math.floor(math.log(hi / lo) / math.log(r.calibration_exposure_factor))) + 1
-        return np.unique(self._quantise(lo * r.calibration_exposure_factor ** np.arange(n)))
+        return self._irregular_series(lo, hi, cover=False)
 
     def _calibration_rgb_times(self) -> np.ndarray:
         r = self.recipe
         lo, hi = r.rgb_exposure_times[0] / 4.0, r.rgb_exposure_times[-1] * 4.0
-        n = int(math.ceil(math.log2(hi / lo))) + 1
-        return np.unique(self._quantise(lo * 2.0 ** np.arange(n)))
+        return self._irregular_series(lo, hi, cover=True)
 
     # -- seeded randomness -------------------------------------------------------------
     def rng(self, *key: int) -> np.random.Generator:

@@ -230,7 +230,7 @@ def reconstruct_image_sets(
         labels.extend(members[owned].tolist())
         set_of.extend([index] * shape[0])
     cube = da.concatenate(pieces, axis=0)
-    per_image = hdr.drop_vars([v for v in hdr.data_vars]).sel(image=labels)
+    per_image = hdr.drop_vars([v for v in hdr.data_vars]).sel(image=labels).load()
     coords = {name: per_image[name] for name in (*_PER_IMAGE, "image") if name in per_image.coords}
     coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
     return xr.Dataset(

@@ -112,7 +112,13 @@ def _regular_chunks(
     sizes.update(dict(chunks or {}))
     if region_dim is not None:
         sizes.pop(region_dim, None)
-        ds = ds.unify_chunks() if any(v.chunks for v in ds.variables.values()) else ds
+        # the regions are the chunks of the largest variable along the dim (e.g. one per
+        # image set of a spectral cube); everything else follows its boundaries
+        lazy = [v for v in ds.data_vars.values() if v.chunks is not None and region_dim in v.dims]
+        if lazy:
+            largest = max(lazy, key=lambda v: v.size)
+            regions = dict(zip(largest.dims, largest.chunks, strict=True))[region_dim]
+            ds = ds.chunk({region_dim: regions})
     return ds.chunk(sizes) if sizes else ds
 
 

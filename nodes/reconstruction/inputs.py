@@ -1,0 +1,243 @@
+"""Reconstruction inputs: the numpy bundle the numerics use, and its checked construction
+from xarray (the thin xarray layer).
+
+Bad input raises :class:`~spectralize.schemas.errors.ReconstructionError` (a ``ValueError``)
+listing every problem found, each naming the array, what was expected and what was found.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from spectralize.schemas.errors import ReconstructionError
+
+__all__ = ["ReconstructionInputs", "inputs_from_xarray", "WAVELENGTH_TOLERANCE_NM"]
+
+WAVELENGTH_TOLERANCE_NM = 0.01
+"""Band and camera-matrix wavelengths closer than this are the same wavelength."""
+
+
+@dataclass(frozen=True)
+class ReconstructionInputs:
+    """Everything eq. 1 needs, as plain arrays.
+
+    Attributes
+    ----------
+    rgb
+        ``R``: HDR RGB radiance, ``(n_image, height, width, 3)``.
+    band_data
+        ``D``: calibrated noisy band radiance, ``(n_shot, height, width)``.
+    band
+        Per shot, the index of its wavelength in :attr:`wavelength`.
+    image
+        Per shot, the position of its RGB image (0 .. n_image - 1).
+    filter_size
+        Per shot ``s_i`` in pixels (eq. 3).
+    camera_matrix
+        ``C``, ``(3, n_wavelength)``: maps a spectrum to RGB.
+    wavelength
+        The spectral grid in nm, increasing.
+    """
+
+    rgb: np.ndarray
+    band_data: np.ndarray
+    band: np.ndarray
+    image: np.ndarray
+    filter_size: np.ndarray
+    camera_matrix: np.ndarray
+    wavelength: np.ndarray
+
+    @property
+    def n_image(self) -> int:
+        return self.rgb.shape[0]
+
+    @property
+    def height(self) -> int:
+        return self.rgb.shape[1]
+
+    @property
+    def width(self) -> int:
+        return self.rgb.shape[2]
+
+    @property
+    def n_wavelength(self) -> int:
+        return self.wavelength.size
+
+    @property
+    def cube_shape(self) -> tuple[int, int, int, int]:
+        """``(n_wavelength, n_image, height, width)``: the solvers' layout of ``S``."""
+        return (self.n_wavelength, self.n_image, self.height, self.width)
+
+    def rgb_pixels(self) -> np.ndarray:
+        """``R`` as ``(3, n_pixels)`` over all pixels of all images (solver pixel order)."""
+        return np.moveaxis(self.rgb, -1, 0).reshape(3, -1)
+
+
+def _describe(array: xr.DataArray) -> str:
+    sizes = ", ".join(f"{d}: {n}" for d, n in array.sizes.items())
+    return f"dims ({sizes}) dtype {array.dtype}"
+
+
+def _check_dims(name: str, array: object, wanted: tuple[str, ...], problems: list[str]) -> bool:
+    if not isinstance(array, xr.DataArray):
+        problems.append(f"{name}: expected an xarray.DataArray with dims {wanted}, "
+                        f"found {type(array).__name__}")
+        return False
+    if set(array.dims) != set(wanted) or len(array.dims) != len(wanted):
+        problems.append(f"{name}: expected dims {wanted} (any order), found {_describe(array)}")
+        return False
+    if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        problems.append(f"{name}: expected a real numeric dtype, found {array.dtype}")
+        return False
+    if 0 in array.shape:
+        problems.append(f"{name}: is empty ({_describe(array)}); an empty set has nothing "
+                        "to reconstruct")
+        return False
+    return True
+
+
+def _check_finite(name: str, values: np.ndarray, problems: list[str]) -> None:
+    bad = ~np.isfinite(values)
+    if bad.any():
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        problems.append(f"{name}: expected finite values, found {int(np.isnan(values).sum())} "
+                        f"NaN and {int(np.isinf(values).sum())} inf (first at index {first})")
+
+
+def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
+                       camera_matrix: xr.DataArray) -> ReconstructionInputs:
+    """Check the three input arrays against each other and convert them to plain arrays.
+
+    Parameters
+    ----------
+    rgb
+        Dims ``(image, y, x, channel)`` in any order, 3 channels, finite.
+    bands
+        Dims ``(shot, y, x)``; coords along ``shot``: ``wavelength`` [nm], ``image`` (the
+        value of ``rgb``'s ``image`` coordinate, or its position when ``rgb`` has none) and
+        ``filter_size`` [px]; finite.
+    camera_matrix
+        Dims ``(channel, wavelength)`` with a ``wavelength`` coordinate [nm]; 3 channels.
+        Every band wavelength must be one of its wavelengths and every one of its wavelengths
+        must have at least one band shot (the spectra live on this grid).
+
+    Returns
+    -------
+    ReconstructionInputs
+
+    Raises
+    ------
+    ReconstructionError
+        Listing every problem found.
+    """
+    problems: list[str] = []
+    ok = [_check_dims("rgb", rgb, ("image", "y", "x", "channel"), problems),
+          _check_dims("bands", bands, ("shot", "y", "x"), problems),
+          _check_dims("camera_matrix", camera_matrix, ("channel", "wavelength"), problems)]
+    if not all(ok):
+        raise ReconstructionError("reconstruction inputs do not fit together:\n  - "
+                                  + "\n  - ".join(problems))
+    rgb = rgb.transpose("image", "y", "x", "channel")
+    bands = bands.transpose("shot", "y", "x")
+    camera_matrix = camera_matrix.transpose("channel", "wavelength")
+
+    # -- channels ---------------------------------------------------------------------------
+    if rgb.sizes["channel"] != 3:
+        problems.append(f"rgb: expected 3 channels, found {rgb.sizes['channel']}")
+    if camera_matrix.sizes["channel"] != 3:
+        problems.append(f"camera_matrix: expected 3 channels (rows), found "
+                        f"{camera_matrix.sizes['channel']}")
+    if ("channel" in rgb.coords and "channel" in camera_matrix.coords
+            and rgb.sizes["channel"] == camera_matrix.sizes["channel"] == 3):
+        rgb_channels = [str(c) for c in rgb["channel"].values]
+        c_channels = [str(c) for c in camera_matrix["channel"].values]
+        if sorted(rgb_channels) != sorted(c_channels):
+            problems.append(f"camera_matrix: channels {c_channels} differ from rgb's "
+                            f"{rgb_channels}")
+        elif rgb_channels != c_channels:
+            camera_matrix = camera_matrix.sel(channel=rgb["channel"].values)
+
+    # -- image grid ---------------------------------------------------------------------------
+    if (bands.sizes["y"], bands.sizes["x"]) != (rgb.sizes["y"], rgb.sizes["x"]):
+        problems.append(f"bands: expected the rgb image size (y: {rgb.sizes['y']}, x: "
+                        f"{rgb.sizes['x']}), found (y: {bands.sizes['y']}, x: "
+                        f"{bands.sizes['x']})")
+
+    # -- shot coordinates -----------------------------------------------------------------------
+    for coord in ("wavelength", "image", "filter_size"):
+        if coord not in bands.coords or bands[coord].dims != ("shot",):
+            problems.append(f"bands: expected a coordinate {coord!r} along 'shot', found "
+                            f"coords {sorted(bands.coords)}")
+    if "wavelength" not in camera_matrix.coords:
+        problems.append("camera_matrix: expected a 'wavelength' coordinate [nm], found none")
+    if problems:
+        raise ReconstructionError("reconstruction inputs do not fit together:\n  - "
+                                  + "\n  - ".join(problems))
+
+    wavelength = np.asarray(camera_matrix["wavelength"].values, dtype=np.float64)
+    order = np.argsort(wavelength, kind="stable")
+    if not np.array_equal(order, np.arange(wavelength.size)):
+        camera_matrix = camera_matrix.isel(wavelength=order)
+        wavelength = wavelength[order]
+    if np.any(np.diff(wavelength) <= WAVELENGTH_TOLERANCE_NM):
+        problems.append(f"camera_matrix: expected distinct wavelengths, found duplicates in "
+                        f"{wavelength.tolist()}")
+    shot_wavelength = np.asarray(bands["wavelength"].values, dtype=np.float64)
+    nearest = np.clip(np.searchsorted(wavelength, shot_wavelength), 0, wavelength.size - 1)
+    below = np.clip(nearest - 1, 0, wavelength.size - 1)
+    use_below = (np.abs(wavelength[below] - shot_wavelength)
+                 < np.abs(wavelength[nearest] - shot_wavelength))
+    band = np.where(use_below, below, nearest)
+    off_grid = np.abs(wavelength[band] - shot_wavelength) > WAVELENGTH_TOLERANCE_NM
+    if off_grid.any():
+        problems.append(f"bands: wavelengths {np.unique(shot_wavelength[off_grid]).tolist()} nm "
+                        f"are not on camera_matrix's wavelength grid {wavelength.tolist()}")
+    missing = sorted(set(range(wavelength.size)) - set(band[~off_grid].tolist()))
+    if missing:
+        problems.append(f"camera_matrix: wavelengths {wavelength[missing].tolist()} nm have no "
+                        "band shot; give camera_matrix on the bands' wavelengths only")
+
+    if "image" in rgb.coords:
+        labels = list(np.asarray(rgb["image"].values).tolist())
+    else:
+        labels = list(range(rgb.sizes["image"]))
+    position = {label: i for i, label in enumerate(labels)}
+    shot_image_labels = np.asarray(bands["image"].values).tolist()
+    unknown = sorted({lab for lab in shot_image_labels if lab not in position}, key=str)
+    if unknown:
+        problems.append(f"bands: coordinate 'image' names images {unknown} that rgb does not "
+                        f"have (rgb images: {labels[:10]}{' ...' if len(labels) > 10 else ''})")
+    image = np.array([position.get(lab, -1) for lab in shot_image_labels], dtype=np.intp)
+
+    filter_size = np.asarray(bands["filter_size"].values, dtype=np.float64)
+    largest = (min(rgb.sizes["y"], rgb.sizes["x"]) - 1) / 2
+    bad = ~np.isfinite(filter_size) | (filter_size <= 0)
+    if bad.any():
+        problems.append(f"bands: filter_size must be finite and > 0, found "
+                        f"{filter_size[bad].tolist()} (shots {np.flatnonzero(bad).tolist()})")
+    too_big = np.isfinite(filter_size) & (filter_size > largest)
+    if too_big.any():
+        problems.append(
+            f"bands: filter_size {filter_size[too_big].tolist()} px (shots "
+            f"{np.flatnonzero(too_big).tolist()}) is larger than the image allows: filter "
+            f"centres keep s_i from the borders of the {rgb.sizes['y']} x {rgb.sizes['x']} "
+            f"image, so s_i <= {largest:g} px")
+
+    rgb_values = np.asarray(rgb.values, dtype=np.float64)
+    band_values = np.asarray(bands.values, dtype=np.float64)
+    c_values = np.asarray(camera_matrix.values, dtype=np.float64)
+    _check_finite("rgb", rgb_values, problems)
+    _check_finite("bands", band_values, problems)
+    _check_finite("camera_matrix", c_values, problems)
+    if np.all(np.isfinite(c_values)) and np.linalg.matrix_rank(c_values) < 3:
+        problems.append("camera_matrix: expected rank 3 (three independent channels), found "
+                        f"rank {np.linalg.matrix_rank(c_values)}")
+    if problems:
+        raise ReconstructionError("reconstruction inputs do not fit together:\n  - "
+                                  + "\n  - ".join(problems))
+    return ReconstructionInputs(rgb=rgb_values, band_data=band_values, band=band.astype(np.intp),
+                                image=image, filter_size=filter_size, camera_matrix=c_values,
+                                wavelength=wavelength)

@@ -1,0 +1,174 @@
+"""Appearance neighbourhoods ``N_p``: k nearest neighbours in the camera's RGB space.
+
+The neighbourhood of pixel ``p`` is the set of the ``k`` (paper: 3) pixels with the closest
+RGB values over *all* pixels of *all* images of a set (paper section 3). The third term of
+eq. 1, ``gamma sum_p sum_{n in N_p} ||S(p) - S(n)||^2``, couples them; over a set of images
+it is what carries spectral information from images with band shots to images without.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, section 3, eq. 1 (third term) and
+   "Application for Reflectance Acquisition".
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+__all__ = ["appearance_neighbours", "NeighbourGraph"]
+
+
+def appearance_neighbours(appearance: np.ndarray, *, k: int = 3, workers: int = -1) -> np.ndarray:
+    """The ``k`` nearest neighbours of every pixel in appearance (RGB) space.
+
+    Parameters
+    ----------
+    appearance
+        ``(n_pixels, n_features)``: one row per pixel of all images of the set (RGB: 3).
+    k
+        Neighbours per pixel (paper: 3). Clipped to ``n_pixels - 1``.
+    workers
+        Threads for the tree query (``-1``: all cores).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n_pixels, k)`` int indices; row ``p`` never contains ``p`` itself. Pixels with
+        identical appearance are neighbours of each other (ties are broken by the tree).
+
+    Notes
+    -----
+    A :class:`scipy.spatial.cKDTree` over all pixels; the query asks for ``k + 1`` points and
+    drops the pixel itself (or, when ``k + 1`` duplicates tie, the last of them).
+    """
+    appearance = np.asarray(appearance, dtype=np.float64)
+    n_pixels = appearance.shape[0]
+    k = int(min(k, n_pixels - 1))
+    if k <= 0:
+        return np.zeros((n_pixels, 0), dtype=np.intp)
+    tree = cKDTree(appearance)
+    _, found = tree.query(appearance, k=k + 1, workers=workers)
+    found = np.asarray(found, dtype=np.intp).reshape(n_pixels, k + 1)
+    is_other = found != np.arange(n_pixels)[:, None]
+    # stable sort puts the other pixels first, in distance order; keep the first k
+    order = np.argsort(~is_other, axis=1, kind="stable")
+    return np.take_along_axis(found, order, axis=1)[:, :k]
+
+
+@dataclass
+class NeighbourGraph:
+    """The neighbour-difference operator ``D`` and its Laplacian ``L = D^T D``.
+
+    Row ``p * k + j`` of ``D`` is ``e_p - e_{N_p[j]}``, so ``||D S||^2`` is the third sum of
+    eq. 1 and ``sum_p |N_p| = n_pairs``.
+
+    Parameters
+    ----------
+    neighbours
+        ``(n_pixels, k)`` indices from :func:`appearance_neighbours`.
+    dtype
+        Floating dtype of the operator.
+    """
+
+    neighbours: np.ndarray
+    dtype: np.dtype = field(default_factory=lambda: np.dtype(np.float64))
+    _difference: sp.csr_array | None = field(init=False, repr=False, default=None)
+    _laplacian: sp.csr_array = field(init=False, repr=False)
+    _scaled: dict = field(init=False, repr=False, default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.dtype = np.dtype(self.dtype)
+        self.neighbours = np.asarray(self.neighbours, dtype=np.intp)
+        n_pixels, k = self.neighbours.shape
+        here = np.repeat(np.arange(n_pixels), k)
+        there = self.neighbours.ravel()
+        # L = D^T D = sum over pairs (e_p - e_n)(e_p - e_n)^T, assembled directly
+        rows = np.concatenate([here, there, here, there])
+        cols = np.concatenate([here, there, there, here])
+        ones = np.ones(here.size, dtype=self.dtype)
+        data = np.concatenate([ones, ones, -ones, -ones])
+        laplacian = sp.coo_array((data, (rows, cols)), shape=(n_pixels, n_pixels)).tocsr()
+        laplacian.sum_duplicates()
+        laplacian.sort_indices()
+        self._laplacian = laplacian
+
+    @property
+    def difference_operator(self) -> sp.csr_array:
+        """``D`` (``n_pairs x n_pixels``), built on first use."""
+        if self._difference is None:
+            n_pixels, k = self.neighbours.shape
+            pairs = n_pixels * k
+            rows = np.arange(pairs)
+            here = np.repeat(np.arange(n_pixels), k)
+            data = np.concatenate([np.ones(pairs), -np.ones(pairs)]).astype(self.dtype)
+            self._difference = sp.csr_array(
+                (data, (np.concatenate([rows, rows]),
+                        np.concatenate([here, self.neighbours.ravel()]))),
+                shape=(pairs, n_pixels))
+        return self._difference
+
+    @property
+    def n_pixels(self) -> int:
+        """Pixels over all images of the set (``P``)."""
+        return self.neighbours.shape[0]
+
+    @property
+    def n_pairs(self) -> int:
+        """``sum_p |N_p|`` (eq. 4)."""
+        return self.neighbours.size
+
+    @property
+    def degree(self) -> np.ndarray:
+        """Diagonal of ``L``: out-degree plus in-degree of every pixel."""
+        return self._laplacian.diagonal()
+
+    @property
+    def laplacian(self) -> sp.csr_array:
+        """``L = D^T D`` (``n_pixels x n_pixels``)."""
+        return self._laplacian
+
+    def differences(self, flat: np.ndarray) -> np.ndarray:
+        """``D S``: ``S(p) - S(n)`` for every pair, ``(n_channels, n_pairs)`` from
+        ``(n_channels, n_pixels)``."""
+        k = self.neighbours.shape[1]
+        return np.repeat(flat, k, axis=1) - flat[:, self.neighbours.ravel()]
+
+    def differences_adjoint(self, pairs: np.ndarray) -> np.ndarray:
+        """``D^T y``: ``(n_channels, n_pixels)`` from ``(n_channels, n_pairs)``."""
+        return np.asarray(pairs @ self.difference_operator)
+
+    def laplacian_apply(self, flat: np.ndarray, *, scale: float = 1.0,
+                        out: np.ndarray | None = None) -> np.ndarray:
+        """``scale * L S`` for ``S`` of shape ``(n_channels, n_pixels)``; added to ``out``
+        when given.
+
+        ``L`` is applied to the pixel-major copy of ``S`` (contiguous rows of
+        ``n_channels`` values per pixel), which is about twice as fast as per channel.
+        """
+        key = float(scale)
+        if key not in self._scaled:
+            self._scaled = {key: (self._laplacian * self.dtype.type(scale)).astype(self.dtype)}
+        matrix = self._scaled[key]
+        pixel_major = np.ascontiguousarray(flat.T)
+        result = np.ascontiguousarray((matrix @ pixel_major).T)
+        if out is None:
+            return result
+        out += result
+        return out
+
+    def astype(self, dtype: np.dtype | type) -> NeighbourGraph:
+        """The same graph in another floating dtype."""
+        dtype = np.dtype(dtype)
+        if dtype == self.dtype:
+            return self
+        other = copy.copy(self)
+        other.dtype = dtype
+        other._laplacian = self._laplacian.astype(dtype)
+        other._difference = None
+        other._scaled = {}
+        return other

@@ -1,0 +1,66 @@
+"""Appearance neighbourhoods N_p: k nearest neighbours in RGB over all images of a set."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spectralize.nodes.reconstruction import appearance_neighbours, build_problem, inputs_from_xarray
+
+
+def test_neighbours_are_the_k_nearest_other_pixels():
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(200, 3))
+    found = appearance_neighbours(points, k=3)
+    assert found.shape == (200, 3)
+    distances = np.linalg.norm(points[:, None] - points[None], axis=-1)
+    np.fill_diagonal(distances, np.inf)
+    expected = np.argsort(distances, axis=1)[:, :3]
+    np.testing.assert_array_equal(np.sort(found, axis=1), np.sort(expected, axis=1))
+
+
+def test_a_pixel_is_never_its_own_neighbour_even_among_duplicates():
+    points = np.zeros((10, 3))  # all identical: every other pixel ties
+    found = appearance_neighbours(points, k=3)
+    assert found.shape == (10, 3)
+    assert not np.any(found == np.arange(10)[:, None])
+    assert all(len(set(row)) == 3 for row in found.tolist())
+
+
+def test_k_is_clipped_to_the_number_of_other_pixels():
+    assert appearance_neighbours(np.eye(3), k=5).shape == (3, 2)
+    assert appearance_neighbours(np.zeros((1, 3)), k=3).shape == (1, 0)
+
+
+def test_neighbour_graph_spans_all_images_of_a_set(scene_factory):
+    # image 1 shows the same materials twice as bright: its nearest RGB neighbours are in
+    # image 1 itself, except where a brighter/darker copy matches across images
+    scene = scene_factory(size=12, n_wavelength=4, n_images=3, shading=True,
+                          brightness=[1.0, 1.02, 0.98], shots={0: [0, 1, 2, 3]})
+    inputs = inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix)
+    problem = build_problem(inputs, k=3)
+    neighbours = problem.neighbours.neighbours
+    n_per_image = 12 * 12
+    assert neighbours.shape == (3 * n_per_image, 3)
+    image_of_pixel = np.arange(3 * n_per_image) // n_per_image
+    image_of_neighbour = image_of_pixel[neighbours]
+    crossing = image_of_neighbour != image_of_pixel[:, None]
+    assert crossing.any(), "the graph must link pixels of different images"
+    # every pair found is among the true k nearest over the whole set
+    rgb = inputs.rgb_pixels().T
+    for p in [0, 5, n_per_image + 7, 2 * n_per_image + 100]:
+        d = np.linalg.norm(rgb - rgb[p], axis=1)
+        d[p] = np.inf
+        assert np.sort(d[neighbours[p]]).max() <= np.sort(d)[2] + 1e-12
+
+
+def test_neighbour_pixel_order_matches_the_cube_layout(scene_factory):
+    """Pixel q of the graph is image q // (h w), row (q % (h w)) // w, column q % w."""
+    scene = scene_factory(size=6, n_wavelength=4, n_images=2, shading=True, filter_size=2.0,
+                          shots={0: [0, 1, 2, 3]})
+    inputs = inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix)
+    rgb = inputs.rgb_pixels()
+    q = 36 + 2 * 6 + 5
+    np.testing.assert_allclose(rgb[:, q], scene.rgb.values[1, 2, 5])
+    with pytest.raises(AssertionError):
+        np.testing.assert_allclose(rgb[:, q], scene.rgb.values[0, 2, 5])

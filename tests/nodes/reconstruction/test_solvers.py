@@ -1,0 +1,132 @@
+"""Solvers: exact recovery, agreement of the fast solver with the paper's CG, propagation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spectralize.nodes.reconstruction import (
+    SOLVER_METHODS,
+    build_problem,
+    inputs_from_xarray,
+    reconstruct,
+    reconstruct_spectra,
+)
+from spectralize.nodes.reconstruction.solvers import (
+    BlockJacobiPreconditioner,
+    block_jacobi_pcg,
+    paper_cg,
+)
+
+
+def _problem(scene, **options):
+    return build_problem(inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix),
+                         **options)
+
+
+def _relative_error(estimate, truth) -> float:
+    return float(np.linalg.norm(estimate - truth) / np.linalg.norm(truth))
+
+
+@pytest.mark.parametrize("method", ["paper-cg", "block-jacobi-pcg"])
+def test_exact_recovery_of_a_noise_free_scene(scene_factory, method):
+    """Flat materials with distinct RGB, exact bands: the truth has zero energy and the
+    constraints determine it, so both solvers must find it."""
+    scene = scene_factory(size=24, n_wavelength=8, n_materials=3, noise=0.0,
+                          filter_size=3.0)
+    problem = _problem(scene)
+    truth = np.moveaxis(scene.truth, 1, 0)  # (wavelength, image, y, x)
+    assert problem.energy(truth) == pytest.approx(0.0, abs=1e-20)
+    options = {"dtype": np.float64, "ridge": 0.0} if method == "block-jacobi-pcg" else {}
+    result = SOLVER_METHODS[method](problem, tolerance=1e-10, max_iterations=3000, **options)
+    assert result.converged
+    assert _relative_error(result.cube, truth) < 1e-6
+
+
+def test_fast_solver_agrees_with_paper_cg(scene_factory):
+    scene = scene_factory(size=24, n_wavelength=6, n_materials=3, shading=True, noise=0.05,
+                          rgb_noise=1e-3, filter_size=3.0)
+    problem = _problem(scene)
+    reference = paper_cg(problem, tolerance=1e-9, max_iterations=5000)
+    assert reference.converged
+    exact = block_jacobi_pcg(problem, tolerance=1e-9, max_iterations=5000, dtype=np.float64,
+                             ridge=0.0)
+    assert exact.converged
+    assert _relative_error(exact.cube, reference.cube) < 1e-6
+    # the default: float32, ridge, default tolerance, far fewer iterations, same energy
+    fast = block_jacobi_pcg(problem)
+    assert fast.converged and fast.cube.dtype == np.float32
+    assert _relative_error(fast.cube, reference.cube) < 2e-2
+    assert fast.iterations < reference.iterations / 3
+    assert problem.energy(fast.cube.astype(np.float64)) == pytest.approx(
+        problem.energy(reference.cube), rel=2e-3)
+
+
+def test_residual_history_and_stopping(scene_factory):
+    scene = scene_factory(size=20, n_wavelength=5, shading=True, noise=0.02)
+    problem = _problem(scene)
+    result = paper_cg(problem, tolerance=1e-4, max_iterations=500)
+    history = result.residual_history
+    assert len(history) == result.iterations + 1
+    assert history[0] == pytest.approx(1.0)  # from zero: the residual is A^T b itself
+    assert history[-1] <= 1e-4 < history[-2]
+    limited = paper_cg(problem, tolerance=1e-12, max_iterations=7)
+    assert limited.iterations == 7 and not limited.converged
+
+
+def test_block_jacobi_preconditioner_inverts_the_pixel_blocks(scene_factory):
+    scene = scene_factory(size=16, n_wavelength=5, shading=True, filter_size=3.0)
+    problem = _problem(scene)
+    preconditioner = BlockJacobiPreconditioner(problem, dtype=np.float64)
+    n_wavelength, _, height, width = problem.shape
+    rng = np.random.default_rng(0)
+    w = problem.weights
+    diagonal = (w.alpha * problem.filters.normal_diagonal().reshape(n_wavelength, -1)
+                + w.gamma * problem.neighbours.degree[None, :])
+    c = problem.camera_matrix
+    for pixel in [0, 37, height * width - 1]:
+        block = np.diag(diagonal[:, pixel]) + w.beta * c.T @ c
+        # the block is the diagonal block of A^T A at this pixel
+        unit = np.zeros(problem.shape)
+        unit.reshape(n_wavelength, -1)[2, pixel] = 1.0
+        column = problem.normal(unit).reshape(n_wavelength, -1)[:, pixel]
+        np.testing.assert_allclose(column, block[:, 2], rtol=1e-6, atol=1e-9)
+        r = np.zeros(problem.shape)
+        values = rng.normal(size=n_wavelength)
+        r.reshape(n_wavelength, -1)[:, pixel] = values
+        applied = preconditioner(r).reshape(n_wavelength, -1)[:, pixel]
+        np.testing.assert_allclose(applied, np.linalg.solve(block, values), rtol=1e-5,
+                                   atol=1e-9 * np.abs(applied).max())
+
+
+def test_an_image_without_bands_gets_spectra_through_its_neighbours(scene_factory):
+    """Paper sec. 5, sparsely measured: image 1 has no band shot but shows the same
+    materials (mirrored layout); its spectra come from image 0 through the appearance
+    neighbourhoods. The paper's CG starts from zero, so nothing but eq. 1 brings them."""
+    scene = scene_factory(size=24, n_wavelength=8, n_images=2, n_materials=3, noise=0.0,
+                          rgb_noise=1e-4, filter_size=3.0, mirror_odd=True,
+                          shots={0: list(range(8))})
+    truth = scene.truth
+    spectra = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method="paper-cg",
+                          tolerance=1e-6).values
+    error_without_bands = _relative_error(spectra[1], truth[1])
+    assert error_without_bands < 1e-3
+    # without the neighbour term the same solver leaves image 1 at the minimum-norm spectra
+    lone = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method="paper-cg",
+                       gamma_hat=1e-9, tolerance=1e-6).values
+    assert _relative_error(lone[1], truth[1]) > 0.1
+    # the fast default agrees
+    fast = reconstruct(scene.rgb, scene.bands, scene.camera_matrix).values
+    assert _relative_error(fast[1], truth[1]) < 1e-2
+
+
+def test_warm_start_from_the_answer_stops_at_once(scene_factory):
+    scene = scene_factory(size=20, n_wavelength=5, shading=True, noise=0.02)
+    first = reconstruct_spectra(scene.rgb, scene.bands, scene.camera_matrix,
+                                method="block-jacobi-pcg", tolerance=1e-5)
+    again = reconstruct_spectra(scene.rgb, scene.bands, scene.camera_matrix,
+                                method="block-jacobi-pcg", tolerance=1e-3,
+                                initial=first.spectra)
+    assert again.iterations <= 1
+    np.testing.assert_allclose(again.spectra.values, first.spectra.values, rtol=1e-3,
+                               atol=1e-4 * float(np.abs(first.spectra).max()))
