@@ -106,7 +106,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from spectralize.flows.demo import DEMO_STORE, run_demo
 
-    store, report = run_demo(args.store or DEMO_STORE)
+    store, report = run_demo(args.store or DEMO_STORE, parameters=_parse_assignments(args.set))
     _print_report(report)
     print(f"results: {store.path}")
     print(f"  groups: {', '.join(store.groups())}")
@@ -161,6 +161,8 @@ def build_parser() -> argparse.ArgumentParser:
     serve.set_defaults(handler=_cmd_serve)
     demo = commands.add_parser("demo", help="make the sample run and process it")
     demo.add_argument("--store", default=None, help="where to put the demo run store")
+    demo.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                      help="node parameter, e.g. simulate.recipe=tiny (repeatable)")
     demo.set_defaults(handler=_cmd_demo)
     return parser
 

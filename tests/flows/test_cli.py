@@ -24,14 +24,18 @@ def tree(path: Path):
 
 
 def test_demo_runs_then_skips(tmp_path):
-    first = cli("demo", cwd=tmp_path)
+    first = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     assert "simulate                 ran" in first.stdout
     assert "dark_average             ran" in first.stdout
     store = tmp_path / "demo" / "run.zarr"
     assert f"results: {store}" in first.stdout
+    for node in ("recover_rgb_oecf", "calibrate_bands", "reconstruct_image_sets", "evaluate"):
+        assert f"{node:<24} ran" in first.stdout
+    report = tmp_path / "demo" / "run-report" / "index.html"
+    assert f"report: {report}" in first.stdout and report.is_file()
 
-    second = cli("demo", cwd=tmp_path)
+    second = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path)
     assert second.returncode == 0, second.stderr
     assert "simulate                 skipped" in second.stdout
     assert "dark_average             skipped" in second.stdout
