@@ -299,7 +299,12 @@ def test_evaluate_reports_every_mismatch_at_once():
         evaluate(shifted, truth)
     labelled = truth.assign_coords(image=[3, 4])
     with pytest.raises(SchemaError, match="spectra:image"):
-        evaluate(labelled.assign_coords(image=[4, 3]), labelled)
+        evaluate(labelled.assign_coords(image=[4, 5]), labelled)
+    # a cube written set by set lists the same images in another order: aligned by label
+    swapped = labelled.isel(image=[1, 0])
+    out = evaluate(swapped, labelled)
+    assert out["image"].values.tolist() == [4, 3]
+    assert float(out["nrmse"].max()) == 0.0
     with pytest.raises(ValueError, match="threshold"):
         evaluate(truth, truth, threshold=0.0)
 
