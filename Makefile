@@ -23,6 +23,7 @@ bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[bench]'
 	$(BIN)/python benchmarks/reconstruction.py
 	$(BIN)/python benchmarks/calibration.py
+	$(BIN)/python benchmarks/btf_flow.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -385,6 +385,7 @@ def write_report(
     shots: xr.Dataset | None = None,
     max_images: int = 24,
     exposure_percentile: float = 99.0,
+    calibration: xr.Dataset | None = None,
 ) -> Path:
     """Write an HTML report with PNG figures of an evaluation into ``directory``.
 
@@ -418,6 +419,9 @@ def write_report(
     exposure_percentile
         Percentile of the truth's luminance mapped to sRGB white (one exposure for truth and
         reconstruction, over the images shown).
+    calibration
+        Group ``calibration/spectral``; its colour-checker cross-validation (paper Fig. 4) is
+        tabulated and drawn.
 
     Returns
     -------
@@ -484,6 +488,23 @@ def write_report(
                              "band shots"], rows))
         parts.append(_figure(plot_capture_time(capture), directory, "capture_time.png",
                              "Total exposure of the reference and the fast capture."))
+
+    if calibration is not None and "measured_rgb" in calibration:
+        from .spectral_calibration import plot_cross_validation
+
+        checked = calibration[["measured_rgb", "predicted_rgb", "relative_error"]].compute()
+        error = np.asarray(checked["relative_error"].values, dtype=float)
+        parts.append("<h2>Calibration cross-validation (Figure 4)</h2>")
+        rows = [[str(patch), _fmt(float(e))] for patch, e in
+                zip(checked["patch"].values, error, strict=True)]
+        parts.append(_table("cross-validation", "RGB of the colour-checker patches predicted "
+                            "through C from the spectral camera's capture vs measured: "
+                            f"relative error per patch (mean {_fmt(float(np.nanmean(error)))})",
+                            ["patch", "relative error"], rows))
+        parts.append(_figure(plot_cross_validation(checked.rename(
+            measured_rgb="measured", predicted_rgb="predicted")), directory,
+            "cross_validation.png", "(a) measured RGB, (b) RGB predicted through C from the "
+            "spectral capture, (c) their difference scaled 10x."))
 
     if baselines is not None:
         table = baselines
@@ -593,4 +614,5 @@ def write_run_report(
         evaluation, spectra=spectra, truth=truth,
         directory=run.path / "report" if directory is None else directory,
         baselines=baselines or None, capture=capture, shots=shots, run=str(run.path),
+        calibration=run.read("calibration/spectral") if run.has("calibration/spectral") else None,
         title=title or f"spectralize: {run.path.name}", max_images=max_images)

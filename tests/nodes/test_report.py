@@ -201,3 +201,20 @@ def test_write_run_report_reads_everything_from_the_store(run, tmp_path):
     assert page.cells[page.cells.index("with band shots") + 1] == str(12 * 18)  # image 0 only
     # the report folder inside the run store does not disturb the store
     assert store.validate() == [] and "report" not in store.groups()
+
+
+def test_calibration_cross_validation_is_tabulated_and_drawn(run, tmp_path):
+    spectra, truth, _, evaluation = run
+    measured = np.random.default_rng(0).uniform(0.1, 1.0, (24, 3))
+    calibration = xr.Dataset(
+        {"measured_rgb": (("patch", "channel"), measured),
+         "predicted_rgb": (("patch", "channel"), measured * 1.02),
+         "relative_error": ("patch", np.full(24, 0.02))},
+        coords={"patch": np.arange(24), "channel": ["R", "G", "B"]})
+    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path,
+                         max_images=1, calibration=calibration)
+    page = parse(index)
+    assert "cross-validation" in page.tables
+    assert "cross_validation.png" in page.images
+    assert (tmp_path / "cross_validation.png").read_bytes()[:8] == PNG
+    assert "0.02" in page.cells
