@@ -84,7 +84,8 @@ def main(argv: list[str] | None = None) -> dict:
     calibration = store.read("calibration/spectral")
     camera_matrix = _camera_matrix(calibration, _wavelengths(bands))
     seed = int(sets.attrs["seed_set"])
-    warm_iterations = spectra["iterations"].groupby(spectra["image_set"]).first().to_series()
+    per_image = spectra[["iterations", "image_set"]].load()
+    warm_iterations = per_image["iterations"].groupby(per_image["image_set"]).first().to_series()
     cold, warm = {}, {}
     for index in range(sets.sizes["set"]):
         if index == seed:
