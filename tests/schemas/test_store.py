@@ -199,3 +199,22 @@ def test_resumable_regions_may_differ_in_size_and_run_concurrently(store):
     np.testing.assert_array_equal(back.v.values[:, 0, 0], [0, 0, 0, 1, 2, 2])
     assert sum("written" in m for m in messages) == 3
     assert messages[-1].endswith("(3/3 done)")
+
+
+def test_region_by_region_write_keeps_memory_bounded_by_the_region_not_the_cube(store):
+    import tracemalloc
+
+    regions, shape = 24, (1, 32, 256, 256)  # 8.4 MB per region, 200 MB in all
+    region_bytes = int(np.prod(shape)) * 4
+    pieces = [da.from_delayed(dask.delayed(np.full)(shape, float(i), np.float32), shape,
+                              np.float32) for i in range(regions)]
+    cube = xr.Dataset({"v": (("image", "wavelength", "y", "x"), da.concatenate(pieces),
+                             {"units": "1"})})
+    tracemalloc.start()
+    try:
+        store.write("cube", cube, fingerprint="m", resumable_along="image", concurrent_regions=2)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 8 * region_bytes, f"peak {peak / 1e6:.0f} MB for {region_bytes / 1e6:.0f} MB regions"
+    assert float(store.read("cube").v[regions - 1, 0, 0, 0]) == regions - 1
