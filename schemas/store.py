@@ -132,11 +132,20 @@ def _region_encoding(ds: xr.Dataset, dim: str, encoding: dict[str, dict[str, Any
         encoding.setdefault(str(name), {}).setdefault("chunks", disk)
 
 
+PARTIAL_SUFFIX = ".partial"  # zarr's local store writes a chunk to NAME.<uuid>.partial, then renames
+
+
+def _remove_partial_chunks(root: Path) -> None:
+    """Delete chunk files a killed writer left half-written (they are never read, only clutter)."""
+    for leftover in root.rglob(f"*{PARTIAL_SUFFIX}"):
+        leftover.unlink(missing_ok=True)
+
+
 def _chunk_files(root: Path) -> dict[str, int]:
     files: dict[str, int] = {}
     for dirpath, _, filenames in os.walk(root):
         for name in filenames:
-            if name == "zarr.json":
+            if name == "zarr.json" or name.endswith(PARTIAL_SUFFIX):
                 continue
             full = Path(dirpath) / name
             files[full.relative_to(root).as_posix()] = full.stat().st_size
@@ -481,6 +490,8 @@ class RunStore:
                        zarr_format=3, compute=False, encoding=encoding or None)
             flags = zarr.create_array(str(self.path), name=flags_path, shape=(len(regions),),
                                       chunks=(1,), dtype="bool", fill_value=False)
+        _remove_partial_chunks(staged_path)
+        _remove_partial_chunks(self.path / flags_path)
         done = flags[:]
         along = [name for name, var in ds.variables.items() if dim in var.dims]
         total = len(regions)

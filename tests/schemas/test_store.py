@@ -167,6 +167,33 @@ def test_resumable_write_resumes_only_unfinished_regions(store):
     assert [p.name for p in (store.path / STAGING).iterdir()] == ["zarr.json"]
 
 
+def test_chunks_half_written_by_a_killed_writer_are_dropped_on_resume(store):
+    def cube(fail):
+        def block(i):
+            if fail and i == 1:
+                raise RuntimeError("killed")
+            return np.full((1, 3, 3), i, np.float32)
+
+        pieces = [da.from_delayed(dask.delayed(block)(i), (1, 3, 3), np.float32) for i in range(3)]
+        return xr.Dataset({"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})})
+
+    with pytest.raises(RuntimeError, match="killed"):
+        store.write("cube", cube(fail=True), fingerprint="fp", resumable_along="image")
+    staged = next(p for p in (store.path / STAGING).iterdir() if p.name.startswith("cube."))
+    # what zarr's local store leaves when SIGKILL lands between writing and renaming a chunk
+    chunk_dir = staged / "v" / "c" / "1" / "0"
+    chunk_dir.mkdir(parents=True, exist_ok=True)
+    (chunk_dir / "0.0123abcd.partial").write_bytes(b"half")
+    store.write("cube", cube(fail=False), fingerprint="fp", resumable_along="image")
+    final = store.path / "cube"
+    assert not list(final.rglob("*.partial"))
+    assert not any(name.endswith(".partial")
+                   for name in json.loads((final / "zarr.json").read_text())["attributes"][
+                       MANIFEST_ATTR])
+    store.verify("cube")
+    assert store.read("cube").v.values[:, 0, 0].tolist() == [0, 1, 2]
+
+
 def test_imported_group_gets_a_content_fingerprint(store):
     small_raw_dark().to_zarr(store.path, group="raw/dark", zarr_format=3, consolidated=False)
     first = store.fingerprint("raw/dark")
