@@ -141,6 +141,18 @@ def _remove_partial_chunks(root: Path) -> None:
         leftover.unlink(missing_ok=True)
 
 
+def _variable_length_strings(ds: xr.Dataset) -> xr.Dataset:
+    """Store text as zarr 3's specified variable-length ``string`` type.
+
+    numpy's fixed-width ``<U`` arrays would become zarr's ``FixedLengthUTF32``, which has no
+    zarr v3 specification (other readers may not open it); read back, text is numpy's
+    ``StringDType``.
+    """
+    fixed = [name for name, var in ds.variables.items() if var.dtype.kind == "U"]
+    text = np.dtypes.StringDType()  # stays lazy for dask data, unlike ``object``
+    return ds.assign({name: ds[name].astype(text) for name in fixed}) if fixed else ds
+
+
 def _chunk_files(root: Path) -> dict[str, int]:
     files: dict[str, int] = {}
     for dirpath, _, filenames in os.walk(root):
@@ -445,7 +457,7 @@ class RunStore:
                                   "written": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         if schema is not None:
             attrs[SCHEMA_ATTR] = schema.name
-        ds = ds.copy(deep=False)
+        ds = _variable_length_strings(ds.copy(deep=False))
         ds.attrs = attrs
 
         root = zarr.open_group(str(self.path), mode="r+")

@@ -1,6 +1,7 @@
 import json
 import os
 import shutil
+import warnings
 
 import dask
 import dask.array as da
@@ -245,3 +246,18 @@ def test_region_by_region_write_keeps_memory_bounded_by_the_region_not_the_cube(
         tracemalloc.stop()
     assert peak < 8 * region_bytes, f"peak {peak / 1e6:.0f} MB for {region_bytes / 1e6:.0f} MB regions"
     assert float(store.read("cube").v[regions - 1, 0, 0, 0]) == regions - 1
+
+
+def test_text_is_stored_with_a_specified_zarr_type_and_read_back_equal(store):
+    lazy_labels = da.from_array(np.array(["red", "green", "blue"]), chunks=2)
+    ds = xr.Dataset({"label": (("image",), lazy_labels)},
+                    coords={"camera": ("image", np.array(["cam00", "cam01", "cam02"]))})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # e.g. zarr's UnstableSpecificationWarning for <U
+        store.write("text", ds, fingerprint="t")
+    for name in ("label", "camera"):
+        meta = json.loads((store.path / "text" / name / "zarr.json").read_text())
+        assert meta["data_type"] == "string", (name, meta["data_type"])
+    back = store.read("text")
+    assert back.label.values.tolist() == ["red", "green", "blue"]
+    assert back.camera.values.tolist() == ["cam00", "cam01", "cam02"]
