@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -59,12 +57,10 @@ def test_demo_recipe_sizes():
     assert total < 200e6
 
 
-def test_simulate_node_runs_tiny_quickly():
+def test_simulate_node_is_seeded_and_deterministic():
     assert SIMULATE.inputs == {} and set(SIMULATE.outputs) == set(GROUPS)
-    start = time.perf_counter()
     out = SIMULATE({}, {"recipe": "tiny", "seed": 2, "overrides": {"n_dark_frames": 2}})
     loaded = {k: v.load() for k, v in out.items()}
-    assert time.perf_counter() - start < 30
     assert set(loaded) == set(GROUPS)
     assert loaded["raw/rgb"].attrs["seed"] == 2
     assert loaded["raw/dark"].sizes["frame"] == 2
