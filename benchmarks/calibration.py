@@ -20,8 +20,10 @@ Methods (same data):
   took 78 s on this machine.)
 - ``spectralize_robertson``: this project's Robertson (``recover_oecf``, ``merge_hdr``).
 - ``spectralize_robertson_low_snr_series``: plain Robertson on the raw low-SNR series.
-- ``spectralize_low_snr_extension``: the paper's extension (``recover_oecf_low_snr``) joined
-  to the RGB-series response (``combine_responses``) for the whole range.
+- ``spectralize_low_snr_extension``: the paper's extension (``recover_oecf_low_snr``, with
+  its default de-biasing: reverse regression ``E[v | x t]`` and a quadratic fit through 0 below
+  10% of its interval) joined to the RGB-series response (``combine_responses``) for the
+  whole range.
 - ``true_response``: merge with the true response: the noise floor of the HDR error.
 
 Response error: ``|s f / f_true - 1|`` with one scale ``s`` per method (a response is known
@@ -286,6 +288,7 @@ def run_low_snr(data: dict, full_response: xr.Dataset, filter_size: float) -> tu
                  f"to {attrs['levels']} levels; joined to spectralize_robertson (G channel)",
         "calibrate_seconds": seconds, "iterations": int(attrs["iterations"]),
         "converged": bool(attrs["converged"]),
+        "debiased": bool(attrs["debiased"]), "fit_below_dn": float(attrs["fit_below"]),
         "stretch_interval_dn": [attrs["stretch_low"], attrs["stretch_high"]],
         "response_error_own_table": response_errors(
             low_table["code"].values, low_table.values, data["truth"], fit=(10.0, 40.0)),

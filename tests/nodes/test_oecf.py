@@ -136,6 +136,36 @@ def test_solvers_and_operators_reach_the_same_fixed_point() -> None:
     assert fast.iterations < reference.iterations
 
 
+def test_pixels_without_a_weighted_sample_are_left_out() -> None:
+    counts, _ = exposure_series("gamma", bit_depth=8, pixels=3_000)
+    weights = oecf.weighting_function(np.arange(256), black_level=4, saturation=255)
+    base = oecf.robertson_response(counts, TIMES, n_codes=256, weights=weights,
+                                   tolerance=1e-10)
+    useless = np.concatenate([np.full((5, 40), 255), np.full((5, 30), 2),
+                              np.tile([[1], [3], [255], [255], [255]], 20)], axis=1)
+    padded = np.concatenate([counts, useless.astype(counts.dtype)], axis=1)
+    for operator in ("dense", "samples"):
+        other = oecf.robertson_response(padded, TIMES, n_codes=256, weights=weights,
+                                        tolerance=1e-10, operator=operator)
+        np.testing.assert_array_equal(other.samples, base.samples)
+        np.testing.assert_allclose(other.response, base.response, rtol=1e-9)
+
+
+def test_frame_checks_with_channels_last() -> None:
+    counts, _ = exposure_series("gamma", bit_depth=8, pixels=2_500)
+    rgb = np.stack([counts, counts, counts], axis=-1).reshape(5, 50, 50, 3).copy()
+    rgb[2, ..., 1] = 1                              # one channel of one exposure all dark
+    data = xr.DataArray(rgb, dims=("exposure", "y", "x", "channel"),
+                        coords={"exposure_time": ("exposure", TIMES)},
+                        attrs={"bit_depth": 8})
+    with pytest.raises(CalibrationError,
+                       match=r"frame \{'exposure': 2, 'channel': 1\}.*entirely dark"):
+        oecf.recover_oecf(data, black_level=4)
+    rgb[2, ..., 1] = 255
+    with pytest.raises(CalibrationError, match=r"'channel': 1\}.*entirely saturated"):
+        oecf.recover_oecf(data.copy(data=rgb), black_level=4)
+
+
 def test_unobserved_codes_are_interpolated_never_nan() -> None:
     counts, _ = exposure_series("gamma", bit_depth=8, pixels=5_000)
     sparse_codes = (counts.astype(np.int64) // 4) * 4 + 8          # only every 4th code
@@ -319,6 +349,56 @@ def test_low_snr_extension_succeeds_where_plain_robertson_fails() -> None:
     assert np.median(plain_err) > 0.2, plain_err
     assert plain_err[snr_le_1].min() > 0.2
     assert np.median(plain_err) > 20 * np.median(ext_err)
+
+
+def test_low_snr_debiasing_removes_regression_to_the_mean() -> None:
+    # Robertson's E[x t | v] regresses to the mean where the density of filtered values falls
+    # steeply (the bottom of the series); the reverse regression E[v | x t] and the fit
+    # through 0 remove that bias (recover_oecf_low_snr, steps 6 and 7)
+    series, dark, truth = low_snr_series()
+    plain = oecf.recover_oecf_low_snr(series, dark, filter_size=20, debias=False)["response"]
+    fixed = oecf.recover_oecf_low_snr(series, dark, filter_size=20)["response"]
+    assert plain.attrs["debiased"] is False and np.isnan(plain.attrs["fit_below"])
+    assert fixed.attrs["debiased"] is True
+    assert fixed.attrs["fit_below"] == pytest.approx(0.1 * fixed.attrs["stretch_high"])
+    np.testing.assert_array_equal(fixed["samples"].values, plain["samples"].values)
+    assert np.all(np.diff(fixed.values) >= 0)
+    assert np.interp(0.5 * (fixed.attrs["stretch_low"] + fixed.attrs["stretch_high"]),
+                     fixed["code"].values, fixed.values) == pytest.approx(1.0)
+    at = np.array([1.0, 1.5, 2.0, 3.0])            # SNR 0.33 .. 1 per pixel
+    before = _scaled_errors(plain["code"].values, plain.values, truth, at)
+    after = _scaled_errors(fixed["code"].values, fixed.values, truth, at)
+    assert after.max() < 0.015, after
+    assert after.max() < 0.5 * before.max(), (before, after)
+    # negative (noise) values stay negative and increasing through the fit's branch
+    low = oecf.apply_response(xr.DataArray([-0.5, 0.0, 0.5], dims="v"), fixed).values
+    assert low[0] < 0 and abs(low[1]) < 1e-3 * low[2] and low[1] < low[2]
+
+
+def test_reverse_regression_is_unbiased_where_the_forward_mean_is_not() -> None:
+    # v = f^-1(X) + noise with f^-1(X) = 100 X, X log-uniform: E[X | v] (Robertson's update)
+    # is pulled towards the bulk of the data at small v, E[v | X] is not
+    rng = np.random.default_rng(3)
+    exposure = np.exp(rng.uniform(np.log(0.01), np.log(1.0), 400_000))
+    values = 100.0 * exposure + rng.normal(0.0, 2.0, exposure.size)
+    grid = np.linspace(-5.0, 105.0, 221)
+    k = np.clip(np.rint((values - grid[0]) / (grid[1] - grid[0])).astype(int), 0, grid.size - 1)
+    forward = np.bincount(k, exposure, grid.size) / np.maximum(np.bincount(k, None, grid.size),
+                                                               1)
+    levels = grid / 100.0 * (1.0 + 0.02 * np.sin(grid / 7.0))     # any monotone start
+    levels = np.maximum.accumulate(levels)
+    reverse = oecf._reverse_regression(exposure, values, levels, grid)
+    check = (grid >= 4.0) & (grid <= 95.0)
+    truth = grid[check] / 100.0
+    assert np.max(np.abs(reverse[check] / truth - 1)) < 0.01
+    assert np.abs(forward[check][:4] / truth[:4] - 1).min() > 0.03     # biased at 4-5.5 DN
+    coefficients = oecf._quadratic_through_zero(exposure, values, 0.2)
+    assert coefficients is not None
+    c1, c2 = coefficients
+    assert c1 == pytest.approx(100.0, rel=0.01) and abs(c2) < 5.0
+    x = np.array([-0.01, 0.0, 0.05, 0.2])
+    np.testing.assert_allclose(oecf._invert_quadratic(c1 * x + c2 * x * x, c1, c2), x,
+                               atol=1e-12)
 
 
 def test_low_snr_keeps_negative_values_and_maps_back_to_pixel_values() -> None:
