@@ -48,6 +48,7 @@ from spectralize.nodes.reconstruction import (  # noqa: E402
 )
 from spectralize.nodes.reconstruction.solvers import (  # noqa: E402
     block_jacobi_pcg,
+    guided_prior_pcg,
     paper_cg,
     projected_filtered_initial,
 )
@@ -279,9 +280,10 @@ def solver_ablation(capture, target: float | None) -> dict:
         "+ float32": (block_jacobi_pcg, problem32, {"initial": zeros, "ridge": 0.0}),
         "+ initial guess (filtered bands projected)": (
             block_jacobi_pcg, problem32, {"initial": initial, "ridge": 0.0}),
-        "+ ridge 1e-4 (the default)": (block_jacobi_pcg, problem32, {"initial": initial}),
+        "+ ridge 1e-4 (eq. 1 alone)": (block_jacobi_pcg, problem32, {"initial": initial}),
+        "+ guided-filter start and prior 0.1 (the default)": (guided_prior_pcg, problem32, {}),
         "default without preconditioner": (
-            block_jacobi_pcg, problem32, {"initial": initial, "precondition": False}),
+            guided_prior_pcg, problem32, {"precondition": False}),
     }
     rows = {"size": int(capture.truth.sizes["y"]), "target_median_nrmse": target}
     for name, (solver, problem, options) in variants.items():
