@@ -281,8 +281,8 @@ def solver_ablation(capture, target: float | None) -> dict:
         "+ initial guess (filtered bands projected)": (
             block_jacobi_pcg, problem32, {"initial": initial, "ridge": 0.0}),
         "+ ridge 1e-4 (eq. 1 alone)": (block_jacobi_pcg, problem32, {"initial": initial}),
-        "+ guided-filter start and prior 0.1 (the default)": (guided_prior_pcg, problem32, {}),
-        "default without preconditioner": (
+        "+ guided-filter start and prior 0.1 (guided-prior-pcg)": (guided_prior_pcg, problem32, {}),
+        "guided-prior-pcg without preconditioner": (
             guided_prior_pcg, problem32, {"precondition": False}),
     }
     rows = {"size": int(capture.truth.sizes["y"]), "target_median_nrmse": target}

@@ -198,9 +198,8 @@ def reconstruct(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataAr
         exactly the bands' wavelengths; the spectra are reconstructed on them.
     method
         A solver of :data:`~spectralize.nodes.reconstruction.solvers.SOLVER_METHODS`:
-        ``"guided-prior-pcg"`` (default: eq. 1 plus a prior towards the RGB-guided filtered
-        bands), ``"block-jacobi-pcg"`` (eq. 1 alone, fast) or ``"paper-cg"`` (the paper's
-        CG, eq. 1 alone).
+        ``"block-jacobi-pcg"`` (default: eq. 1, fast), ``"guided-prior-pcg"`` (eq. 1 plus a
+        prior towards the RGB-guided filtered bands) or ``"paper-cg"`` (the paper's CG).
     alpha_hat, beta_hat, gamma_hat
         Relative weights of the filter, RGB and neighbour terms (eq. 4); ``gamma_hat=None``
         is 1 for one image and 20 for a set of images, as in the paper.

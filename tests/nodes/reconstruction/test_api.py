@@ -35,7 +35,7 @@ def test_output_dims_dtype_coords_and_attrs(scene):
     assert out["rotation"].values.tolist() == [3, 4]
     assert out.attrs["units"] == "1"
     assert "long_name" in out.attrs
-    assert out.attrs["method"] == "guided-prior-pcg"
+    assert out.attrs["method"] == "block-jacobi-pcg"
     assert out.attrs["iterations"] >= 1
     assert out.attrs["residual_history_length"] == out.attrs["iterations"] + 1
     assert out.attrs["gamma_hat"] == 20.0  # a set of two images
