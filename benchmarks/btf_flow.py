@@ -53,9 +53,9 @@ def main(argv: list[str] | None = None) -> dict:
     import spectralize.flows  # noqa: F401  (Prefect environment defaults)
     from spectralize.flows.pipelines import BTF_STEPS
     from spectralize.flows.runtime import run_steps
-    from spectralize.nodes.engine import Step
-    from spectralize.nodes.image_sets import set_members
-    from spectralize.nodes.set_reconstruction import (
+    from spectralize.engine import Step
+    from spectralize.nodes.reconstruction.image_sets import set_members
+    from spectralize.nodes.reconstruction.set_reconstruction import (
         _camera_matrix,
         _set_inputs,
         _wavelengths,

@@ -1,7 +1,7 @@
 """Benchmark: radiometric calibration at the noise floor, side by side with the anchors.
 
 One simulated camera (paper eq. 5: 10 bit, ADC offset 16 DN, Gaussian read noise 3 DN, a
-film-like S-curve OECF from ``spectralize.nodes.camera_model``) records
+film-like S-curve OECF from ``spectralize.nodes.simulation.camera_model``) records
 
 - an RGB exposure series (512 x 512 px, 3 channels, 5 exposures with unequal ratios,
   log-uniform radiance over 3.1 decades: all but 0.02% of the pixel-channels are usable in
@@ -51,8 +51,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from spectralize.nodes import hdr, oecf
-from spectralize.nodes.camera_model import capture, response_model
+from spectralize.nodes.calibration import hdr, oecf
+from spectralize.nodes.simulation.camera_model import capture, response_model
 
 BITS = 10
 FULL = 2**BITS - 1

@@ -2,13 +2,13 @@
 
 Ground truth and exposure plan come from the project's simulator modules:
 
-* :func:`spectralize.nodes.ground_truth.spectral_texture` / ``render``: measured
+* :func:`spectralize.nodes.simulation.ground_truth.spectral_texture` / ``render``: measured
   ColorChecker reflectances laid out by smooth random fields (sharp and soft material
   boundaries), albedo detail, bump shading and specular highlights, lit by ``LED-B3``;
-* :func:`spectralize.nodes.exposure_plan.exposure_plan`: eq. 2 (omega = 0.8, ``t0`` for
+* :func:`spectralize.nodes.simulation.exposure_plan.exposure_plan`: eq. 2 (omega = 0.8, ``t0`` for
   6 s per set of 32 bands as in the ``demo``/``paper`` recipes) and eq. 3 with the spectral
-  camera's quantum efficiency :func:`spectralize.nodes.camera_model.spectral_quantum_efficiency`;
-* RGB camera matrix ``C``: :func:`spectralize.nodes.camera_model.camera_sensitivities`
+  camera's quantum efficiency :func:`spectralize.nodes.simulation.camera_model.spectral_quantum_efficiency`;
+* RGB camera matrix ``C``: :func:`spectralize.nodes.simulation.camera_model.camera_sensitivities`
   (Nikon 5100).
 
 Capture noise follows eq. 5 with a linear response after calibration: a band shot of
@@ -113,9 +113,9 @@ def simulate_capture(size: int = 256, *, n_images: int = 1,
     seed
         Seed of texture and noise.
     """
-    from spectralize.nodes.camera_model import camera_sensitivities, spectral_quantum_efficiency
-    from spectralize.nodes.exposure_plan import exposure_plan, t0_for_total_time
-    from spectralize.nodes.ground_truth import (
+    from spectralize.nodes.simulation.camera_model import camera_sensitivities, spectral_quantum_efficiency
+    from spectralize.nodes.simulation.exposure_plan import exposure_plan, t0_for_total_time
+    from spectralize.nodes.simulation.ground_truth import (
         WAVELENGTHS,
         illuminant_spd,
         render,

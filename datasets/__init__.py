@@ -1,7 +1,7 @@
 """Sample data of spectralize, generated deterministically (nothing large is stored in git).
 
-- :mod:`spectralize.datasets.recipes`: the named simulated gantry runs (``tiny``, ``demo``,
+- :mod:`spectralize.nodes.simulation.recipes`: the named simulated gantry runs (``tiny``, ``demo``,
   ``paper``); generate one with ``spectralize run simulate STORE --set simulate.recipe=demo``
-  or ``spectralize.nodes.gantry.simulate_run(get_recipe("demo"))``. See ``README.md`` here.
+  or ``spectralize.nodes.simulation.gantry.simulate_run(get_recipe("demo"))``. See ``README.md`` here.
 - :mod:`spectralize.datasets.dark_stack`: a small raw dark stack.
 """

@@ -40,7 +40,7 @@ def _parse_assignments(items: Sequence[str]) -> dict[str, Any]:
 
 
 def _cmd_nodes(args: argparse.Namespace) -> int:
-    from spectralize.nodes.engine import registry
+    from spectralize.engine import registry
 
     nodes = registry()
     if not nodes:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from spectralize.nodes.engine import Step
+from spectralize.engine import Step
 from spectralize.schemas import SpectralizeError
 
 __all__ = ["FlowDefinition", "FLOWS", "get_flow"]
@@ -78,7 +78,7 @@ def get_flow(name: str) -> FlowDefinition:
     SpectralizeError
         Listing the known flows and nodes.
     """
-    from spectralize.nodes.engine import registry
+    from spectralize.engine import registry
 
     if name in FLOWS:
         return FLOWS[name]

@@ -23,7 +23,7 @@ from typing import Any
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
 
-from spectralize.nodes.engine import PlannedStep, Step, check_graph, registry
+from spectralize.engine import PlannedStep, Step, check_graph, registry
 from spectralize.schemas import PipelineError, RunStore, StoreError, compute_fingerprint
 from spectralize.schemas.store import SCHEMA_ATTR
 
@@ -189,7 +189,7 @@ def report_directory(store_path: str | Path) -> Path:
 @task(name="report", cache_policy=NO_CACHE, persist_result=False)
 def write_report_task(store_path: str) -> str | None:
     """Write the HTML report of a run whose ``evaluation`` is finished (skip if current)."""
-    from spectralize.nodes.report import write_run_report
+    from spectralize.flows.report import write_run_report
 
     log = _log()
     store = RunStore.open(store_path)

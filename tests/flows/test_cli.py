@@ -66,7 +66,7 @@ def test_nodes_lists_the_dark_node_from_its_entry_point(tmp_path):
     out = cli("nodes", cwd=tmp_path)
     assert out.returncode == 0
     assert "dark_average" in out.stdout
-    assert "from:    entry point spectralize.nodes: dark_average = spectralize.nodes.dark:DARK_AVERAGE" in out.stdout
+    assert "from:    entry point spectralize.nodes: dark_average = spectralize.nodes.calibration.declarations:DARK_AVERAGE" in out.stdout
     assert "--set dark_average.frames_per_chunk=16" in out.stdout
 
 

@@ -18,7 +18,7 @@ import xarray as xr
 from spectralize.schemas import RunStore
 from spectralize.schemas.store import STAGING
 
-_HELPERS = Path(__file__).parents[1] / "nodes" / "test_set_reconstruction.py"
+_HELPERS = Path(__file__).parents[1] / "nodes" / "reconstruction" / "test_set_reconstruction.py"
 _spec = util.spec_from_file_location("set_reconstruction_inputs", _HELPERS)
 _module = util.module_from_spec(_spec)
 _spec.loader.exec_module(_module)
@@ -36,7 +36,7 @@ def cli(*args, **kwargs):
 
 
 def prepared_store(path: Path) -> RunStore:
-    from spectralize.nodes.set_reconstruction import reconstruct_seed_set
+    from spectralize.nodes.reconstruction.set_reconstruction import reconstruct_seed_set
 
     hdr, bands, camera, sets, _ = reconstruction_inputs()
     store = RunStore.create(path)

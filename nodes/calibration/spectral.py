@@ -1,0 +1,601 @@
+"""Spectral calibration (paper section 4): quantum efficiency, RGB camera matrix C, cross-check.
+
+- :func:`band_signal`: dark-subtracted, linearised (OECF) signal per second of exposure of
+  band-filtered frames; the common first step of everything spectral.
+- :func:`quantum_efficiency`: ``Q_lambda`` per band from white-reference shots: the band
+  signal divided by the known white reflectance and by the measured illuminant spectrum
+  (eq. 5: ``I = f^-1(x t Q_lambda)``).
+- :func:`camera_matrix`: the RGB camera matrix ``C`` (channel, wavelength) of eq. 1 from
+  colour-checker shots with known spectra, by non-negative least squares with a
+  second-difference smoothness penalty.
+- :func:`cross_validate` and :func:`plot_cross_validation`: paper Fig. 4, RGB predicted
+  through ``C`` from a spectral capture of the colour checker against the measured RGB, error
+  per patch as a table and a figure.
+
+References
+----------
+Fast Capture of Spectral Image Series, section 4 ("Calibration", Figs. 3 and 4) and eq. 5.
+M. A. Robertson, S. Borman, R. L. Stevenson, Journal of Electronic Imaging 12(2), 2003
+(the OECF used for linearisation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+import xarray as xr
+from scipy import optimize
+
+from spectralize.schemas import CalibrationError, SchemaError
+
+from spectralize.nodes.calibration.oecf import apply_response
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+__all__ = [
+    "band_signal",
+    "quantum_efficiency",
+    "camera_matrix",
+    "patch_means",
+    "predict_rgb",
+    "cross_validate",
+    "plot_cross_validation",
+]
+
+
+# -- band signal -------------------------------------------------------------------------------
+def _shots(data: xr.Dataset | xr.DataArray, where: str) -> xr.DataArray:
+    counts = data["counts"] if isinstance(data, xr.Dataset) and "counts" in data else data
+    if isinstance(counts, xr.Dataset):
+        raise SchemaError(f"{where}: expected variable 'counts' (shot, y, x)",
+                          [f"variables found: {sorted(map(str, counts.data_vars))}"])
+    problems = []
+    if counts.dims != ("shot", "y", "x"):
+        problems.append(f"counts: expected dims ('shot', 'y', 'x'), found {counts.dims}")
+    for name in ("exposure_time", "wavelength"):
+        if name not in counts.coords or counts[name].dims != ("shot",):
+            problems.append(f"expected coord {name} (shot,)")
+    if problems:
+        raise SchemaError(f"{where}: band-filtered shots break the raw/spectral contract",
+                          problems)
+    times = np.asarray(counts["exposure_time"].values, dtype=np.float64)
+    if not np.all(np.isfinite(times)) or np.any(times <= 0):
+        raise CalibrationError(f"{where}: exposure_time must be positive, got {times.tolist()}")
+    return counts
+
+
+def _dark_for_shots(dark: xr.Dataset | xr.DataArray, counts: xr.DataArray,
+                    where: str) -> tuple[xr.DataArray, xr.DataArray | None]:
+    mean = dark["mean"] if isinstance(dark, xr.Dataset) else dark
+    std = dark["std"] if isinstance(dark, xr.Dataset) and "std" in dark else None
+    if set(mean.dims) != {"exposure_time", "y", "x"}:
+        raise SchemaError(f"{where}: dark breaks the contract",
+                          [f"dark:mean: expected dims (exposure_time, y, x), found {mean.dims}"])
+    if (mean.sizes["y"], mean.sizes["x"]) != (counts.sizes["y"], counts.sizes["x"]):
+        raise CalibrationError(
+            f"{where}: dark frames are {mean.sizes['y']}x{mean.sizes['x']} px, shots "
+            f"{counts.sizes['y']}x{counts.sizes['x']} px")
+    available = np.asarray(mean["exposure_time"].values, dtype=np.float64)
+    wanted = np.asarray(counts["exposure_time"].values, dtype=np.float64)
+    picks = []
+    for i, t in enumerate(wanted):
+        match = np.flatnonzero(np.isclose(available, t, rtol=1e-6, atol=0.0))
+        if match.size == 0:
+            raise CalibrationError(
+                f"{where}: no dark frame for exposure_time {t} s (shot {i}); dark frames exist "
+                f"for {available.tolist()} s. Record dark frames at every exposure time used")
+        picks.append(int(match[0]))
+    index = xr.DataArray(picks, dims="shot")
+    mean = mean.isel(exposure_time=index).drop_vars("exposure_time").transpose("shot", "y", "x")
+    if std is not None:
+        std = std.isel(exposure_time=index).drop_vars("exposure_time").transpose("shot", "y", "x")
+    return mean, std
+
+
+def band_signal(
+    shots: xr.Dataset | xr.DataArray,
+    dark: xr.Dataset | xr.DataArray,
+    *,
+    response: xr.Dataset | xr.DataArray | None = None,
+) -> xr.DataArray:
+    """Dark-subtracted, linearised signal per second of band-filtered frames.
+
+    Parameters
+    ----------
+    shots
+        Group ``raw/spectral`` (or its ``counts``): (shot, y, x) integer [DN] with coords
+        ``exposure_time`` [s] and ``wavelength`` [nm] per shot.
+    dark
+        Group ``dark``: ``mean`` (exposure_time, y, x) [DN]; a frame for every exposure time.
+    response
+        The spectral camera's OECF: from
+        :func:`~spectralize.nodes.calibration.oecf.recover_oecf_low_snr` or
+        :func:`~spectralize.nodes.calibration.oecf.combine_responses` (over dark-subtracted values:
+        ``f(I - dark)``) or :func:`~spectralize.nodes.calibration.oecf.recover_oecf` (over raw codes:
+        ``f(I) - f(dark)``). ``None``: a linear camera, ``I - dark``.
+
+    Returns
+    -------
+    xarray.DataArray
+        (shot, y, x) float64, ``f(...) / exposure_time``, units ``"1"`` (relative exposure
+        per second). Negative values (noise below the dark level) are kept: clipping would
+        bias every average taken later (paper Fig. 2). Lazy input stays lazy.
+
+    Raises
+    ------
+    SchemaError, CalibrationError
+        Wrong dims or coords, a dark frame missing for an exposure time or of another size.
+    """
+    where = "band_signal"
+    counts = _shots(shots, where)
+    mean, _ = _dark_for_shots(dark, counts, where)
+    return _linearise(counts, mean, response, where)
+
+
+def _linearise(counts: xr.DataArray, mean: xr.DataArray,
+               response: xr.Dataset | xr.DataArray | None, where: str) -> xr.DataArray:
+    raw = counts.astype(np.float64)
+    if response is None:
+        linear = raw - mean
+    else:
+        table = response["response"] if isinstance(response, xr.Dataset) else response
+        if table.ndim != 1:
+            raise CalibrationError(f"{where}: the spectral camera's response must be "
+                                   f"monochrome (code,), got dims {table.dims}")
+        if table.attrs.get("dark_subtracted"):
+            linear = apply_response(raw - mean, table)
+        else:
+            linear = apply_response(raw, table) - apply_response(mean, table)
+    out = linear / counts["exposure_time"]
+    return out.assign_attrs(units="1", long_name="linearised dark-subtracted signal per second")
+
+
+# -- quantum efficiency -------------------------------------------------------------------------
+def _on_wavelengths(spectrum: xr.DataArray | float, wavelengths: np.ndarray, name: str,
+                    where: str) -> np.ndarray:
+    if not isinstance(spectrum, xr.DataArray):
+        value = float(spectrum)
+        if not value > 0:
+            raise CalibrationError(f"{where}: {name} must be positive, got {value}")
+        return np.full(wavelengths.shape, value)
+    if spectrum.dims != ("wavelength",):
+        raise SchemaError(f"{where}: {name} must be a spectrum over 'wavelength'",
+                          [f"dims found: {spectrum.dims}"])
+    grid = np.asarray(spectrum["wavelength"].values, dtype=np.float64)
+    order = np.argsort(grid)
+    grid, values = grid[order], np.asarray(spectrum.values, dtype=np.float64)[order]
+    outside = (wavelengths < grid[0] - 1e-9) | (wavelengths > grid[-1] + 1e-9)
+    if outside.any():
+        raise CalibrationError(
+            f"{where}: {name} covers {grid[0]}..{grid[-1]} nm but shots are at "
+            f"{wavelengths[outside].tolist()} nm")
+    result = np.interp(wavelengths, grid, values)
+    if np.any(~(result > 0)):
+        bad = wavelengths[~(result > 0)].tolist()
+        raise CalibrationError(f"{where}: {name} is not positive at {bad} nm")
+    return result
+
+
+def quantum_efficiency(
+    white: xr.Dataset | xr.DataArray,
+    dark: xr.Dataset | xr.DataArray,
+    illuminant: xr.DataArray,
+    *,
+    reflectance: xr.DataArray | float = 1.0,
+    response: xr.Dataset | xr.DataArray | None = None,
+    roi: Mapping[str, slice] | None = None,
+    min_snr: float = 1.0,
+) -> xr.Dataset:
+    """Quantum efficiency ``Q_lambda`` per band from white-reference shots.
+
+    ``Q_lambda = mean_roi(f(I - dark) / t) / (rho_lambda L_lambda)`` (eq. 5 with the radiance
+    of a white reference ``x = rho L``); several shots at one wavelength are averaged.
+
+    Parameters
+    ----------
+    white
+        Shots of a white diffuse reference: ``raw/spectral``-like (shot, y, x) with coords
+        ``wavelength`` [nm] and ``exposure_time`` [s].
+    dark
+        Group ``dark`` (``mean``, optionally ``std``) with every exposure time of ``white``.
+    illuminant
+        Measured spectral radiance of the illumination, (wavelength,), any positive units;
+        linearly interpolated to the shot wavelengths.
+    reflectance
+        Known reflectance of the white reference: a number or a spectrum over wavelength.
+    response
+        The spectral camera's OECF (see :func:`band_signal`); ``None`` for a linear camera.
+    roi
+        Region of the reference, e.g. ``{"y": slice(10, 90), "x": slice(20, 80)}``; default
+        the whole frame.
+    min_snr
+        Smallest accepted ratio of the mean dark-subtracted signal in the ROI [DN] to the
+        per-pixel noise (the mean of ``dark.std`` in the ROI, or the spatial standard
+        deviation of the dark-subtracted ROI when ``dark`` has no ``std``).
+
+    Returns
+    -------
+    xarray.Dataset
+        ``quantum_efficiency`` (wavelength) float64, units ``"1"`` (relative: in the units of
+        the response's normalisation per second per unit of ``illuminant``), and ``snr``
+        (wavelength), the per-pixel SNR of the reference in each band.
+
+    Raises
+    ------
+    CalibrationError
+        A shot darker than ``min_snr`` times the noise (naming shot, wavelength, signal and
+        noise), a dark frame missing, an illuminant or reflectance not covering a band or
+        not positive, an empty ROI.
+    SchemaError
+        Wrong dims or coords.
+
+    Notes
+    -----
+    Domain: integer DN. Range: ``Q >= 0`` for a well-exposed reference; the scale is that of
+    the illuminant and the response normalisation, which the camera matrix ``C`` and the
+    band radiances share, so relative radiances stay consistent.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, section 4 ("taking images of a white diffuse
+    reference surface under the known LED illumination and dividing the response by the
+    LED spectrum") and Fig. 3.
+    """
+    where = "quantum_efficiency"
+    counts = _shots(white, where)
+    mean, std = _dark_for_shots(dark, counts, where)
+    region = dict(roi or {})
+    unknown = set(region) - {"y", "x"}
+    if unknown:
+        raise CalibrationError(f"{where}: roi may only select y and x, got {sorted(unknown)}")
+    part = counts.isel(region)
+    if part.sizes["y"] * part.sizes["x"] == 0:
+        raise CalibrationError(f"{where}: the roi {region} selects no pixel")
+    raw_dn = (part.astype(np.float64) - mean.isel(region))
+    level = np.asarray(raw_dn.mean(("y", "x")).values)
+    if std is not None:
+        noise = np.asarray(std.isel(region).mean(("y", "x")).values, dtype=np.float64)
+    else:
+        noise = np.asarray(raw_dn.std(("y", "x")).values, dtype=np.float64)
+    snr = level / np.maximum(noise, 1e-12)
+    wavelengths = np.asarray(counts["wavelength"].values, dtype=np.float64)
+    for i in np.flatnonzero(~(snr >= min_snr)):
+        raise CalibrationError(
+            f"{where}: white reference shot {int(i)} ({wavelengths[i]} nm, exposure_time "
+            f"{float(counts['exposure_time'].values[i])} s) is darker than the noise: mean "
+            f"signal {level[i]:.3g} DN above dark vs noise {noise[i]:.3g} DN (SNR "
+            f"{snr[i]:.3g} < min_snr {min_snr}); use a longer exposure or more light")
+    signal = _linearise(part, mean.isel(region), response, where)
+    per_shot = np.asarray(signal.mean(("y", "x")).values, dtype=np.float64)
+    rho = _on_wavelengths(reflectance, wavelengths, "reflectance", where)
+    light = _on_wavelengths(illuminant, wavelengths, "illuminant", where)
+    q_shot = per_shot / (rho * light)
+    bands, inverse = np.unique(wavelengths, return_inverse=True)
+    q = np.bincount(inverse, q_shot) / np.bincount(inverse)
+    snr_band = np.bincount(inverse, snr) / np.bincount(inverse)
+    return xr.Dataset(
+        {
+            "quantum_efficiency": ("wavelength", q, {
+                "units": "1", "long_name": "relative quantum efficiency Q_lambda (eq. 5)"}),
+            "snr": ("wavelength", snr_band, {
+                "units": "1", "long_name": "per-pixel SNR of the white reference"}),
+        },
+        coords={"wavelength": ("wavelength", bands, {"units": "nm", "long_name": "wavelength"})},
+        attrs={"method": "white reference / (reflectance * illuminant)",
+               "shots": int(counts.sizes["shot"])},
+    )
+
+
+# -- camera matrix C ----------------------------------------------------------------------------
+def _second_difference(n: int) -> np.ndarray:
+    d = np.zeros((n - 2, n))
+    rows = np.arange(n - 2)
+    d[rows, rows], d[rows, rows + 1], d[rows, rows + 2] = 1.0, -2.0, 1.0
+    return d
+
+
+def camera_matrix(
+    rgb: xr.DataArray,
+    spectra: xr.DataArray,
+    *,
+    smoothness: float = 1e-3,
+    nonnegative: bool = True,
+) -> xr.Dataset:
+    """The RGB camera matrix ``C`` (channel, wavelength) from colour-checker shots.
+
+    Solves, per channel ``c``, ``min_C ||S C_c - R_c||^2 + mu ||D2 C_c||^2`` subject to
+    ``C_c >= 0`` (``scipy.optimize.nnls`` on the augmented system ``[S; sqrt(mu) D2]``),
+    where ``S`` (patch, wavelength) holds the known spectral radiance of the patches, ``R``
+    (patch, channel) the measured RGB radiance and ``D2`` the second difference along
+    wavelength. ``mu = smoothness * ||S||_F^2 / ||D2||_F^2`` makes ``smoothness``
+    independent of the units and of the number of patches and bands.
+
+    Parameters
+    ----------
+    rgb
+        Measured RGB radiance of the patches (patch, channel), e.g. :func:`patch_means` of
+        an HDR image.
+    spectra
+        Known spectral radiance of the same patches (patch, wavelength): reflectance times
+        illuminant, in the units the spectral camera reports.
+    smoothness
+        Relative weight of the smoothness penalty (0: none). With fewer patches than bands
+        (24 colour-checker patches, 32 bands) some smoothness is needed for a unique answer.
+    nonnegative
+        Constrain ``C >= 0`` (sensitivities cannot be negative).
+
+    Returns
+    -------
+    xarray.Dataset
+        ``camera_matrix`` (channel, wavelength) float64 with units ``"1"``; ``residual``
+        (patch, channel), ``S C - R``. Attrs ``smoothness``, ``mu``, ``nonnegative``,
+        ``relative_rms_residual``.
+
+    Raises
+    ------
+    SchemaError
+        Wrong dims.
+    CalibrationError
+        Patches that do not match (count or labels), fewer than 3 bands, NaN or inf.
+
+    Notes
+    -----
+    Domain: non-negative radiances. Range: ``C >= 0`` when ``nonnegative``. ``predict_rgb``
+    gives ``C S`` for any spectra on the same wavelengths.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, eq. 1 (matrix ``C``) and section 4.
+    """
+    where = "camera_matrix"
+    if set(rgb.dims) != {"patch", "channel"}:
+        raise SchemaError(f"{where}: rgb must be (patch, channel)", [f"found {rgb.dims}"])
+    if set(spectra.dims) != {"patch", "wavelength"}:
+        raise SchemaError(f"{where}: spectra must be (patch, wavelength)",
+                          [f"found {spectra.dims}"])
+    if rgb.sizes["patch"] != spectra.sizes["patch"]:
+        raise CalibrationError(f"{where}: rgb has {rgb.sizes['patch']} patches, spectra "
+                               f"{spectra.sizes['patch']}")
+    if "patch" in rgb.coords and "patch" in spectra.coords:
+        if not np.array_equal(rgb["patch"].values, spectra["patch"].values):
+            raise CalibrationError(f"{where}: rgb and spectra list different patches")
+    if spectra.sizes["wavelength"] < 3:
+        raise CalibrationError(f"{where}: need at least 3 bands, got "
+                               f"{spectra.sizes['wavelength']}")
+    if smoothness < 0:
+        raise CalibrationError(f"{where}: smoothness must be >= 0, got {smoothness}")
+    s = np.asarray(spectra.transpose("patch", "wavelength").values, dtype=np.float64)
+    r = np.asarray(rgb.transpose("patch", "channel").values, dtype=np.float64)
+    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(r))):
+        raise CalibrationError(f"{where}: rgb and spectra must be finite")
+    n_bands = s.shape[1]
+    d2 = _second_difference(n_bands)
+    mu = smoothness * float(np.sum(s**2)) / float(np.sum(d2**2))
+    a = np.vstack([s, np.sqrt(mu) * d2])
+    c = np.empty((r.shape[1], n_bands))
+    for k in range(r.shape[1]):
+        b = np.concatenate([r[:, k], np.zeros(n_bands - 2)])
+        if nonnegative:
+            c[k] = optimize.nnls(a, b, maxiter=50 * n_bands)[0]
+        else:
+            c[k] = np.linalg.lstsq(a, b, rcond=None)[0]
+    residual = s @ c.T - r
+    rel = float(np.sqrt(np.mean(residual**2)) / max(np.sqrt(np.mean(r**2)), 1e-300))
+    coords = {"channel": rgb["channel"].values if "channel" in rgb.coords
+              else np.arange(r.shape[1]),
+              "wavelength": spectra["wavelength"].values if "wavelength" in spectra.coords
+              else np.arange(n_bands)}
+    patch = {"patch": rgb["patch"].values} if "patch" in rgb.coords else {}
+    return xr.Dataset(
+        {
+            "camera_matrix": (("channel", "wavelength"), c, {
+                "units": "1", "long_name": "RGB camera matrix C (spectral sensitivity)"}),
+            "residual": (("patch", "channel"), residual, {
+                "units": "1", "long_name": "C S - R on the calibration patches"}),
+        },
+        coords={**coords, **patch},
+        attrs={"method": "nnls + second-difference penalty" if nonnegative
+               else "least squares + second-difference penalty",
+               "smoothness": float(smoothness), "mu": mu, "nonnegative": bool(nonnegative),
+               "relative_rms_residual": rel},
+    )
+
+
+# -- patches, prediction and cross-validation ---------------------------------------------------
+def patch_means(
+    data: xr.DataArray, labels: xr.DataArray | np.ndarray, *,
+    names: Sequence[str] | None = None,
+) -> xr.DataArray:
+    """Mean of ``data`` over each labelled patch.
+
+    Parameters
+    ----------
+    data
+        Any array with dims ``y`` and ``x`` (e.g. HDR radiance (y, x, channel) or band
+        radiance (wavelength, y, x)).
+    labels
+        (y, x) integer patch index per pixel; negative values are background.
+    names
+        Patch names for the ``patch`` coordinate (one per patch index ``0..n-1``).
+
+    Returns
+    -------
+    xarray.DataArray
+        ``(patch, ...)``: the other dims of ``data``.
+
+    Raises
+    ------
+    CalibrationError
+        Labels of another shape than ``data``'s (y, x), a patch without pixels, names of the
+        wrong length.
+    """
+    lab = np.asarray(labels.values if isinstance(labels, xr.DataArray) else labels)
+    shape = (data.sizes.get("y"), data.sizes.get("x"))
+    if lab.shape != shape:
+        raise CalibrationError(f"patch_means: labels have shape {lab.shape}, data (y, x) "
+                               f"{shape}")
+    n = int(lab.max()) + 1 if lab.size and lab.max() >= 0 else 0
+    if n == 0:
+        raise CalibrationError("patch_means: labels contain no patch (all negative)")
+    counts = np.bincount(lab[lab >= 0].ravel(), minlength=n)
+    if np.any(counts == 0):
+        raise CalibrationError(f"patch_means: patch(es) {np.flatnonzero(counts == 0).tolist()} "
+                               "have no pixel")
+    if names is not None and len(names) != n:
+        raise CalibrationError(f"patch_means: {len(names)} names for {n} patches")
+    label_da = xr.DataArray(lab, dims=("y", "x"))
+    means = [data.where(label_da == k).mean(("y", "x")) for k in range(n)]
+    out = xr.concat(means, dim="patch")
+    return out.assign_coords(patch=list(names) if names is not None else np.arange(n))
+
+
+def predict_rgb(spectra: xr.DataArray, camera_matrix: xr.Dataset | xr.DataArray) -> xr.DataArray:
+    """RGB through the camera matrix: ``R = C S`` over wavelength (eq. 1, second term).
+
+    Parameters
+    ----------
+    spectra
+        Spectral radiance with a ``wavelength`` dim (any other dims).
+    camera_matrix
+        ``C`` (channel, wavelength) from :func:`camera_matrix`, on the same wavelengths.
+
+    Returns
+    -------
+    xarray.DataArray
+        ``spectra``'s other dims plus ``channel``.
+
+    Raises
+    ------
+    CalibrationError
+        When the wavelengths differ.
+    """
+    c = camera_matrix["camera_matrix"] if isinstance(camera_matrix, xr.Dataset) else camera_matrix
+    if "wavelength" not in spectra.dims:
+        raise SchemaError("predict_rgb: spectra have no wavelength dim",
+                          [f"dims found: {spectra.dims}"])
+    a = np.asarray(spectra["wavelength"].values, dtype=np.float64)
+    b = np.asarray(c["wavelength"].values, dtype=np.float64)
+    if a.shape != b.shape or not np.allclose(a, b, rtol=0, atol=1e-6):
+        raise CalibrationError(f"predict_rgb: spectra are at {a.tolist()} nm, C at "
+                               f"{b.tolist()} nm")
+    out = xr.dot(c.assign_coords(wavelength=a), spectra, dim="wavelength")
+    out = out.transpose(*[d for d in spectra.dims if d != "wavelength"],
+                        *[d for d in c.dims if d != "wavelength"])
+    return out.assign_attrs(units="1", long_name="RGB radiance predicted through C")
+
+
+def cross_validate(
+    measured_rgb: xr.DataArray,
+    spectra: xr.DataArray,
+    camera_matrix: xr.Dataset | xr.DataArray,
+) -> xr.Dataset:
+    """Cross-validation of the calibration (paper Fig. 4): predicted vs measured RGB per patch.
+
+    Parameters
+    ----------
+    measured_rgb
+        RGB radiance of the colour-checker patches measured by the RGB camera
+        (patch, channel).
+    spectra
+        Spectral radiance of the same patches from the spectral camera system (patch,
+        wavelength), e.g. :func:`patch_means` of :func:`band_signal` / ``Q``.
+    camera_matrix
+        ``C`` from :func:`camera_matrix`.
+
+    Returns
+    -------
+    xarray.Dataset
+        The table: ``measured``, ``predicted``, ``difference`` (predicted - measured)
+        (patch, channel) and ``relative_error`` (patch) =
+        ``||difference|| / ||measured||`` over channels. Attrs ``mean_relative_error``,
+        ``max_relative_error``, ``worst_patch``.
+
+    Raises
+    ------
+    CalibrationError
+        Different patches in ``measured_rgb`` and ``spectra``.
+    """
+    if measured_rgb.sizes.get("patch") != spectra.sizes.get("patch"):
+        raise CalibrationError(
+            f"cross_validate: measured_rgb has {measured_rgb.sizes.get('patch')} patches, "
+            f"spectra {spectra.sizes.get('patch')}")
+    predicted = predict_rgb(spectra, camera_matrix).transpose("patch", "channel")
+    measured = measured_rgb.transpose("patch", "channel")
+    if "patch" in measured.coords:
+        predicted = predicted.assign_coords(patch=measured["patch"].values)
+    predicted = predicted.assign_coords(channel=measured["channel"].values) \
+        if "channel" in measured.coords else predicted
+    difference = predicted - measured
+    norm = np.sqrt((measured**2).sum("channel"))
+    relative = np.sqrt((difference**2).sum("channel")) / norm.where(norm > 0)
+    worst = int(np.nanargmax(relative.values))
+    patch_labels = relative["patch"].values if "patch" in relative.coords else np.arange(
+        relative.size)
+    return xr.Dataset(
+        {
+            "measured": measured.assign_attrs(units="1", long_name="measured RGB radiance"),
+            "predicted": predicted.assign_attrs(units="1",
+                                                long_name="RGB predicted through C"),
+            "difference": difference.assign_attrs(units="1", long_name="predicted - measured"),
+            "relative_error": relative.assign_attrs(
+                units="1", long_name="|predicted - measured| / |measured| per patch"),
+        },
+        attrs={"mean_relative_error": float(np.nanmean(relative.values)),
+               "max_relative_error": float(np.nanmax(relative.values)),
+               "worst_patch": str(patch_labels[worst])},
+    )
+
+
+def plot_cross_validation(
+    table: xr.Dataset, *, columns: int = 6, difference_scale: float = 10.0
+) -> Figure:
+    """Figure in the style of the paper's Fig. 4 from a :func:`cross_validate` table.
+
+    Panels: (a) measured RGB of the patches, (b) RGB predicted through ``C``, (c) the
+    difference scaled by ``difference_scale`` (around mid grey), (d) relative error per
+    patch. Swatches are normalised by the brightest measured value and gamma-encoded (1/2.2)
+    for display only.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Built without pyplot (no global state; saving uses the Agg canvas).
+    """
+    from matplotlib.figure import Figure
+
+    measured = np.asarray(table["measured"].transpose("patch", "channel").values, dtype=float)
+    predicted = np.asarray(table["predicted"].transpose("patch", "channel").values, dtype=float)
+    n = measured.shape[0]
+    rows = -(-n // columns)
+    scale = max(float(np.nanmax(measured)), 1e-300)
+
+    def grid(values: np.ndarray, fill: float) -> np.ndarray:
+        out = np.full((rows * columns, values.shape[1]), fill)
+        out[:n] = values
+        return out.reshape(rows, columns, values.shape[1])[..., :3]
+
+    def encode(values: np.ndarray) -> np.ndarray:
+        return np.clip(values / scale, 0, 1) ** (1 / 2.2)
+
+    diff = np.clip(0.5 + difference_scale * (predicted - measured) / scale, 0, 1)
+    fig = Figure(figsize=(12, 7), layout="constrained")
+    spec = fig.add_gridspec(2, 3)
+    panels = [(encode(measured), "(a) measured RGB"), (encode(predicted), "(b) predicted C S"),
+              (diff, f"(c) difference x{difference_scale:g}")]
+    for column, (image, title) in enumerate(panels):
+        ax = fig.add_subplot(spec[0, column])
+        ax.imshow(grid(image, 1.0), interpolation="nearest")
+        ax.set_title(title)
+        ax.set_axis_off()
+    bar = fig.add_subplot(spec[1, :])
+    labels = [str(p) for p in table["relative_error"]["patch"].values] \
+        if "patch" in table["relative_error"].coords else [str(i) for i in range(n)]
+    bar.bar(np.arange(n), 100 * np.asarray(table["relative_error"].values), color="0.4")
+    bar.set_xticks(np.arange(n), labels, rotation=60, ha="right", fontsize=7)
+    bar.set_ylabel("relative error [%]")
+    bar.set_title(f"(d) per patch: mean {100 * table.attrs.get('mean_relative_error', np.nan):.2f}"
+                  f" %, max {100 * table.attrs.get('max_relative_error', np.nan):.2f} %")
+    return fig

@@ -1,0 +1,272 @@
+"""Reconstruction of a whole run, image set by image set (paper sec. 4, "Calibration" and 5).
+
+A run is reconstructed in the sets chosen by :mod:`spectralize.nodes.reconstruction.image_sets`. One seed
+set is solved first from a cold start (:func:`reconstruct_seed_set`); every other set starts
+from spectra transported from the seed through appearance neighbourhoods
+(:mod:`spectralize.nodes.reconstruction.warm_start`) and is solved independently, so the sets run in
+parallel on dask (:func:`reconstruct_image_sets`). The cube is written set by set: each set
+is one resumable region of the ``spectra`` group, so a crash loses at most the sets in flight.
+"""
+
+from __future__ import annotations
+
+import time
+
+import dask
+import dask.array as da
+import numpy as np
+import xarray as xr
+from pydantic import Field
+
+from spectralize.schemas import ReconstructionError
+
+from spectralize.engine import Node, Parameters
+from spectralize.nodes.reconstruction.image_sets import set_members
+from spectralize.nodes.reconstruction import DEFAULT_METHOD, SOLVER_METHODS, reconstruct_spectra
+from spectralize.nodes.reconstruction.warm_start import transport_spectra
+
+__all__ = [
+    "SetReconstructionParameters",
+    "solve_set",
+    "reconstruct_seed_set",
+    "reconstruct_image_sets",
+    "RECONSTRUCT_SEED_SET",
+    "RECONSTRUCT_IMAGE_SETS",
+]
+
+_PER_IMAGE = ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
+
+
+class SetReconstructionParameters(Parameters):
+    """Solver settings shared by the seed set and the other sets."""
+
+    method: str = Field(DEFAULT_METHOD, description=f"solver: {', '.join(sorted(SOLVER_METHODS))}")
+    gamma_hat: float = Field(20.0, ge=0, description="neighbour-term weight (eq. 4; paper: 20 "
+                                                      "for multi-image sets)")
+    tolerance: float = Field(1e-3, gt=0, description="relative normal-equation residual")
+    max_iterations: int = Field(400, ge=1, description="iteration limit per set")
+    k: int = Field(3, ge=1, description="appearance neighbours per pixel (paper: 3)")
+    warm_start_pixels: int = Field(200_000, ge=1000, description="seed pixels used to "
+                                   "transport spectra to the other sets")
+
+
+def _set_inputs(hdr: xr.Dataset, bands: xr.Dataset, labels: np.ndarray
+                ) -> tuple[xr.DataArray, xr.DataArray]:
+    rgb = hdr["radiance"].sel(image=labels)
+    shots = bands["radiance"].isel(shot=np.flatnonzero(np.isin(bands["image"].values, labels)))
+    return rgb, shots
+
+
+def solve_set(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    *,
+    initial: xr.DataArray | None = None,
+    method: str = DEFAULT_METHOD,
+    gamma_hat: float = 20.0,
+    tolerance: float = 1e-3,
+    max_iterations: int = 400,
+    k: int = 3,
+) -> tuple[xr.DataArray, int, float]:
+    """Solve eq. 1 for one image set; returns (spectra, iterations, seconds)."""
+    if shots.sizes["shot"] == 0:
+        raise ReconstructionError("an image set without any band shot cannot be solved on its "
+                                  "own: it needs at least one image with bands")
+    start = time.perf_counter()
+    result = reconstruct_spectra(rgb.load(), shots.load(), camera_matrix, method=method,
+                                 gamma_hat=gamma_hat, tolerance=tolerance,
+                                 max_iterations=max_iterations, k=k, initial=initial)
+    return result.spectra, int(result.iterations), time.perf_counter() - start
+
+
+def _camera_matrix(calibration: xr.Dataset, wavelength: np.ndarray) -> xr.DataArray:
+    if "camera_matrix" not in calibration:
+        raise ReconstructionError("calibration: expected a variable 'camera_matrix' (channel, "
+                                  f"wavelength), found {sorted(map(str, calibration.data_vars))}")
+    matrix = calibration["camera_matrix"].load()
+    return matrix.sel(wavelength=wavelength, method="nearest", tolerance=0.5).assign_coords(
+        wavelength=wavelength)
+
+
+def _wavelengths(bands: xr.Dataset) -> np.ndarray:
+    return np.unique(np.asarray(bands["wavelength"].values, dtype=float))
+
+
+def reconstruct_seed_set(
+    hdr: xr.Dataset,
+    bands: xr.Dataset,
+    calibration: xr.Dataset,
+    image_sets: xr.Dataset,
+    *,
+    method: str = DEFAULT_METHOD,
+    gamma_hat: float = 20.0,
+    tolerance: float = 1e-3,
+    max_iterations: int = 400,
+    k: int = 3,
+    warm_start_pixels: int = 200_000,
+) -> xr.Dataset:
+    """Solve the seed set from a cold start (eq. 1, paper's CG or the faster default).
+
+    Parameters
+    ----------
+    hdr
+        Group ``hdr``: ``radiance`` (image, y, x, channel).
+    bands
+        Group ``bands``: ``radiance`` (shot, y, x) with per-shot ``wavelength``, ``image``,
+        ``filter_size``.
+    calibration
+        A group with ``camera_matrix`` (channel, wavelength): ``calibration/spectral`` (the
+        flows' default binding) or, to isolate the reconstruction, ``truth/camera``.
+    image_sets
+        Group ``image_sets``; its ``seed_set`` attr names the set solved here.
+    method, gamma_hat, tolerance, max_iterations, k
+        Solver settings (see :func:`spectralize.nodes.reconstruction.reconstruct`).
+    warm_start_pixels
+        Not used here (shared parameter model with :func:`reconstruct_image_sets`).
+
+    Returns
+    -------
+    xarray.Dataset
+        Group ``spectra_seed``: ``radiance`` (image, wavelength, y, x) of every member of the
+        seed set, attrs ``seed_set``, ``iterations``, ``seconds``.
+    """
+    seed = int(image_sets.attrs["seed_set"])
+    members, _ = set_members(image_sets, seed)
+    wavelength = _wavelengths(bands)
+    rgb, shots = _set_inputs(hdr, bands, members)
+    spectra, iterations, seconds = solve_set(
+        rgb, shots, _camera_matrix(calibration, wavelength), method=method,
+        gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k)
+    spectra = spectra.drop_vars([c for c in spectra.coords if c not in
+                                 ("image", "wavelength", *_PER_IMAGE)])
+    return xr.Dataset({"radiance": spectra.assign_attrs(
+        units="1", long_name="relative spectral radiance")},
+        attrs={"seed_set": seed, "iterations": iterations, "seconds": round(seconds, 3),
+               "method": method})
+
+
+def _solve_region(rgb: xr.DataArray, shots: xr.DataArray, camera_matrix: xr.DataArray,
+                  owned: np.ndarray, warm: tuple[np.ndarray, np.ndarray] | None,
+                  settings: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Solve one set: the owned images' cube (image, wavelength, y, x) float32 and, per owned
+    image, the set's iterations."""
+    initial = None
+    if warm is not None:
+        source_rgb, source_spectra = warm
+        target = rgb.transpose("image", "y", "x", "channel").values
+        moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3),
+                                  k=settings["k"])
+        cube = moved.reshape(*target.shape[:3], -1)
+        initial = xr.DataArray(np.moveaxis(cube, -1, 1), dims=("image", "wavelength", "y", "x"),
+                               coords={"wavelength": camera_matrix["wavelength"].values})
+    spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, initial=initial, **settings)
+    return (np.asarray(spectra.values[owned], dtype=np.float32),
+            np.full(int(owned.sum()), iterations, dtype=np.int32))
+
+
+def reconstruct_image_sets(
+    hdr: xr.Dataset,
+    bands: xr.Dataset,
+    calibration: xr.Dataset,
+    image_sets: xr.Dataset,
+    spectra_seed: xr.Dataset,
+    *,
+    method: str = DEFAULT_METHOD,
+    gamma_hat: float = 20.0,
+    tolerance: float = 1e-3,
+    max_iterations: int = 400,
+    k: int = 3,
+    warm_start_pixels: int = 200_000,
+) -> xr.Dataset:
+    """The spectral cube of the whole run, one lazy dask chunk per image set.
+
+    The seed set's owned images are copied from ``spectra_seed``; every other set is solved
+    warm-started from the seed through appearance neighbourhoods in RGB (paper sec. 4). The
+    ``image`` dim is ordered by set (the ``image`` coordinate keeps the run's labels, so
+    ``spectra.sel(image=...)`` works), one dask chunk per set: the runner writes it set by set.
+
+    Returns
+    -------
+    xarray.Dataset
+        Group ``spectra``: ``radiance`` (image, wavelength, y, x) float32 units ``"1"``, plus
+        ``image_set`` and ``iterations`` (image), lazy.
+    """
+    seed = int(spectra_seed.attrs["seed_set"])
+    wavelength = _wavelengths(bands)
+    camera_matrix = _camera_matrix(calibration, wavelength)
+    ny, nx = hdr.sizes["y"], hdr.sizes["x"]
+    seed_members, seed_owned = set_members(image_sets, seed)
+    seed_rgb = hdr["radiance"].sel(image=seed_members).transpose("image", "y", "x", "channel")
+    seed_cube = spectra_seed["radiance"].sel(image=seed_members).transpose(
+        "image", "y", "x", "wavelength")
+    pick = np.random.default_rng(0).permutation(seed_rgb.size // 3)[:warm_start_pixels]
+    warm = (seed_rgb.values.reshape(-1, 3)[pick],
+            seed_cube.values.reshape(-1, wavelength.size)[pick])
+    settings = {"method": method, "gamma_hat": gamma_hat, "tolerance": tolerance,
+                "max_iterations": max_iterations, "k": k}
+
+    pieces, counts, labels, set_of = [], [], [], []
+    seed_iterations = int(spectra_seed.attrs.get("iterations", -1))
+    for index in range(image_sets.sizes["set"]):
+        members, owned = set_members(image_sets, index)
+        if not owned.any():
+            continue
+        shape = (int(owned.sum()), wavelength.size, ny, nx)
+        if index == seed:
+            block = spectra_seed["radiance"].sel(image=members[owned]).transpose(
+                "image", "wavelength", "y", "x").data
+            block = da.asarray(block).astype(np.float32).rechunk((shape[0], -1, -1, -1))
+            count = da.full(shape[0], seed_iterations, dtype=np.int32, chunks=shape[0])
+        else:
+            rgb, shots = _set_inputs(hdr, bands, members)
+            task = dask.delayed(_solve_region, pure=True)(
+                rgb, shots, camera_matrix, owned, warm, settings,
+                dask_key_name=f"solve-set-{index}-{dask.base.tokenize(rgb.data, settings)}")
+            block = da.from_delayed(task[0], shape=shape, dtype=np.float32)
+            count = da.from_delayed(task[1], shape=shape[:1], dtype=np.int32)
+        pieces.append(block)
+        counts.append(count)
+        labels.extend(members[owned].tolist())
+        set_of.extend([index] * shape[0])
+    cube = da.concatenate(pieces, axis=0)
+    per_image = hdr.drop_vars([v for v in hdr.data_vars]).sel(image=labels).load()
+    coords = {name: per_image[name] for name in (*_PER_IMAGE, "image") if name in per_image.coords}
+    coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
+    return xr.Dataset(
+        {"radiance": (("image", "wavelength", "y", "x"), cube,
+                      {"units": "1", "long_name": "relative spectral radiance"}),
+         "image_set": ("image", np.asarray(set_of), {"long_name": "set the image was solved in"}),
+         "iterations": ("image", da.concatenate(counts), {
+             "long_name": "solver iterations of the image's set (seed: cold start, others: "
+                          "warm-started from the seed)"})},
+        coords=coords,
+        attrs={"seed_set": seed, "method": method, "gamma_hat": gamma_hat,
+               "seed_iterations": seed_iterations,
+               "ordering": "images ordered by image set; use .sel(image=label)"},
+    )
+
+
+RECONSTRUCT_SEED_SET = Node(
+    name="reconstruct_seed_set",
+    version="1",
+    function=reconstruct_seed_set,
+    inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix",
+            "image_sets": "image_sets"},
+    outputs=("spectra_seed",),
+    parameters=SetReconstructionParameters,
+    description="Solve eq. 1 for the seed image set from a cold start.",
+)
+
+RECONSTRUCT_IMAGE_SETS = Node(
+    name="reconstruct_image_sets",
+    version="1",
+    function=reconstruct_image_sets,
+    inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix",
+            "image_sets": "image_sets", "spectra_seed": "spectra_seed"},
+    outputs=("spectra",),
+    parameters=SetReconstructionParameters,
+    chunks={"spectra": {"y": 256, "x": 256}},
+    resumable_along={"spectra": "image"},
+    description="All image sets, warm-started from the seed, in parallel; written set by set.",
+)

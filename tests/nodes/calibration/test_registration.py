@@ -1,0 +1,91 @@
+import numpy as np
+import pytest
+import xarray as xr
+from scipy import ndimage
+
+from spectralize.nodes.calibration.registration import (
+    estimate_registration,
+    estimate_shift,
+    pair_rotations,
+    register_frames,
+)
+from spectralize.schemas import SchemaError
+
+
+def texture(seed=0, shape=(64, 64)):
+    """Patches of materials with sharp (slightly blurred) edges plus smooth shading."""
+    rng = np.random.default_rng(seed)
+    patches = rng.random((8, 8))[np.ix_(np.arange(shape[0]) * 8 // shape[0],
+                                        np.arange(shape[1]) * 8 // shape[1])]
+    shading = ndimage.gaussian_filter(rng.random(shape), 6.0)
+    return ndimage.gaussian_filter(patches, 0.7) * 800 + shading * 400 + 100
+
+
+def shifted(image, shift):
+    """image(p - shift), exactly, through the Fourier shift theorem."""
+    return np.real(np.fft.ifftn(ndimage.fourier_shift(np.fft.fftn(image), shift)))
+
+
+@pytest.mark.parametrize("shift", [(0.35, -0.6), (2.0, 1.25), (-3.4, 0.0)])
+def test_sub_pixel_shift_is_recovered(shift):
+    reference = texture()
+    moving = shifted(reference, shift) * 0.3 + np.random.default_rng(1).normal(0, 0.5, reference.shape)
+    found, _ = estimate_shift(reference, moving, upsample_factor=100)
+    np.testing.assert_allclose(found, shift, atol=0.1)
+
+
+def test_rotation_pairs_follow_the_15_degree_offset():
+    assert pair_rotations(np.array([0.0, 15.0, 30.0])) == [(0, 1), (1, 2)]
+    full = np.arange(24) * 15.0
+    pairs = pair_rotations(full)
+    assert len(pairs) == 24 and (23, 0) in pairs
+    assert pair_rotations(np.array([0.0, 45.0])) == []
+
+
+def registration_group(shift, rotations=4):
+    rgb, spectral = [], []
+    for r in range(rotations):
+        base = texture(seed=r)
+        rgb.append(np.stack([base * w for w in (0.5, 1.0, 0.7)], axis=-1))
+    for r in range(rotations):
+        # the spectral camera at rotation r sees what RGB saw at r - 1
+        spectral.append(shifted(texture(seed=(r - 1) % rotations), shift) * 0.2 + 30)
+    return xr.Dataset(
+        {"rgb_counts": (("rotation", "y", "x", "channel"), np.asarray(rgb).astype(np.uint16)),
+         "spectral_counts": (("rotation", "y", "x"), np.asarray(spectral).astype(np.uint16))},
+        coords={"rotation": np.arange(rotations),
+                "rotation_angle": ("rotation", np.arange(rotations) * 15.0)},
+    )
+
+
+def test_run_registration_uses_the_one_rotation_offset():
+    out = estimate_registration(registration_group((0.35, -0.6)))
+    np.testing.assert_allclose(out["shift"].values, [0.35, -0.6], atol=0.1)
+    assert out["spectral_rotation"].values.tolist() == [1, 2, 3]
+    assert out["rgb_rotation"].values.tolist() == [0, 1, 2]
+    assert float(out["residual"].max()) < 0.15
+    assert out["shift"].attrs["units"] == "px"
+
+
+def test_registration_errors_name_the_problem():
+    group = registration_group((0.0, 0.0))
+    with pytest.raises(SchemaError, match="raw/registration:spectral_counts"):
+        estimate_registration(group.drop_vars("spectral_counts"))
+    with pytest.raises(SchemaError, match="two rotations 15 degree apart"):
+        estimate_registration(group.assign_coords(rotation_angle=("rotation", [0.0, 40, 80, 120])))
+
+
+def test_register_frames_undoes_the_shift_lazily():
+    shift = (0.35, -0.6)
+    truth = ndimage.gaussian_filter(texture(seed=3, shape=(48, 48)), 1.5)
+    frames = xr.DataArray(np.stack([shifted(truth, shift)] * 3), dims=("shot", "y", "x")).chunk(
+        {"shot": 1})
+    out = register_frames(frames, xr.DataArray(list(shift), dims="axis",
+                                               coords={"axis": ["y", "x"]}), order=3)
+    assert out.chunks is not None
+    inner = (slice(None), slice(4, -4), slice(4, -4))
+    expected = np.stack([truth] * 3)[inner]
+    after = np.abs(out.values[inner] - expected).mean()
+    before = np.abs(frames.values[inner] - expected).mean()
+    assert after < before / 10
+    assert np.median(np.abs(out.values[inner] - expected) / expected) < 5e-3
