@@ -51,9 +51,9 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
 
     import spectralize.flows  # noqa: F401  (Prefect environment defaults)
+    from spectralize.engine import Step
     from spectralize.flows.pipelines import BTF_STEPS
     from spectralize.flows.runtime import run_steps
-    from spectralize.engine import Step
     from spectralize.nodes.reconstruction.image_sets import set_members
     from spectralize.nodes.reconstruction.set_reconstruction import (
         _camera_matrix,

@@ -113,7 +113,10 @@ def simulate_capture(size: int = 256, *, n_images: int = 1,
     seed
         Seed of texture and noise.
     """
-    from spectralize.nodes.simulation.camera_model import camera_sensitivities, spectral_quantum_efficiency
+    from spectralize.nodes.simulation.camera_model import (
+        camera_sensitivities,
+        spectral_quantum_efficiency,
+    )
     from spectralize.nodes.simulation.exposure_plan import exposure_plan, t0_for_total_time
     from spectralize.nodes.simulation.ground_truth import (
         WAVELENGTHS,

@@ -35,11 +35,14 @@ import numpy as np
 import xarray as xr
 from matplotlib.figure import Figure
 
-from spectralize.schemas import Problem, RunStore, SchemaError
-
-from spectralize.nodes.evaluation.capture_time import capture_time, capture_time_from_run, run_capture_time
-from spectralize.nodes.evaluation.metrics import METHOD_DIM, STATISTICS, compare_methods, evaluate
+from spectralize.nodes.evaluation.capture_time import (
+    capture_time,
+    capture_time_from_run,
+    run_capture_time,
+)
 from spectralize.nodes.evaluation.colorimetry import render_srgb
+from spectralize.nodes.evaluation.metrics import METHOD_DIM, STATISTICS, compare_methods, evaluate
+from spectralize.schemas import Problem, RunStore, SchemaError
 
 __all__ = [
     "ERROR_COLORMAP",

@@ -14,11 +14,10 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 
+from spectralize.engine import Node, Parameters
 from spectralize.schemas import SchemaError
 from spectralize.schemas.run import RAW_DARK
 from spectralize.schemas.spec import validate_dataset
-
-from spectralize.engine import Node, Parameters
 
 __all__ = ["average_dark_frames", "DarkAverageParameters", "DARK_AVERAGE"]
 

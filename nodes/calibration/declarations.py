@@ -33,9 +33,6 @@ import xarray as xr
 from pydantic import Field
 from scipy import ndimage
 
-from spectralize.schemas import CalibrationError, SchemaError
-from spectralize.schemas.errors import Problem
-
 from spectralize.engine import Node, Parameters
 from spectralize.nodes.calibration.hdr import merge_hdr
 from spectralize.nodes.calibration.oecf import combine_responses, recover_oecf, recover_oecf_low_snr
@@ -47,6 +44,8 @@ from spectralize.nodes.calibration.spectral import (
     patch_means,
     quantum_efficiency,
 )
+from spectralize.schemas import CalibrationError, SchemaError
+from spectralize.schemas.errors import Problem
 
 __all__ = [
     "RgbOecfParameters",
@@ -727,5 +726,3 @@ CALIBRATE_BANDS = Node(
     description="Band radiance (signal / Q), registered onto the RGB grid, filter size per shot.",
 )
 
-from spectralize.nodes.calibration.dark import DARK_AVERAGE  # noqa: E402
-from spectralize.nodes.calibration.registration import ESTIMATE_REGISTRATION  # noqa: E402

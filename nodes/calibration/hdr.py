@@ -27,9 +27,13 @@ import dask
 import numpy as np
 import xarray as xr
 
+from spectralize.nodes.calibration.oecf import (
+    Weighting,
+    _check_times,
+    response_at_codes,
+    weighting_function,
+)
 from spectralize.schemas import CalibrationError, SchemaError
-
-from spectralize.nodes.calibration.oecf import Weighting, _check_times, response_at_codes, weighting_function
 
 __all__ = ["merge_hdr", "merge_robertson"]
 

@@ -18,10 +18,9 @@ from pydantic import Field
 from scipy import ndimage
 from skimage.registration import phase_cross_correlation
 
+from spectralize.engine import Node, Parameters
 from spectralize.schemas import SchemaError
 from spectralize.schemas.errors import Problem
-
-from spectralize.engine import Node, Parameters
 
 __all__ = [
     "estimate_shift",

@@ -28,9 +28,8 @@ import numpy as np
 import xarray as xr
 from scipy import optimize
 
-from spectralize.schemas import CalibrationError, SchemaError
-
 from spectralize.nodes.calibration.oecf import apply_response
+from spectralize.schemas import CalibrationError, SchemaError
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure

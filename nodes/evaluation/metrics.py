@@ -39,11 +39,10 @@ import numpy as np
 import xarray as xr
 from pydantic import Field, field_validator
 
-from spectralize.schemas import Problem, SchemaError
-from spectralize.schemas.run import EVALUATION
-
 from spectralize.engine import Node, Parameters
 from spectralize.nodes.evaluation.colorimetry import Illuminant, _quiet_colour, spectra_to_xyz
+from spectralize.schemas import Problem, SchemaError
+from spectralize.schemas.run import EVALUATION
 
 __all__ = [
     "CUBE_DIMS",

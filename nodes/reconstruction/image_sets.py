@@ -21,10 +21,9 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 
+from spectralize.engine import Node, Parameters
 from spectralize.schemas import SchemaError
 from spectralize.schemas.errors import Problem
-
-from spectralize.engine import Node, Parameters
 
 __all__ = ["light_direction", "select_image_sets", "ImageSetParameters", "SELECT_IMAGE_SETS",
            "set_members"]

@@ -18,12 +18,11 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 
-from spectralize.schemas import ReconstructionError
-
 from spectralize.engine import Node, Parameters
-from spectralize.nodes.reconstruction.image_sets import set_members
 from spectralize.nodes.reconstruction import DEFAULT_METHOD, SOLVER_METHODS, reconstruct_spectra
+from spectralize.nodes.reconstruction.image_sets import set_members
 from spectralize.nodes.reconstruction.warm_start import transport_spectra
+from spectralize.schemas import ReconstructionError
 
 __all__ = [
     "SetReconstructionParameters",

@@ -12,10 +12,10 @@ from typing import Any, Literal
 import xarray as xr
 from pydantic import Field
 
-from spectralize.nodes.simulation.recipes import RECIPES, get_recipe
-from spectralize.nodes.simulation.camera_model import SimulationParameterError
 from spectralize.engine import Node, Parameters
+from spectralize.nodes.simulation.camera_model import SimulationParameterError
 from spectralize.nodes.simulation.gantry import GROUPS, simulate_run
+from spectralize.nodes.simulation.recipes import RECIPES, get_recipe
 
 __all__ = ["SimulateParameters", "simulate", "SIMULATE"]
 

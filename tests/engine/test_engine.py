@@ -5,7 +5,6 @@ import pytest
 import xarray as xr
 from pydantic import Field, ValidationError
 
-from spectralize.nodes.calibration.dark import DARK_AVERAGE
 from spectralize.engine import (
     ENTRY_POINT_GROUP,
     Node,
@@ -16,6 +15,7 @@ from spectralize.engine import (
     get_node,
     registry,
 )
+from spectralize.nodes.calibration.dark import DARK_AVERAGE
 from spectralize.schemas import NodeNotFoundError, ParameterError, PipelineError, SpectralizeError
 
 

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.flows import run_flow
 from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas.store import RunStore
 
 GROUPS = ("raw/dark", "raw/white_reference", "raw/colour_checker", "raw/rgb")

@@ -6,9 +6,6 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spectralize.nodes.evaluation.capture_time import capture_time
-from spectralize.nodes.evaluation.metrics import evaluate
-from spectralize.nodes.evaluation.colorimetry import render_srgb
 from spectralize.flows.report import (
     plot_capture_time,
     plot_error_map,
@@ -17,6 +14,9 @@ from spectralize.flows.report import (
     write_report,
     write_run_report,
 )
+from spectralize.nodes.evaluation.capture_time import capture_time
+from spectralize.nodes.evaluation.colorimetry import render_srgb
+from spectralize.nodes.evaluation.metrics import evaluate
 from spectralize.schemas import RunStore, SchemaError
 
 SHAPE = colour.SpectralShape(410, 720, 10)

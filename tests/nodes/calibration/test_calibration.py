@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spectralize.nodes.simulation.recipes import get_recipe
+from spectralize.nodes.calibration.dark import average_dark_frames
 from spectralize.nodes.calibration.declarations import (
     calibrate_bands,
     calibrate_spectral,
@@ -14,9 +14,9 @@ from spectralize.nodes.calibration.declarations import (
     recover_rgb_oecf,
     recover_spectral_oecf,
 )
-from spectralize.nodes.calibration.dark import average_dark_frames
-from spectralize.nodes.simulation.gantry import simulate_run
 from spectralize.nodes.calibration.registration import estimate_registration
+from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas import CalibrationError
 from spectralize.schemas.run import GROUP_SCHEMAS
 from spectralize.schemas.spec import validate_dataset

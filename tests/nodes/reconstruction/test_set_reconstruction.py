@@ -2,11 +2,14 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.nodes.evaluation.metrics import normalised_rmse
-from spectralize.nodes.simulation.gantry import simulate_run
 from spectralize.nodes.reconstruction.image_sets import select_image_sets
-from spectralize.nodes.reconstruction.set_reconstruction import reconstruct_image_sets, reconstruct_seed_set
+from spectralize.nodes.reconstruction.set_reconstruction import (
+    reconstruct_image_sets,
+    reconstruct_seed_set,
+)
+from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas import validate_dataset
 from spectralize.schemas.run import SPECTRA, SPECTRA_SEED
 

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.nodes.simulation.camera_model import SimulationParameterError, response_model
 from spectralize.nodes.simulation.gantry import (
     GROUPS,
@@ -18,6 +17,7 @@ from spectralize.nodes.simulation.gantry import (
     group_schema,
     simulate_run,
 )
+from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas import GROUP_SCHEMAS, RunStore, validate_dataset
 
 # fixed-width string coords (channel, sensor, patch_name) make zarr 3 warn that their dtype
