@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 demo: $(STAMP)
 	$(BIN)/spectralize demo
 
-test: $(STAMP)
+test: lint
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)
@@ -25,8 +25,12 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/calibration.py
 	$(BIN)/python benchmarks/btf_flow.py
 
+# Style and import rules: formatting, lint, and the import contracts in pyproject.toml
+# (schemas <- engine <- nodes <- flows; only flows imports Prefect; no stage imports simulation).
 lint: $(STAMP)
+	$(BIN)/ruff format --check .
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports
 
 clean:
 	rm -rf demo .pytest_cache

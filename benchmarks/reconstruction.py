@@ -39,12 +39,11 @@ sys.path.insert(0, str(HERE))
 from reconstruction_scene import nrmse_per_pixel, simulate_capture  # noqa: E402
 
 from spectralize.nodes.reconstruction import (  # noqa: E402
-    BASELINE_METHODS,
     DEFAULT_METHOD,
+    RECONSTRUCTION_METHODS,
     build_problem,
     inputs_from_xarray,
-    reconstruct_baseline,
-    reconstruct_spectra,
+    reconstruct,
 )
 from spectralize.nodes.reconstruction.solvers import (  # noqa: E402
     block_jacobi_pcg,
@@ -144,15 +143,16 @@ def compare_methods(size: int, seed: int, *, ablation_size: int | None) -> dict:
     rgb, bands, c = capture.rgb, capture.bands, capture.camera_matrix
     methods: dict[str, dict] = {}
 
-    for name in BASELINE_METHODS:
-        out, wall, cpu, peak = measured(reconstruct_baseline, rgb, bands, c, method=name)
+    for name in [n for n, m in RECONSTRUCTION_METHODS.items() if m.kind == "baseline"]:
+        out, wall, cpu, peak = measured(reconstruct, rgb, bands, c, method=name)
         methods[name] = method_row(out.values, truth, wall, cpu, peak, 0, kind="baseline")
         log(f"baseline {name:20s} median {methods[name]['median']:.4f} "
             f"<0.03 {methods[name]['fraction_under_0.03']:.3f}  {wall:.2f} s")
 
     runs = {}
     for name in (DEFAULT_METHOD, "paper-cg"):
-        result, wall, cpu, peak = measured(reconstruct_spectra, rgb, bands, c, method=name)
+        result, wall, cpu, peak = measured(reconstruct, rgb, bands, c, method=name,
+                                           full_output=True)
         runs[name] = result
         methods[name] = method_row(
             result.spectra.values, truth, wall, cpu, peak, result.iterations, kind="solver",
@@ -165,7 +165,7 @@ def compare_methods(size: int, seed: int, *, ablation_size: int | None) -> dict:
     # the bias floor of eq. 1 itself: the default solver on noise-free bands
     clean = bands.copy(data=truth[0][np.searchsorted(c["wavelength"].values,
                                                      bands["wavelength"].values)])
-    result, wall, cpu, peak = measured(reconstruct_spectra, rgb, clean, c)
+    result, wall, cpu, peak = measured(reconstruct, rgb, clean, c, full_output=True)
     noise_free = method_row(result.spectra.values, truth, wall, cpu, peak, result.iterations)
     log(f"default solver on noise-free bands: median {noise_free['median']:.4f} "
         f"<0.03 {noise_free['fraction_under_0.03']:.3f}")
@@ -174,13 +174,13 @@ def compare_methods(size: int, seed: int, *, ablation_size: int | None) -> dict:
     curve = Curve(truth)
     log("convergence curves (paper-cg, then the default)")
     curve.restart()
-    paper_run = reconstruct_spectra(rgb, bands, c, method="paper-cg", callback=curve)
+    paper_run = reconstruct(rgb, bands, c, method="paper-cg", callback=curve, full_output=True)
     paper_curve = list(curve.points)
     paper_final = paper_curve[-1][2] if paper_curve else methods["paper-cg"]["median"]
     target = paper_final * (1 + ACCURACY_SLACK)
     paper_total = curve.time_to(target)
     curve.restart()
-    default_run = reconstruct_spectra(rgb, bands, c, callback=curve)
+    default_run = reconstruct(rgb, bands, c, callback=curve, full_output=True)
     default_curve = list(curve.points)
     default_total = curve.time_to(target)
     speed = {
@@ -200,7 +200,7 @@ def compare_methods(size: int, seed: int, *, ablation_size: int | None) -> dict:
                                     / methods[DEFAULT_METHOD]["wall_s"], 2),
         "paper_cg_curve": [[i, round(t, 3), round(m, 6)] for i, t, m in paper_curve[::5]],
         "default_curve": [[i, round(t, 3), round(m, 6)] for i, t, m in default_curve],
-        "note": "seconds from the start of the reconstruct_spectra call (input checks, "
+        "note": "seconds from the start of the reconstruct call (input checks, "
                 "neighbour search and operator set-up included) to the first iteration "
                 f"whose median nRMSE is within {ACCURACY_SLACK:.0%} of the paper-CG's final "
                 "median; the metric's own time is excluded",
@@ -244,8 +244,8 @@ def weight_sensitivity(capture) -> dict:
     rows = {"size": int(capture.truth.sizes["y"])}
     for options in ({}, {"gamma_hat": 0.3}, {"gamma_hat": 3.0}, {"beta_hat": 10.0},
                     {"alpha_hat": 3.0}, {"k": 6}):
-        result = reconstruct_spectra(capture.rgb, capture.bands, capture.camera_matrix,
-                                     **options)
+        result = reconstruct(capture.rgb, capture.bands, capture.camera_matrix,
+                             full_output=True, **options)
         name = ", ".join(f"{k}={v}" for k, v in options.items()) or "paper defaults"
         rows[name] = {**statistics(nrmse_per_pixel(result.spectra.values, truth)),
                       "iterations": result.iterations}
@@ -308,8 +308,8 @@ def scaling_case(size: int, n_images: int, seed: int) -> dict:
     capture = simulate_capture(size, n_images=n_images, seed=seed)
     truth = capture.truth.values
     rss_before = resident_mb("VmRSS")
-    result, wall, cpu, peak = measured(reconstruct_spectra, capture.rgb, capture.bands,
-                                       capture.camera_matrix)
+    result, wall, cpu, peak = measured(reconstruct, capture.rgb, capture.bands,
+                                       capture.camera_matrix, full_output=True)
     row = method_row(result.spectra.values, truth, wall, cpu, peak, result.iterations,
                      setup_s=round(result.setup_time, 3), converged=bool(result.converged))
     row.update({"size": size, "n_images": n_images, "pixels": size * size * n_images,
@@ -322,8 +322,8 @@ def scaling_case(size: int, n_images: int, seed: int) -> dict:
         row["images_with_bands"] = statistics(e[with_bands])
         row["images_without_bands"] = statistics(e[without]) if without.size else None
         for name in ("filtered-projected", "wiener"):
-            base = reconstruct_baseline(capture.rgb, capture.bands, capture.camera_matrix,
-                                        method=name)
+            base = reconstruct(capture.rgb, capture.bands, capture.camera_matrix,
+                               method=name)
             row[f"baseline_{name}"] = statistics(nrmse_per_pixel(base.values, truth))
     return row
 

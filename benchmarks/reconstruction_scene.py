@@ -7,7 +7,8 @@ Ground truth and exposure plan come from the project's simulator modules:
   boundaries), albedo detail, bump shading and specular highlights, lit by ``LED-B3``;
 * :func:`spectralize.nodes.simulation.exposure_plan.exposure_plan`: eq. 2 (omega = 0.8, ``t0`` for
   6 s per set of 32 bands as in the ``demo``/``paper`` recipes) and eq. 3 with the spectral
-  camera's quantum efficiency :func:`spectralize.nodes.simulation.camera_model.spectral_quantum_efficiency`;
+  camera's quantum efficiency
+  :func:`spectralize.nodes.simulation.camera_model.spectral_quantum_efficiency`;
 * RGB camera matrix ``C``: :func:`spectralize.nodes.simulation.camera_model.camera_sensitivities`
   (Nikon 5100).
 

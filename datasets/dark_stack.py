@@ -14,6 +14,8 @@ import dask.array as da
 import numpy as np
 import xarray as xr
 
+from spectralize.schemas import SimulationError
+
 __all__ = ["make_raw_dark"]
 
 
@@ -52,10 +54,16 @@ def make_raw_dark(
         scheduling).
     seed
         Seed of the fixed pattern and the noise.
+
+    Raises
+    ------
+    SimulationError
+        When ``exposure_times`` are not positive and increasing.
     """
     times = np.asarray(exposure_times, dtype=float)
     if times.ndim != 1 or times.size == 0 or np.any(times <= 0) or np.any(np.diff(times) <= 0):
-        raise ValueError(f"exposure_times must be positive and increasing, got {exposure_times}")
+        raise SimulationError.single("exposure_times", "a non-empty 1-D sequence of positive, "
+                                     "increasing exposure times [s]", np.ravel(times).tolist())
     pattern = np.random.default_rng([seed, 0])
     offset = adc_offset + pattern.normal(0.0, 1.0, shape)
     rate = dark_current * np.where(pattern.random(shape) < 0.01, 20.0, 1.0)

@@ -55,8 +55,11 @@ def _cmd_nodes(args: argparse.Namespace) -> int:
         inputs = ", ".join(f"{arg} <- {group}" for arg, group in node.inputs.items()) or "none"
         print(f"    inputs:  {inputs}")
         print(f"    outputs: {', '.join(node.outputs)}")
+        choices = node.parameter_choices()
         for pname, ptype, default, description in node.describe_parameters():
-            print(f"    --set {name}.{pname}={default!r}  ({ptype}) {description}")
+            print(f"    --set {name}.{pname}={default!r}  ({ptype}) {description}".rstrip())
+            if pname in choices:
+                print(f"        one of: {', '.join(choices[pname]) or 'none'}")
     return 0
 
 

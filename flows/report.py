@@ -1,36 +1,34 @@
-"""Figures and an HTML report of an evaluation (paper Figures 5-8 and sec. 5).
+"""The HTML report of an evaluation: composition and file I/O (paper sec. 5, Figures 4-8).
 
-:func:`write_report` writes a self-contained folder: ``index.html`` with relative links to
-PNG figures made with matplotlib's Agg canvas (no pyplot state, no display needed):
+:func:`write_report` writes a self-contained folder: ``index.html``, rendered from the Jinja2
+template ``templates/report.html.j2`` (autoescaped), with relative links to PNG figures:
 
-- ``error_map_NNN.png`` per image (Figures 5 and 6): the ground truth and the reconstruction
-  rendered to sRGB (:func:`spectralize.nodes.evaluation.colorimetry.render_srgb`, one exposure for both)
-  next to the normalised RMSE map in the cubehelix colour map (Green, 2011, as in the paper),
-  with the representative pixels numbered;
-- ``spectra_NNN.png`` per image: those pixels' spectra, truth solid, reconstruction dotted;
-- ``histogram.png`` (Figure 7): nRMSE histograms over all pixels of the images with and
-  without band shots, logarithmic count axis, the 0.03 level marked;
-- ``capture_time.png`` (sec. 5 "Real Data", Figure 8): total exposure of the reference and
-  the fast capture, stacked spectral + RGB, with the speed-up and the accuracy reached;
+- ``error_map_NNN.png`` and ``spectra_NNN.png`` per image (Figures 5 and 6),
+- ``histogram.png`` (Figure 7),
+- ``capture_time.png`` (sec. 5 "Real Data", Figure 8) when a capture time is given,
+- ``cross_validation.png`` (Figure 4) when the spectral calibration is given,
 
-and tables of the numbers: summary per subset of images, per image, capture time and, when
-baselines were run, the comparison of methods.
+and tables of the numbers: what run it describes, a summary per subset of images, per image,
+capture time and, when baselines were run, the comparison of methods. The figures are drawn
+by :mod:`spectralize.nodes.evaluation.figures` and
+:mod:`spectralize.nodes.evaluation.figures_calibration`; this module only composes and
+writes. :func:`write_run_report` reads all of it from a run store.
 
 References
 ----------
-Fast Capture of Spectral Image Series, sec. 5, Figures 5, 6, 7 and 8. Green, D. A. (2011).
-A colour scheme for the display of astronomical intensity images. Bull. Astr. Soc. India 39.
+Fast Capture of Spectral Image Series, sec. 5, Figures 4, 5, 6, 7 and 8.
 """
 
 from __future__ import annotations
 
-import html
 import os
 import time
 from collections.abc import Mapping, Sequence
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+import jinja2
 import numpy as np
 import xarray as xr
 from matplotlib.figure import Figure
@@ -41,257 +39,69 @@ from spectralize.nodes.evaluation.capture_time import (
     run_capture_time,
 )
 from spectralize.nodes.evaluation.colorimetry import render_srgb
-from spectralize.nodes.evaluation.metrics import METHOD_DIM, STATISTICS, compare_methods, evaluate
-from spectralize.schemas import Problem, RunStore, SchemaError
+from spectralize.nodes.evaluation.figures import (
+    image_label,
+    plot_capture_time,
+    plot_error_map,
+    plot_histograms,
+    plot_spectra,
+)
+from spectralize.nodes.evaluation.figures_calibration import plot_cross_validation
+from spectralize.nodes.evaluation.metrics import (
+    DEFAULT_THRESHOLD,
+    METHOD_DIM,
+    STATISTICS,
+    compare_methods,
+    evaluate,
+)
+from spectralize.schemas import ParameterError, Problem, RunStore, SchemaError
+from spectralize.schemas.run import EVALUATION
 
 __all__ = [
-    "ERROR_COLORMAP",
-    "plot_error_map",
-    "plot_spectra",
-    "plot_histograms",
-    "plot_capture_time",
+    "BASELINES_GROUP",
+    "TEMPLATE",
     "write_report",
     "write_run_report",
-    "BASELINES_GROUP",
 ]
 
 #: Run-store groups ``baselines/<method>`` (spectra layout) are compared by
 #: :func:`write_run_report`.
 BASELINES_GROUP: str = "baselines"
-#: Colour map of the error maps: cubehelix (Green, 2011), the paper's choice.
-ERROR_COLORMAP: str = "cubehelix"
+#: The page's Jinja2 template, in this package's ``templates`` folder.
+TEMPLATE: str = "report.html.j2"
 _DPI = 100
-_REQUIRED = ("nrmse", "nrmse_statistics", "nrmse_histogram", "nrmse_bin_lower",
-             "nrmse_bin_upper", "nrmse_subset_statistics", "nrmse_subset_fraction_below",
-             "sample_y", "sample_x", "sample_truth", "sample_reconstruction")
+_METRIC_LABELS = (("nrmse", "nRMSE"), ("spectral_angle", "spectral angle [°]"),
+                  ("delta_e", "CIEDE2000"))
+
+
+@lru_cache(maxsize=1)
+def _environment() -> jinja2.Environment:
+    return jinja2.Environment(loader=jinja2.PackageLoader("spectralize.flows", "templates"),
+                              autoescape=True, undefined=jinja2.StrictUndefined,
+                              trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
 
 
 def _check_evaluation(evaluation: xr.Dataset) -> None:
-    missing = [name for name in _REQUIRED if name not in evaluation.variables]
+    """Every variable and coordinate of the ``evaluation`` schema is drawn or tabulated."""
+    missing = [spec.name for spec in EVALUATION.variables + EVALUATION.coords
+               if spec.name not in evaluation]
     if missing:
         raise SchemaError("cannot report this evaluation:", [
-            Problem(f"evaluation:{name}", "a variable made by spectralize.nodes.evaluation.metrics."
-                    "evaluate", "nothing") for name in missing])
+            Problem(f"evaluation:{name}", "a variable made by "
+                    "spectralize.nodes.evaluation.metrics.evaluate", "nothing")
+            for name in missing])
 
 
-# -- figures -------------------------------------------------------------------------------
-def _image_label(evaluation: xr.Dataset, image: int) -> str:
-    parts = [f"image {image}"]
-    coords = evaluation.coords
-    if "theta_o" in coords and "phi_o" in coords:
-        parts.append(f"view ({float(coords['theta_o'][image]):.0f}°, "
-                     f"{float(coords['phi_o'][image]):.0f}°)")
-    if "theta_i" in coords and "phi_i" in coords:
-        parts.append(f"light ({float(coords['theta_i'][image]):.0f}°, "
-                     f"{float(coords['phi_i'][image]):.0f}°)")
-    if "has_band_shots" in evaluation:
-        parts.append("with band shots" if bool(evaluation["has_band_shots"][image])
-                     else "without band shots")
-    return ", ".join(parts)
-
-
-def _mark_samples(ax: Any, evaluation: xr.Dataset, image: int) -> None:
-    ys = np.asarray(evaluation["sample_y"][image].values)
-    xs = np.asarray(evaluation["sample_x"][image].values)
-    for number, (y, x) in enumerate(zip(ys, xs, strict=True), start=1):
-        if y < 0:
-            continue
-        ax.plot([x], [y], marker="o", markersize=7, markerfacecolor="none",
-                markeredgecolor="white", markeredgewidth=1.5)
-        ax.annotate(str(number), (x, y), xytext=(4, 4), textcoords="offset points",
-                    color="white", fontsize=9, fontweight="bold")
-
-
-def plot_error_map(
-    evaluation: xr.Dataset,
-    image: int,
-    *,
-    truth_srgb: xr.DataArray,
-    reconstruction_srgb: xr.DataArray | None = None,
-    vmax: float | None = None,
-) -> Figure:
-    """Ground truth (sRGB) next to the normalised RMSE map of one image (Figures 5 and 6).
-
-    Parameters
-    ----------
-    evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (computed).
-    image
-        Position of the image along ``image``.
-    truth_srgb, reconstruction_srgb
-        Renders (image, y, x, channel) from :func:`~spectralize.nodes.evaluation.colorimetry.render_srgb`;
-        the reconstruction panel is left out when ``None``.
-    vmax
-        Upper end of the colour scale (default: the image's largest nRMSE).
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        An Agg figure (not registered with pyplot).
-    """
-    nrmse = np.asarray(evaluation["nrmse"][image].values, dtype=np.float64)
-    top = float(np.nanmax(nrmse)) if vmax is None and np.isfinite(nrmse).any() else (vmax or 1.0)
-    panels = 3 if reconstruction_srgb is not None else 2
-    figure = Figure(figsize=(4.2 * panels, 4.2), layout="constrained")
-    axes = figure.subplots(1, panels)
-    axes[0].imshow(np.asarray(truth_srgb[image].values), interpolation="nearest")
-    axes[0].set_title("ground truth (sRGB)")
-    _mark_samples(axes[0], evaluation, image)
-    if reconstruction_srgb is not None:
-        axes[1].imshow(np.asarray(reconstruction_srgb[image].values), interpolation="nearest")
-        axes[1].set_title("reconstruction (sRGB)")
-    shown = axes[-1].imshow(nrmse, cmap=ERROR_COLORMAP, vmin=0.0, vmax=top,
-                            interpolation="nearest")
-    axes[-1].set_title("normalised RMSE")
-    _mark_samples(axes[-1], evaluation, image)
-    figure.colorbar(shown, ax=axes[-1], shrink=0.85, label="nRMSE")
-    for ax in axes:
-        ax.set_xticks([])
-        ax.set_yticks([])
-    figure.suptitle(_image_label(evaluation, image))
-    return figure
-
-
-def plot_spectra(evaluation: xr.Dataset, image: int) -> Figure:
-    """Representative spectra of one image: truth solid, reconstruction dotted (Fig. 5, 6).
-
-    The curves are numbered like the markers of :func:`plot_error_map`; the legend gives
-    each pixel's position, nRMSE and the quantile of the nRMSE map it was picked at.
-    """
-    wavelength = np.asarray(evaluation["wavelength"].values, dtype=np.float64)
-    truth = np.asarray(evaluation["sample_truth"][image].values, dtype=np.float64)
-    recon = np.asarray(evaluation["sample_reconstruction"][image].values, dtype=np.float64)
-    ys = np.asarray(evaluation["sample_y"][image].values)
-    xs = np.asarray(evaluation["sample_x"][image].values)
-    errors = np.asarray(evaluation["sample_nrmse"][image].values, dtype=np.float64)
-    quantiles = np.asarray(evaluation["sample_quantile"].values, dtype=np.float64)
-    figure = Figure(figsize=(8.0, 4.0), layout="constrained")
-    ax = figure.subplots()
-    colours = [f"C{i % 10}" for i in range(truth.shape[0])]
-    for number in range(truth.shape[0]):
-        if ys[number] < 0:
-            continue
-        label = (f"{number + 1}: (y={ys[number]}, x={xs[number]}) nRMSE {errors[number]:.4f} "
-                 f"(q={quantiles[number]:g})")
-        ax.plot(wavelength, truth[number], "-", color=colours[number], label=label)
-        ax.plot(wavelength, recon[number], ":", color=colours[number], linewidth=2.0)
-    ax.set_xlabel("wavelength [nm]")
-    ax.set_ylabel("relative radiance")
-    ax.set_title(f"{_image_label(evaluation, image)}\ntruth (solid), reconstruction (dotted)",
-                 fontsize=10)
-    ax.legend(fontsize=7, loc="best")
-    ax.grid(alpha=0.3)
-    return figure
-
-
-def _subset_histograms(evaluation: xr.Dataset) -> dict[str, np.ndarray]:
-    counts = np.asarray(evaluation["nrmse_histogram"].values, dtype=np.int64)
-    if "has_band_shots" in evaluation:
-        has = np.asarray(evaluation["has_band_shots"].values, dtype=bool)
-        return {"with band shots": counts[has].sum(axis=0),
-                "without band shots": counts[~has].sum(axis=0)}
-    return {"all images": counts.sum(axis=0)}
-
-
-def plot_histograms(evaluation: xr.Dataset) -> Figure:
-    """nRMSE histograms of the images with and without band shots, log count axis (Fig. 7).
-
-    Pixels above the histogram range are stated in the legend (``nrmse_above_range``).
-    """
-    lower = np.asarray(evaluation["nrmse_bin_lower"].values, dtype=np.float64)
-    upper = np.asarray(evaluation["nrmse_bin_upper"].values, dtype=np.float64)
-    edges = np.append(lower, upper[-1])
-    above = np.asarray(evaluation.get("nrmse_above_range", xr.DataArray(
-        np.zeros(evaluation.sizes["image"], dtype=np.int64))).values)
-    has = (np.asarray(evaluation["has_band_shots"].values, dtype=bool)
-           if "has_band_shots" in evaluation else np.ones(evaluation.sizes["image"], bool))
-    figure = Figure(figsize=(7.5, 4.2), layout="constrained")
-    ax = figure.subplots()
-    for index, (label, counts) in enumerate(_subset_histograms(evaluation).items()):
-        outside = int(above[has].sum() if label != "without band shots" else above[~has].sum())
-        ax.stairs(np.where(counts > 0, counts, np.nan), edges, color=f"C{index}",
-                  linewidth=1.8, label=f"{label} ({int(counts.sum())} px, {outside} above range)")
-    threshold = float(evaluation.attrs.get("threshold", 0.03))
-    ax.axvline(threshold, color="0.4", linestyle="--", linewidth=1.0,
-               label=f"nRMSE = {threshold:g}")
-    ax.set_yscale("log")
-    ax.set_xlim(edges[0], edges[-1])
-    ax.set_xlabel("normalised RMSE")
-    ax.set_ylabel("pixel count (log)")
-    ax.set_title("nRMSE histogram over all pixels")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, which="both")
-    return figure
-
-
-def plot_capture_time(capture: xr.Dataset) -> Figure:
-    """Total exposure of the reference and the fast capture, spectral + RGB stacked.
-
-    ``capture`` is the output of :func:`spectralize.nodes.evaluation.capture_time.capture_time`.
-    """
-    names = [str(c) for c in capture["capture"].values]
-    spectral = np.asarray(capture["spectral_time"].values, dtype=np.float64)
-    rgb = np.asarray(capture["rgb_time"].values, dtype=np.float64)
-    figure = Figure(figsize=(6.0, 4.0), layout="constrained")
-    ax = figure.subplots()
-    positions = np.arange(len(names))
-    given = set(str(capture.attrs.get("given_as_total", "")).split(","))
-    as_total = np.array([name in given for name in names])
-    measured = np.where(as_total, 0.0, spectral)
-    ax.bar(positions, measured, color="C0", label="band shots")
-    ax.bar(positions, rgb, bottom=measured, color="C1", label="RGB images")
-    if as_total.any():
-        ax.bar(positions, np.where(as_total, spectral, 0.0), color="0.6",
-               label="total (given as a number)")
-    totals = spectral + rgb
-    for position, total in zip(positions, totals, strict=True):
-        ax.annotate(f"{total:.3g} s", (position, total), ha="center", va="bottom")
-    positive = totals[totals > 0]
-    if positive.size and positive.max() > 20 * positive.min():  # a 30x bar would be invisible
-        ax.set_yscale("log")
-        ax.set_ylim(positive.min() / 3, positive.max() * 3)
-        ax.set_ylabel("total exposure [s] (log)")
-    else:
-        ax.set_ylim(0, 1.15 * float(np.max(totals)) if np.max(totals) > 0 else 1.0)
-        ax.set_ylabel("total exposure [s]")
-    ax.set_xticks(positions, names)
-    title = f"speed-up {float(capture['speedup']):.1f}x"
-    if "nrmse_median" in capture:
-        title += (f" at nRMSE median {float(capture['nrmse_median']):.4f}, "
-                  f"p95 {float(capture['nrmse_p95']):.4f}")
-    ax.set_title(title)
-    ax.legend()
-    return figure
-
-
-# -- HTML ----------------------------------------------------------------------------------
-def _e(value: object) -> str:
-    return html.escape(str(value), quote=True)
-
-
-def _fmt(value: float, digits: int = 4) -> str:
+# -- tables --------------------------------------------------------------------------------
+def _fmt(value: Any, digits: int = 4) -> str:
     value = float(value)
     return "—" if not np.isfinite(value) else f"{value:.{digits}g}"
 
 
-def _table(table_id: str, caption: str, header: Sequence[str], rows: Sequence[Sequence[str]]
-           ) -> str:
-    head = "".join(f"<th>{_e(h)}</th>" for h in header)
-    body = "\n".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in row) + "</tr>"
-                     for row in rows)
-    return (f'<table id="{_e(table_id)}">\n<caption>{_e(caption)}</caption>\n'
-            f"<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>")
-
-
-def _figure(figure: Figure, directory: Path, name: str, caption: str) -> str:
-    figure.savefig(directory / name, dpi=_DPI)
-    stem = Path(name).stem
-    return (f'<figure id="{_e(stem)}"><img src="{_e(name)}" alt="{_e(caption)}">'
-            f"<figcaption>{_e(caption)}</figcaption></figure>")
-
-
-_METRIC_LABELS = (("nrmse", "nRMSE"), ("spectral_angle", "spectral angle [°]"),
-                  ("delta_e", "CIEDE2000"))
+def _table(table_id: str, caption: str, header: Sequence[str],
+           rows: Sequence[Sequence[str]]) -> dict[str, Any]:
+    return {"id": table_id, "caption": caption, "header": list(header),
+            "rows": [list(row) for row in rows]}
 
 
 def _summary_rows(table: xr.Dataset, subsets: Sequence[str]) -> list[list[str]]:
@@ -313,7 +123,7 @@ def _summary_header(threshold: float) -> list[str]:
     return header + [f"fraction nRMSE < {threshold:g}"]
 
 
-def _per_image_rows(evaluation: xr.Dataset) -> tuple[list[str], list[list[str]]]:
+def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
     coords = [c for c in ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
               if c in evaluation.coords]
     header = ["image", *coords]
@@ -330,17 +140,14 @@ def _per_image_rows(evaluation: xr.Dataset) -> tuple[list[str], list[list[str]]]
         row.append(_fmt(evaluation["nrmse_fraction_below"][image]))
         for name, stat in (("spectral_angle", "median"), ("delta_e", "median"),
                            ("delta_e", "p95")):
-            variable = f"{name}_statistics"
-            row.append(_fmt(evaluation[variable][image].sel(statistic=stat))
-                       if variable in evaluation else "—")
-        row.append(str(int(evaluation["invalid_count"][image]))
-                   if "invalid_count" in evaluation else "—")
+            row.append(_fmt(evaluation[f"{name}_statistics"][image].sel(statistic=stat)))
+        row.append(str(int(evaluation["invalid_count"][image])))
         rows.append(row)
-    return header, rows
+    return _table("per-image", "Statistics per image", header, rows)
 
 
-def _run_rows(evaluation: xr.Dataset, spectra: xr.Dataset, truth: xr.Dataset,
-              run: str | os.PathLike[str] | None) -> list[list[str]]:
+def _run_table(evaluation: xr.Dataset, spectra: xr.Dataset, truth: xr.Dataset,
+               run: str | os.PathLike[str] | None) -> dict[str, Any]:
     rows = [["run store", str(run) if run is not None else "(not given)"]]
     for role, ds in (("spectra", spectra), ("truth/spectra", truth), ("evaluation", evaluation)):
         fingerprint = ds.attrs.get("spectralize_fingerprint") or evaluation.attrs.get(
@@ -359,22 +166,54 @@ def _run_rows(evaluation: xr.Dataset, spectra: xr.Dataset, truth: xr.Dataset,
         ["colour difference", f"CIEDE2000 under {evaluation.attrs.get('illuminant', '?')}, "
                               f"{evaluation.attrs.get('observer', 'CIE 1931 2°')}"],
     ]
-    return rows
+    return _table("run", "What this report describes", ["item", "value"], rows)
 
 
-_STYLE = """
-body { font-family: sans-serif; margin: 2em; max-width: 1400px; }
-table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
-caption { text-align: left; font-weight: bold; padding: 0.3em 0; }
-th, td { border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: right; }
-th { background: #eee; }
-td:first-child { text-align: left; }
-figure { margin: 1em 0; }
-figure img { max-width: 100%; }
-figcaption { font-size: 0.9em; color: #444; }
-"""
+def _capture_table(capture: xr.Dataset) -> dict[str, Any]:
+    rows = [[str(c), _fmt(capture["spectral_time"].sel(capture=c)),
+             _fmt(capture["rgb_time"].sel(capture=c)),
+             _fmt(capture["total_time"].sel(capture=c)),
+             str(int(capture["band_shots"].sel(capture=c)))]
+            for c in capture["capture"].values]
+    return _table("capture-time", "Total exposure of the captures [s]; "
+                  f"speed-up {float(capture['speedup']):.1f}x. "
+                  + str(capture.attrs.get("summary", "")),
+                  ["capture", "band shots [s]", "RGB [s]", "total [s]", "band shots"], rows)
 
 
+def _baselines_table(evaluation: xr.Dataset, table: xr.Dataset, threshold: float
+                     ) -> dict[str, Any]:
+    header = ["method"] + _summary_header(threshold)[2:]
+    rows = [["this run (spectra)"] + _summary_rows(evaluation, ["all"])[0][2:]]
+    for method in table[METHOD_DIM].values:
+        rows.append([str(method)]
+                    + _summary_rows(table.sel({METHOD_DIM: method}), ["all"])[0][2:])
+    return _table("baselines", "Comparison of methods on all images of the run", header, rows)
+
+
+# -- figures -------------------------------------------------------------------------------
+def _save(figure: Figure, directory: Path, name: str, caption: str) -> dict[str, str]:
+    """Write ``figure`` as ``directory / name``; what the template needs to show it."""
+    figure.savefig(directory / name, dpi=_DPI)
+    return {"id": Path(name).stem, "src": name, "caption": caption}
+
+
+def _cross_validation(calibration: xr.Dataset, directory: Path) -> dict[str, Any]:
+    checked = calibration[["measured_rgb", "predicted_rgb", "relative_error"]].compute()
+    error = np.asarray(checked["relative_error"].values, dtype=float)
+    rows = [[str(patch), _fmt(float(e))]
+            for patch, e in zip(checked["patch"].values, error, strict=True)]
+    table = _table("cross-validation", "RGB of the colour-checker patches predicted through C "
+                   "from the spectral camera's capture vs measured: relative error per patch "
+                   f"(mean {_fmt(float(np.nanmean(error)))})", ["patch", "relative error"], rows)
+    figure = _save(plot_cross_validation(checked.rename(measured_rgb="measured",
+                                                        predicted_rgb="predicted")),
+                   directory, "cross_validation.png", "(a) measured RGB, (b) RGB predicted "
+                   "through C from the spectral capture, (c) their difference scaled 10x.")
+    return {"table": table, "figure": figure}
+
+
+# -- the report ----------------------------------------------------------------------------
 def write_report(
     evaluation: xr.Dataset,
     *,
@@ -395,8 +234,8 @@ def write_report(
     Parameters
     ----------
     evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (the ``evaluation`` group);
-        it is computed here.
+        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (the ``evaluation``
+        group); it is computed here.
     spectra, truth
         Groups ``spectra`` and ``truth/spectra`` the evaluation was made from (for the sRGB
         renders and the description of the run).
@@ -404,13 +243,13 @@ def write_report(
         Folder to write ``index.html`` and the figures into (created; files are replaced).
     baselines
         Comparison of methods: the output of
-        :func:`~spectralize.nodes.evaluation.metrics.compare_methods` (dim ``reconstruction``), or
-        what it accepts (method name -> cube, or ``radiance`` with a ``reconstruction``
-        dim), which is then
-        evaluated here against ``truth`` (with ``shots``). Table left out when ``None``.
+        :func:`~spectralize.nodes.evaluation.metrics.compare_methods` (dim
+        ``reconstruction``), or what it accepts (method name -> cube, or ``radiance`` with a
+        ``reconstruction`` dim), which is then evaluated here against ``truth`` (with
+        ``shots``). Table left out when ``None``.
     capture
-        Output of :func:`~spectralize.nodes.evaluation.capture_time.capture_time`; the capture-time
-        figure and table are left out when ``None``.
+        Output of :func:`~spectralize.nodes.evaluation.capture_time.capture_time`; the
+        capture-time figure and table are left out when ``None``.
     title
         Title of the page.
     run
@@ -423,7 +262,7 @@ def write_report(
         Percentile of the truth's luminance mapped to sRGB white (one exposure for truth and
         reconstruction, over the images shown).
     calibration
-        Group ``calibration/spectral``; its colour-checker cross-validation (paper Fig. 4) is
+        Group ``calibration/spectral``; its colour-checker cross-validation (Figure 4) is
         tabulated and drawn.
 
     Returns
@@ -434,126 +273,83 @@ def write_report(
     Raises
     ------
     SchemaError
-        If ``evaluation`` lacks variables that :func:`evaluate` makes.
+        If ``evaluation`` lacks variables that
+        :func:`~spectralize.nodes.evaluation.metrics.evaluate` makes.
+    ParameterError
+        If ``max_images`` is below 1.
 
     References
     ----------
-    Fast Capture of Spectral Image Series, sec. 5, Figures 5-8.
+    Fast Capture of Spectral Image Series, sec. 5, Figures 4-8.
     """
     _check_evaluation(evaluation)
     if int(max_images) < 1:
-        raise ValueError(f"max_images: expected >= 1, found {max_images!r}")
+        raise ParameterError("cannot write the report:", [
+            Problem("max_images", "at least 1 image with figures", repr(max_images))])
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     evaluation = evaluation.compute()
     n_images = evaluation.sizes["image"]
     shown = list(range(min(n_images, int(max_images))))
+    threshold = float(evaluation.attrs.get("threshold", DEFAULT_THRESHOLD))
 
-    truth_shown = truth["radiance"].isel(image=shown)
-    truth_srgb = render_srgb(truth_shown, percentile=exposure_percentile).compute()
+    truth_srgb = render_srgb(truth["radiance"].isel(image=shown),
+                             percentile=exposure_percentile).compute()
     scale = float(truth_srgb.attrs["exposure_scale"])
     recon_srgb = render_srgb(spectra["radiance"].isel(image=shown), exposure=scale).compute()
-
     finite = np.asarray(evaluation["nrmse"].isel(image=shown).values, dtype=np.float64)
     finite = finite[np.isfinite(finite)]
     vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
     vmax = vmax if vmax > 0 else 1.0
 
-    parts: list[str] = []
-    parts.append("<h2>Run</h2>")
-    parts.append(_table("run", "What this report describes", ["item", "value"],
-                        _run_rows(evaluation, spectra, truth, run)))
-
-    subsets = [str(s) for s in evaluation["subset"].values]
-    threshold = float(evaluation.attrs.get("threshold", 0.03))
-    parts.append("<h2>Accuracy</h2>")
-    parts.append(_table("summary", "Statistics over all pixels of each subset of images",
-                        _summary_header(threshold), _summary_rows(evaluation, subsets)))
-    header, rows = _per_image_rows(evaluation)
-    parts.append(_table("per-image", "Statistics per image", header, rows))
-
-    parts.append("<h2>nRMSE histograms (Figure 7)</h2>")
-    parts.append(_figure(plot_histograms(evaluation), directory, "histogram.png",
-                         "Histogram of the per-pixel normalised RMSE over all pixels of the "
-                         "images with and without band shots; logarithmic count axis."))
-
+    context: dict[str, Any] = {
+        "title": title,
+        "written": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "run": _run_table(evaluation, spectra, truth, run),
+        "summary": _table("summary", "Statistics over all pixels of each subset of images",
+                          _summary_header(threshold),
+                          _summary_rows(evaluation, [str(s) for s in evaluation["subset"].values])),
+        "per_image": _per_image_table(evaluation),
+        "histogram": _save(plot_histograms(evaluation), directory, "histogram.png",
+                           "Histogram of the per-pixel normalised RMSE over all pixels of the "
+                           "images with and without band shots; logarithmic count axis."),
+        "capture": None,
+        "cross_validation": None,
+        "baselines": None,
+        "exposure_normalisation": truth_srgb.attrs["exposure_normalisation"],
+        "vmax": _fmt(vmax),
+        "images_shown": len(shown),
+        "images_total": n_images,
+    }
     if capture is not None:
-        parts.append("<h2>Capture time</h2>")
-        rows = [[str(c), _fmt(capture["spectral_time"].sel(capture=c)),
-                 _fmt(capture["rgb_time"].sel(capture=c)),
-                 _fmt(capture["total_time"].sel(capture=c)),
-                 str(int(capture["band_shots"].sel(capture=c)))]
-                for c in capture["capture"].values]
-        parts.append(_table("capture-time", "Total exposure of the captures [s]; "
-                            f"speed-up {float(capture['speedup']):.1f}x. "
-                            + str(capture.attrs.get("summary", "")),
-                            ["capture", "band shots [s]", "RGB [s]", "total [s]",
-                             "band shots"], rows))
-        parts.append(_figure(plot_capture_time(capture), directory, "capture_time.png",
-                             "Total exposure of the reference and the fast capture."))
-
+        context["capture"] = {
+            "table": _capture_table(capture),
+            "figure": _save(plot_capture_time(capture), directory, "capture_time.png",
+                            "Total exposure of the reference and the fast capture.")}
     if calibration is not None and "measured_rgb" in calibration:
-        from spectralize.nodes.calibration.spectral import plot_cross_validation
-
-        checked = calibration[["measured_rgb", "predicted_rgb", "relative_error"]].compute()
-        error = np.asarray(checked["relative_error"].values, dtype=float)
-        parts.append("<h2>Calibration cross-validation (Figure 4)</h2>")
-        rows = [[str(patch), _fmt(float(e))] for patch, e in
-                zip(checked["patch"].values, error, strict=True)]
-        parts.append(_table("cross-validation", "RGB of the colour-checker patches predicted "
-                            "through C from the spectral camera's capture vs measured: "
-                            f"relative error per patch (mean {_fmt(float(np.nanmean(error)))})",
-                            ["patch", "relative error"], rows))
-        parts.append(_figure(plot_cross_validation(checked.rename(
-            measured_rgb="measured", predicted_rgb="predicted")), directory,
-            "cross_validation.png", "(a) measured RGB, (b) RGB predicted through C from the "
-            "spectral capture, (c) their difference scaled 10x."))
-
+        context["cross_validation"] = _cross_validation(calibration, directory)
     if baselines is not None:
         table = baselines
         if not (isinstance(table, xr.Dataset) and "nrmse_subset_statistics" in table):
             table = compare_methods(baselines, truth, shots=shots,
                                     illuminant=str(evaluation.attrs.get("illuminant", "D65")),
                                     threshold=threshold)
-        table = table.compute()
-        header = ["method"] + _summary_header(threshold)[2:]
-        rows = [["this run (spectra)"] + _summary_rows(evaluation, ["all"])[0][2:]]
-        for method in table[METHOD_DIM].values:
-            rows.append([str(method)]
-                        + _summary_rows(table.sel({METHOD_DIM: method}), ["all"])[0][2:])
-        parts.append("<h2>Baselines</h2>")
-        parts.append(_table("baselines", "Comparison of methods on all images of the run",
-                            header, rows))
+        context["baselines"] = _baselines_table(evaluation, table.compute(), threshold)
+    context["images"] = [{
+        "label": image_label(evaluation, image),
+        "error_map": _save(plot_error_map(evaluation, image, truth_srgb=truth_srgb,
+                                          reconstruction_srgb=recon_srgb, vmax=vmax),
+                           directory, f"error_map_{image:03d}.png",
+                           f"Image {image}: ground truth and reconstruction (sRGB) and the "
+                           "normalised RMSE map; numbered pixels are the representative "
+                           "spectra."),
+        "spectra": _save(plot_spectra(evaluation, image), directory, f"spectra_{image:03d}.png",
+                         f"Image {image}: representative spectra, ground truth solid, "
+                         "reconstruction dotted."),
+    } for image in shown]
 
-    parts.append("<h2>Error maps and representative spectra (Figures 5 and 6)</h2>")
-    parts.append(f"<p>sRGB renders: {_e(truth_srgb.attrs['exposure_normalisation'])} (the "
-                 "reconstruction with the same factor). Error maps on a common scale 0.."
-                 f"{_fmt(vmax)} (99.5th percentile of the nRMSE of the images shown).</p>")
-    if len(shown) < n_images:
-        parts.append(f"<p>Figures for the first {len(shown)} of {n_images} images.</p>")
-    for image in shown:
-        parts.append(f"<h3>{_e(_image_label(evaluation, image))}</h3>")
-        parts.append(_figure(
-            plot_error_map(evaluation, image,
-                           truth_srgb=truth_srgb, reconstruction_srgb=recon_srgb, vmax=vmax),
-            directory, f"error_map_{image:03d}.png",
-            f"Image {image}: ground truth and reconstruction (sRGB) and the normalised RMSE "
-            "map; numbered pixels are the representative spectra."))
-        parts.append(_figure(plot_spectra(evaluation, image), directory,
-                             f"spectra_{image:03d}.png",
-                             f"Image {image}: representative spectra, ground truth solid, "
-                             "reconstruction dotted."))
-
-    stamp = time.strftime("%Y-%m-%d %H:%M:%S")
-    page = (
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-        f"<title>{_e(title)}</title>\n<meta name=\"generator\" content=\"spectralize\">\n"
-        f"<style>{_STYLE}</style>\n</head>\n<body>\n<h1>{_e(title)}</h1>\n"
-        f"<p>Written {stamp}. Method: <em>Fast Capture of Spectral Image Series</em>, "
-        "evaluation as in sec. 5 (Figures 5-8).</p>\n" + "\n".join(parts) + "\n</body>\n</html>\n"
-    )
     index = directory / "index.html"
-    index.write_text(page, encoding="utf-8")
+    index.write_text(_environment().get_template(TEMPLATE).render(context), encoding="utf-8")
     return index
 
 
@@ -571,8 +367,9 @@ def write_run_report(
     if present; the stored ``evaluation`` group if present, else evaluates now with the
     defaults of :func:`~spectralize.nodes.evaluation.metrics.evaluate`; the capture time from
     ``raw/spectral``, ``raw/rgb`` and ``raw/exposure_plan`` if present
-    (:func:`~spectralize.nodes.evaluation.capture_time.run_capture_time`); and every
-    ``baselines/<method>`` group (the spectra layout) as the baseline table.
+    (:func:`~spectralize.nodes.evaluation.capture_time.run_capture_time`); the
+    ``calibration/spectral`` group if present; and every ``baselines/<method>`` group (the
+    spectra layout) as the baseline table.
 
     Parameters
     ----------
@@ -591,6 +388,10 @@ def write_run_report(
     -------
     pathlib.Path
         The path of ``index.html``.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, sec. 5, Figures 4-8.
     """
     run = store if isinstance(store, RunStore) else RunStore.open(store)
     spectra = run.read("spectra")

@@ -94,7 +94,10 @@ def run_node(
 ) -> StepReport:
     """Run one node against the store, or skip it when its outputs are up to date.
 
-    Parameters are plain JSON values and group names; the data stays in the store.
+    Parameters are plain JSON values and group names; the data stays in the store. The
+    parameters were validated by the graph check (``plan``) before the flow started; calling
+    the node checks each input group against the schema the node declares for it (structure
+    only, nothing is computed) before the node's function runs.
     """
     log = _log()
     node = registry()[node_name].node

@@ -5,12 +5,14 @@ Nothing here imports Prefect; a notebook can open a run with ``open_run(path)``.
 
 from .errors import (
     CalibrationError,
+    NodeDeclarationError,
     NodeNotFoundError,
     ParameterError,
     PipelineError,
     Problem,
     ReconstructionError,
     SchemaError,
+    SimulationError,
     SpectralizeError,
     StoreError,
 )
@@ -34,10 +36,12 @@ __all__ = [
     "SchemaError",
     "StoreError",
     "NodeNotFoundError",
+    "NodeDeclarationError",
     "ParameterError",
     "PipelineError",
     "CalibrationError",
     "ReconstructionError",
+    "SimulationError",
     "Problem",
 ]
 

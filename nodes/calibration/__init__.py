@@ -1,23 +1,41 @@
-"""Calibration at the noise floor (paper section 4).
+"""Calibration at the noise floor (paper section 4): one method per module.
 
-Dark frames, the OECF (Robertson 2003 and its low-SNR extension), the HDR merge, spectral
-calibration (QE, camera matrix C, cross-validation), registration and band radiance.
+====================  =====================================================================
+module                what
+====================  =====================================================================
+``dark``              dark-frame averaging and the one dark-frame lookup per exposure time
+``exposure_series``   checks shared by every exposure series (bit depth, times, saturation)
+``oecf/``             the camera response: ``weighting``, ``robertson`` (Robertson 2003),
+                      ``low_snr`` (the paper's extension), ``response`` (response algebra)
+``hdr``               HDR merge of RGB exposure series (Robertson's estimator)
+``spectral``          quantum efficiency Q, camera matrix C, cross-validation (Fig. 4)
+``registration``      spectral-to-RGB misregistration (phase correlation) and resampling
+``band_radiance``     calibrated, registered band radiance of every shot
+``declarations``      the calibration nodes: parameters and :class:`~spectralize.engine.Node` s
+====================  =====================================================================
 """
 
-from .dark import average_dark_frames
+from .band_radiance import calibrate_bands
+from .dark import average_dark_frames, dark_frames_at
 from .hdr import merge_hdr
-from .oecf import recover_oecf, recover_oecf_low_snr
-from .registration import estimate_shift, register_frames
-from .spectral import camera_matrix, cross_validate, quantum_efficiency
+from .oecf import apply_response, combine_responses, recover_oecf, recover_oecf_low_snr
+from .registration import estimate_registration, estimate_shift, register_frames
+from .spectral import band_signal, camera_matrix, cross_validate, quantum_efficiency
 
 __all__ = [
     "average_dark_frames",
-    "merge_hdr",
+    "dark_frames_at",
     "recover_oecf",
     "recover_oecf_low_snr",
-    "estimate_shift",
-    "register_frames",
+    "apply_response",
+    "combine_responses",
+    "merge_hdr",
+    "band_signal",
+    "quantum_efficiency",
     "camera_matrix",
     "cross_validate",
-    "quantum_efficiency",
+    "estimate_shift",
+    "estimate_registration",
+    "register_frames",
+    "calibrate_bands",
 ]

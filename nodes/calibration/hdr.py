@@ -27,13 +27,15 @@ import dask
 import numpy as np
 import xarray as xr
 
-from spectralize.nodes.calibration.oecf import (
-    Weighting,
-    _check_times,
-    response_at_codes,
-    weighting_function,
+from spectralize.nodes.calibration.exposure_series import (
+    check_bit_depth,
+    check_exposure_times,
+    raise_for_frames,
 )
+from spectralize.nodes.calibration.oecf.response import response_at_codes
+from spectralize.nodes.calibration.oecf.weighting import Weighting, weighting_function
 from spectralize.schemas import CalibrationError, SchemaError
+from spectralize.schemas.errors import Problem
 
 __all__ = ["merge_hdr", "merge_robertson"]
 
@@ -77,6 +79,10 @@ def merge_robertson(
     -----
     Domain: integer codes ``0 .. len(weights)-1``. Range: non-negative relative radiance
     for a non-negative response.
+
+    References
+    ----------
+    .. [1] Robertson, Borman, Stevenson 2003, eq. 7 (radiance estimate).
     """
     c = counts.astype(np.intp)
     t = np.broadcast_to(np.asarray(exposure_times, dtype=np.float64), c.shape)
@@ -104,19 +110,20 @@ def merge_robertson(
 def _validate(raw: xr.Dataset, where: str) -> xr.DataArray:
     if not isinstance(raw, xr.Dataset) or "counts" not in raw.data_vars:
         found = sorted(map(str, raw.data_vars)) if isinstance(raw, xr.Dataset) else type(raw)
-        raise SchemaError(f"{where}: expected the raw/rgb group with variable 'counts'",
-                          [f"found: {found}"])
+        raise SchemaError(f"{where}: raw/rgb breaks the contract", [Problem(
+            "raw/rgb:counts", "the raw/rgb group with variable 'counts'", str(found))])
     counts = raw["counts"]
     problems = []
     if set(counts.dims) != set(_DIMS):
-        problems.append(f"raw/rgb:counts: expected dims {_DIMS}, found {counts.dims}")
+        problems.append(Problem("raw/rgb:counts", f"dims {_DIMS}", f"dims {counts.dims}"))
     if not np.issubdtype(counts.dtype, np.integer):
-        problems.append(f"raw/rgb:counts: expected integer DN, found dtype {counts.dtype}")
+        problems.append(Problem("raw/rgb:counts", "integer DN", f"dtype {counts.dtype}"))
     if "exposure_time" not in raw.coords:
-        problems.append("raw/rgb: expected coord exposure_time (image, exposure) [s]")
+        problems.append(Problem("raw/rgb:exposure_time", "a coord (image, exposure) [s]",
+                                "nothing"))
     elif set(raw["exposure_time"].dims) != {"image", "exposure"}:
-        problems.append(f"raw/rgb:exposure_time: expected dims (image, exposure), found "
-                        f"{raw['exposure_time'].dims}")
+        problems.append(Problem("raw/rgb:exposure_time", "dims (image, exposure)",
+                                f"dims {raw['exposure_time'].dims}"))
     if problems:
         raise SchemaError(f"{where}: raw/rgb breaks the contract", problems)
     return counts.transpose(*_DIMS)
@@ -126,12 +133,9 @@ def _response_table(response: xr.Dataset | xr.DataArray, counts: xr.DataArray,
                     n_codes: int, where: str) -> xr.DataArray:
     """The response at integer codes 0..n_codes-1, dims (image, channel, code)."""
     table = response["response"] if isinstance(response, xr.Dataset) else response
-    if "code" not in table.dims:
-        raise SchemaError(f"{where}: response has no 'code' dim", [f"dims: {table.dims}"])
-    extra = set(table.dims) - {"camera", "channel", "code"}
-    if extra:
-        raise SchemaError(f"{where}: response has unexpected dims {sorted(extra)}",
-                          ["expected ([camera,] [channel,] code)"])
+    if "code" not in table.dims or set(table.dims) - {"camera", "channel", "code"}:
+        raise SchemaError(f"{where}: the response breaks the contract", [Problem(
+            "response", "dims ([camera,] [channel,] code)", f"dims {table.dims}")])
     if table.attrs.get("dark_subtracted"):
         raise CalibrationError(
             f"{where}: the response is over dark-subtracted values (low-SNR/combined); the HDR "
@@ -150,8 +154,8 @@ def _response_table(response: xr.Dataset | xr.DataArray, counts: xr.DataArray,
         table = table.expand_dims(channel=counts.sizes["channel"])
     if "camera" in table.dims:
         if "camera" not in counts.coords:
-            raise SchemaError(f"{where}: the response is per camera but raw/rgb has no camera "
-                              "coord", ["add coord camera (image,)"])
+            raise SchemaError(f"{where}: the response is per camera", [Problem(
+                "raw/rgb:camera", "a coord camera (image,)", "nothing")])
         cameras = counts["camera"].values
         missing = sorted(set(cameras.tolist()) - set(table["camera"].values.tolist()))
         if missing:
@@ -230,16 +234,14 @@ def merge_hdr(
 
     References
     ----------
-    Robertson, Borman, Stevenson 2003, eq. 7 (radiance estimate). Fast Capture of Spectral
-    Image Series, section 5.
+    .. [1] Robertson, Borman, Stevenson 2003, eq. 7 (radiance estimate).
+    .. [2] Fast Capture of Spectral Image Series, section 5.
     """
     where = "merge_hdr"
     counts = _validate(raw_rgb, where)
-    depth = raw_rgb.attrs.get("bit_depth", counts.attrs.get("bit_depth"))
-    if depth is None or int(depth) != depth or not 8 <= int(depth) <= 16:
-        raise SchemaError(f"{where}: raw/rgb needs attrs['bit_depth'] in 8..16",
-                          [f"found: {depth!r}"])
-    n_codes = 2 ** int(depth)
+    depth = check_bit_depth(raw_rgb.attrs.get("bit_depth", counts.attrs.get("bit_depth")),
+                            where="raw/rgb.attrs['bit_depth']")
+    n_codes = 2**depth
     table_da = response["response"] if isinstance(response, xr.Dataset) else response
     attrs = table_da.attrs
     black = int(attrs.get("black_level", 0) if black_level is None else black_level)
@@ -251,7 +253,7 @@ def merge_hdr(
     weights = weighting_function(np.arange(n_codes), black_level=black, saturation=sat,
                                  kind=kind)
     times = raw_rgb["exposure_time"].transpose("image", "exposure")
-    _check_times(times, "exposure", f"{where}: raw/rgb")
+    check_exposure_times(times, "exposure", f"{where}: raw/rgb")
     table = _response_table(response, counts, n_codes, where)
 
     lazy = counts.chunks is not None
@@ -269,18 +271,11 @@ def merge_hdr(
         (counts > black).any(pixel_dims), (counts >= sat).all("exposure").sum(),
         (counts <= black).all("exposure").sum(),
         (~((counts > black) & (counts < sat)).any("exposure")).sum())
-    if int(lo) < 0 or int(hi) > n_codes - 1:
-        raise CalibrationError(f"{where}: raw/rgb:counts must lie in [0, {n_codes - 1}] for "
-                               f"bit_depth {depth}, found [{int(lo)}, {int(hi)}]")
-    for flags, what, bound in ((not_sat, "saturated (>= saturation", sat),
-                               (not_dark, "dark (<= black_level", black)):
-        bad = np.argwhere(~np.asarray(flags.transpose("image", "exposure", "channel").values))
-        if bad.size:
-            i, e, c = (int(v) for v in bad[0])
-            raise CalibrationError(
-                f"{where}: raw/rgb:counts frame image={i}, exposure={e}, channel={c} "
-                f"(exposure_time {float(times.values[i, e])} s) is entirely {what} = {bound}); "
-                f"{len(bad)} such frame(s). Drop it or fix the exposure")
+    frame_dims = ("image", "exposure", "channel")
+    raise_for_frames(int(lo), int(hi), not_sat.transpose(*frame_dims).values,
+                     not_dark.transpose(*frame_dims).values, frame_dims=frame_dims,
+                     black_level=black, saturation=sat, max_code=n_codes - 1,
+                     where=f"{where}: raw/rgb:counts", times=times)
     n_sat, n_dark, n_none = int(n_sat), int(n_dark), int(n_none)
     n_other = n_none - n_sat - n_dark
     if n_none:

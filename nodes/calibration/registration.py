@@ -12,13 +12,14 @@ it at ``p + shift``.
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import numpy as np
 import xarray as xr
 from pydantic import Field
 from scipy import ndimage
 from skimage.registration import phase_cross_correlation
 
-from spectralize.engine import Node, Parameters
 from spectralize.schemas import SchemaError
 from spectralize.schemas.errors import Problem
 
@@ -27,8 +28,6 @@ __all__ = [
     "pair_rotations",
     "estimate_registration",
     "register_frames",
-    "RegistrationParameters",
-    "ESTIMATE_REGISTRATION",
 ]
 
 
@@ -63,6 +62,17 @@ def estimate_shift(
         (dy, dx) in px with ``moving(p) = reference(p - shift)``.
     error : float
         Phase-correlation error (0: perfect match, 1: no match).
+
+    Raises
+    ------
+    SchemaError
+        Images of different shapes or not 2-D.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, sections 3 and 4 (registration shots).
+    .. [2] M. Guizar-Sicairos, S. T. Thurman, J. R. Fienup, "Efficient subpixel image
+       registration algorithms", Optics Letters 33(2), 2008 (upsampled DFT).
     """
     from skimage.filters import window
 
@@ -91,6 +101,24 @@ def pair_rotations(
 
     The spectral camera at rotation angle ``a + azimuth_offset`` sees what the RGB camera saw
     at ``a`` (angles modulo 360).
+
+    Parameters
+    ----------
+    rotation_angle
+        Sample rotation per rotation step [degree].
+    azimuth_offset
+        Azimuth between the spectral camera and its RGB camera [degree].
+    tolerance
+        Largest angle difference accepted as the same rotation [degree].
+
+    Returns
+    -------
+    list of tuple of int
+        ``(rgb index, spectral index)`` per pair.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3 (gantry, 15 degree steps).
     """
     angles = np.asarray(rotation_angle, dtype=float) % 360.0
     pairs = []
@@ -103,21 +131,15 @@ def pair_rotations(
     return pairs
 
 
-class RegistrationParameters(Parameters):
-    """Parameters of :func:`estimate_registration`."""
-
-    azimuth_offset: float = Field(15.0, description="azimuth between the spectral camera and "
-                                                    "its RGB camera [degree]")
-    upsample_factor: int = Field(50, ge=1, le=1000, description="1/precision of the shift [px]")
-    max_shift: float = Field(8.0, gt=0, description="largest plausible misregistration [px]")
-
-
 def estimate_registration(
     registration: xr.Dataset,
     *,
-    azimuth_offset: float = 15.0,
-    upsample_factor: int = 50,
-    max_shift: float = 8.0,
+    azimuth_offset: Annotated[float, Field(description="azimuth between the spectral camera "
+                                           "and its RGB camera [degree]")] = 15.0,
+    upsample_factor: Annotated[int, Field(ge=1, le=1000, description="1/precision of the "
+                                          "shift [px]")] = 50,
+    max_shift: Annotated[float, Field(gt=0, description="largest plausible misregistration "
+                                      "[px]")] = 8.0,
 ) -> xr.Dataset:
     """Estimate the fixed misregistration of the spectral camera from registration shots.
 
@@ -148,16 +170,11 @@ def estimate_registration(
     ------
     SchemaError
         No pair of rotations sees the same content, or no pair gives a plausible shift.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, sections 3 and 4.
     """
-    problems = []
-    for name in ("rgb_counts", "spectral_counts"):
-        if name not in registration:
-            problems.append(Problem(f"raw/registration:{name}", "a variable", "nothing"))
-    if "rotation_angle" not in registration.coords:
-        problems.append(Problem("raw/registration:rotation_angle", "a coordinate [degree]",
-                                "nothing"))
-    if problems:
-        raise SchemaError("cannot estimate the registration:", problems)
     pairs = pair_rotations(registration["rotation_angle"].values, azimuth_offset=azimuth_offset)
     if not pairs:
         angles = registration["rotation_angle"].values.tolist()
@@ -234,6 +251,15 @@ def register_frames(frames: xr.DataArray, shift: xr.DataArray, *, order: int = 1
     xarray.DataArray
         float32 frames with ``registered(p) = frames(p + shift)``; border pixels repeat the
         nearest valid pixel.
+
+    Raises
+    ------
+    SchemaError
+        Frames whose trailing dims are not (y, x).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4.
     """
     dy, dx = (float(shift.sel(axis=a)) for a in ("y", "x"))
     if tuple(frames.dims[-2:]) != ("y", "x"):
@@ -246,13 +272,3 @@ def register_frames(frames: xr.DataArray, shift: xr.DataArray, *, order: int = 1
     )
     return out.assign_attrs({**frames.attrs, "registration_shift_px": [dy, dx]})
 
-
-ESTIMATE_REGISTRATION = Node(
-    name="estimate_registration",
-    version="1",
-    function=estimate_registration,
-    inputs={"registration": "raw/registration"},
-    outputs=("registration",),
-    parameters=RegistrationParameters,
-    description="Sub-pixel misregistration of the spectral camera from long-exposure shots.",
-)

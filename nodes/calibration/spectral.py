@@ -8,9 +8,11 @@
 - :func:`camera_matrix`: the RGB camera matrix ``C`` (channel, wavelength) of eq. 1 from
   colour-checker shots with known spectra, by non-negative least squares with a
   second-difference smoothness penalty.
-- :func:`cross_validate` and :func:`plot_cross_validation`: paper Fig. 4, RGB predicted
-  through ``C`` from a spectral capture of the colour checker against the measured RGB, error
-  per patch as a table and a figure.
+- :func:`cross_validate`: paper Fig. 4, RGB predicted through ``C`` from a spectral capture
+  of the colour checker against the measured RGB, error per patch as a table (the figure is
+  :func:`spectralize.nodes.evaluation.figures_calibration.plot_cross_validation`).
+- :func:`calibrate_spectral` (node ``calibrate_spectral``): all three from the
+  ``raw/white_reference`` and ``raw/colour_checker`` groups.
 
 References
 ----------
@@ -22,17 +24,24 @@ M. A. Robertson, S. Borman, R. L. Stevenson, Journal of Electronic Imaging 12(2)
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING
+from typing import Annotated
 
 import numpy as np
 import xarray as xr
-from scipy import optimize
+from pydantic import Field
+from scipy import ndimage, optimize
 
-from spectralize.nodes.calibration.oecf import apply_response
+from spectralize.nodes.calibration.dark import dark_frames_at
+from spectralize.nodes.calibration.exposure_series import (
+    check_bit_depth,
+    frame_flags,
+    saturated_frames,
+    target_spectral_series,
+)
+from spectralize.nodes.calibration.hdr import merge_hdr
+from spectralize.nodes.calibration.oecf.response import apply_response
 from spectralize.schemas import CalibrationError, SchemaError
-
-if TYPE_CHECKING:  # pragma: no cover
-    from matplotlib.figure import Figure
+from spectralize.schemas.errors import Problem
 
 __all__ = [
     "band_signal",
@@ -41,7 +50,7 @@ __all__ = [
     "patch_means",
     "predict_rgb",
     "cross_validate",
-    "plot_cross_validation",
+    "calibrate_spectral",
 ]
 
 
@@ -49,14 +58,16 @@ __all__ = [
 def _shots(data: xr.Dataset | xr.DataArray, where: str) -> xr.DataArray:
     counts = data["counts"] if isinstance(data, xr.Dataset) and "counts" in data else data
     if isinstance(counts, xr.Dataset):
-        raise SchemaError(f"{where}: expected variable 'counts' (shot, y, x)",
-                          [f"variables found: {sorted(map(str, counts.data_vars))}"])
+        raise SchemaError(f"{where}: band-filtered shots break the raw/spectral contract", [
+            Problem("counts", "a variable (shot, y, x)",
+                    f"variables {sorted(map(str, counts.data_vars))}")])
     problems = []
     if counts.dims != ("shot", "y", "x"):
-        problems.append(f"counts: expected dims ('shot', 'y', 'x'), found {counts.dims}")
+        problems.append(Problem("counts", "dims ('shot', 'y', 'x')", f"dims {counts.dims}"))
     for name in ("exposure_time", "wavelength"):
         if name not in counts.coords or counts[name].dims != ("shot",):
-            problems.append(f"expected coord {name} (shot,)")
+            found = f"dims {counts[name].dims}" if name in counts.coords else "nothing"
+            problems.append(Problem(name, "a coord (shot,)", found))
     if problems:
         raise SchemaError(f"{where}: band-filtered shots break the raw/spectral contract",
                           problems)
@@ -68,30 +79,11 @@ def _shots(data: xr.Dataset | xr.DataArray, where: str) -> xr.DataArray:
 
 def _dark_for_shots(dark: xr.Dataset | xr.DataArray, counts: xr.DataArray,
                     where: str) -> tuple[xr.DataArray, xr.DataArray | None]:
-    mean = dark["mean"] if isinstance(dark, xr.Dataset) else dark
-    std = dark["std"] if isinstance(dark, xr.Dataset) and "std" in dark else None
-    if set(mean.dims) != {"exposure_time", "y", "x"}:
-        raise SchemaError(f"{where}: dark breaks the contract",
-                          [f"dark:mean: expected dims (exposure_time, y, x), found {mean.dims}"])
-    if (mean.sizes["y"], mean.sizes["x"]) != (counts.sizes["y"], counts.sizes["x"]):
-        raise CalibrationError(
-            f"{where}: dark frames are {mean.sizes['y']}x{mean.sizes['x']} px, shots "
-            f"{counts.sizes['y']}x{counts.sizes['x']} px")
-    available = np.asarray(mean["exposure_time"].values, dtype=np.float64)
-    wanted = np.asarray(counts["exposure_time"].values, dtype=np.float64)
-    picks = []
-    for i, t in enumerate(wanted):
-        match = np.flatnonzero(np.isclose(available, t, rtol=1e-6, atol=0.0))
-        if match.size == 0:
-            raise CalibrationError(
-                f"{where}: no dark frame for exposure_time {t} s (shot {i}); dark frames exist "
-                f"for {available.tolist()} s. Record dark frames at every exposure time used")
-        picks.append(int(match[0]))
-    index = xr.DataArray(picks, dims="shot")
-    mean = mean.isel(exposure_time=index).drop_vars("exposure_time").transpose("shot", "y", "x")
-    if std is not None:
-        std = std.isel(exposure_time=index).drop_vars("exposure_time").transpose("shot", "y", "x")
-    return mean, std
+    """Mean (and std, if any) dark frame of every shot's exposure time, (shot, y, x)."""
+    frames = dark_frames_at(dark, counts["exposure_time"].values, used_by=where, dim="shot",
+                            frame_shape=(counts.sizes["y"], counts.sizes["x"]))
+    frames = frames.drop_vars("exposure_time").transpose("shot", "y", "x")
+    return frames["mean"], frames["std"] if "std" in frames else None
 
 
 def band_signal(
@@ -127,6 +119,15 @@ def band_signal(
     ------
     SchemaError, CalibrationError
         Wrong dims or coords, a dark frame missing for an exposure time or of another size.
+
+    Notes
+    -----
+    ``signal = f(I - dark_t) / t`` for a response over dark-subtracted values,
+    ``(f(I) - f(dark_t)) / t`` for one over raw codes (eq. 5 solved for ``x Q``).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4, eq. 5 and Fig. 2.
     """
     where = "band_signal"
     counts = _shots(shots, where)
@@ -161,8 +162,8 @@ def _on_wavelengths(spectrum: xr.DataArray | float, wavelengths: np.ndarray, nam
             raise CalibrationError(f"{where}: {name} must be positive, got {value}")
         return np.full(wavelengths.shape, value)
     if spectrum.dims != ("wavelength",):
-        raise SchemaError(f"{where}: {name} must be a spectrum over 'wavelength'",
-                          [f"dims found: {spectrum.dims}"])
+        raise SchemaError(f"{where}: {name} must be a spectrum over 'wavelength'", [Problem(
+            name, "dims ('wavelength',)", f"dims {spectrum.dims}")])
     grid = np.asarray(spectrum["wavelength"].values, dtype=np.float64)
     order = np.argsort(grid)
     grid, values = grid[order], np.asarray(spectrum.values, dtype=np.float64)[order]
@@ -351,10 +352,11 @@ def camera_matrix(
     """
     where = "camera_matrix"
     if set(rgb.dims) != {"patch", "channel"}:
-        raise SchemaError(f"{where}: rgb must be (patch, channel)", [f"found {rgb.dims}"])
+        raise SchemaError(f"{where}: rgb must be (patch, channel)", [Problem(
+            "rgb", "dims (patch, channel)", f"dims {rgb.dims}")])
     if set(spectra.dims) != {"patch", "wavelength"}:
-        raise SchemaError(f"{where}: spectra must be (patch, wavelength)",
-                          [f"found {spectra.dims}"])
+        raise SchemaError(f"{where}: spectra must be (patch, wavelength)", [Problem(
+            "spectra", "dims (patch, wavelength)", f"dims {spectra.dims}")])
     if rgb.sizes["patch"] != spectra.sizes["patch"]:
         raise CalibrationError(f"{where}: rgb has {rgb.sizes['patch']} patches, spectra "
                                f"{spectra.sizes['patch']}")
@@ -430,6 +432,10 @@ def patch_means(
     CalibrationError
         Labels of another shape than ``data``'s (y, x), a patch without pixels, names of the
         wrong length.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 (colour-checker patches).
     """
     lab = np.asarray(labels.values if isinstance(labels, xr.DataArray) else labels)
     shape = (data.sizes.get("y"), data.sizes.get("x"))
@@ -468,13 +474,19 @@ def predict_rgb(spectra: xr.DataArray, camera_matrix: xr.Dataset | xr.DataArray)
 
     Raises
     ------
+    SchemaError
+        Spectra without a ``wavelength`` dim.
     CalibrationError
         When the wavelengths differ.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, eq. 1.
     """
     c = camera_matrix["camera_matrix"] if isinstance(camera_matrix, xr.Dataset) else camera_matrix
     if "wavelength" not in spectra.dims:
-        raise SchemaError("predict_rgb: spectra have no wavelength dim",
-                          [f"dims found: {spectra.dims}"])
+        raise SchemaError("predict_rgb: spectra have no wavelength dim", [Problem(
+            "spectra", "a 'wavelength' dim", f"dims {spectra.dims}")])
     a = np.asarray(spectra["wavelength"].values, dtype=np.float64)
     b = np.asarray(c["wavelength"].values, dtype=np.float64)
     if a.shape != b.shape or not np.allclose(a, b, rtol=0, atol=1e-6):
@@ -516,6 +528,10 @@ def cross_validate(
     ------
     CalibrationError
         Different patches in ``measured_rgb`` and ``spectra``.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and Fig. 4.
     """
     if measured_rgb.sizes.get("patch") != spectra.sizes.get("patch"):
         raise CalibrationError(
@@ -548,53 +564,197 @@ def cross_validate(
     )
 
 
-def plot_cross_validation(
-    table: xr.Dataset, *, columns: int = 6, difference_scale: float = 10.0
-) -> Figure:
-    """Figure in the style of the paper's Fig. 4 from a :func:`cross_validate` table.
+# -- the calibrate_spectral node: Q, C and the cross-check from the calibration targets --
+def _shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int,
+                 group: str) -> xr.DataArray:
+    """One frame per band: ``counts[band, picks[band]]`` as (shot, y, x) band shots."""
+    times = counts["spectral_exposure_time"].values[picks]
+    frames = counts.isel(wavelength=xr.DataArray(np.arange(picks.size), dims="shot"),
+                         spectral_exposure=xr.DataArray(picks, dims="shot"))
+    frames = frames.drop_vars(list(frames.coords))
+    return frames.assign_coords(
+        wavelength=("shot", counts["wavelength"].values.astype(float), {"units": "nm"}),
+        exposure_time=("shot", times, {"units": "s"}),
+    ).assign_attrs(bit_depth=depth, source=f"{group}:spectral_counts")
 
-    Panels: (a) measured RGB of the patches, (b) RGB predicted through ``C``, (c) the
-    difference scaled by ``difference_scale`` (around mid grey), (d) relative error per
-    patch. Swatches are normalised by the brightest measured value and gamma-encoded (1/2.2)
-    for display only.
+
+def _longest_unsaturated(counts: xr.DataArray, depth: int, group: str) -> np.ndarray:
+    """Per band, the index of the longest exposure without a saturated pixel."""
+    top = ~saturated_frames(counts, depth)                              # (wavelength, exp)
+    bad = np.flatnonzero(~top.any(axis=1))
+    if bad.size:
+        wl = counts["wavelength"].values[bad].tolist()
+        raise CalibrationError(
+            f"{group}:spectral_counts: every exposure of band(s) {wl} nm has saturated pixels "
+            f"(value {2**depth - 1}); add shorter exposures")
+    return np.asarray([int(np.flatnonzero(row)[-1]) for row in top])
+
+
+def _rgb_series(target: xr.Dataset, group: str) -> xr.Dataset:
+    """The target's RGB exposure series as a one-image raw/rgb Dataset (usable exposures)."""
+    depth = check_bit_depth(target.attrs.get("rgb_bit_depth"),
+                            where=f"{group}.attrs['rgb_bit_depth']")
+    counts = target["rgb_counts"].transpose("rgb_exposure", "y", "x", "channel").load()
+    _, _, not_saturated, not_dark = frame_flags(counts, ("y", "x"), black_level=0,
+                                                saturation=2**depth - 1)
+    usable = not_saturated.all(axis=1) & not_dark.all(axis=1)            # per exposure
+    if usable.sum() < 1:
+        raise CalibrationError(f"{group}:rgb_counts: every exposure is saturated or dark")
+    counts = counts.isel(rgb_exposure=np.flatnonzero(usable))
+    times = np.asarray(target["rgb_exposure_time"].values, dtype=float)[usable]
+    camera = int(target.attrs.get("rgb_camera", 0))
+    data = counts.rename(rgb_exposure="exposure").drop_vars(
+        [c for c in counts.coords if c != "channel"]).expand_dims(image=[0])
+    return xr.Dataset({"counts": data},
+                      coords={"exposure_time": (("image", "exposure"), times[None]),
+                              "camera": ("image", [camera])},
+                      attrs={"bit_depth": depth})
+
+
+def _eroded_labels(labels: np.ndarray, margin: int) -> np.ndarray:
+    if margin <= 0:
+        return labels
+    out = np.full_like(labels, -1)
+    for k in np.unique(labels[labels >= 0]):
+        patch = labels == k
+        for iterations in range(margin, -1, -1):   # small patches: erode less, keep pixels
+            inner = ndimage.binary_erosion(patch, iterations=iterations) if iterations else patch
+            if inner.any():
+                break
+        out[inner] = k
+    return out
+
+
+def calibrate_spectral(
+    white_reference: xr.Dataset,
+    colour_checker: xr.Dataset,
+    dark: xr.Dataset,
+    oecf_rgb: xr.Dataset,
+    oecf_spectral: xr.Dataset,
+    *,
+    smoothness: Annotated[float, Field(ge=0, description="relative weight of the "
+                                       "second-difference penalty of C")] = 1e-3,
+    nonnegative: Annotated[bool, Field(description="constrain C >= 0")] = True,
+    patch_margin: Annotated[int, Field(ge=0, description="pixels removed at every patch "
+                                       "border (misregistration, blur) before patch means; "
+                                       "less where a patch would vanish")] = 2,
+    min_snr: Annotated[float, Field(gt=0, description="smallest accepted per-pixel SNR of "
+                                    "the white reference in a band")] = 1.0,
+) -> xr.Dataset:
+    """Quantum efficiency, camera matrix C and the cross-validation of paper Fig. 4.
+
+    - ``Q`` per band: the white reference's longest unsaturated exposure of each band,
+      linearised with the spectral response, per second, divided by the target reflectance
+      times the measured illuminant (:func:`quantum_efficiency`).
+    - ``C``: the colour checker's RGB exposure series merged to HDR with the RGB response
+      (:func:`~spectralize.nodes.calibration.hdr.merge_hdr`), patch means, against patch
+      reflectance times the measured illuminant (:func:`camera_matrix`, non-negative,
+      smooth).
+    - Cross-validation: the spectral camera's capture of the checker (longest unsaturated
+      exposure per band, band signal / Q, patch means) through ``C`` against the measured
+      HDR RGB (:func:`cross_validate`).
 
     Returns
     -------
-    matplotlib.figure.Figure
-        Built without pyplot (no global state; saving uses the Agg canvas).
+    xarray.Dataset
+        Group ``calibration/spectral``: ``quantum_efficiency`` (wavelength) [1],
+        ``camera_matrix`` (channel, wavelength) [1], ``measured_rgb`` / ``predicted_rgb``
+        (patch, channel) [1], ``relative_error`` (patch) [1], ``patch_spectra`` (patch,
+        wavelength) [1] (from the spectral camera), ``qe_snr`` (wavelength) [1].
+        Attrs ``mean_relative_error``, ``max_relative_error``, ``worst_patch``,
+        ``c_relative_rms_residual``.
+
+    Raises
+    ------
+    CalibrationError
+        A white reference darker than the noise (naming ``raw/white_reference:
+        spectral_counts``, band and values), dark frames missing for an exposure time, RGB
+        series without a usable exposure.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4, eq. 1 and 5, Figs. 3 and 4.
     """
-    from matplotlib.figure import Figure
+    # -- Q from the white reference
+    white_counts, depth = target_spectral_series(white_reference, "raw/white_reference")
+    picks = _longest_unsaturated(white_counts, depth, "raw/white_reference")
+    shots = _shot_frames(white_counts, picks, depth, "raw/white_reference")
+    illuminant = white_reference["illuminant"].load()
+    try:
+        qe = quantum_efficiency(shots, dark, illuminant,
+                                reflectance=white_reference["target_reflectance"].load(),
+                                response=oecf_spectral, min_snr=min_snr)
+    except CalibrationError as error:
+        raise CalibrationError(f"raw/white_reference:spectral_counts: {error}") from None
+    q = qe["quantum_efficiency"]
 
-    measured = np.asarray(table["measured"].transpose("patch", "channel").values, dtype=float)
-    predicted = np.asarray(table["predicted"].transpose("patch", "channel").values, dtype=float)
-    n = measured.shape[0]
-    rows = -(-n // columns)
-    scale = max(float(np.nanmax(measured)), 1e-300)
+    # -- C from the colour checker's HDR RGB
+    group = "raw/colour_checker"
+    rgb_raw = _rgb_series(colour_checker, group)
+    response = oecf_rgb["response"]
+    camera = int(rgb_raw["camera"].values[0])
+    if "camera" in response.dims:
+        if camera not in response["camera"].values.tolist():
+            camera = int(response["camera"].values[0])
+        response = response.sel(camera=camera)
+    rgb_raw = rgb_raw.drop_vars("camera")
+    hdr = merge_hdr(rgb_raw, response.assign_attrs(oecf_rgb.attrs | response.attrs))
+    labels = _eroded_labels(np.asarray(colour_checker["patch_index"].values), patch_margin)
+    names = [str(v) for v in colour_checker["patch_name"].values] \
+        if "patch_name" in colour_checker.coords else None
+    measured = patch_means(hdr["radiance"].isel(image=0), labels).compute()
+    spectra = (colour_checker["patch_reflectance"] * colour_checker["illuminant"]).load()
+    spectra = spectra.assign_coords(patch=measured["patch"].values)
+    cm = camera_matrix(measured, spectra.transpose("patch", "wavelength"),
+                       smoothness=smoothness, nonnegative=nonnegative)
 
-    def grid(values: np.ndarray, fill: float) -> np.ndarray:
-        out = np.full((rows * columns, values.shape[1]), fill)
-        out[:n] = values
-        return out.reshape(rows, columns, values.shape[1])[..., :3]
+    # -- cross-validation: the spectral camera's capture of the checker through C
+    checker_counts, cdepth = target_spectral_series(colour_checker, group)
+    cpicks = _longest_unsaturated(checker_counts, cdepth, group)
+    cshots = _shot_frames(checker_counts, cpicks, cdepth, group)
+    try:
+        signal = band_signal(cshots, dark, response=oecf_spectral)
+    except CalibrationError as error:
+        raise CalibrationError(f"{group}:spectral_counts: {error}") from None
+    q_shot = q.sel(wavelength=cshots["wavelength"].values).values
+    band_radiance = (signal / xr.DataArray(q_shot, dims="shot")).compute()
+    band_radiance = band_radiance.swap_dims(shot="wavelength").drop_vars(
+        [c for c in band_radiance.coords if c != "wavelength"])
+    patch_spectra = patch_means(band_radiance, labels).assign_coords(
+        patch=measured["patch"].values)
+    table = cross_validate(measured, patch_spectra, cm)
 
-    def encode(values: np.ndarray) -> np.ndarray:
-        return np.clip(values / scale, 0, 1) ** (1 / 2.2)
-
-    diff = np.clip(0.5 + difference_scale * (predicted - measured) / scale, 0, 1)
-    fig = Figure(figsize=(12, 7), layout="constrained")
-    spec = fig.add_gridspec(2, 3)
-    panels = [(encode(measured), "(a) measured RGB"), (encode(predicted), "(b) predicted C S"),
-              (diff, f"(c) difference x{difference_scale:g}")]
-    for column, (image, title) in enumerate(panels):
-        ax = fig.add_subplot(spec[0, column])
-        ax.imshow(grid(image, 1.0), interpolation="nearest")
-        ax.set_title(title)
-        ax.set_axis_off()
-    bar = fig.add_subplot(spec[1, :])
-    labels = [str(p) for p in table["relative_error"]["patch"].values] \
-        if "patch" in table["relative_error"].coords else [str(i) for i in range(n)]
-    bar.bar(np.arange(n), 100 * np.asarray(table["relative_error"].values), color="0.4")
-    bar.set_xticks(np.arange(n), labels, rotation=60, ha="right", fontsize=7)
-    bar.set_ylabel("relative error [%]")
-    bar.set_title(f"(d) per patch: mean {100 * table.attrs.get('mean_relative_error', np.nan):.2f}"
-                  f" %, max {100 * table.attrs.get('max_relative_error', np.nan):.2f} %")
-    return fig
+    unit = {"units": "1"}
+    out = xr.Dataset(
+        {
+            "quantum_efficiency": q.assign_attrs(
+                **unit, long_name="relative quantum efficiency Q (band signal per unit of the "
+                "measured illuminant)"),
+            "qe_snr": qe["snr"].assign_attrs(**unit, long_name="per-pixel SNR of the white "
+                                             "reference"),
+            "camera_matrix": cm["camera_matrix"].assign_attrs(
+                **unit, long_name="RGB camera matrix C (HDR units per band radiance unit)"),
+            "measured_rgb": table["measured"].assign_attrs(
+                **unit, long_name="HDR RGB radiance of the patch, measured"),
+            "predicted_rgb": table["predicted"].assign_attrs(
+                **unit, long_name="RGB predicted through C from the spectral capture"),
+            "relative_error": table["relative_error"].assign_attrs(
+                **unit, long_name="|predicted - measured| / |measured| per patch"),
+            "patch_spectra": patch_spectra.transpose("patch", "wavelength").assign_attrs(
+                **unit, long_name="patch band radiance from the spectral camera"),
+        },
+        attrs={"mean_relative_error": table.attrs["mean_relative_error"],
+               "max_relative_error": table.attrs["max_relative_error"],
+               "worst_patch": table.attrs["worst_patch"],
+               "c_relative_rms_residual": cm.attrs["relative_rms_residual"],
+               "smoothness": float(smoothness), "nonnegative": bool(nonnegative),
+               "patch_margin": int(patch_margin), "rgb_camera": camera,
+               "units_note": "band radiance relative to the measured illuminant; C maps it to "
+                             "HDR units (RGB = C @ spectrum)"},
+    )
+    out = out.drop_vars([c for c in out.coords if c not in
+                         ("wavelength", "channel", "patch")])
+    if names is not None:
+        out = out.assign_coords(patch_name=("patch", names))
+    out["wavelength"].attrs.update(units="nm", long_name="band centre wavelength")
+    return out

@@ -38,6 +38,8 @@ import numpy as np
 import numpy.typing as npt
 import xarray as xr
 
+from spectralize.schemas import ParameterError, Problem, SchemaError
+
 __all__ = [
     "OBSERVER",
     "Illuminant",
@@ -75,8 +77,13 @@ def illuminant_sd(illuminant: Illuminant) -> colour.SpectralDistribution | None:
 
     Raises
     ------
-    ValueError
-        If a name is not a key of ``colour.SDS_ILLUMINANTS`` (the message lists some).
+    ParameterError
+        If a name is not a key of ``colour.SDS_ILLUMINANTS`` (the message lists some) or
+        ``illuminant`` is of another type.
+
+    References
+    ----------
+    CIE 015:2018 Colorimetry (standard illuminants).
     """
     if illuminant is None or isinstance(illuminant, colour.SpectralDistribution):
         return illuminant
@@ -87,12 +94,13 @@ def illuminant_sd(illuminant: Illuminant) -> colour.SpectralDistribution | None:
             return colour.SDS_ILLUMINANTS[illuminant]
         except KeyError:
             known = ", ".join(list(colour.SDS_ILLUMINANTS)[:12])
-            raise ValueError(
-                f"illuminant {illuminant!r} is not a colour-science illuminant; expected a key "
-                f"of colour.SDS_ILLUMINANTS (e.g. {known}, ...), a SpectralDistribution or None"
-            ) from None
-    raise ValueError(f"illuminant must be a name, a colour.SpectralDistribution or None; "
-                     f"found {type(illuminant).__name__}")
+            raise ParameterError("unknown illuminant:", [Problem(
+                "illuminant", f"a key of colour.SDS_ILLUMINANTS (e.g. {known}, ...), 'E', a "
+                "SpectralDistribution or None",
+                f"{illuminant!r}, which is not a colour-science illuminant")]) from None
+    raise ParameterError("unknown illuminant:", [Problem(
+        "illuminant", "a name, a colour.SpectralDistribution or None",
+        f"a {type(illuminant).__name__}")])
 
 
 def white_point(illuminant: Illuminant, wavelength: npt.ArrayLike | None = None
@@ -103,6 +111,22 @@ def white_point(illuminant: Illuminant, wavelength: npt.ArrayLike | None = None
     (:func:`xyz_weights`), which is the white that a cube on those bands can reach: a band
     range narrower than 360..830 nm shifts it slightly (D65 on 410..720 nm: x = 0.3129,
     y = 0.3298).
+
+    Parameters
+    ----------
+    illuminant
+        See :data:`Illuminant`.
+    wavelength
+        Band centres [nm], evenly spaced; ``None`` for the illuminant's own white.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 (2,): x, y.
+
+    References
+    ----------
+    CIE 015:2018 Colorimetry (chromaticity coordinates, white points).
     """
     if wavelength is not None:
         xyz = xyz_weights(wavelength, illuminant=illuminant).values.sum(axis=0)
@@ -121,13 +145,14 @@ def white_point(illuminant: Illuminant, wavelength: npt.ArrayLike | None = None
 def _spectral_shape(wavelength: npt.ArrayLike) -> colour.SpectralShape:
     wl = np.asarray(wavelength, dtype=np.float64).reshape(-1)
     if wl.size < 2:
-        raise ValueError(f"wavelength: expected at least 2 wavelengths [nm], found {wl.size}")
+        raise SchemaError("cannot integrate the spectra:", [
+            Problem("wavelength", "at least 2 wavelengths [nm]", f"{wl.size}")])
     steps = np.diff(wl)
     if not np.all(np.isfinite(wl)) or np.any(steps <= 0) or not np.allclose(
             steps, steps[0], rtol=0, atol=_WAVELENGTH_TOLERANCE_NM):
-        raise ValueError(
-            "wavelength: expected finite, increasing, evenly spaced values [nm] (colour-science "
-            f"integrates on a SpectralShape); found {np.array2string(wl, precision=2)}")
+        raise SchemaError("cannot integrate the spectra:", [Problem(
+            "wavelength", "finite, increasing, evenly spaced values [nm] (colour-science "
+            "integrates on a SpectralShape)", np.array2string(wl, precision=2))])
     return colour.SpectralShape(float(wl[0]), float(wl[-1]), float(steps[0]))
 
 
@@ -152,8 +177,14 @@ def xyz_weights(wavelength: npt.ArrayLike, *, illuminant: Illuminant = "D65") ->
 
     Raises
     ------
-    ValueError
-        If the wavelengths are not evenly spaced, or the illuminant is unknown.
+    SchemaError
+        If the wavelengths are not evenly spaced.
+    ParameterError
+        If the illuminant is unknown.
+
+    References
+    ----------
+    CIE 015:2018 Colorimetry; colour-science's ``colour.msds_to_XYZ`` (integration).
     """
     shape = _spectral_shape(wavelength)
     sd = illuminant_sd(illuminant)
@@ -195,10 +226,22 @@ def spectra_to_xyz(radiance: xr.DataArray, *, illuminant: Illuminant = "D65") ->
         float64 with ``wavelength`` replaced by a trailing ``xyz`` dim; ``Y = 1`` is the
         perfect reflector under ``illuminant``, whose chromaticity on these bands is in
         ``attrs["white_xy"]`` (the reference white of CIELAB and of the sRGB adaptation).
+
+    Raises
+    ------
+    SchemaError
+        If ``radiance`` has no ``wavelength`` dim with coordinates, or they are not evenly
+        spaced.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, Figures 5, 6 and 8 (spectra "converted to RGB
+    for display"); CIE 015:2018 Colorimetry.
     """
     if "wavelength" not in radiance.dims or "wavelength" not in radiance.coords:
-        raise ValueError(f"radiance: expected a 'wavelength' dim with coordinates [nm]; found "
-                         f"dims {radiance.dims} and coords {list(radiance.coords)}")
+        raise SchemaError("cannot integrate the spectra:", [Problem(
+            "radiance:wavelength", "a 'wavelength' dim with coordinates [nm]",
+            f"dims {radiance.dims} and coords {list(radiance.coords)}")])
     weights = xyz_weights(radiance["wavelength"].values, illuminant=illuminant)
     if radiance.chunks is not None:
         radiance = radiance.chunk({"wavelength": -1})
@@ -227,11 +270,29 @@ def xyz_to_srgb(xyz: xr.DataArray, *, white: npt.ArrayLike | None = None,
 
     The scene white ``white`` (xy; default ``xyz.attrs["white_xy"]`` as written by
     :func:`spectra_to_xyz`, else D65) is adapted to D65 with CAT02, so a perfect reflector
-    at ``Y = 1`` renders as sRGB white. ``dtype="uint8"`` rounds ``255 * v``; ``"float"``
-    returns float32 in [0, 1].
+    at ``Y = 1`` renders as sRGB white.
+
+    Parameters
+    ----------
+    xyz
+        CIE XYZ with a trailing ``xyz`` dim, e.g. from :func:`spectra_to_xyz`.
+    white
+        Chromaticity (x, y) of the scene white.
+    dtype
+        ``"uint8"`` rounds ``255 * v``; ``"float"`` returns float32 in [0, 1].
+
+    Returns
+    -------
+    xarray.DataArray
+        (..., channel) with ``channel = ['R', 'G', 'B']``.
+
+    References
+    ----------
+    IEC 61966-2-1:1999 (sRGB); CIE 160:2004 (CAT02 chromatic adaptation).
     """
     if dtype not in ("uint8", "float"):
-        raise ValueError(f"dtype: expected 'uint8' or 'float', found {dtype!r}")
+        raise ParameterError("cannot encode sRGB:", [
+            Problem("dtype", "'uint8' or 'float'", repr(dtype))])
     if white is None:
         white = xyz.attrs.get("white_xy", white_point("D65"))
     white = np.asarray(white, dtype=np.float64)
@@ -257,15 +318,37 @@ def auto_exposure(xyz: xr.DataArray, *, percentile: float = 99.0) -> float:
 
     Non-finite values are ignored; when no positive luminance is found the factor is 1.
     This computes the luminance of the whole cube (one pass).
+
+    Parameters
+    ----------
+    xyz
+        CIE XYZ with an ``xyz`` dim, e.g. from :func:`spectra_to_xyz`.
+    percentile
+        Percentile of ``Y`` over all pixels that becomes sRGB white, in (0, 100].
+
+    Returns
+    -------
+    float
+        The factor XYZ is multiplied by.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, Figures 5, 6 and 8 (RGB renders for display).
     """
     if not 0.0 < percentile <= 100.0:
-        raise ValueError(f"percentile: expected a value in (0, 100], found {percentile!r}")
+        raise ParameterError("cannot choose the exposure:", [
+            Problem("percentile", "a value in (0, 100]", repr(percentile))])
     luminance = np.asarray(xyz.sel(xyz="Y").values, dtype=np.float64).reshape(-1)
     luminance = luminance[np.isfinite(luminance)]
     if luminance.size == 0:
         return 1.0
     level = float(np.percentile(luminance, percentile))
     return 1.0 / level if level > 0 else 1.0
+
+
+def _bad_exposure(exposure: object) -> ParameterError:
+    return ParameterError("cannot render sRGB:", [
+        Problem("exposure", "'auto' or a positive number", repr(exposure))])
 
 
 def render_srgb(
@@ -311,14 +394,14 @@ def render_srgb(
     xyz = spectra_to_xyz(radiance, illuminant=illuminant)
     if isinstance(exposure, str):
         if exposure != "auto":
-            raise ValueError(f"exposure: expected 'auto' or a positive number, found {exposure!r}")
+            raise _bad_exposure(exposure)
         scale = auto_exposure(xyz, percentile=percentile)
         statement = (f"XYZ scaled by {scale:.6g} so that the {percentile:g}th percentile of the "
                      "luminance Y over all pixels of all images is sRGB white (Y = 1)")
     else:
         scale = float(exposure)
         if not np.isfinite(scale) or scale <= 0:
-            raise ValueError(f"exposure: expected 'auto' or a positive number, found {exposure!r}")
+            raise _bad_exposure(exposure)
         statement = f"XYZ scaled by the given exposure factor {scale:.6g}"
     scaled = xyz * scale
     scaled.attrs = xyz.attrs

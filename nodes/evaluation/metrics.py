@@ -33,23 +33,25 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
+from typing import Annotated
 
 import colour
 import numpy as np
 import xarray as xr
-from pydantic import Field, field_validator
+from pydantic import AfterValidator, Field
+from pydantic_core import PydanticCustomError
 
-from spectralize.engine import Node, Parameters
+from spectralize.engine import Choices
 from spectralize.nodes.evaluation.colorimetry import Illuminant, _quiet_colour, spectra_to_xyz
-from spectralize.schemas import Problem, SchemaError
-from spectralize.schemas.run import EVALUATION
+from spectralize.schemas import ParameterError, Problem, SchemaError
+from spectralize.schemas.run import SPECTRA
 
 __all__ = [
     "CUBE_DIMS",
     "STATISTICS",
-    "SUBSETS",
     "DEFAULT_THRESHOLD",
     "DEFAULT_SAMPLE_QUANTILES",
+    "ILLUMINANTS",
     "normalised_rmse",
     "spectral_angle",
     "colour_difference",
@@ -59,21 +61,20 @@ __all__ = [
     "evaluate",
     "compare_methods",
     "METHOD_DIM",
-    "EVALUATION",
-    "EvaluateParameters",
-    "EVALUATE",
 ]
 
-#: Dims of a spectral cube (groups ``spectra`` and ``truth/spectra``).
-CUBE_DIMS: tuple[str, ...] = ("image", "wavelength", "y", "x")
+#: Dims of a spectral cube (groups ``spectra`` and ``truth/spectra``), from their schema.
+CUBE_DIMS: tuple[str, ...] = next(s.dims for s in SPECTRA.variables if s.name == "radiance")
 #: The statistics of every map, in the order of the ``statistic`` dim.
 STATISTICS: tuple[str, ...] = ("mean", "median", "p95", "p99")
-#: Subsets of images summarised together (Figure 7 splits "with" and "without").
-SUBSETS: tuple[str, ...] = ("all", "with_band_shots", "without_band_shots")
 #: nRMSE level below which a pixel counts as well reconstructed (Figure 7: "~0.03").
 DEFAULT_THRESHOLD: float = 0.03
 #: Quantiles of the nRMSE map at which representative pixels are picked (low .. highest).
 DEFAULT_SAMPLE_QUANTILES: tuple[float, ...] = (0.05, 0.5, 0.9, 0.99, 1.0)
+#: Illuminants of the CIEDE2000 colour difference by name: colour-science's table plus
+#: ``"E"`` (equal energy: the cubes are integrated as they are).
+ILLUMINANTS: Mapping[str, colour.SpectralDistribution | None] = {
+    "E": None, **colour.SDS_ILLUMINANTS}
 
 _METRICS = {
     "nrmse": ("1", "normalised RMSE over wavelength (RMSE / mean ground-truth intensity of "
@@ -83,55 +84,64 @@ _METRICS = {
 }
 
 
-# -- input checks --------------------------------------------------------------------------
-def _radiance(ds: xr.Dataset | xr.DataArray, name: str, problems: list[Problem]
-              ) -> xr.DataArray | None:
-    array = ds if isinstance(ds, xr.DataArray) else ds.get("radiance")
+# -- inputs ---------------------------------------------------------------------------------
+# :func:`evaluate` is the node function: the engine has checked its groups against their
+# schemas (spectra, truth/spectra, raw/spectral) before it runs, so it checks only what a
+# schema of one group cannot say, that the two cubes fit together (:func:`_align`). The
+# other public functions also take bare DataArrays (e.g. baseline cubes), so they check
+# those first (:func:`_check_pair`).
+def _cube(data: xr.Dataset | xr.DataArray) -> xr.DataArray:
+    return data if isinstance(data, xr.DataArray) else data["radiance"]
+
+
+def _cube_problems(data: xr.Dataset | xr.DataArray, name: str) -> list[Problem]:
+    array = data if isinstance(data, xr.DataArray) else data.get("radiance")
     if array is None:
-        variables = list(ds.data_vars) if isinstance(ds, xr.Dataset) else []
-        problems.append(Problem(f"{name}:radiance", "a variable 'radiance' (image, wavelength, "
-                                "y, x)", f"variables {variables}"))
-        return None
+        variables = list(data.data_vars) if isinstance(data, xr.Dataset) else []
+        return [Problem(f"{name}:radiance", f"a variable 'radiance' {CUBE_DIMS}",
+                        f"variables {variables}")]
     if tuple(array.dims) != CUBE_DIMS:
-        problems.append(Problem(f"{name}:radiance", f"dims {CUBE_DIMS}",
-                                f"dims {tuple(array.dims)} shape {tuple(array.shape)}"))
-        return None
+        return [Problem(f"{name}:radiance", f"dims {CUBE_DIMS}",
+                        f"dims {tuple(array.dims)} shape {tuple(array.shape)}")]
     if "wavelength" not in array.coords:
-        problems.append(Problem(f"{name}:wavelength", "coordinate values [nm]", "none"))
-        return None
-    return array
+        return [Problem(f"{name}:wavelength", "coordinate values [nm]", "none")]
+    return []
 
 
-def _check_pair(spectra: xr.Dataset | xr.DataArray, truth: xr.Dataset | xr.DataArray
-                ) -> tuple[xr.DataArray, xr.DataArray]:
-    problems: list[Problem] = []
-    s = _radiance(spectra, "spectra", problems)
-    t = _radiance(truth, "truth", problems)
-    if (s is not None and t is not None and "image" in s.indexes and "image" in t.indexes
+def _align(s: xr.DataArray, t: xr.DataArray) -> tuple[xr.DataArray, xr.DataArray]:
+    """The reconstruction and its truth on the same images, or every mismatch at once."""
+    if ("image" in s.indexes and "image" in t.indexes
             and not s.indexes["image"].equals(t.indexes["image"])
             and set(s.indexes["image"]) <= set(t.indexes["image"])):
         # a reconstruction written set by set orders its images by set: follow its order
         t = t.sel(image=s.indexes["image"])
-    if s is not None and t is not None:
-        if s.shape != t.shape:
-            problems.append(Problem("spectra:radiance", f"the shape of truth:radiance "
-                                    f"{dict(t.sizes)}", f"{dict(s.sizes)}"))
-        elif not np.allclose(s["wavelength"].values, t["wavelength"].values, rtol=0, atol=1e-6):
-            problems.append(Problem("spectra:wavelength", "the wavelengths of the truth "
-                                    f"{t['wavelength'].values.tolist()} nm",
-                                    f"{s['wavelength'].values.tolist()} nm"))
-        elif "image" in s.indexes and "image" in t.indexes and not s.indexes["image"].equals(
-                t.indexes["image"]):
-            problems.append(Problem("spectra:image", "the image labels of the truth "
-                                    f"{t.indexes['image'].tolist()}",
-                                    f"{s.indexes['image'].tolist()}"))
+    problems = []
+    if s.shape != t.shape:
+        problems.append(Problem("spectra:radiance", f"the shape of truth:radiance "
+                                f"{dict(t.sizes)}", f"{dict(s.sizes)}"))
+    elif not np.allclose(s["wavelength"].values, t["wavelength"].values, rtol=0, atol=1e-6):
+        problems.append(Problem("spectra:wavelength", "the wavelengths of the truth "
+                                f"{t['wavelength'].values.tolist()} nm",
+                                f"{s['wavelength'].values.tolist()} nm"))
+    elif "image" in s.indexes and "image" in t.indexes and not s.indexes["image"].equals(
+            t.indexes["image"]):
+        problems.append(Problem("spectra:image", "the image labels of the truth "
+                                f"{t.indexes['image'].tolist()}",
+                                f"{s.indexes['image'].tolist()}"))
     if problems:
         raise SchemaError("cannot compare the reconstruction with the ground truth:", problems)
-    assert s is not None and t is not None
     # The truth's coordinates for both, so that arithmetic never realigns (drops) images.
     s = s.reset_coords(drop=True).drop_indexes(list(s.indexes)).drop_vars(list(s.indexes))
     s = s.assign_coords({name: t[name] for name in t.indexes})
     return s, t
+
+
+def _check_pair(spectra: xr.Dataset | xr.DataArray, truth: xr.Dataset | xr.DataArray
+                ) -> tuple[xr.DataArray, xr.DataArray]:
+    problems = _cube_problems(spectra, "spectra") + _cube_problems(truth, "truth")
+    if problems:
+        raise SchemaError("cannot compare the reconstruction with the ground truth:", problems)
+    return _align(_cube(spectra), _cube(truth))
 
 
 def _labels(values: Sequence[str]) -> np.ndarray:
@@ -178,7 +188,10 @@ def normalised_rmse(spectra: xr.DataArray | xr.Dataset, truth: xr.DataArray | xr
     Fast Capture of Spectral Image Series, Figures 5 and 6: "The pixel-wise RMSE is
     normalized by the mean over all pixel intensities of the ground truth spectral image."
     """
-    s, t = _check_pair(spectra, truth)
+    return _nrmse(*_check_pair(spectra, truth))
+
+
+def _nrmse(s: xr.DataArray, t: xr.DataArray) -> xr.DataArray:
     s, t = _as_float(_chunk_spectral(s)), _as_float(_chunk_spectral(t))
     rmse = np.sqrt(((s - t) ** 2).mean("wavelength", skipna=False))
     mean = t.mean(("wavelength", "y", "x"), skipna=False)
@@ -196,17 +209,31 @@ def spectral_angle(spectra: xr.DataArray | xr.Dataset, truth: xr.DataArray | xr.
     ``arccos(s . t)`` but accurate for small angles. NaN where either spectrum is all zero
     or holds NaN.
 
+    Parameters
+    ----------
+    spectra, truth
+        ``radiance`` (image, wavelength, y, x) of the reconstruction and the ground truth,
+        or Datasets holding it.
+
     Returns
     -------
     xarray.DataArray
         ``spectral_angle`` (image, y, x) float32 [degree], in [0, 180].
+
+    Raises
+    ------
+    SchemaError
+        If the cubes do not have dims (image, wavelength, y, x), equal shapes and wavelengths.
 
     References
     ----------
     Kruse, F. A. et al. (1993). The spectral image processing system (SIPS). Remote Sensing
     of Environment 44. (Spectral angle mapper.)
     """
-    s, t = _check_pair(spectra, truth)
+    return _angle(*_check_pair(spectra, truth))
+
+
+def _angle(s: xr.DataArray, t: xr.DataArray) -> xr.DataArray:
     s, t = _as_float(_chunk_spectral(s)), _as_float(_chunk_spectral(t))
     norm_s = np.sqrt((s ** 2).sum("wavelength", skipna=False))
     norm_t = np.sqrt((t ** 2).sum("wavelength", skipna=False))
@@ -239,9 +266,9 @@ def colour_difference(
 
     Both spectra are converted to CIE XYZ with the CIE 1931 2 degree observer, weighted by
     ``illuminant`` and normalised so that a spectrum equal to 1 has ``Y = 1``
-    (:func:`spectralize.nodes.evaluation.colorimetry.spectra_to_xyz`, colour-science's integration), then
-    to CIELAB relative to the white of the illuminant on the cube's bands (a perfect
-    reflector has L* = 100, a* = b* = 0), and compared with
+    (:func:`~spectralize.nodes.evaluation.colorimetry.spectra_to_xyz`, colour-science's
+    integration), then to CIELAB relative to the white of the illuminant on the cube's bands
+    (a perfect reflector has L* = 100, a* = b* = 0), and compared with
     ``colour.delta_E(method="CIE 2000")``.
 
     Parameters
@@ -258,6 +285,13 @@ def colour_difference(
     xarray.DataArray
         ``delta_e`` (image, y, x) float32 [1]; NaN where a spectrum holds NaN.
 
+    Raises
+    ------
+    SchemaError
+        If the cubes do not have dims (image, wavelength, y, x), equal shapes and wavelengths.
+    ParameterError
+        If ``illuminant`` is unknown.
+
     Notes
     -----
     The relative radiance of a run is treated like a reflectance factor under
@@ -267,7 +301,10 @@ def colour_difference(
     ----------
     CIE 142-2001, Improvement to industrial colour-difference evaluation (CIEDE2000).
     """
-    s, t = _check_pair(spectra, truth)
+    return _delta_e(*_check_pair(spectra, truth), illuminant=illuminant)
+
+
+def _delta_e(s: xr.DataArray, t: xr.DataArray, *, illuminant: Illuminant) -> xr.DataArray:
     xyz_s = spectra_to_xyz(s, illuminant=illuminant)
     xyz_t = spectra_to_xyz(t, illuminant=illuminant)
     delta = xr.apply_ufunc(
@@ -312,12 +349,21 @@ def map_statistics(error_map: xr.DataArray, *, dims: Sequence[str] = ("y", "x")
     xarray.DataArray
         float64 (remaining dims..., statistic) with ``statistic`` = :data:`STATISTICS`, in
         the units of the map; NaN where no finite value is found.
+
+    Raises
+    ------
+    SchemaError
+        If ``error_map`` lacks one of ``dims``.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, sec. 5 (per-image accuracy of Figures 5 and 6).
     """
     dims = list(dims)
     missing = [d for d in dims if d not in error_map.dims]
     if missing:
-        raise ValueError(f"map_statistics: {error_map.name!r} has dims {error_map.dims}, "
-                         f"expected it to have {missing}")
+        raise SchemaError("cannot summarise the map:", [Problem(
+            str(error_map.name), f"dims including {missing}", f"dims {error_map.dims}")])
     if error_map.chunks is not None:
         error_map = error_map.chunk({d: -1 for d in dims})
     stats = xr.apply_ufunc(
@@ -361,6 +407,11 @@ def band_shot_images(shots: xr.Dataset, images: xr.DataArray | Sequence[int] | i
     ------
     SchemaError
         If ``shots`` has no integer ``image`` over a ``shot`` dim.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, sec. 5 "Sparsely Measured Spectral Bands" and
+    Figure 7.
     """
     found = shots.get("image") if isinstance(shots, xr.Dataset) else None
     if found is None or found.dims != ("shot",) or found.dtype.kind not in "iu":
@@ -372,8 +423,11 @@ def band_shot_images(shots: xr.Dataset, images: xr.DataArray | Sequence[int] | i
         index = np.arange(int(images))
     else:
         index = np.asarray(images.values if isinstance(images, xr.DataArray) else images)
-    paired = np.unique(np.asarray(found.values))
-    has = np.isin(index, paired)
+    return _has_band_shots(shots, index)
+
+
+def _has_band_shots(shots: xr.Dataset, images: np.ndarray) -> xr.DataArray:
+    has = np.isin(images, np.unique(np.asarray(shots["image"].values)))
     return xr.DataArray(has, dims=("image",), name="has_band_shots",
                         attrs={"long_name": "image has at least one band shot",
                                "units": "1"})
@@ -446,21 +500,41 @@ def representative_spectra(
         ``sample_truth`` and ``sample_reconstruction`` float32 [1]. Coord
         ``sample_quantile`` (sample). Lazy per image (one image per dask chunk).
 
+    Raises
+    ------
+    SchemaError
+        If the cubes do not fit together (see :func:`normalised_rmse`) or ``nrmse`` is not
+        an (image, y, x) map of their size.
+    ParameterError
+        If ``quantiles`` are not ascending values in [0, 1].
+
     References
     ----------
     Fast Capture of Spectral Image Series, sec. 5: "We selected representative spectra by
     picking both points with low and high RMSE in the color mapped error maps."
     """
     s, t = _check_pair(spectra, truth)
+    q = _quantiles(quantiles)
+    if tuple(nrmse.dims) != ("image", "y", "x") or nrmse.shape != (
+            s.sizes["image"], s.sizes["y"], s.sizes["x"]):
+        raise SchemaError("cannot pick representative spectra:", [Problem(
+            "nrmse", f"dims ('image', 'y', 'x') with shape "
+            f"{(s.sizes['image'], s.sizes['y'], s.sizes['x'])}",
+            f"dims {nrmse.dims} shape {nrmse.shape}")])
+    return _representative(nrmse, s, t, q)
+
+
+def _quantiles(quantiles: Sequence[float]) -> np.ndarray:
     q = np.asarray(list(quantiles), dtype=np.float64)
     if q.size == 0 or np.any(~np.isfinite(q)) or np.any((q < 0) | (q > 1)) or np.any(
             np.diff(q) < 0):
-        raise ValueError(f"quantiles: expected ascending values in [0, 1], found {q.tolist()}")
-    if tuple(nrmse.dims) != ("image", "y", "x") or nrmse.shape != (
-            s.sizes["image"], s.sizes["y"], s.sizes["x"]):
-        raise ValueError(f"nrmse: expected dims ('image', 'y', 'x') with shape "
-                         f"{(s.sizes['image'], s.sizes['y'], s.sizes['x'])}, found dims "
-                         f"{nrmse.dims} shape {nrmse.shape}")
+        raise ParameterError("cannot pick representative spectra:", [Problem(
+            "sample_quantiles", "ascending values in [0, 1]", str(q.tolist()))])
+    return q
+
+
+def _representative(nrmse: xr.DataArray, s: xr.DataArray, t: xr.DataArray, q: np.ndarray
+                    ) -> xr.Dataset:
     if any(a.chunks is not None for a in (nrmse, s, t)):
         per_image = {"image": 1, "y": -1, "x": -1}
         nrmse = nrmse.chunk(per_image)
@@ -532,16 +606,24 @@ def _subset_statistics(maps: dict[str, xr.DataArray], masks: dict[str, np.ndarra
     return out.assign_coords(subset=_labels(subset), statistic=_labels(STATISTICS))
 
 
+def _ascending(value: tuple[float, ...]) -> tuple[float, ...]:
+    if list(value) != sorted(value):
+        raise PydanticCustomError("ascending", "ascending quantiles")
+    return value
+
+
 def evaluate(
     spectra: xr.Dataset,
     truth: xr.Dataset,
     *,
     shots: xr.Dataset | None = None,
-    illuminant: str = "D65",
-    threshold: float = DEFAULT_THRESHOLD,
-    histogram_bins: int = 60,
-    histogram_max: float = 0.12,
-    sample_quantiles: Sequence[float] = DEFAULT_SAMPLE_QUANTILES,
+    illuminant: Annotated[str, Choices(ILLUMINANTS, "illuminant")] = "D65",
+    threshold: Annotated[float, Field(gt=0)] = DEFAULT_THRESHOLD,
+    histogram_bins: Annotated[int, Field(ge=1, le=10000)] = 60,
+    histogram_max: Annotated[float, Field(gt=0)] = 0.12,
+    sample_quantiles: Annotated[tuple[Annotated[float, Field(ge=0, le=1)], ...],
+                                Field(min_length=1),
+                                AfterValidator(_ascending)] = DEFAULT_SAMPLE_QUANTILES,
 ) -> xr.Dataset:
     """Compare a reconstructed spectral cube with its ground truth (paper sec. 5, Fig. 5-7).
 
@@ -550,25 +632,32 @@ def evaluate(
     spectra
         Group ``spectra``: ``radiance`` (image, wavelength, y, x) [1].
     truth
-        Group ``truth/spectra``, the same layout, same shape and wavelengths.
+        Group ``truth/spectra``, the same layout, same shape and wavelengths (the images
+        may be in another order: they are matched by their ``image`` labels).
     shots
         Group ``raw/spectral`` (or ``bands``): its per-shot ``image`` tells which images have
         band shots. Without it only the subset ``all`` is summarised.
     illuminant
-        Illuminant of the CIEDE2000 colour difference (a key of ``colour.SDS_ILLUMINANTS``,
-        or ``"E"`` to integrate the cubes as they are).
+        Illuminant of the CIEDE2000 colour difference (colour-science name, or 'E').
+        A key of :data:`ILLUMINANTS`: of ``colour.SDS_ILLUMINANTS``, or ``"E"`` to integrate
+        the cubes as they are.
     threshold
-        nRMSE level for the "fraction below" statistics (Figure 7 uses ~0.03).
-    histogram_bins, histogram_max
-        Per-image nRMSE histograms on ``histogram_bins`` equal bins over
-        ``[0, histogram_max]``; larger values are counted in ``nrmse_above_range``.
+        nRMSE level of the fraction-below statistics (Figure 7: ~0.03).
+    histogram_bins
+        Number of bins of the per-image nRMSE histograms.
+        Equal bins over ``[0, histogram_max]``.
+    histogram_max
+        Upper end of the nRMSE histograms.
+        Larger values are counted in ``nrmse_above_range``.
     sample_quantiles
-        Quantiles of each image's nRMSE map at which representative pixels are picked.
+        Quantiles of the nRMSE map where representative spectra are picked.
+        Ascending, in [0, 1]: per image, the pixel closest to each quantile.
 
     Returns
     -------
     xarray.Dataset
-        The ``evaluation`` group (see :data:`EVALUATION`): maps ``nrmse``,
+        The ``evaluation`` group (schema :data:`spectralize.schemas.run.EVALUATION`): maps
+        ``nrmse``,
         ``spectral_angle``, ``delta_e`` (image, y, x) float32; per image ``truth_mean``,
         ``{metric}_statistics`` (image, statistic), ``nrmse_fraction_below``,
         ``invalid_count``, ``nrmse_histogram`` (image, nrmse_bin), ``nrmse_above_range`` and,
@@ -581,24 +670,28 @@ def evaluate(
     Raises
     ------
     SchemaError
-        If the cubes do not match (dims, shapes, wavelengths) or ``shots`` has no ``image``.
-    ValueError
-        For invalid options.
+        If the two cubes do not fit together (shapes, wavelengths, image labels).
+
+    Notes
+    -----
+    This is the function of the ``evaluate`` node
+    (:data:`spectralize.nodes.evaluation.declarations.EVALUATE`). The engine checks its
+    groups against their schemas (``spectra``, ``truth/spectra``, ``raw/spectral``) and its
+    options against the constraints annotated in this signature before it runs, so only
+    what those cannot say, that the two cubes fit together, is checked here. A direct call
+    should pass groups that follow the schemas (``spectralize.schemas.check_dataset``) and
+    valid options (``EVALUATE.parse_parameters``).
 
     References
     ----------
     Fast Capture of Spectral Image Series, sec. 5 and Figures 5, 6 and 7.
     """
-    if not (np.isfinite(threshold) and threshold > 0):
-        raise ValueError(f"threshold: expected a positive nRMSE level, found {threshold!r}")
-    if int(histogram_bins) < 1 or not (np.isfinite(histogram_max) and histogram_max > 0):
-        raise ValueError(f"histogram: expected histogram_bins >= 1 and histogram_max > 0, found "
-                         f"{histogram_bins!r} and {histogram_max!r}")
-    s, t = _check_pair(spectra, truth)
+    quantiles = np.asarray(sample_quantiles, dtype=np.float64)
+    s, t = _align(_cube(spectra), _cube(truth))
 
-    nrmse = normalised_rmse(s, t)
-    angle = spectral_angle(s, t)
-    delta_e = colour_difference(s, t, illuminant=illuminant)
+    nrmse = _nrmse(s, t)
+    angle = _angle(s, t)
+    delta_e = _delta_e(s, t, illuminant=illuminant)
     maps = {"nrmse": nrmse, "spectral_angle": angle, "delta_e": delta_e}
 
     truth_mean = _as_float(t).mean(("wavelength", "y", "x"), skipna=False)
@@ -646,13 +739,13 @@ def evaluate(
     images = _image_index(t)
     masks: dict[str, np.ndarray] = {"all": np.ones(images.size, dtype=bool)}
     if shots is not None:
-        has = band_shot_images(shots, images)
+        has = _has_band_shots(shots, images)
         out["has_band_shots"] = has
         masks["with_band_shots"] = has.values
         masks["without_band_shots"] = ~has.values
     out = out.merge(_subset_statistics(maps, masks, threshold), compat="override", join="exact")
 
-    samples = representative_spectra(nrmse, s, t, quantiles=sample_quantiles)
+    samples = _representative(nrmse, s, t, quantiles)
     out = out.merge(samples, compat="override", join="exact")
 
     per_image = {name: coord.variable for name, coord in t.coords.items()
@@ -708,9 +801,10 @@ def compare_methods(
     Parameters
     ----------
     candidates
-        Method name -> reconstructed ``radiance`` (image, wavelength, y, x) (a DataArray as
-        :func:`~spectralize.nodes.reconstruction.reconstruct_baseline` returns, or a Dataset
-        holding it); or one Dataset with ``radiance`` (reconstruction, image, wavelength,
+        Method name -> reconstructed ``radiance`` (image, wavelength, y, x) (a DataArray, or
+        a Dataset holding it, e.g. the ``spectra`` of
+        :func:`~spectralize.nodes.reconstruction.reconstruct` with a baseline ``method``);
+        or one Dataset with ``radiance`` (reconstruction, image, wavelength,
         y, x) (a dim called ``method`` is accepted too).
     truth
         Group ``truth/spectra``.
@@ -725,6 +819,11 @@ def compare_methods(
         statistic), ``nrmse_subset_fraction_below`` and ``subset_pixel_count``
         (reconstruction, subset); lazy when the inputs are.
 
+    Raises
+    ------
+    SchemaError
+        If there is no method, or a cube does not fit the truth (see :func:`normalised_rmse`).
+
     References
     ----------
     Fast Capture of Spectral Image Series, sec. 2 ("Hybrid Methods": pseudo-inverse and
@@ -732,8 +831,12 @@ def compare_methods(
     """
     cubes = _method_cubes(candidates)
     if not cubes:
-        raise ValueError("compare_methods: expected at least one method, found none")
-    t = _check_pair(truth, truth)[1]
+        raise SchemaError("cannot compare methods:", [
+            Problem("candidates", "at least one method", "none")])
+    problems = _cube_problems(truth, "truth")
+    if problems:
+        raise SchemaError("cannot compare methods:", problems)
+    t = _cube(truth)
     masks: dict[str, np.ndarray] = {"all": np.ones(t.sizes["image"], dtype=bool)}
     if shots is not None:
         has = band_shot_images(shots, _image_index(t)).values
@@ -741,52 +844,10 @@ def compare_methods(
     rows = []
     for cube in cubes.values():
         s, t = _check_pair(cube, truth)
-        maps = {"nrmse": normalised_rmse(s, t), "spectral_angle": spectral_angle(s, t),
-                "delta_e": colour_difference(s, t, illuminant=illuminant)}
+        maps = {"nrmse": _nrmse(s, t), "spectral_angle": _angle(s, t),
+                "delta_e": _delta_e(s, t, illuminant=illuminant)}
         rows.append(_subset_statistics(maps, masks, threshold))
     out = xr.concat(rows, dim=METHOD_DIM, coords="minimal", compat="override",
                     join="override").assign_coords({METHOD_DIM: _labels(list(cubes))})
     out.attrs = {"illuminant": illuminant, "threshold": float(threshold)}
     return out
-
-
-# -- node ----------------------------------------------------------------------------------
-class EvaluateParameters(Parameters):
-    """Parameters of :func:`evaluate`."""
-
-    illuminant: str = Field("D65", description="illuminant of CIEDE2000 (colour.SDS_ILLUMINANTS "
-                                               "key, or 'E' for the cubes as they are)")
-    threshold: float = Field(DEFAULT_THRESHOLD, gt=0, description="nRMSE level of the "
-                             "fraction-below statistics (Fig. 7: ~0.03)")
-    histogram_bins: int = Field(60, ge=1, le=10000, description="nRMSE histogram bins")
-    histogram_max: float = Field(0.12, gt=0, description="upper end of the nRMSE histogram")
-    sample_quantiles: tuple[float, ...] = Field(
-        DEFAULT_SAMPLE_QUANTILES, min_length=1,
-        description="quantiles of the nRMSE map where representative spectra are picked")
-
-    @field_validator("illuminant")
-    @classmethod
-    def _known_illuminant(cls, value: str) -> str:
-        if value != "E" and value not in colour.SDS_ILLUMINANTS:
-            raise ValueError(f"unknown illuminant {value!r}: expected a key of "
-                             "colour.SDS_ILLUMINANTS (D65, D50, A, LED-B3, ...) or 'E'")
-        return value
-
-    @field_validator("sample_quantiles")
-    @classmethod
-    def _ascending(cls, value: tuple[float, ...]) -> tuple[float, ...]:
-        if any(not 0 <= q <= 1 for q in value) or list(value) != sorted(value):
-            raise ValueError(f"expected ascending quantiles in [0, 1], found {list(value)}")
-        return value
-
-
-EVALUATE = Node(
-    name="evaluate",
-    version="1",
-    function=evaluate,
-    inputs={"spectra": "spectra", "truth": "truth/spectra", "shots": "raw/spectral"},
-    outputs=("evaluation",),
-    parameters=EvaluateParameters,
-    description="nRMSE / spectral angle / CIEDE2000 maps and statistics against the ground "
-                "truth (sec. 5, Fig. 5-7).",
-)

@@ -2,22 +2,27 @@
 
 Public API::
 
-    from spectralize.nodes.reconstruction import reconstruct, reconstruct_baseline
-    spectra = reconstruct(rgb, bands, camera_matrix)              # fast default solver
-    spectra = reconstruct(rgb, bands, camera_matrix, method="paper-cg")  # the paper's CG
+    from spectralize.nodes.reconstruction import reconstruct, RECONSTRUCTION_METHODS
+    spectra = reconstruct(rgb, bands, camera_matrix)                      # fast default solver
+    spectra = reconstruct(rgb, bands, camera_matrix, method="paper-cg")   # the paper's CG
+    spectra = reconstruct(rgb, bands, camera_matrix, method="guided-prior-pcg", prior=0.3)
+    spectra = reconstruct(rgb, bands, camera_matrix, method="wiener")     # a baseline
 
-Modules: :mod:`.operators` (filter, RGB and neighbour terms, the problem), :mod:`.neighbourhoods`
-(k nearest neighbours in RGB space), :mod:`.weights` (eq. 4), :mod:`.solvers` (paper CG and the
-fast default), :mod:`.baselines` (comparison methods), :mod:`.inputs` (checks), :mod:`.api`.
+Modules: :mod:`.api` (:func:`reconstruct`, the one entry point), :mod:`.methods` (the method
+table), :mod:`.solvers` and :mod:`.baselines` (one method per module), :mod:`.operators`
+(filter, RGB and neighbour terms, the problem), :mod:`.neighbourhoods` (k nearest
+neighbours in RGB space), :mod:`.weights` (eq. 4), :mod:`.inputs` (checks),
+:mod:`.image_sets`, :mod:`.warm_start` and :mod:`.set_reconstruction` (a run, set by set),
+:mod:`.declarations` (the nodes).
 
 References
 ----------
 .. [1] Fast Capture of Spectral Image Series, section 3.
 """
 
-from .api import ReconstructionResult, reconstruct, reconstruct_baseline, reconstruct_spectra
-from .baselines import BASELINE_METHODS
+from .api import ReconstructionResult, reconstruct
 from .inputs import ReconstructionInputs, inputs_from_xarray
+from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, ReconstructionMethod
 from .neighbourhoods import NeighbourGraph, appearance_neighbours
 from .operators import (
     FilterConstraints,
@@ -26,16 +31,14 @@ from .operators import (
     filter_centres,
     gaussian_filter_matrix,
 )
-from .solvers import DEFAULT_METHOD, SOLVER_METHODS, SolverResult
+from .solvers import SolverResult
 from .weights import TermWeights, term_weights
 
 __all__ = [
     "reconstruct",
-    "reconstruct_spectra",
-    "reconstruct_baseline",
     "ReconstructionResult",
-    "SOLVER_METHODS",
-    "BASELINE_METHODS",
+    "RECONSTRUCTION_METHODS",
+    "ReconstructionMethod",
     "DEFAULT_METHOD",
     "SolverResult",
     "ReconstructionInputs",

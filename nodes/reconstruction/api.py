@@ -1,4 +1,8 @@
-"""The public, xarray-level reconstruction API (a thin layer over the numpy numerics).
+"""The one reconstruction entry point, :func:`reconstruct`: xarray in, xarray out.
+
+A thin layer over the numpy numerics: it brings the input forms to one (a set of images
+with band shots), checks them (:mod:`.inputs`), validates the options against the method's
+record in :data:`~.methods.RECONSTRUCTION_METHODS` and dispatches.
 
 References
 ----------
@@ -7,51 +11,50 @@ References
 
 from __future__ import annotations
 
+import numbers
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import xarray as xr
 
 from spectralize.schemas.errors import ReconstructionError
 
-from .baselines import BASELINE_METHODS
 from .inputs import ReconstructionInputs, inputs_from_xarray
+from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, SETUP_OPTIONS, get_method
 from .operators import ReconstructionProblem, build_problem
-from .solvers import (
-    DEFAULT_MAX_ITERATIONS,
-    DEFAULT_METHOD,
-    DEFAULT_TOLERANCE,
-    SOLVER_DTYPES,
-    SOLVER_METHODS,
-    SolverResult,
-)
+from .weights import default_gamma_hat
 
-__all__ = ["reconstruct", "reconstruct_spectra", "reconstruct_baseline", "ReconstructionResult"]
+__all__ = ["reconstruct", "ReconstructionResult"]
 
 
 @dataclass
 class ReconstructionResult:
-    """Spectra and solver record of one reconstruction.
+    """Spectra and solver record of one reconstruction (``reconstruct(..., full_output=True)``).
 
     Attributes
     ----------
     spectra
-        ``(image, wavelength, y, x)`` float32 DataArray (what :func:`reconstruct` returns).
+        What :func:`reconstruct` returns: ``(image, wavelength, y, x)`` float32 (or
+        ``(wavelength, y, x)`` for a single ``(y, x, channel)`` image).
     iterations
-        Solver iterations.
+        Solver iterations (0 for a baseline).
     residual_history
-        Relative normal-equation residual before and after every iteration.
+        Relative normal-equation residual before and after every iteration (empty for a
+        baseline).
     converged
-        Whether the tolerance was reached.
+        Whether the tolerance was reached (``True`` for a baseline).
     wall_time
         Seconds for the whole call (checks, neighbour search, set-up and solve).
     setup_time
         Seconds of that for checks, neighbour search and operator set-up.
     method
-        Solver name.
+        Method name.
     problem
-        The :class:`ReconstructionProblem` solved (operators, weights, neighbour graph).
+        The :class:`~.operators.ReconstructionProblem` solved (operators, weights, neighbour
+        graph); ``None`` for a baseline.
     """
 
     spectra: xr.DataArray
@@ -61,14 +64,129 @@ class ReconstructionResult:
     wall_time: float
     setup_time: float
     method: str
-    problem: ReconstructionProblem = field(repr=False)
+    problem: ReconstructionProblem | None = field(default=None, repr=False)
 
 
-def _method_error(method: str, table: dict) -> ReconstructionError:
-    return ReconstructionError(f"unknown method {method!r}; known methods: "
-                               f"{', '.join(sorted(table))}")
+# -- input forms ---------------------------------------------------------------------------
+def _is_array(value: object, dims: set[str]) -> bool:
+    return isinstance(value, xr.DataArray) and set(value.dims) == dims and len(value.dims) == 3
 
 
+def _band_cube_as_shots(cube: xr.DataArray, rgb: xr.DataArray,
+                        filter_size: float | Sequence[float] | None) -> xr.DataArray:
+    """A ``(y, x, wavelength)`` band cube of one image as ``(shot, y, x)`` shots of it."""
+    if rgb.sizes.get("image", 1) != 1:
+        raise ReconstructionError(
+            f"bands: a (y, x, wavelength) band cube is one image's bands, but rgb has "
+            f"{rgb.sizes['image']} images; give bands as (shot, y, x) with the coordinates "
+            "wavelength, image and filter_size along shot")
+    if "wavelength" not in cube.coords:
+        raise ReconstructionError("bands: expected a 'wavelength' coordinate [nm] on the "
+                                  "(y, x, wavelength) band cube, found none")
+    cube = cube.transpose("wavelength", "y", "x")
+    n_band = cube.sizes["wavelength"]
+    coord = cube.coords.get("filter_size")
+    if coord is not None and filter_size is not None:
+        raise ReconstructionError("filter_size: given both as an option and as a coordinate of "
+                                  "bands; give one")
+    if coord is None and filter_size is None:
+        raise ReconstructionError(
+            "bands: a (y, x, wavelength) band cube needs the filter size s_i [px] of every "
+            "band (eq. 3): a 'filter_size' coordinate along wavelength or "
+            "reconstruct(..., filter_size=s)")
+    sizes = np.asarray(coord.values if coord is not None else filter_size, dtype=np.float64)
+    if sizes.ndim == 0:
+        sizes = np.full(n_band, float(sizes))
+    if sizes.shape != (n_band,):
+        raise ReconstructionError(f"filter_size: expected one number or {n_band} (one per "
+                                  f"wavelength), found shape {sizes.shape}")
+    label = rgb["image"].values[0] if "image" in rgb.coords else 0
+    return xr.DataArray(
+        cube.data, dims=("shot", "y", "x"),
+        coords={"wavelength": ("shot", np.asarray(cube["wavelength"].values, np.float64)),
+                "image": ("shot", np.full(n_band, label)),
+                "filter_size": ("shot", sizes)},
+        attrs=cube.attrs)
+
+
+def _one_form(rgb: Any, bands: Any, filter_size: float | Sequence[float] | None
+              ) -> tuple[Any, Any, bool]:
+    """``(rgb, bands, single)``: the set form ``(image, y, x, channel)`` / ``(shot, y, x)``;
+    ``single`` when ``rgb`` came as one ``(y, x, channel)`` image."""
+    single = _is_array(rgb, {"y", "x", "channel"})
+    if single:
+        if "image" in rgb.coords and rgb["image"].ndim == 0:
+            label = rgb["image"].values.item()
+        elif (isinstance(bands, xr.DataArray) and "shot" in bands.dims
+              and "image" in bands.coords and np.unique(bands["image"].values).size == 1):
+            label = np.unique(bands["image"].values)[0].item()
+        else:
+            label = 0
+        rgb = rgb.drop_vars("image", errors="ignore").expand_dims(image=[label])
+    if _is_array(bands, {"y", "x", "wavelength"}):
+        if isinstance(rgb, xr.DataArray):
+            bands = _band_cube_as_shots(bands, rgb, filter_size)
+    elif filter_size is not None:
+        raise ReconstructionError(
+            "filter_size: only for bands given as a (y, x, wavelength) band cube; bands "
+            "(shot, y, x) carry their filter sizes as the coordinate 'filter_size'")
+    return rgb, bands, single
+
+
+# -- options -------------------------------------------------------------------------------
+_POSITIVE = ("alpha_hat", "beta_hat", "centre_spacing", "tolerance", "window_scale")
+_NON_NEGATIVE = ("gamma_hat", "prior", "ridge", "relative_noise", "epsilon")
+_INTEGER = {"k": 1, "max_iterations": 0}
+
+
+def _checked_options(method: str, options: dict[str, Any]) -> dict[str, Any]:
+    """``options`` checked against the method's record: names, then values."""
+    record = get_method(method)
+    known = record.options
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        takers = {name: [m for m, r in RECONSTRUCTION_METHODS.items() if name in r.options]
+                  for name in unknown}
+        hints = "; ".join(f"{name!r} is an option of {', '.join(t)}" for name, t in
+                          takers.items() if t)
+        raise ReconstructionError(
+            f"method {method!r}: unknown option(s) {unknown}; its options are: "
+            f"{', '.join(known) or 'none'}" + (f" ({hints})" if hints else ""))
+    for name, value in options.items():
+        if name in _POSITIVE and not (_is_real(value) and np.isfinite(value) and value > 0):
+            raise ReconstructionError(f"{name}: expected a finite number > 0, found {value!r}")
+        if name in _NON_NEGATIVE and value is not None and not (
+                _is_real(value) and np.isfinite(value) and value >= 0):
+            raise ReconstructionError(f"{name}: expected a finite number >= 0, found {value!r}")
+        if name in _INTEGER and not (_is_real(value) and int(value) == value
+                                     and value >= _INTEGER[name]):
+            raise ReconstructionError(f"{name}: expected an integer >= {_INTEGER[name]}, "
+                                      f"found {value!r}")
+    return options
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _recorded(options: dict[str, Any]) -> dict[str, Any]:
+    """The scalar options as attrs (JSON-safe: bools as 0/1, dtypes by name)."""
+    attrs: dict[str, Any] = {}
+    for name, value in options.items():
+        if name == "dtype" and value is not None:
+            attrs[name] = np.dtype(value).name
+        elif isinstance(value, bool | np.bool_):
+            attrs[name] = int(value)
+        elif isinstance(value, numbers.Integral):
+            attrs[name] = int(value)
+        elif isinstance(value, numbers.Real):
+            attrs[name] = float(value)
+        elif isinstance(value, str):
+            attrs[name] = value
+    return attrs
+
+
+# -- output --------------------------------------------------------------------------------
 def _spectra_array(cube: np.ndarray, rgb: xr.DataArray, inputs: ReconstructionInputs,
                    attrs: dict) -> xr.DataArray:
     """``(n_wavelength, n_image, y, x)`` -> DataArray ``(image, wavelength, y, x)``."""
@@ -82,7 +200,7 @@ def _spectra_array(cube: np.ndarray, rgb: xr.DataArray, inputs: ReconstructionIn
                                **attrs})
 
 
-def _initial_cube(initial: xr.DataArray | None, rgb: xr.DataArray,
+def _initial_cube(initial: xr.DataArray | None,
                   inputs: ReconstructionInputs) -> np.ndarray | None:
     if initial is None:
         return None
@@ -100,136 +218,93 @@ def _initial_cube(initial: xr.DataArray | None, rgb: xr.DataArray,
     if "wavelength" in initial.coords and not np.allclose(initial["wavelength"].values,
                                                           inputs.wavelength, atol=0.01):
         raise ReconstructionError(f"initial: wavelengths {initial['wavelength'].values.tolist()}"
-                                  f" differ from camera_matrix's {inputs.wavelength.tolist()}")
+                                  f" differ from the bands' {inputs.wavelength.tolist()}")
     values = np.asarray(initial.values, dtype=np.float64)
     if not np.all(np.isfinite(values)):
         raise ReconstructionError("initial: expected finite values, found NaN or inf")
     return np.moveaxis(values, 1, 0)
 
 
-def reconstruct_spectra(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataArray,
-                        *, method: str = DEFAULT_METHOD, alpha_hat: float = 1.0,
-                        beta_hat: float = 1.0, gamma_hat: float | None = None, k: int = 3,
-                        centre_spacing: float = 2.5, tolerance: float = DEFAULT_TOLERANCE,
-                        max_iterations: int = DEFAULT_MAX_ITERATIONS,
-                        initial: xr.DataArray | None = None,
-                        normalize_camera_matrix: bool = True,
-                        callback=None) -> ReconstructionResult:
-    """Reconstruct spectral images (eq. 1) and return them with the solver's record.
-
-    Same parameters as :func:`reconstruct`, plus ``callback(iteration, cube)`` called after
-    every solver iteration with the current cube ``(wavelength, image, y, x)``.
-
-    Returns
-    -------
-    ReconstructionResult
-    """
-    started = time.perf_counter()
-    if method not in SOLVER_METHODS:
-        raise _method_error(method, SOLVER_METHODS)
-    for name, value in {"alpha_hat": alpha_hat, "beta_hat": beta_hat,
-                        "centre_spacing": centre_spacing, "tolerance": tolerance}.items():
-        if not (np.isfinite(value) and value > 0):
-            raise ReconstructionError(f"{name}: expected a finite number > 0, found {value!r}")
-    if gamma_hat is not None and not (np.isfinite(gamma_hat) and gamma_hat >= 0):
-        raise ReconstructionError(f"gamma_hat: expected a finite number >= 0, found "
-                                  f"{gamma_hat!r}")
-    if int(k) != k or k < 1:
-        raise ReconstructionError(f"k: expected an integer >= 1, found {k!r}")
-    if int(max_iterations) != max_iterations or max_iterations < 0:
-        raise ReconstructionError(f"max_iterations: expected an integer >= 0, found "
-                                  f"{max_iterations!r}")
-    inputs = inputs_from_xarray(rgb, bands, camera_matrix)
-    start_cube = _initial_cube(initial, rgb, inputs)
-    problem = build_problem(inputs, alpha_hat=alpha_hat, beta_hat=beta_hat,
-                            gamma_hat=gamma_hat, k=int(k), centre_spacing=centre_spacing,
-                            normalize_camera_matrix=normalize_camera_matrix,
-                            dtype=SOLVER_DTYPES.get(method, np.float64))
-    setup_time = time.perf_counter() - started
-    solved: SolverResult = SOLVER_METHODS[method](
-        problem, initial=start_cube, tolerance=tolerance, max_iterations=int(max_iterations),
-        callback=callback)
-    wall_time = time.perf_counter() - started
-    w = problem.weights
-    attrs = {
-        "method": method,
-        "iterations": int(solved.iterations),
-        "residual_history_length": int(len(solved.residual_history)),
-        "final_relative_residual": float(solved.residual_history[-1]),
-        "converged": int(solved.converged),
-        "tolerance": float(tolerance),
-        "wall_time_s": float(wall_time),
-        "alpha": float(w.alpha), "beta": float(w.beta), "gamma": float(w.gamma),
-        "alpha_hat": float(alpha_hat), "beta_hat": float(beta_hat),
-        "gamma_hat": float(gamma_hat if gamma_hat is not None
-                           else (1.0 if inputs.n_image == 1 else 20.0)),
-        "k": int(k), "centre_spacing": float(centre_spacing),
-        "filter_constraints": int(w.n_filters),
-    }
-    spectra = _spectra_array(solved.cube, rgb.transpose("image", "y", "x", "channel"),
-                             inputs, attrs)
-    return ReconstructionResult(spectra, solved.iterations, solved.residual_history,
-                                solved.converged, wall_time, setup_time, method, problem)
-
-
+# -- the entry point -------------------------------------------------------------------------
 def reconstruct(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataArray, *,
-                method: str = DEFAULT_METHOD, alpha_hat: float = 1.0, beta_hat: float = 1.0,
-                gamma_hat: float | None = None, k: int = 3, centre_spacing: float = 2.5,
-                tolerance: float = DEFAULT_TOLERANCE,
-                max_iterations: int = DEFAULT_MAX_ITERATIONS,
-                initial: xr.DataArray | None = None,
-                normalize_camera_matrix: bool = True) -> xr.DataArray:
-    """Reconstruct spectral images from HDR RGB and noisy band shots (eq. 1).
+                method: str = DEFAULT_METHOD,
+                filter_size: float | Sequence[float] | None = None,
+                full_output: bool = False,
+                **method_options: Any) -> xr.DataArray | ReconstructionResult:
+    """Reconstruct spectral images from HDR RGB and noisy band shots (eq. 1), or a baseline.
 
-    Minimises ``E(S) = alpha sum_i ||sum_p F_i(p) (S_bi(p) - D_bi(p))||^2 + beta sum_p
-    ||C S(p) - R(p)||^2 + gamma sum_p sum_{n in N_p} ||S(p) - S(n)||^2`` over all pixels of
-    all images of the set in one linear system, with the weights of eq. 4.
+    The solvers minimise ``E(S) = alpha sum_i ||sum_p F_i(p) (S_bi(p) - D_bi(p))||^2 + beta
+    sum_p ||C S(p) - R(p)||^2 + gamma sum_p sum_{n in N_p} ||S(p) - S(n)||^2`` over all
+    pixels of all images of the set in one linear system, with the weights of eq. 4; the
+    baselines map the same inputs to spectra directly, for comparison.
 
     Parameters
     ----------
     rgb
-        ``R``: HDR RGB radiance, dims ``(image, y, x, channel)``, 3 channels.
+        ``R``: HDR RGB radiance, dims ``(image, y, x, channel)`` (a set of images) or
+        ``(y, x, channel)`` (one image), 3 channels, any dim order.
     bands
-        ``D``: calibrated noisy band radiance, dims ``(shot, y, x)``, with coords along
+        ``D``: calibrated noisy band radiance, either shots ``(shot, y, x)`` with coords along
         ``shot``: ``wavelength`` [nm], ``image`` (which rgb image it pairs with; images may
-        have no, some or all bands) and ``filter_size`` ``s_i`` [px] (eq. 3).
+        have no, some or all bands) and ``filter_size`` ``s_i`` [px] (eq. 3); or, for one
+        image, a band cube ``(y, x, wavelength)`` with a ``wavelength`` coordinate, every
+        band a shot of that image, and its filter sizes as a coordinate ``filter_size``
+        along ``wavelength`` or the ``filter_size`` argument.
     camera_matrix
-        ``C``, dims ``(channel, wavelength)``: maps a spectrum to RGB. Its wavelengths must be
-        exactly the bands' wavelengths; the spectra are reconstructed on them.
+        ``C``, dims ``(channel, wavelength)``: maps a spectrum to RGB. Its grid must contain
+        every band's wavelength (within 0.01 nm); a wider grid is restricted to the bands'
+        wavelengths, on which the spectra are reconstructed.
     method
-        A solver of :data:`~spectralize.nodes.reconstruction.solvers.SOLVER_METHODS`:
-        ``"block-jacobi-pcg"`` (default: eq. 1, fast), ``"guided-prior-pcg"`` (eq. 1 plus a
-        prior towards the RGB-guided filtered bands) or ``"paper-cg"`` (the paper's CG).
-    alpha_hat, beta_hat, gamma_hat
-        Relative weights of the filter, RGB and neighbour terms (eq. 4); ``gamma_hat=None``
-        is 1 for one image and 20 for a set of images, as in the paper.
-    k
-        Appearance neighbours per pixel in RGB space (paper: 3).
-    centre_spacing
-        ``d``: filter centres are at most this many pixels apart (paper: 2.5).
-    tolerance
-        Stop when ``||A^T b - A^T A S|| / ||A^T b||`` is below this.
-    max_iterations
-        Iteration limit of the solver.
-    initial
-        Optional warm start, dims ``(image, wavelength, y, x)`` (e.g. spectra transported
-        from a previous image set, paper section 4).
-    normalize_camera_matrix
-        Measure the RGB term in band units (divide ``C`` and ``R`` by the mean row sum of
-        ``|C|``), so the result does not depend on the gain of ``C``.
+        A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`:
+        the solvers ``"block-jacobi-pcg"`` (default: eq. 1, fast), ``"guided-prior-pcg"``
+        (eq. 1 plus a prior towards the RGB-guided filtered bands, weight ``prior``) and
+        ``"paper-cg"`` (the paper's CG); the baselines ``"pseudo-inverse"``, ``"wiener"``,
+        ``"mallett2019"``, ``"filtered-bands"``, ``"filtered-projected"``,
+        ``"guided-projected"``.
+    filter_size
+        ``s_i`` [px] of the bands of a ``(y, x, wavelength)`` band cube: one number, or one
+        per wavelength.
+    full_output
+        Return a :class:`ReconstructionResult` (spectra, iterations, residual history,
+        timings, the problem) instead of the spectra alone.
+    **method_options
+        The method's options (``RECONSTRUCTION_METHODS[method].options``). Every solver
+        takes the set-up of eq. 1:
+
+        ``alpha_hat, beta_hat, gamma_hat``
+            relative weights of the filter, RGB and neighbour terms (eq. 4);
+            ``gamma_hat=None`` is 1 for one image and 20 for a set, as in the paper;
+        ``k``
+            appearance neighbours per pixel in RGB space (paper: 3);
+        ``centre_spacing``
+            ``d``: filter centres are at most this many pixels apart (paper: 2.5);
+        ``normalize_camera_matrix``
+            measure the RGB term in band units (divide ``C`` and ``R`` by the mean row sum
+            of ``|C|``), so the result does not depend on the gain of ``C``;
+
+        and its own: ``tolerance`` (stop when ``||A^T b - A^T A S|| / ||A^T b||`` is below
+        it, default 1e-3), ``max_iterations`` (default 2000), ``initial`` (a warm start,
+        dims ``(image, wavelength, y, x)``, e.g. spectra transported from a previous image
+        set, paper section 4), ``callback(iteration, cube)``; the PCG solvers also
+        ``dtype``, ``ridge``, ``prior`` (the guided prior's weight: 0.1 for
+        ``"guided-prior-pcg"``, 0 for ``"block-jacobi-pcg"``) and ``precondition``.
+        Baselines: ``"wiener"`` takes ``relative_noise``, ``"guided-projected"``
+        ``window_scale`` and ``epsilon``.
 
     Returns
     -------
-    xarray.DataArray
-        ``S``, dims ``(image, wavelength, y, x)``, float32, ``units="1"``; the per-image
-        coords of ``rgb``; attrs record the method, iterations, residual history length,
-        final residual, weights and wall time.
+    xarray.DataArray or ReconstructionResult
+        ``S``, dims ``(image, wavelength, y, x)`` (``(wavelength, y, x)`` when ``rgb`` is one
+        ``(y, x, channel)`` image), float32, ``units="1"``; the per-image coords of ``rgb``;
+        attrs record the method and its options, and for a solver the iterations, residual
+        history length, final residual, eq. 4 weights and wall time.
 
     Raises
     ------
     ReconstructionError
-        (a ``ValueError``) for inputs that do not fit together: dims, shapes, wavelengths,
-        NaN/inf, filter sizes larger than the image, an empty set, unknown methods.
+        (a ``ValueError``) for inputs that do not fit together (dims, shapes, wavelengths,
+        NaN/inf, filter sizes larger than the image, an empty set), unknown methods, and
+        unknown or invalid options (the message lists the method's options).
 
     References
     ----------
@@ -238,36 +313,54 @@ def reconstruct(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataAr
     Examples
     --------
     >>> spectra = reconstruct(hdr.radiance, bands.radiance, camera_matrix)  # doctest: +SKIP
-    """
-    return reconstruct_spectra(
-        rgb, bands, camera_matrix, method=method, alpha_hat=alpha_hat, beta_hat=beta_hat,
-        gamma_hat=gamma_hat, k=k, centre_spacing=centre_spacing, tolerance=tolerance,
-        max_iterations=max_iterations, initial=initial,
-        normalize_camera_matrix=normalize_camera_matrix).spectra
-
-
-def reconstruct_baseline(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataArray,
-                         *, method: str = "filtered-projected") -> xr.DataArray:
-    """Reconstruct spectra with a baseline method, for comparison with :func:`reconstruct`.
-
-    Parameters
-    ----------
-    rgb, bands, camera_matrix
-        As for :func:`reconstruct`.
-    method
-        A name in :data:`~spectralize.nodes.reconstruction.baselines.BASELINE_METHODS`:
-        ``"pseudo-inverse"``, ``"wiener"``, ``"mallett2019"``, ``"filtered-bands"``,
-        ``"filtered-projected"``.
-
-    Returns
-    -------
-    xarray.DataArray
-        Dims ``(image, wavelength, y, x)``, float32, attrs ``method`` and ``wall_time_s``.
+    >>> reconstruct(rgb, band_cube, camera_matrix, filter_size=3.0,
+    ...             method="guided-prior-pcg", prior=0.3)  # doctest: +SKIP
     """
     started = time.perf_counter()
-    if method not in BASELINE_METHODS:
-        raise _method_error(method, BASELINE_METHODS)
+    record = get_method(method)
+    options = _checked_options(method, dict(method_options))
+    rgb, bands, single = _one_form(rgb, bands, filter_size)
     inputs = inputs_from_xarray(rgb, bands, camera_matrix)
-    cube = BASELINE_METHODS[method](inputs)
-    return _spectra_array(cube, rgb.transpose("image", "y", "x", "channel"), inputs,
-                          {"method": method, "wall_time_s": time.perf_counter() - started})
+    rgb = rgb.transpose("image", "y", "x", "channel")
+    used = {**record.defaults(), **options}
+    problem = None
+    if record.kind == "solver":
+        setup = {name: options.pop(name) for name in SETUP_OPTIONS if name in options}
+        if "k" in setup:
+            setup["k"] = int(setup["k"])
+        if "max_iterations" in options:
+            options["max_iterations"] = int(options["max_iterations"])
+        options["initial"] = _initial_cube(options.get("initial"), inputs)
+        problem = build_problem(inputs, **setup, dtype=options.get("dtype", record.dtype))
+        setup_time = time.perf_counter() - started
+        solved = record.function(problem, **options)
+        cube, iterations, history, converged = (solved.cube, int(solved.iterations),
+                                                solved.residual_history, solved.converged)
+        wall_time = time.perf_counter() - started
+        weights = problem.weights
+        if used["gamma_hat"] is None:
+            used["gamma_hat"] = default_gamma_hat(inputs.n_image)
+        attrs = {
+            "method": method,
+            "iterations": iterations,
+            "residual_history_length": int(len(history)),
+            "final_relative_residual": float(history[-1]),
+            "converged": int(converged),
+            "wall_time_s": float(wall_time),
+            "alpha": float(weights.alpha), "beta": float(weights.beta),
+            "gamma": float(weights.gamma),
+            "filter_constraints": int(weights.n_filters),
+            **_recorded(used),
+        }
+    else:
+        cube = record.function(inputs, **options)
+        iterations, history, converged = 0, np.zeros(0), True
+        wall_time = setup_time = time.perf_counter() - started
+        attrs = {"method": method, "wall_time_s": float(wall_time), **_recorded(used)}
+    spectra = _spectra_array(cube, rgb, inputs, attrs)
+    if single:
+        spectra = spectra.isel(image=0)
+    if not full_output:
+        return spectra
+    return ReconstructionResult(spectra, iterations, np.asarray(history), bool(converged),
+                                wall_time, setup_time, method, problem)

@@ -1,9 +1,53 @@
-"""Node declarations of the reconstruction stage: image sets, seed set, all sets."""
+"""Node declarations of the reconstruction stage: image sets, seed set, all sets.
 
-from spectralize.nodes.reconstruction.image_sets import SELECT_IMAGE_SETS
+The science lives beside this module (:mod:`.image_sets`, :mod:`.set_reconstruction`); each
+node's parameters are its function's keyword-only arguments, from which the engine derives
+the frozen parameter model (``method`` takes exactly the names of
+:data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`, checked when the
+graph is checked). The engine also checks every input group against its schema before a
+node runs.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, sections 4 and 5.
+"""
+
+from spectralize.engine import Node
+from spectralize.nodes.reconstruction.image_sets import select_image_sets
 from spectralize.nodes.reconstruction.set_reconstruction import (
-    RECONSTRUCT_IMAGE_SETS,
-    RECONSTRUCT_SEED_SET,
+    reconstruct_image_sets,
+    reconstruct_seed_set,
 )
 
 __all__ = ["SELECT_IMAGE_SETS", "RECONSTRUCT_SEED_SET", "RECONSTRUCT_IMAGE_SETS"]
+
+SELECT_IMAGE_SETS = Node(
+    name="select_image_sets",
+    version="1",
+    function=select_image_sets,
+    inputs={"images": "raw/rgb", "shots": "raw/spectral"},
+    outputs=("image_sets",),
+    description="Split the run into sets of images with band shots plus similar-light images.",
+)
+
+RECONSTRUCT_SEED_SET = Node(
+    name="reconstruct_seed_set",
+    version="1",
+    function=reconstruct_seed_set,
+    inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix",
+            "image_sets": "image_sets"},
+    outputs=("spectra_seed",),
+    description="Solve eq. 1 for the seed image set from a cold start.",
+)
+
+RECONSTRUCT_IMAGE_SETS = Node(
+    name="reconstruct_image_sets",
+    version="1",
+    function=reconstruct_image_sets,
+    inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix",
+            "image_sets": "image_sets", "spectra_seed": "spectra_seed"},
+    outputs=("spectra",),
+    chunks={"spectra": {"y": 256, "x": 256}},
+    resumable_along={"spectra": "image"},
+    description="All image sets, warm-started from the seed, in parallel; written set by set.",
+)

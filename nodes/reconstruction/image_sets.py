@@ -13,34 +13,30 @@ anchor group's others are split, most similar first, into chunks of ``others_per
 each chunk plus the group's anchors makes one set. Every image is *owned* by exactly one set
 (anchors by their group's first set), so the spectra cube holds each image once; anchors also
 take part, unowned, in their group's later sets.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, sections 4 and 5.
 """
 
 from __future__ import annotations
+
+from typing import Annotated
 
 import numpy as np
 import xarray as xr
 from pydantic import Field
 
-from spectralize.engine import Node, Parameters
 from spectralize.schemas import SchemaError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["light_direction", "select_image_sets", "ImageSetParameters", "SELECT_IMAGE_SETS",
-           "set_members"]
+__all__ = ["light_direction", "select_image_sets", "set_members"]
 
 
 def light_direction(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """Unit vectors (..., 3) of directions given by polar ``theta`` and azimuth ``phi`` [degree]."""
     t, p = np.deg2rad(np.asarray(theta, float)), np.deg2rad(np.asarray(phi, float))
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
-
-
-class ImageSetParameters(Parameters):
-    """Parameters of :func:`select_image_sets`."""
-
-    anchors_per_set: int | None = Field(None, ge=1, description="images with band shots per "
-                                        "set; default: as many as one sweep of all bands")
-    others_per_set: int = Field(10, ge=0, description="images without band shots per set")
 
 
 def _sweeps(anchors: list[int], labels: np.ndarray, shot_images: np.ndarray,
@@ -63,8 +59,12 @@ def _sweeps(anchors: list[int], labels: np.ndarray, shot_images: np.ndarray,
 
 
 def select_image_sets(
-    images: xr.Dataset, shots: xr.Dataset, *, anchors_per_set: int | None = None,
-    others_per_set: int = 10
+    images: xr.Dataset,
+    shots: xr.Dataset,
+    *,
+    anchors_per_set: Annotated[int | None, Field(
+        ge=1, description="images with band shots per set; None: one sweep of all bands")] = None,
+    others_per_set: Annotated[int, Field(ge=0)] = 10,
 ) -> xr.Dataset:
     """Split a run's images into reconstruction sets.
 
@@ -161,7 +161,6 @@ def select_image_sets(
         for i, flag in zip(indices, flags, strict=True):
             if flag:
                 image_set[i] = s
-    assert (image_set >= 0).all(), "every image is owned by a set"
     # the seed: the set whose anchor group is most central in light direction
     overall = directions.mean(axis=0)
     seed = int(np.argmax([centres[_group_of(s, sets, groups)] @ overall
@@ -189,19 +188,21 @@ def _group_of(s: int, sets, groups) -> int:
 
 
 def set_members(image_sets: xr.Dataset, index: int) -> tuple[np.ndarray, np.ndarray]:
-    """Image labels of set ``index`` and whether each is owned by it."""
+    """Image labels of set ``index`` and whether each is owned by it.
+
+    Parameters
+    ----------
+    image_sets
+        Group ``image_sets`` (:func:`select_image_sets`).
+    index
+        Position of the set along ``set``.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(labels, owned)``, anchors first, without the padding.
+    """
     member = image_sets["member"].isel(set=index).values
     owned = image_sets["owned"].isel(set=index).values
     keep = member >= 0
     return member[keep], owned[keep]
-
-
-SELECT_IMAGE_SETS = Node(
-    name="select_image_sets",
-    version="1",
-    function=select_image_sets,
-    inputs={"images": "raw/rgb", "shots": "raw/spectral"},
-    outputs=("image_sets",),
-    parameters=ImageSetParameters,
-    description="Split the run into sets of images with band shots plus similar-light images.",
-)

@@ -3,6 +3,10 @@ from xarray (the thin xarray layer).
 
 Bad input raises :class:`~spectralize.schemas.errors.ReconstructionError` (a ``ValueError``)
 listing every problem found, each naming the array, what was expected and what was found.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, section 3 (eq. 1: ``R``, ``D``, ``C``, ``s_i``).
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ class ReconstructionInputs:
     camera_matrix
         ``C``, ``(3, n_wavelength)``: maps a spectrum to RGB.
     wavelength
-        The spectral grid in nm, increasing.
+        The spectral grid in nm, increasing: the wavelengths of the band shots.
     """
 
     rgb: np.ndarray
@@ -52,18 +56,22 @@ class ReconstructionInputs:
 
     @property
     def n_image(self) -> int:
+        """Images in the set."""
         return self.rgb.shape[0]
 
     @property
     def height(self) -> int:
+        """Pixels along ``y``."""
         return self.rgb.shape[1]
 
     @property
     def width(self) -> int:
+        """Pixels along ``x``."""
         return self.rgb.shape[2]
 
     @property
     def n_wavelength(self) -> int:
+        """Wavelengths of the spectra (the bands')."""
         return self.wavelength.size
 
     @property
@@ -121,8 +129,9 @@ def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
         ``filter_size`` [px]; finite.
     camera_matrix
         Dims ``(channel, wavelength)`` with a ``wavelength`` coordinate [nm]; 3 channels.
-        Every band wavelength must be one of its wavelengths and every one of its wavelengths
-        must have at least one band shot (the spectra live on this grid).
+        Every band wavelength must be one of its wavelengths (within
+        :data:`WAVELENGTH_TOLERANCE_NM`); wavelengths without a band shot are left out, so
+        the spectra live on the bands' wavelengths.
 
     Returns
     -------
@@ -194,11 +203,16 @@ def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
     off_grid = np.abs(wavelength[band] - shot_wavelength) > WAVELENGTH_TOLERANCE_NM
     if off_grid.any():
         problems.append(f"bands: wavelengths {np.unique(shot_wavelength[off_grid]).tolist()} nm "
-                        f"are not on camera_matrix's wavelength grid {wavelength.tolist()}")
-    missing = sorted(set(range(wavelength.size)) - set(band[~off_grid].tolist()))
-    if missing:
-        problems.append(f"camera_matrix: wavelengths {wavelength[missing].tolist()} nm have no "
-                        "band shot; give camera_matrix on the bands' wavelengths only")
+                        f"are not on camera_matrix's wavelength grid {wavelength.tolist()} "
+                        f"(within {WAVELENGTH_TOLERANCE_NM} nm); the bands' wavelengths are "
+                        f"{np.unique(shot_wavelength).tolist()}: give camera_matrix on a grid "
+                        "that contains them")
+    elif np.unique(band).size < wavelength.size:
+        # a wider grid: restrict C to the bands' wavelengths (nearest, within the tolerance)
+        used = np.unique(band)
+        camera_matrix = camera_matrix.isel(wavelength=used)
+        wavelength = wavelength[used]
+        band = np.searchsorted(used, band)
 
     if "image" in rgb.coords:
         labels = list(np.asarray(rgb["image"].values).tolist())

@@ -25,18 +25,21 @@ References
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sp
 
+from spectralize.nodes.filter_size import filter_radius, filter_sigma
+from spectralize.schemas.errors import ReconstructionError
+
 from .inputs import ReconstructionInputs
 from .neighbourhoods import NeighbourGraph, appearance_neighbours
 from .weights import TermWeights, default_gamma_hat, term_weights
 
 __all__ = [
-    "SIGMA_PER_FILTER_SIZE",
     "filter_centres",
     "gaussian_filter_matrix",
     "FilterConstraints",
@@ -55,10 +58,6 @@ def _einsum(subscripts: str, *operands: np.ndarray) -> np.ndarray:
     2 to 5 times slower per iteration on a busy 2-core machine).
     """
     return np.einsum(subscripts, *operands, optimize=False)
-
-
-SIGMA_PER_FILTER_SIZE = 0.2
-"""``sigma_i = s_i / 5`` (paper section 3, "Filtering")."""
 
 
 def filter_centres(length: int, filter_size: float, *, centre_spacing: float = 2.5) -> np.ndarray:
@@ -83,14 +82,19 @@ def filter_centres(length: int, filter_size: float, *, centre_spacing: float = 2
 
     Raises
     ------
-    ValueError
-        When no centre fits, i.e. ``2 * filter_size > length - 1``.
+    ReconstructionError
+        When ``centre_spacing <= 0`` or no centre fits, i.e. ``2 * filter_size > length - 1``.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3, "Filter Placement".
     """
     if not centre_spacing > 0:
-        raise ValueError(f"centre_spacing must be > 0, got {centre_spacing!r}")
+        raise ReconstructionError(f"centre_spacing: expected a number > 0, found "
+                                  f"{centre_spacing!r}")
     low, high = float(filter_size), float(length - 1) - float(filter_size)
     if high < low:
-        raise ValueError(
+        raise ReconstructionError(
             f"filter_size {filter_size:g} px leaves no filter centre inside an axis of "
             f"{length} px: centres keep s_i from both borders, so s_i <= {(length - 1) / 2:g}"
         )
@@ -102,8 +106,8 @@ def filter_centres(length: int, filter_size: float, *, centre_spacing: float = 2
 def _filter_matrix_cached(length: int, filter_size: float, centre_spacing: float,
                           dtype_name: str) -> sp.csr_array:
     centres = filter_centres(length, filter_size, centre_spacing=centre_spacing)
-    sigma = SIGMA_PER_FILTER_SIZE * filter_size
-    radius = filter_size  # = 5 sigma: the kernel of a centre s_i from a border stays inside
+    sigma = filter_sigma(filter_size)
+    radius = filter_radius(filter_size)  # = s_i: a kernel centred s_i from a border stays inside
     first = np.maximum(np.ceil(centres - radius).astype(int), 0)
     last = np.minimum(np.floor(centres + radius).astype(int), length - 1)
     counts = last - first + 1
@@ -458,14 +462,12 @@ def build_problem(inputs: ReconstructionInputs, *, alpha_hat: float = 1.0,
     Returns
     -------
     ReconstructionProblem
-        Its ``extras`` hold ``camera_scale`` and ``neighbour_seconds``.
+        Its ``extras`` hold ``camera_scale``, ``neighbour_seconds`` and ``inputs``.
 
     References
     ----------
     .. [1] Fast Capture of Spectral Image Series, section 3, eqs. 1 and 4.
     """
-    import time
-
     dtype = np.dtype(dtype)
     scale = camera_scale(inputs.camera_matrix) if normalize_camera_matrix else 1.0
     rgb = inputs.rgb_pixels() / scale

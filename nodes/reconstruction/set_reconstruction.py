@@ -1,16 +1,27 @@
 """Reconstruction of a whole run, image set by image set (paper sec. 4, "Calibration" and 5).
 
-A run is reconstructed in the sets chosen by :mod:`spectralize.nodes.reconstruction.image_sets`. One seed
-set is solved first from a cold start (:func:`reconstruct_seed_set`); every other set starts
-from spectra transported from the seed through appearance neighbourhoods
-(:mod:`spectralize.nodes.reconstruction.warm_start`) and is solved independently, so the sets run in
-parallel on dask (:func:`reconstruct_image_sets`). The cube is written set by set: each set
-is one resumable region of the ``spectra`` group, so a crash loses at most the sets in flight.
+A run is reconstructed in the sets chosen by :mod:`~spectralize.nodes.reconstruction.image_sets`.
+One seed set is solved first from a cold start (:func:`reconstruct_seed_set`); every other set
+starts from spectra transported from the seed through appearance neighbourhoods
+(:mod:`~spectralize.nodes.reconstruction.warm_start`) and is solved independently, so the sets
+run in parallel on dask (:func:`reconstruct_image_sets`). The cube is written set by set: each
+set is one resumable region of the ``spectra`` group, so a crash loses at most the sets in
+flight.
+
+The node functions' keyword-only arguments are the nodes' parameters (the engine derives
+the parameter models from them; :mod:`~spectralize.nodes.reconstruction.declarations`
+declares the nodes); ``method`` takes exactly the names of
+:data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, sections 4 and 5.
 """
 
 from __future__ import annotations
 
 import time
+from typing import Annotated, Any
 
 import dask
 import dask.array as da
@@ -18,39 +29,63 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 
-from spectralize.engine import Node, Parameters
-from spectralize.nodes.reconstruction import DEFAULT_METHOD, SOLVER_METHODS, reconstruct_spectra
-from spectralize.nodes.reconstruction.image_sets import set_members
-from spectralize.nodes.reconstruction.warm_start import transport_spectra
+from spectralize.engine import Choices
 from spectralize.schemas import ReconstructionError
 
+from .api import reconstruct
+from .image_sets import set_members
+from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
+from .warm_start import transport_spectra
+
 __all__ = [
-    "SetReconstructionParameters",
     "solve_set",
     "reconstruct_seed_set",
     "reconstruct_image_sets",
-    "RECONSTRUCT_SEED_SET",
-    "RECONSTRUCT_IMAGE_SETS",
 ]
 
 _PER_IMAGE = ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
 
 
-class SetReconstructionParameters(Parameters):
-    """Solver settings shared by the seed set and the other sets."""
+# The set nodes' parameters, shared by the seed set and the other sets.
+Method = Annotated[str, Choices(RECONSTRUCTION_METHODS, "reconstruction method"), Field(
+    description="reconstruction method: a solver of eq. 1 or a baseline")]
+GammaHat = Annotated[float, Field(ge=0, description="neighbour-term weight (eq. 4; paper: 20 "
+                                                      "for multi-image sets); solvers only")]
+Tolerance = Annotated[float, Field(gt=0, description="relative normal-equation residual to "
+                                                      "stop at; solvers only")]
+MaxIterations = Annotated[int, Field(ge=1, description="iteration limit per set; solvers only")]
+Neighbours = Annotated[int, Field(ge=1, description="appearance neighbours per pixel (paper: "
+                                                     "3); solvers only")]
+Prior = Annotated[float | None, Field(
+    ge=0, description="weight of the guided prior (None: the method's default, 0.1 for "
+                      "guided-prior-pcg, 0 for block-jacobi-pcg); only methods with a prior")]
+WarmStartPixels = Annotated[int, Field(ge=1000, description="seed pixels used to transport "
+                                                             "spectra to the other sets")]
 
-    method: str = Field(DEFAULT_METHOD, description=f"solver: {', '.join(sorted(SOLVER_METHODS))}")
-    gamma_hat: float = Field(20.0, ge=0, description="neighbour-term weight (eq. 4; paper: 20 "
-                                                      "for multi-image sets)")
-    tolerance: float = Field(1e-3, gt=0, description="relative normal-equation residual")
-    max_iterations: int = Field(400, ge=1, description="iteration limit per set")
-    k: int = Field(3, ge=1, description="appearance neighbours per pixel (paper: 3)")
-    warm_start_pixels: int = Field(200_000, ge=1000, description="seed pixels used to "
-                                   "transport spectra to the other sets")
+
+def _method_options(method: str, *, gamma_hat: float, tolerance: float, max_iterations: int,
+                    k: int, prior: float | None) -> dict[str, Any]:
+    """The settings ``method`` takes: all of them for a solver, none for a baseline.
+
+    Raises
+    ------
+    ReconstructionError
+        For an unknown method, or a ``prior`` for a method without one.
+    """
+    options = get_method(method).options
+    if prior is not None and "prior" not in options:
+        takers = [name for name, m in RECONSTRUCTION_METHODS.items() if "prior" in m.options]
+        raise ReconstructionError(f"prior: method {method!r} has no prior; methods with one: "
+                                  f"{', '.join(takers)}")
+    settings = {"gamma_hat": gamma_hat, "tolerance": tolerance,
+                "max_iterations": max_iterations, "k": k, "prior": prior}
+    return {name: value for name, value in settings.items()
+            if name in options and value is not None}
 
 
 def _set_inputs(hdr: xr.Dataset, bands: xr.Dataset, labels: np.ndarray
                 ) -> tuple[xr.DataArray, xr.DataArray]:
+    """The HDR RGB of the images ``labels`` and the band shots that pair with them."""
     rgb = hdr["radiance"].sel(image=labels)
     shots = bands["radiance"].isel(shot=np.flatnonzero(np.isin(bands["image"].values, labels)))
     return rgb, shots
@@ -67,28 +102,55 @@ def solve_set(
     tolerance: float = 1e-3,
     max_iterations: int = 400,
     k: int = 3,
+    prior: float | None = None,
 ) -> tuple[xr.DataArray, int, float]:
-    """Solve eq. 1 for one image set; returns (spectra, iterations, seconds)."""
+    """Reconstruct one image set (eq. 1 or a baseline).
+
+    Parameters
+    ----------
+    rgb, shots, camera_matrix
+        The set's HDR RGB ``(image, y, x, channel)``, its band shots ``(shot, y, x)`` and
+        ``C`` (see :func:`~spectralize.nodes.reconstruction.reconstruct`).
+    initial
+        Warm start ``(image, wavelength, y, x)`` (solvers only; ignored by a baseline).
+    method
+        A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
+    gamma_hat, tolerance, max_iterations, k, prior
+        Solver settings (a baseline takes none of them; ``prior=None``: the method's
+        default).
+
+    Returns
+    -------
+    tuple
+        ``(spectra, iterations, seconds)``.
+
+    Raises
+    ------
+    ReconstructionError
+        For a set without band shots, and everything :func:`reconstruct` raises.
+    """
     if shots.sizes["shot"] == 0:
         raise ReconstructionError("an image set without any band shot cannot be solved on its "
                                   "own: it needs at least one image with bands")
+    options = _method_options(method, gamma_hat=gamma_hat, tolerance=tolerance,
+                              max_iterations=max_iterations, k=k, prior=prior)
+    if initial is not None and "initial" in get_method(method).options:
+        options["initial"] = initial
     start = time.perf_counter()
-    result = reconstruct_spectra(rgb.load(), shots.load(), camera_matrix, method=method,
-                                 gamma_hat=gamma_hat, tolerance=tolerance,
-                                 max_iterations=max_iterations, k=k, initial=initial)
+    result = reconstruct(rgb.load(), shots.load(), camera_matrix, method=method,
+                         full_output=True, **options)
     return result.spectra, int(result.iterations), time.perf_counter() - start
 
 
 def _camera_matrix(calibration: xr.Dataset, wavelength: np.ndarray) -> xr.DataArray:
-    if "camera_matrix" not in calibration:
-        raise ReconstructionError("calibration: expected a variable 'camera_matrix' (channel, "
-                                  f"wavelength), found {sorted(map(str, calibration.data_vars))}")
+    """``C`` of a group of schema ``camera_matrix`` on the bands' wavelengths (within 0.5 nm)."""
     matrix = calibration["camera_matrix"].load()
     return matrix.sel(wavelength=wavelength, method="nearest", tolerance=0.5).assign_coords(
         wavelength=wavelength)
 
 
 def _wavelengths(bands: xr.Dataset) -> np.ndarray:
+    """The distinct band wavelengths [nm] of a ``bands`` group, increasing."""
     return np.unique(np.asarray(bands["wavelength"].values, dtype=float))
 
 
@@ -98,14 +160,14 @@ def reconstruct_seed_set(
     calibration: xr.Dataset,
     image_sets: xr.Dataset,
     *,
-    method: str = DEFAULT_METHOD,
-    gamma_hat: float = 20.0,
-    tolerance: float = 1e-3,
-    max_iterations: int = 400,
-    k: int = 3,
-    warm_start_pixels: int = 200_000,
+    method: Method = DEFAULT_METHOD,
+    gamma_hat: GammaHat = 20.0,
+    tolerance: Tolerance = 1e-3,
+    max_iterations: MaxIterations = 400,
+    k: Neighbours = 3,
+    prior: Prior = None,
 ) -> xr.Dataset:
-    """Solve the seed set from a cold start (eq. 1, paper's CG or the faster default).
+    """Solve the seed set from a cold start (eq. 1 by any solver, or a baseline).
 
     Parameters
     ----------
@@ -119,10 +181,9 @@ def reconstruct_seed_set(
         flows' default binding) or, to isolate the reconstruction, ``truth/camera``.
     image_sets
         Group ``image_sets``; its ``seed_set`` attr names the set solved here.
-    method, gamma_hat, tolerance, max_iterations, k
-        Solver settings (see :func:`spectralize.nodes.reconstruction.reconstruct`).
-    warm_start_pixels
-        Not used here (shared parameter model with :func:`reconstruct_image_sets`).
+    method, gamma_hat, tolerance, max_iterations, k, prior
+        Method and solver settings (see :func:`spectralize.nodes.reconstruction.reconstruct`);
+        a baseline takes none of the solver settings.
 
     Returns
     -------
@@ -136,13 +197,14 @@ def reconstruct_seed_set(
     rgb, shots = _set_inputs(hdr, bands, members)
     spectra, iterations, seconds = solve_set(
         rgb, shots, _camera_matrix(calibration, wavelength), method=method,
-        gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k)
+        gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k,
+        prior=prior)
     spectra = spectra.drop_vars([c for c in spectra.coords if c not in
                                  ("image", "wavelength", *_PER_IMAGE)])
     return xr.Dataset({"radiance": spectra.assign_attrs(
         units="1", long_name="relative spectral radiance")},
         attrs={"seed_set": seed, "iterations": iterations, "seconds": round(seconds, 3),
-               "method": method})
+               "method": method, **({} if prior is None else {"prior": prior})})
 
 
 def _solve_region(rgb: xr.DataArray, shots: xr.DataArray, camera_matrix: xr.DataArray,
@@ -151,7 +213,7 @@ def _solve_region(rgb: xr.DataArray, shots: xr.DataArray, camera_matrix: xr.Data
     """Solve one set: the owned images' cube (image, wavelength, y, x) float32 and, per owned
     image, the set's iterations."""
     initial = None
-    if warm is not None:
+    if warm is not None and "initial" in get_method(settings["method"]).options:
         source_rgb, source_spectra = warm
         target = rgb.transpose("image", "y", "x", "channel").values
         moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3),
@@ -171,12 +233,13 @@ def reconstruct_image_sets(
     image_sets: xr.Dataset,
     spectra_seed: xr.Dataset,
     *,
-    method: str = DEFAULT_METHOD,
-    gamma_hat: float = 20.0,
-    tolerance: float = 1e-3,
-    max_iterations: int = 400,
-    k: int = 3,
-    warm_start_pixels: int = 200_000,
+    method: Method = DEFAULT_METHOD,
+    gamma_hat: GammaHat = 20.0,
+    tolerance: Tolerance = 1e-3,
+    max_iterations: MaxIterations = 400,
+    k: Neighbours = 3,
+    prior: Prior = None,
+    warm_start_pixels: WarmStartPixels = 200_000,
 ) -> xr.Dataset:
     """The spectral cube of the whole run, one lazy dask chunk per image set.
 
@@ -184,6 +247,17 @@ def reconstruct_image_sets(
     warm-started from the seed through appearance neighbourhoods in RGB (paper sec. 4). The
     ``image`` dim is ordered by set (the ``image`` coordinate keeps the run's labels, so
     ``spectra.sel(image=...)`` works), one dask chunk per set: the runner writes it set by set.
+
+    Parameters
+    ----------
+    hdr, bands, calibration, image_sets
+        As for :func:`reconstruct_seed_set`.
+    spectra_seed
+        Group ``spectra_seed`` (:func:`reconstruct_seed_set`): the seed set's spectra.
+    method, gamma_hat, tolerance, max_iterations, k, prior
+        As for :func:`reconstruct_seed_set`.
+    warm_start_pixels
+        At most this many seed pixels transport spectra to the other sets' initial guesses.
 
     Returns
     -------
@@ -203,7 +277,9 @@ def reconstruct_image_sets(
     warm = (seed_rgb.values.reshape(-1, 3)[pick],
             seed_cube.values.reshape(-1, wavelength.size)[pick])
     settings = {"method": method, "gamma_hat": gamma_hat, "tolerance": tolerance,
-                "max_iterations": max_iterations, "k": k}
+                "max_iterations": max_iterations, "k": k, "prior": prior}
+    _method_options(method, gamma_hat=gamma_hat, tolerance=tolerance,
+                    max_iterations=max_iterations, k=k, prior=prior)  # fail before any solve
 
     pieces, counts, labels, set_of = [], [], [], []
     seed_iterations = int(spectra_seed.attrs.get("iterations", -1))
@@ -241,31 +317,7 @@ def reconstruct_image_sets(
                           "warm-started from the seed)"})},
         coords=coords,
         attrs={"seed_set": seed, "method": method, "gamma_hat": gamma_hat,
+               **({} if prior is None else {"prior": prior}),
                "seed_iterations": seed_iterations,
                "ordering": "images ordered by image set; use .sel(image=label)"},
     )
-
-
-RECONSTRUCT_SEED_SET = Node(
-    name="reconstruct_seed_set",
-    version="1",
-    function=reconstruct_seed_set,
-    inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix",
-            "image_sets": "image_sets"},
-    outputs=("spectra_seed",),
-    parameters=SetReconstructionParameters,
-    description="Solve eq. 1 for the seed image set from a cold start.",
-)
-
-RECONSTRUCT_IMAGE_SETS = Node(
-    name="reconstruct_image_sets",
-    version="1",
-    function=reconstruct_image_sets,
-    inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix",
-            "image_sets": "image_sets", "spectra_seed": "spectra_seed"},
-    outputs=("spectra",),
-    parameters=SetReconstructionParameters,
-    chunks={"spectra": {"y": 256, "x": 256}},
-    resumable_along={"spectra": "image"},
-    description="All image sets, warm-started from the seed, in parallel; written set by set.",
-)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from spectralize.schemas.errors import ReconstructionError
+
 __all__ = ["TermWeights", "term_weights", "default_gamma_hat"]
 
 
@@ -30,7 +32,12 @@ class TermWeights:
 
 
 def default_gamma_hat(n_images: int) -> float:
-    """The paper's ``gamma_hat``: 1 for a single image, 20 for a multi-image set."""
+    """The paper's ``gamma_hat``: 1 for a single image, 20 for a multi-image set.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3, "Optimization", and section 5.
+    """
     return 1.0 if n_images <= 1 else 20.0
 
 
@@ -60,8 +67,8 @@ def term_weights(n_filters: int, n_pixels: int, n_neighbour_pairs: int, *,
 
     Raises
     ------
-    ValueError
-        For negative counts or weights, or when there are no equations at all.
+    ReconstructionError
+        (a ``ValueError``) for negative counts or weights, or when there are no equations at all.
 
     References
     ----------
@@ -72,10 +79,11 @@ def term_weights(n_filters: int, n_pixels: int, n_neighbour_pairs: int, *,
     hats = {"alpha_hat": alpha_hat, "beta_hat": beta_hat, "gamma_hat": gamma_hat}
     for name, value in {**counts, **hats}.items():
         if not value >= 0:
-            raise ValueError(f"{name} must be >= 0, got {value!r}")
+            raise ReconstructionError(f"{name}: expected a number >= 0, found {value!r}")
     total = n_filters + 3 * n_pixels + n_neighbour_pairs
     if total == 0:
-        raise ValueError("eq. 4 needs at least one equation: K, P and sum |N_p| are all 0")
+        raise ReconstructionError("eq. 4 needs at least one equation: K, P and sum |N_p| are "
+                                  "all 0")
 
     def share(hat: float, count: int) -> float:
         return float(hat) * total / count if count else 0.0

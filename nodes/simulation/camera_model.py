@@ -44,11 +44,10 @@ import numpy as np
 import numpy.typing as npt
 import xarray as xr
 
-from spectralize.schemas.errors import SpectralizeError
+from spectralize.schemas.errors import SimulationError
 
 __all__ = [
     "RESPONSE_MODELS",
-    "BIT_DEPTH_RANGE",
     "CameraModelError",
     "SimulationParameterError",
     "ShapeMismatchError",
@@ -58,7 +57,6 @@ __all__ = [
     "LogResponse",
     "SCurveResponse",
     "response_model",
-    "full_scale",
     "oecf_table",
     "noiseless_signal",
     "capture",
@@ -68,10 +66,6 @@ __all__ = [
     "camera_sensitivities",
     "spectral_quantum_efficiency",
     "gaussian_bandpass",
-    "check_wavelength",
-    "check_positive",
-    "check_bit_depth",
-    "as_generator",
 ]
 
 NoiseModel = Literal["gaussian", "shot"]
@@ -84,8 +78,12 @@ BIT_DEPTH_RANGE: tuple[int, int] = (8, 16)
 # --------------------------------------------------------------------------------------
 # errors and checks (shared by exposure_plan, ground_truth and gantry)
 # --------------------------------------------------------------------------------------
-class CameraModelError(SpectralizeError, ValueError):
-    """Base class of the capture simulation's errors (a :class:`ValueError`)."""
+class CameraModelError(SimulationError):
+    """Base class of the capture simulation's errors.
+
+    A :class:`~spectralize.schemas.SimulationError` (so a
+    :class:`~spectralize.schemas.SpectralizeError` and a :class:`ValueError`).
+    """
 
 
 class SimulationParameterError(CameraModelError):
@@ -605,24 +603,6 @@ def _wavelength_coord(wl: np.ndarray, dim: str = "wavelength") -> xr.Variable:
         (dim,), wl, attrs={"units": "nm", "long_name": "wavelength" if dim == "wavelength"
                            else "centre wavelength of the filter band"}
     )
-
-
-def _as_spectrum(values: xr.DataArray | npt.ArrayLike, name: str, wl: np.ndarray | None
-                 ) -> xr.DataArray:
-    if isinstance(values, xr.DataArray):
-        if "wavelength" not in values.dims:
-            raise ShapeMismatchError(
-                f"{name} must have a 'wavelength' dim; received dims {values.dims}."
-            )
-        check_wavelength(values["wavelength"].values, f"{name}.wavelength")
-        return values
-    if wl is None:
-        raise SimulationParameterError(
-            f"{name} given as a plain array needs `wavelength=`; pass a DataArray with a "
-            "'wavelength' coordinate or the wavelengths."
-        )
-    return xr.DataArray(np.asarray(values, dtype=np.float64), dims=("wavelength",),
-                        coords={"wavelength": _wavelength_coord(wl)})
 
 
 # --------------------------------------------------------------------------------------

@@ -7,63 +7,56 @@ by chunk (see :mod:`spectralize.nodes.simulation.gantry` and ``datasets/README.m
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import xarray as xr
 from pydantic import Field
 
-from spectralize.engine import Node, Parameters
+from spectralize.engine import Choices, Node
 from spectralize.nodes.simulation.camera_model import SimulationParameterError
 from spectralize.nodes.simulation.gantry import GROUPS, simulate_run
 from spectralize.nodes.simulation.recipes import RECIPES, get_recipe
 
-__all__ = ["SimulateParameters", "simulate", "SIMULATE"]
-
-
-class SimulateParameters(Parameters):
-    """Parameters of :func:`simulate`: a recipe name plus overrides."""
-
-    recipe: Literal["tiny", "demo", "paper"] = Field(
-        "demo", description=f"named recipe: {', '.join(sorted(RECIPES))}")
-    seed: int | None = Field(None, ge=0, description="seed of texture and noise "
-                             "(default: the recipe's)")
-    size: int | None = Field(None, ge=8, description="image height = width [px]")
-    n_rotations: int | None = Field(None, ge=1, description="rotation stage positions")
-    spectral_mode: Literal["sparse", "dense"] | None = Field(
-        None, description="sparse: 32 bands over a set of LEDs; dense: all bands per LED")
-    noise: Literal["gaussian", "shot"] | None = Field(
-        None, description="gaussian (the paper's eq. 5) or photon shot noise")
-    overrides: dict[str, Any] = Field(
-        default_factory=dict, description="any other GantryRecipe field, e.g. "
-        '{"misregistration": [0.5, 0.0]}')
-    max_gigabytes: float = Field(
-        50.0, gt=0, description="refuse runs larger than this (the paper recipe is 33 TB)")
+__all__ = ["simulate", "SIMULATE"]
 
 
 def simulate(
     *,
-    recipe: str = "demo",
-    seed: int | None = None,
-    size: int | None = None,
-    n_rotations: int | None = None,
-    spectral_mode: str | None = None,
-    noise: str | None = None,
+    recipe: Annotated[str, Choices(RECIPES, "recipe")] = "demo",
+    seed: Annotated[int | None, Field(ge=0)] = None,
+    size: Annotated[int | None, Field(ge=8)] = None,
+    n_rotations: Annotated[int | None, Field(ge=1)] = None,
+    spectral_mode: Literal["sparse", "dense"] | None = None,
+    noise: Literal["gaussian", "shot"] | None = None,
     overrides: dict[str, Any] | None = None,
-    max_gigabytes: float = 50.0,
+    max_gigabytes: Annotated[float, Field(gt=0)] = 50.0,
 ) -> dict[str, xr.Dataset]:
     """Simulate a raw gantry run from a named recipe with optional overrides.
+
+    The node's parameters are this signature (the engine derives them): ``recipe`` must be
+    a key of :data:`~spectralize.nodes.simulation.recipes.RECIPES`, checked before anything
+    runs.
 
     Parameters
     ----------
     recipe
-        Name in ``spectralize.nodes.simulation.recipes.RECIPES``.
-    seed, size, n_rotations, spectral_mode, noise
-        Common overrides of the recipe (``None``: keep the recipe's value).
+        Named recipe, a key of ``RECIPES`` (``tiny`` for tests, ``demo``, ``paper``).
+    seed
+        Seed of texture and noise (``None``: the recipe's).
+    size
+        Image height = width [px] (``None``: the recipe's).
+    n_rotations
+        Rotation stage positions (``None``: the recipe's).
+    spectral_mode
+        ``sparse``: 32 bands over a set of LEDs; ``dense``: all bands per LED (``None``: the recipe's).
+    noise
+        ``gaussian`` (the paper's eq. 5) or photon ``shot`` noise (``None``: the recipe's).
     overrides
-        Further recipe fields by name.
+        Further recipe fields by name, e.g. ``{"misregistration": [0.5, 0.0]}``.
     max_gigabytes
-        Size limit of the whole run (uncompressed); a larger run raises before anything is
-        computed. The groups stay lazy, so ``simulate_run`` itself has no such limit.
+        Refuse runs larger than this (uncompressed; the paper recipe is 33 TB).
+        A larger run raises before anything is computed; the groups stay lazy, so
+        ``simulate_run`` itself has no such limit.
 
     Returns
     -------
@@ -98,7 +91,6 @@ SIMULATE = Node(
     function=simulate,
     inputs={},
     outputs=tuple(GROUPS),
-    parameters=SimulateParameters,
     description="Simulate a raw gantry run (RGB series, noisy bands, darks, calibration "
                 "shots) and its ground truth from a named recipe (sec. 4, 5; eq. 2, 3, 5).",
 )

@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 import xarray as xr
 
+from spectralize.nodes.filter_size import SIGMA_PER_FILTER_SIZE
 from spectralize.nodes.simulation.camera_model import (
     ShapeMismatchError,
     SimulationParameterError,
@@ -33,8 +34,6 @@ from spectralize.nodes.simulation.camera_model import (
 )
 
 __all__ = [
-    "DEFAULT_OMEGA",
-    "FILTER_SIGMA_RATIO",
     "exposure_plan",
     "reference_exposure_plan",
     "t0_for_total_time",
@@ -42,8 +41,6 @@ __all__ = [
 
 #: The paper's exponent ``omega`` of eq. 2.
 DEFAULT_OMEGA: float = 0.8
-#: ``sigma_i = s_i / FILTER_SIGMA_RATIO`` (sec. 3).
-FILTER_SIGMA_RATIO: float = 5.0
 
 
 def _spectra(
@@ -184,7 +181,7 @@ def exposure_plan(
                 "units": "s", "long_name": "exposure time of the band shot (eq. 2)"}),
             "filter_size": ("wavelength", s, {
                 "units": "px", "long_name": "Gaussian filter size s_i (eq. 3)"}),
-            "filter_sigma": ("wavelength", s / FILTER_SIGMA_RATIO, {
+            "filter_sigma": ("wavelength", s * SIGMA_PER_FILTER_SIZE, {
                 "units": "px", "long_name": "Gaussian filter standard deviation s_i / 5"}),
             "relative_exposure": ("wavelength", ql * t, {
                 "units": "1", "long_name": "normalised exposure Q L t of a white target"}),

@@ -40,7 +40,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal
+from typing import Annotated, Literal
 
 import dask.array as da
 import numpy as np
@@ -48,7 +48,9 @@ import xarray as xr
 from dask.array.core import normalize_chunks
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from spectralize.engine import Choices
 from spectralize.nodes.simulation.camera_model import (
+    RESPONSE_MODELS,
     RGBCamera,
     SimulationParameterError,
     SpectralCamera,
@@ -89,9 +91,7 @@ __all__ = [
     "register_schemas",
     "group_schema",
     "GANTRY_LED_RINGS",
-    "ResponseSpec",
     "GantryRecipe",
-    "led_positions",
     "ring_leds",
     "Gantry",
     "simulate_run",
@@ -182,7 +182,7 @@ class ResponseSpec(BaseModel):
     """A true response model by name and parameters (see ``RESPONSE_MODELS``)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
-    model: Literal["linear", "gamma", "log", "s_curve"] = "linear"
+    model: Annotated[str, Choices(RESPONSE_MODELS, "response model")] = "linear"
     parameters: dict[str, float] = Field(default_factory=dict)
 
     def build(self):  # -> ResponseModel
@@ -278,30 +278,32 @@ class GantryRecipe(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> GantryRecipe:
+        # A SimulationParameterError is a ValueError: pydantic reports it in the
+        # ValidationError, which get_recipe turns into a SimulationParameterError again.
         if self.chunk_size is not None and self.chunk_size < self.size and (
                 self.chunk_size % self.noise_tile):
-            raise ValueError(
+            raise SimulationParameterError(
                 f"chunk_size ({self.chunk_size}) must be a multiple of noise_tile "
                 f"({self.noise_tile}) so that noise does not depend on chunking.")
         if not self.rgb_exposure_times or min(self.rgb_exposure_times) <= 0:
-            raise ValueError("rgb_exposure_times must be non-empty and > 0 s; received "
+            raise SimulationParameterError("rgb_exposure_times must be non-empty and > 0 s; received "
                              f"{self.rgb_exposure_times}.")
         if list(self.rgb_exposure_times) != sorted(self.rgb_exposure_times):
-            raise ValueError("rgb_exposure_times must be increasing; received "
+            raise SimulationParameterError("rgb_exposure_times must be increasing; received "
                              f"{self.rgb_exposure_times}.")
         if not self.calibration_exposure_ratios or min(self.calibration_exposure_ratios) <= 1:
-            raise ValueError("calibration_exposure_ratios must be non-empty and > 1; "
+            raise SimulationParameterError("calibration_exposure_ratios must be non-empty and > 1; "
                              f"received {self.calibration_exposure_ratios}.")
         if not self.rgb_camera_thetas or any(not 0 <= t < 90 for t in self.rgb_camera_thetas):
-            raise ValueError("rgb_camera_thetas must be polar angles in [0, 90) deg; "
+            raise SimulationParameterError("rgb_camera_thetas must be polar angles in [0, 90) deg; "
                              f"received {self.rgb_camera_thetas}.")
         if not any(math.isclose(t, self.spectral_camera_theta) for t in
                    self.rgb_camera_thetas):
-            raise ValueError(
+            raise SimulationParameterError(
                 f"rgb_camera_thetas {self.rgb_camera_thetas} must contain the spectral "
                 f"camera's polar angle {self.spectral_camera_theta} (the paired camera).")
         if not math.isclose(self.spectral_camera_phi, self.rotation_step):
-            raise ValueError(
+            raise SimulationParameterError(
                 f"spectral_camera_phi ({self.spectral_camera_phi}) must equal rotation_step "
                 f"({self.rotation_step}) so the spectral camera sees, one rotation later, "
                 "what the RGB camera saw.")
@@ -309,7 +311,7 @@ class GantryRecipe(BaseModel):
         if self.leds is not None:
             if not self.leds or len(set(self.leds)) != len(self.leds) or any(
                     not 0 <= i < n_leds for i in self.leds):
-                raise ValueError(f"leds must be distinct indices in 0..{n_leds - 1}; "
+                raise SimulationParameterError(f"leds must be distinct indices in 0..{n_leds - 1}; "
                                  f"received {self.leds}.")
         wavelength_grid(self.wavelength_start, self.wavelength_stop, self.wavelength_step)
         return self

@@ -52,7 +52,6 @@ __all__ = [
     "illuminant_spd",
     "direction",
     "SpectralTexture",
-    "TextureTile",
     "ColourCheckerChart",
     "spectral_texture",
     "shading",

@@ -22,6 +22,7 @@ from pydantic import ValidationError
 
 from spectralize.nodes.simulation.camera_model import SimulationParameterError
 from spectralize.nodes.simulation.gantry import GantryRecipe, ring_leds
+from spectralize.schemas import Problem
 
 __all__ = ["RECIPES", "DESCRIPTIONS", "get_recipe", "recipe_names"]
 
@@ -86,15 +87,20 @@ def get_recipe(name: str, **overrides: Any) -> GantryRecipe:
     try:
         base = RECIPES[name]
     except KeyError:
-        raise SimulationParameterError(
-            f"recipe {name!r} is unknown; known recipes: {recipe_names()}."
-        ) from None
+        raise SimulationParameterError.single(
+            "recipe", f"one of {recipe_names()}", repr(name),
+            hint=f"recipe {name!r} is unknown") from None
     if not overrides:
         return base
     data = base.model_dump() | overrides
     try:
         return GantryRecipe.model_validate(data)
     except ValidationError as exc:
+        problems = [
+            Problem(".".join(str(p) for p in item["loc"]), item["msg"], repr(item["input"]))
+            if item["loc"] else  # a rule across fields: its message says what and why
+            Problem("recipe", "a consistent recipe", item["msg"].removeprefix("Value error, "))
+            for item in exc.errors()]
         raise SimulationParameterError(
-            f"invalid override(s) {sorted(overrides)} for recipe {name!r}: {exc}"
+            f"invalid override(s) {sorted(overrides)} for recipe {name!r}:", problems
         ) from None

@@ -15,8 +15,14 @@ from spectralize.engine import (
     get_node,
     registry,
 )
-from spectralize.nodes.calibration.dark import DARK_AVERAGE
-from spectralize.schemas import NodeNotFoundError, ParameterError, PipelineError, SpectralizeError
+from spectralize.nodes.simulation.declarations import SIMULATE
+from spectralize.schemas import (
+    NodeDeclarationError,
+    NodeNotFoundError,
+    ParameterError,
+    PipelineError,
+    SpectralizeError,
+)
 
 
 class ScaleParameters(Parameters):
@@ -30,6 +36,15 @@ def scale(dark: xr.Dataset, *, factor: float = 2.0) -> xr.Dataset:
 SCALE = Node(name="scale", function=scale, inputs={"dark": "dark"}, outputs=("scaled",),
              parameters=ScaleParameters)
 NOT_A_NODE = object()
+
+
+def average(raw_dark: xr.Dataset) -> xr.Dataset:
+    return xr.Dataset({"mean": raw_dark["frames"].mean("frame")})
+
+
+# Stands in for the calibration stage's dark_average: same schemas, no dependency on its code.
+DARK_AVERAGE = Node(name="dark_average", function=average, inputs={"raw_dark": "raw/dark"},
+                    outputs=("dark",))
 
 
 def ep(name, value):
@@ -56,16 +71,16 @@ def test_discovery_from_fake_entry_points_warns_on_broken_plugins():
     assert any("duplicates" in m for m in messages)
 
 
-def test_installed_entry_points_include_the_dark_node():
+def test_installed_entry_points_include_the_simulate_node():
     nodes = registry(refresh=True)
-    assert nodes["dark_average"].node is DARK_AVERAGE
-    assert "spectralize.nodes:" in nodes["dark_average"].source
-    assert "dark_average = spectralize.nodes.calibration.declarations:DARK_AVERAGE" in nodes["dark_average"].source
-    assert get_node("dark_average") is DARK_AVERAGE
+    assert nodes["simulate"].node is SIMULATE
+    assert "spectralize.nodes:" in nodes["simulate"].source
+    assert "simulate = spectralize.nodes.simulation.declarations:SIMULATE" in nodes["simulate"].source
+    assert get_node("simulate") is SIMULATE
 
 
 def test_unknown_node_lists_the_installed_ones():
-    with pytest.raises(NodeNotFoundError, match="unknown node 'nope'; installed nodes: .*dark_average"):
+    with pytest.raises(NodeNotFoundError, match="unknown node 'nope'; installed nodes: .*simulate"):
         get_node("nope")
 
 
@@ -82,21 +97,24 @@ def test_parameters_are_frozen_and_unknown_keys_are_errors():
 
 
 def test_declaration_errors_are_caught_when_the_node_is_declared():
-    with pytest.raises(SpectralizeError, match="input 'raw' is not an argument of scale"):
+    with pytest.raises(NodeDeclarationError,
+                       match="input 'raw': expected an argument of scale, found no such argument"):
         Node(name="bad", function=scale, inputs={"raw": "raw/dark"}, outputs=("x",))
 
     class Extra(Parameters):
         gain: int = 1
 
-    with pytest.raises(SpectralizeError, match="parameter 'gain' is not a keyword"):
+    with pytest.raises(NodeDeclarationError, match="parameter 'gain': expected a keyword of scale"):
         Node(name="bad", function=scale, inputs={"dark": "dark"}, outputs=("x",), parameters=Extra)
+    with pytest.raises(NodeDeclarationError, match="outputs: expected at least one output"):
+        Node(name="bad", function=scale, inputs={"dark": "dark"}, outputs=())
 
 
 def test_node_call_checks_what_the_function_returns():
     def two(dark: xr.Dataset) -> xr.Dataset:
         return dark
 
-    node = Node(name="two", function=two, inputs={"dark": "dark"}, outputs=("a", "b"))
+    node = Node(name="two", function=two, inputs={"dark": "unregistered"}, outputs=("a", "b"))
     with pytest.raises(SpectralizeError, match="returned one Dataset but declares outputs"):
         node({"dark": xr.Dataset()})
 
@@ -119,7 +137,7 @@ def test_graph_is_ordered_by_dependencies():
          "group 'dark': expected one producing node, found nodes 'dark_average' and "
          "'dark_average' both write it"),
         ([Step("scale", inputs={"dark": "loop"}, outputs={"scaled": "loop"})], {},
-         "a cycle among nodes scale"),
+         "graph: expected no cycles, found a cycle among nodes scale -> scale"),
         ([Step("scale", inputs={"dark": "raw/dark"})], {"raw/dark": "raw/dark"},
          "expected schema 'dark', found schema 'raw/dark' in the store"),
         ([Step("dark_average", outputs={"dark": "d2"}), Step("scale", inputs={"dark": "d2x"})],

@@ -6,16 +6,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spectralize.flows.report import (
-    plot_capture_time,
-    plot_error_map,
-    plot_histograms,
-    plot_spectra,
-    write_report,
-    write_run_report,
-)
+from spectralize.flows.report import write_report, write_run_report
 from spectralize.nodes.evaluation.capture_time import capture_time
-from spectralize.nodes.evaluation.colorimetry import render_srgb
 from spectralize.nodes.evaluation.metrics import evaluate
 from spectralize.schemas import RunStore, SchemaError
 
@@ -151,31 +143,6 @@ def test_report_refuses_what_is_not_an_evaluation(run, tmp_path):
     assert not (tmp_path / "index.html").exists()
 
 
-def test_figures(run):
-    spectra, truth, _, evaluation = run
-    ev = evaluation.compute()
-    srgb = render_srgb(truth)
-    error_map = plot_error_map(ev, 1, truth_srgb=srgb, reconstruction_srgb=render_srgb(spectra))
-    images = [ax for ax in error_map.axes if ax.get_images()]
-    assert len(images) == 3  # truth, reconstruction, nRMSE
-    assert images[-1].get_images()[0].get_cmap().name == "cubehelix"
-    assert error_map.get_suptitle().startswith("image 1, view (45°, 15°)")
-    assert error_map.get_suptitle().endswith(", with band shots")
-    other = plot_error_map(ev, 2, truth_srgb=srgb)
-    assert other.get_suptitle().endswith("without band shots")
-    assert len([ax for ax in other.axes if ax.get_images()]) == 2
-    lines = plot_spectra(ev, 0).axes[0].get_lines()
-    assert [line.get_linestyle() for line in lines[:2]] == ["-", ":"]  # truth solid, dotted
-    assert len(lines) == 2 * ev.sizes["sample"]
-    histogram = plot_histograms(ev).axes[0]
-    assert histogram.get_yscale() == "log"
-    labels = [t.get_text() for t in histogram.get_legend().get_texts()]
-    assert any(label.startswith("with band shots") for label in labels)
-    assert any(label.startswith("without band shots") for label in labels)
-    bars = plot_capture_time(capture_time(7.463)).axes[0]
-    assert "30.3x" in bars.get_title()
-
-
 def test_write_run_report_reads_everything_from_the_store(run, tmp_path):
     spectra, truth, _, _ = run
     store = RunStore.create(tmp_path / "run.zarr")
@@ -218,3 +185,28 @@ def test_calibration_cross_validation_is_tabulated_and_drawn(run, tmp_path):
     assert "cross_validation.png" in page.images
     assert (tmp_path / "cross_validation.png").read_bytes()[:8] == PNG
     assert "0.02" in page.cells
+
+
+def test_labels_are_escaped_by_the_template(run, tmp_path):
+    spectra, truth, _, evaluation = run
+    attack = '<script>alert("x")</script>'
+    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path,
+                         max_images=1, title=f"run {attack}", run=f"{attack}.zarr",
+                         baselines={attack: truth.radiance})
+    text = index.read_text(encoding="utf-8")
+    assert "<script" not in text
+    assert "&lt;script&gt;" in text
+    page = parse(index)
+    assert page.title == f"run {attack}"  # shown as text, not run as markup
+    assert attack in page.cells and f"{attack}.zarr" in page.cells
+
+
+def test_the_page_references_every_figure_file_it_wrote(run, tmp_path):
+    spectra, truth, _, evaluation = run
+    capture = capture_time(7.463, evaluation=evaluation.compute())
+    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path,
+                         capture=capture, max_images=2)
+    written = {path.name for path in tmp_path.iterdir() if path.name != "index.html"}
+    page = parse(index)
+    assert written == set(page.images)
+    assert len(page.images) == len(set(page.images)) == 2 + 2 * 2

@@ -7,7 +7,7 @@ from pydantic import Field
 
 from spectralize.datasets.dark_stack import make_raw_dark
 from spectralize.engine import Node, Parameters, RegisteredNode, Step
-from spectralize.engine import core as engine
+from spectralize.engine import discovery as engine
 from spectralize.flows import run_flow
 from spectralize.flows.runtime import run_steps
 from spectralize.schemas import PipelineError, RunStore, StoreError

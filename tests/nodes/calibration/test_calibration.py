@@ -6,15 +6,13 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from spectralize.nodes.calibration.band_radiance import calibrate_bands
 from spectralize.nodes.calibration.dark import average_dark_frames
-from spectralize.nodes.calibration.declarations import (
-    calibrate_bands,
-    calibrate_spectral,
-    merge_hdr_node,
-    recover_rgb_oecf,
-    recover_spectral_oecf,
-)
+from spectralize.nodes.calibration.declarations import merge_hdr_node
+from spectralize.nodes.calibration.oecf.low_snr import recover_spectral_oecf
+from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
 from spectralize.nodes.calibration.registration import estimate_registration
+from spectralize.nodes.calibration.spectral import calibrate_spectral
 from spectralize.nodes.simulation.gantry import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas import CalibrationError

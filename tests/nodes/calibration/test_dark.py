@@ -1,10 +1,12 @@
 import numpy as np
 import pytest
+import xarray as xr
 
 from spectralize.datasets.dark_stack import make_raw_dark
-from spectralize.nodes.calibration.dark import DARK_AVERAGE, average_dark_frames
-from spectralize.schemas import SchemaError, validate_dataset
-from spectralize.schemas.run import DARK
+from spectralize.nodes.calibration.dark import average_dark_frames, dark_frames_at
+from spectralize.nodes.calibration.declarations import DARK_AVERAGE
+from spectralize.schemas import CalibrationError, SchemaError, validate_dataset
+from spectralize.schemas.run import DARK, RAW_DARK
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +51,9 @@ def test_saturated_dark_frames_warn_and_are_not_clipped(raw):
 
 
 def test_bad_input_names_the_array(raw):
-    with pytest.raises(SchemaError, match="raw/dark:frames: expected dtype uint16, found dtype float64"):
-        average_dark_frames(raw.assign(frames=raw.frames.astype(float)))
+    # the contract is the schema's (the engine validates every input group against it)
+    problems = validate_dataset(raw.assign(frames=raw.frames.astype(float)), RAW_DARK)
+    assert "raw/dark:frames: expected dtype uint16, found dtype float64" in map(str, problems)
     with pytest.raises(SchemaError, match="at least 2 frames"):
         average_dark_frames(raw.isel(frame=slice(0, 1)))
 
@@ -60,3 +63,42 @@ def test_node_declaration_runs_the_function(raw):
     assert list(out) == ["dark"]
     np.testing.assert_allclose(out["dark"]["mean"].values,
                                raw.frames.values.astype(float).mean(axis=1), rtol=1e-6)
+
+
+# -- the one dark-frame lookup ---------------------------------------------------------------
+@pytest.fixture(scope="module")
+def dark(raw):
+    return average_dark_frames(raw).load()
+
+
+def test_dark_frames_at_selects_per_exposure_time(dark):
+    times = np.array([0.5, 0.01, 0.5 * (1 + 1e-8)])          # any order, within rtol
+    out = dark_frames_at(dark, times, used_by="test", dim="shot", frame_shape=(9, 11))
+    assert out["mean"].dims == ("shot", "y", "x") and set(out.data_vars) == {"mean", "std"}
+    np.testing.assert_array_equal(out["exposure_time"].values, [0.5, 0.01, 0.5])
+    np.testing.assert_array_equal(out["mean"].values[1], dark["mean"].sel(exposure_time=0.01))
+    only_mean = dark_frames_at(dark["mean"], times[:1], used_by="test")
+    assert set(only_mean.data_vars) == {"mean"}
+    unsorted = dark.isel(exposure_time=[1, 0])
+    xr.testing.assert_identical(dark_frames_at(unsorted, times, used_by="test"),
+                                dark_frames_at(dark, times, used_by="test"))
+
+
+def test_missing_dark_exposure_time_is_named_with_the_available_ones(dark):
+    with pytest.raises(CalibrationError,
+                       match=r"dark:mean has no frame for exposure_time 0.2 s \(shot 1\) used "
+                             r"by band_signal; dark frames exist for \[0.01, 0.5\] s"):
+        dark_frames_at(dark, [0.5, 0.2], used_by="band_signal")
+    with pytest.raises(CalibrationError,
+                       match=r"exposure_times \[0.2, 0.3\] s \(exposures \[0, 2\]\)"):
+        dark_frames_at(dark, [0.2, 0.01, 0.3], used_by="x", dim="exposure")
+    with pytest.raises(CalibrationError, match="no frame for exposure_time 0.5001 s"):
+        dark_frames_at(dark, [0.5001], used_by="x")          # beyond the relative tolerance
+
+
+def test_dark_frames_of_another_size_or_shape(dark):
+    with pytest.raises(CalibrationError, match="dark:mean frames are 9x11 px but the frames of "
+                                               "x are 8x11 px"):
+        dark_frames_at(dark, [0.5], used_by="x", frame_shape=(8, 11))
+    with pytest.raises(SchemaError, match=r"dark:mean: expected dims \(exposure_time, y, x\)"):
+        dark_frames_at(dark["mean"].rename(y="row"), [0.5], used_by="x")

@@ -11,6 +11,7 @@ import xarray as xr
 
 from spectralize.nodes.calibration import hdr
 from spectralize.nodes.calibration import spectral as sc
+from spectralize.nodes.evaluation.figures_calibration import plot_cross_validation
 from spectralize.nodes.simulation.camera_model import (
     camera_sensitivities,
     capture,
@@ -216,7 +217,7 @@ def test_cross_validation_table_and_figure(checker_setup, white_setup) -> None:
     wrong["camera_matrix"] = wrong["camera_matrix"].roll(wavelength=3)
     assert sc.cross_validate(measured, captured, wrong).attrs["mean_relative_error"] > 0.05
 
-    figure = sc.plot_cross_validation(table)
+    figure = plot_cross_validation(table)
     assert len(figure.axes) == 4
     assert figure.axes[3].get_ylabel() == "relative error [%]"
     buffer = io.BytesIO()
@@ -255,9 +256,9 @@ def test_white_reference_darker_than_the_noise(white_setup) -> None:
 def test_dark_frame_missing_or_of_another_size(white_setup) -> None:
     shots, dark, light, rho, _ = white_setup
     t = float(shots["exposure_time"][4])
-    with pytest.raises(CalibrationError, match=rf"no dark frame for exposure_time {t} s \(shot 4\)"):
+    with pytest.raises(CalibrationError, match=rf"dark:mean has no frame for exposure_time {t} s \(shot 4\)"):
         sc.quantum_efficiency(shots, dark.drop_sel(exposure_time=t), light, reflectance=rho)
-    with pytest.raises(CalibrationError, match="dark frames are 24x20 px, shots 24x24 px"):
+    with pytest.raises(CalibrationError, match="dark:mean frames are 24x20 px but the frames of band_signal are 24x24 px"):
         sc.band_signal(shots, dark.isel(x=slice(0, 20)))
 
 

@@ -4,9 +4,8 @@ import pytest
 import xarray as xr
 
 from spectralize.engine import Step, check_graph
+from spectralize.nodes.evaluation.declarations import EVALUATE
 from spectralize.nodes.evaluation.metrics import (
-    EVALUATE,
-    EVALUATION,
     METHOD_DIM,
     STATISTICS,
     band_shot_images,
@@ -19,6 +18,7 @@ from spectralize.nodes.evaluation.metrics import (
     spectral_angle,
 )
 from spectralize.schemas import ParameterError, RunStore, SchemaError, validate_dataset
+from spectralize.schemas.run import EVALUATION
 
 SHAPE = colour.SpectralShape(410, 720, 10)  # the paper's 32 bands
 WAVELENGTH = SHAPE.wavelengths
@@ -59,6 +59,18 @@ def shots_for(images) -> xr.Dataset:
     n = len(images)
     return xr.Dataset(coords={"image": ("shot", np.asarray(images, dtype=np.int64)),
                               "wavelength": ("shot", np.full(n, 550.0))})
+
+
+def raw_spectral_for(images) -> xr.Dataset:
+    """A ``raw/spectral`` group (what the node's input check asks for) pairing shots with images."""
+    n = len(images)
+    return xr.Dataset(
+        {"counts": (("shot", "y", "x"), np.zeros((n, 2, 2), np.uint16), {"units": "DN"})},
+        coords={"wavelength": ("shot", np.full(n, 550.0), {"units": "nm"}),
+                "exposure_time": ("shot", np.full(n, 0.05), {"units": "s"}),
+                "image": ("shot", np.asarray(images, dtype=np.int64)),
+                "rotation": ("shot", np.zeros(n, int)), "led": ("shot", np.zeros(n, int))},
+        attrs={"bit_depth": 12})
 
 
 # -- nRMSE ---------------------------------------------------------------------------------
@@ -288,12 +300,20 @@ def test_evaluate_reports_every_mismatch_at_once():
     with pytest.raises(SchemaError, match="spectra:radiance") as error:
         evaluate(other, truth)
     assert "image" in str(error.value)
+    # what one group's schema says is checked by the engine before the node runs (below);
+    # the public metric functions, which also take bare arrays, check it themselves
     wrong_dims = truth.radiance.transpose("image", "y", "x", "wavelength").to_dataset()
     with pytest.raises(SchemaError) as error:
-        evaluate(wrong_dims, xr.Dataset({"counts": truth.radiance}))
+        normalised_rmse(wrong_dims, xr.Dataset({"counts": truth.radiance}))
     messages = [str(p) for p in error.value.problems]
     assert any("spectra:radiance" in m and "dims" in m for m in messages)
     assert any("truth:radiance" in m and "counts" in m for m in messages)
+    with pytest.raises(SchemaError) as error:
+        EVALUATE({"spectra": wrong_dims, "truth": xr.Dataset({"counts": truth.radiance}),
+                  "shots": raw_spectral_for([0])})
+    messages = [str(p) for p in error.value.problems]
+    assert any("spectra" in m and "radiance" in m and "dims" in m for m in messages)
+    assert any("truth" in m and "radiance" in m for m in messages)
     shifted = truth.assign_coords(wavelength=truth.wavelength + 5.0)
     with pytest.raises(SchemaError, match="wavelength"):
         evaluate(shifted, truth)
@@ -305,8 +325,9 @@ def test_evaluate_reports_every_mismatch_at_once():
     out = evaluate(swapped, labelled)
     assert out["image"].values.tolist() == [4, 3]
     assert float(out["nrmse"].max()) == 0.0
+    # options are checked against the constraints of evaluate's signature, by the node
     with pytest.raises(ValueError, match="threshold"):
-        evaluate(truth, truth, threshold=0.0)
+        EVALUATE.parse_parameters({"threshold": 0.0})
 
 
 @pytest.mark.filterwarnings("ignore::zarr.errors.UnstableSpecificationWarning")
@@ -344,7 +365,7 @@ def test_compare_methods_ranks_a_perfect_and_a_biased_method():
 
 def test_node_declaration_runs_and_validates_parameters():
     truth = checker_truth(n_image=2)
-    result = EVALUATE({"spectra": truth, "truth": truth, "shots": shots_for([0])},
+    result = EVALUATE({"spectra": truth, "truth": truth, "shots": raw_spectral_for([0])},
                       {"threshold": 0.02, "sample_quantiles": [0.5, 1.0]})
     assert set(result) == {"evaluation"}
     assert result["evaluation"].sizes["sample"] == 2
@@ -355,6 +376,12 @@ def test_node_declaration_runs_and_validates_parameters():
         EVALUATE.parse_parameters({"illuminant": "D-nonsense"})
     with pytest.raises(ParameterError, match="unknown parameter"):
         EVALUATE.parse_parameters({"colour": 1})
+    with pytest.raises(ParameterError, match="ascending"):
+        EVALUATE.parse_parameters({"sample_quantiles": [0.9, 0.1]})
+    assert "D65" in EVALUATE.parameter_choices()["illuminant"]
+    assert "E" in EVALUATE.parameter_choices()["illuminant"]
+    assert set(EVALUATE.parameters.model_fields) == {
+        "illuminant", "threshold", "histogram_bins", "histogram_max", "sample_quantiles"}
     planned = check_graph([Step("evaluate")], nodes={"evaluate": EVALUATE}, available={
         "spectra": "spectra", "truth/spectra": "truth/spectra", "raw/spectral": "raw/spectral"})
     assert [p.outputs for p in planned] == [{"evaluation": "evaluation"}]

@@ -6,13 +6,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spectralize.nodes.reconstruction import (
-    BASELINE_METHODS,
-    SOLVER_METHODS,
-    reconstruct,
-    reconstruct_baseline,
-    reconstruct_spectra,
-)
+from spectralize.nodes.reconstruction import RECONSTRUCTION_METHODS, reconstruct
 from spectralize.schemas.errors import ReconstructionError, SpectralizeError
 
 
@@ -43,8 +37,8 @@ def test_output_dims_dtype_coords_and_attrs(scene):
 
 
 def test_result_object_records_the_solve(scene):
-    result = reconstruct_spectra(scene.rgb, scene.bands, scene.camera_matrix,
-                                 method="paper-cg", max_iterations=5, tolerance=1e-12)
+    result = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method="paper-cg",
+                         max_iterations=5, tolerance=1e-12, full_output=True)
     assert result.iterations == 5 and not result.converged
     assert len(result.residual_history) == 6
     assert result.wall_time >= result.setup_time > 0
@@ -79,13 +73,41 @@ def test_result_scales_with_radiance_and_ignores_the_gain_of_c(scene):
                                atol=1e-5 * float(np.abs(reference).max()))
 
 
-def test_every_baseline_runs_through_the_dispatcher(scene):
-    for method in BASELINE_METHODS:
-        out = reconstruct_baseline(scene.rgb, scene.bands, scene.camera_matrix, method=method)
-        assert out.dims == ("image", "wavelength", "y", "x")
-        assert out.dtype == np.float32
-        assert out.attrs["method"] == method
-        assert np.isfinite(out.values).all()
+@pytest.mark.parametrize("method", sorted(RECONSTRUCTION_METHODS))
+def test_every_method_of_the_table_runs_through_reconstruct(scene, method):
+    record = RECONSTRUCTION_METHODS[method]
+    assert record.name == method and record.kind in ("solver", "baseline")
+    result = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method=method,
+                         full_output=True)
+    out = result.spectra
+    assert out.dims == ("image", "wavelength", "y", "x")
+    assert out.shape == (2, 6, 20, 20)
+    assert out.dtype == np.float32
+    assert out.attrs["method"] == result.method == method
+    assert np.isfinite(out.values).all()
+    if record.kind == "solver":
+        assert result.iterations >= 1 and result.problem is not None
+        assert result.problem.dtype == record.dtype
+        assert out.attrs["tolerance"] == 1e-3
+    else:
+        assert result.iterations == 0 and result.problem is None
+    # every option of the method is reachable and recorded with its default
+    for name, default in record.defaults().items():
+        if isinstance(default, int | float | str) and name != "gamma_hat":
+            assert out.attrs[name] == default, name
+
+
+def test_option_defaults_are_the_functions_defaults():
+    record = RECONSTRUCTION_METHODS["guided-prior-pcg"]
+    assert record.defaults()["prior"] == 0.1
+    assert RECONSTRUCTION_METHODS["block-jacobi-pcg"].defaults()["prior"] == 0.0
+    assert {"alpha_hat", "beta_hat", "gamma_hat", "k", "centre_spacing",
+            "normalize_camera_matrix", "tolerance", "max_iterations", "initial",
+            "callback"} <= set(RECONSTRUCTION_METHODS["paper-cg"].options)
+    assert set(RECONSTRUCTION_METHODS["guided-projected"].options) == {"window_scale",
+                                                                       "epsilon"}
+    assert set(RECONSTRUCTION_METHODS["wiener"].options) == {"relative_noise"}
+    assert RECONSTRUCTION_METHODS["pseudo-inverse"].options == {}
 
 
 # -- bad input ------------------------------------------------------------------------------
@@ -99,10 +121,21 @@ def _raises(match, *args, **kwargs):
 def test_unknown_method_lists_the_known_ones(scene):
     message = _raises("unknown method 'multigrid'", scene.rgb, scene.bands,
                       scene.camera_matrix, method="multigrid")
-    for name in SOLVER_METHODS:
+    for name in RECONSTRUCTION_METHODS:  # solvers and baselines
         assert name in message
-    with pytest.raises(ReconstructionError, match="pseudo-inverse"):
-        reconstruct_baseline(scene.rgb, scene.bands, scene.camera_matrix, method="nope")
+
+
+def test_unknown_option_lists_the_methods_options(scene):
+    message = _raises(r"method 'paper-cg': unknown option\(s\) \['prior'\]", scene.rgb,
+                      scene.bands, scene.camera_matrix, method="paper-cg", prior=0.1)
+    for name in RECONSTRUCTION_METHODS["paper-cg"].options:
+        assert name in message
+    assert "'prior' is an option of" in message and "guided-prior-pcg" in message
+    message = _raises(r"unknown option\(s\) \['gamma_hat', 'tolerance'\]", scene.rgb,
+                      scene.bands, scene.camera_matrix, method="wiener", tolerance=1e-3,
+                      gamma_hat=1.0)
+    assert "its options are: relative_noise" in message
+    _raises("unknown option", scene.rgb, scene.bands, scene.camera_matrix, smoothness=3)
 
 
 def test_image_size_mismatch(scene):
@@ -113,7 +146,10 @@ def test_image_size_mismatch(scene):
 
 def test_wrong_dims_and_channel_count(scene):
     _raises(r"rgb: expected dims \('image', 'y', 'x', 'channel'\)",
-            scene.rgb.isel(image=0), scene.bands, scene.camera_matrix)
+            scene.rgb.isel(image=0).rename(x="column"), scene.bands, scene.camera_matrix)
+    # one (y, x, channel) image is a valid form, but these bands pair with two images
+    _raises(r"names images \[1\] that rgb does not have", scene.rgb.isel(image=0),
+            scene.bands, scene.camera_matrix)
     _raises("rgb: expected 3 channels, found 2", scene.rgb.isel(channel=[0, 1]),
             scene.bands, scene.camera_matrix.isel(channel=[0, 1]))
     _raises("camera_matrix: expected dims", scene.rgb, scene.bands,
@@ -122,18 +158,40 @@ def test_wrong_dims_and_channel_count(scene):
             scene.camera_matrix)
 
 
-def test_wavelength_mismatch(scene):
+def test_wavelength_mismatch_names_both_grids(scene):
     shifted = scene.bands.assign_coords(
         wavelength=("shot", scene.bands["wavelength"].values + np.r_[0, 0, 0, 0, 0, 5.0, 0]))
     message = _raises("not on camera_matrix's wavelength grid", scene.rgb, shifted,
                       scene.camera_matrix)
-    assert "have no band shot" in message  # the wavelength that lost its shot, too
-    extra = xr.concat([scene.camera_matrix,
-                       scene.camera_matrix.isel(wavelength=[-1]).assign_coords(
-                           wavelength=[700.0])], dim="wavelength")
-    _raises(r"wavelengths \[700.0\] nm have no band shot", scene.rgb, scene.bands, extra)
+    grid = scene.camera_matrix["wavelength"].values
+    assert str(grid.tolist()) in message  # the camera matrix's grid
+    assert str(np.unique(shifted["wavelength"].values).tolist()) in message  # the bands'
     _raises("expected a coordinate 'filter_size'", scene.rgb,
             scene.bands.drop_vars("filter_size"), scene.camera_matrix)
+
+
+def test_a_wider_camera_matrix_grid_is_restricted_to_the_bands(scene):
+    """C on 400-730 nm for bands on a grid inside it: the same result as C on the bands'
+    wavelengths exactly, and the spectra live on the bands' wavelengths."""
+    exact = scene.camera_matrix
+    step = float(np.diff(exact["wavelength"].values)[0])
+    below = exact.isel(wavelength=[0, 0]).assign_coords(
+        wavelength=exact["wavelength"].values[0] - step * np.array([2.0, 1.0]))
+    above = exact.isel(wavelength=[-1]).assign_coords(
+        wavelength=[exact["wavelength"].values[-1] + step])
+    wider = xr.concat([above, exact, below], dim="wavelength")  # unsorted, too
+    reference = reconstruct(scene.rgb, scene.bands, exact)
+    restricted = reconstruct(scene.rgb, scene.bands, wider)
+    np.testing.assert_array_equal(restricted["wavelength"].values,
+                                  exact["wavelength"].values)
+    np.testing.assert_allclose(restricted.values, reference.values, rtol=1e-6,
+                               atol=1e-6 * float(np.abs(reference).max()))
+    # a grid that does not cover the bands is still an error, naming both grids
+    narrow = exact.isel(wavelength=slice(0, -1))
+    message = _raises("not on camera_matrix's wavelength grid", scene.rgb, scene.bands,
+                      narrow)
+    assert str(narrow["wavelength"].values.tolist()) in message
+    assert str(exact["wavelength"].values.tolist()) in message
 
 
 @pytest.mark.parametrize("array", ["rgb", "bands", "camera_matrix"])
@@ -176,3 +234,50 @@ def test_bad_options_and_initial(scene):
     wrong = xr.zeros_like(scene.rgb.isel(channel=0)).expand_dims(wavelength=3)
     _raises("initial: expected shape", scene.rgb, scene.bands, scene.camera_matrix,
             initial=wrong.transpose("image", "wavelength", "y", "x"))
+
+
+# -- single-image forms ----------------------------------------------------------------------
+@pytest.fixture
+def single(scene_factory):
+    return scene_factory(size=20, n_wavelength=6, shading=True, noise=0.02, rgb_noise=1e-3)
+
+
+def _band_cube(scene):
+    """The one image's shots as a (y, x, wavelength) band cube."""
+    shots = scene.bands
+    return xr.DataArray(shots.transpose("y", "x", "shot").values, dims=("y", "x", "wavelength"),
+                        coords={"wavelength": shots["wavelength"].values})
+
+
+@pytest.mark.parametrize("method", ["block-jacobi-pcg", "paper-cg", "guided-projected"])
+def test_one_image_as_band_cube_and_rgb_image_gives_the_shot_form_result(single, method):
+    reference = reconstruct(single.rgb, single.bands, single.camera_matrix, method=method)
+    rgb_image = single.rgb.isel(image=0).transpose("channel", "y", "x")  # (y, x, channel)
+    cube = _band_cube(single)
+    out = reconstruct(rgb_image, cube, single.camera_matrix, method=method, filter_size=3.0)
+    assert out.dims == ("wavelength", "y", "x")  # like the rgb given: one image
+    np.testing.assert_array_equal(out.values, reference.isel(image=0).values)
+    # filter sizes as a coordinate along wavelength, with the set-form rgb
+    sized = cube.assign_coords(filter_size=("wavelength", np.full(6, 3.0)))
+    as_set = reconstruct(single.rgb, sized.transpose("wavelength", "x", "y"),
+                         single.camera_matrix, method=method)
+    assert as_set.dims == ("image", "wavelength", "y", "x")
+    np.testing.assert_array_equal(as_set.values, reference.values)
+    # a (y, x, channel) image with the shot form of the bands
+    mixed = reconstruct(rgb_image, single.bands, single.camera_matrix, method=method)
+    np.testing.assert_array_equal(mixed.values, reference.isel(image=0).values)
+
+
+def test_band_cube_errors(single, scene):
+    cube = _band_cube(single)
+    rgb_image = single.rgb.isel(image=0)
+    _raises("needs the filter size", rgb_image, cube, single.camera_matrix)
+    _raises("given both as an option and as a coordinate", rgb_image,
+            cube.assign_coords(filter_size=("wavelength", np.full(6, 3.0))),
+            single.camera_matrix, filter_size=3.0)
+    _raises(r"expected one number or 6 \(one per wavelength\)", rgb_image, cube,
+            single.camera_matrix, filter_size=[3.0, 3.0])
+    _raises("a \\(y, x, wavelength\\) band cube is one image's bands, but rgb has 2 images",
+            scene.rgb, cube, scene.camera_matrix, filter_size=3.0)
+    _raises("filter_size: only for bands given as a \\(y, x, wavelength\\) band cube",
+            single.rgb, single.bands, single.camera_matrix, filter_size=3.0)

@@ -70,3 +70,55 @@ def test_images_with_and_without_bands_are_reconstructed(solved):
     # warm-started sets record their own iterations; the seed's are the cold start
     seed_images = cube.image_set == cube.attrs["seed_set"]
     assert (cube.iterations.where(seed_images, drop=True) == cube.attrs["seed_iterations"]).all()
+
+
+def test_method_takes_exactly_the_table_and_fails_at_graph_check():
+    from spectralize.engine import Step, check_graph
+    from spectralize.nodes.reconstruction import RECONSTRUCTION_METHODS
+    from spectralize.nodes.reconstruction.declarations import (
+        RECONSTRUCT_IMAGE_SETS,
+        RECONSTRUCT_SEED_SET,
+    )
+    from spectralize.schemas import PipelineError
+
+    for node in (RECONSTRUCT_SEED_SET, RECONSTRUCT_IMAGE_SETS):
+        assert set(node.parameter_choices()["method"]) == set(RECONSTRUCTION_METHODS)
+        for method in RECONSTRUCTION_METHODS:
+            assert node.parse_parameters({"method": method}).method == method
+        assert node.parse_parameters({"prior": 0.3}).prior == 0.3
+    available = {"hdr": "hdr", "bands": "bands", "camera_matrix": "camera_matrix",
+                 "image_sets": "image_sets", "spectra_seed": "spectra_seed"}
+    with pytest.raises(PipelineError) as info:
+        check_graph([Step("reconstruct_image_sets", parameters={"method": "fastest"})],
+                    available=available)
+    message = str(info.value)
+    assert "reconstruct_image_sets.method" in message and "'fastest'" in message
+    for method in RECONSTRUCTION_METHODS:
+        assert repr(method) in message
+
+
+def test_prior_is_a_set_parameter_and_checked_against_the_method():
+    from spectralize.schemas import ReconstructionError
+
+    hdr, bands, camera, sets, _ = reconstruction_inputs()
+    options = {"method": "guided-prior-pcg", "max_iterations": 30}
+    default = reconstruct_seed_set(hdr, bands, camera, sets, **options)
+    strong = reconstruct_seed_set(hdr, bands, camera, sets, prior=2.0, **options)
+    assert strong.attrs["prior"] == 2.0 and "prior" not in default.attrs
+    assert strong.radiance.attrs["prior"] == 2.0 and default.radiance.attrs["prior"] == 0.1
+    difference = float(np.abs(strong.radiance - default.radiance).max())
+    assert difference > 1e-3 * float(np.abs(default.radiance).max())
+    with pytest.raises(ReconstructionError, match="method 'paper-cg' has no prior"):
+        reconstruct_seed_set(hdr, bands, camera, sets, method="paper-cg", prior=0.1)
+    with pytest.raises(ReconstructionError, match="has no prior"):
+        reconstruct_image_sets(hdr, bands, camera, sets, default, method="wiener", prior=0.1)
+
+
+def test_a_baseline_reconstructs_the_sets_too():
+    hdr, bands, camera, sets, truth = reconstruction_inputs()
+    seed = reconstruct_seed_set(hdr, bands, camera, sets, method="filtered-projected")
+    assert seed.attrs["iterations"] == 0 and seed.radiance.attrs["method"] == "filtered-projected"
+    cube = reconstruct_image_sets(hdr, bands, camera, sets, seed,
+                                  method="filtered-projected").compute()
+    assert np.isfinite(cube.radiance.values).all()
+    assert (cube.iterations == 0).all()

@@ -6,12 +6,10 @@ import numpy as np
 import pytest
 
 from spectralize.nodes.reconstruction import (
-    SOLVER_METHODS,
+    RECONSTRUCTION_METHODS,
     build_problem,
     inputs_from_xarray,
     reconstruct,
-    reconstruct_baseline,
-    reconstruct_spectra,
 )
 from spectralize.nodes.reconstruction.baselines import guided_filtered_projected
 from spectralize.nodes.reconstruction.solvers import (
@@ -44,7 +42,8 @@ def test_exact_recovery_of_a_noise_free_scene(scene_factory, method):
     assert problem.energy(truth) == pytest.approx(0.0, abs=1e-20)
     options = ({"dtype": np.float64, "ridge": 0.0, "prior": 0.0}
                if method == "block-jacobi-pcg" else {})
-    result = SOLVER_METHODS[method](problem, tolerance=1e-10, max_iterations=3000, **options)
+    result = RECONSTRUCTION_METHODS[method].function(problem, tolerance=1e-10,
+                                                     max_iterations=3000, **options)
     assert result.converged
     assert _relative_error(result.cube, truth) < 1e-6
 
@@ -130,12 +129,14 @@ def test_an_image_without_bands_gets_spectra_through_its_neighbours(scene_factor
 def test_warm_start_from_the_answer_stops_at_once(scene_factory):
     scene = scene_factory(size=20, n_wavelength=5, shading=True, noise=0.02)
     # eq. 1 alone (block-jacobi-pcg) from an explicit initial guess
-    start = reconstruct_baseline(scene.rgb, scene.bands, scene.camera_matrix)
-    first = reconstruct_spectra(scene.rgb, scene.bands, scene.camera_matrix,
-                                method="block-jacobi-pcg", tolerance=1e-5, initial=start)
-    again = reconstruct_spectra(scene.rgb, scene.bands, scene.camera_matrix,
-                                method="block-jacobi-pcg", tolerance=1e-3,
-                                initial=first.spectra)
+    start = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                        method="filtered-projected")
+    first = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                        method="block-jacobi-pcg", tolerance=1e-5, initial=start,
+                        full_output=True)
+    again = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                        method="block-jacobi-pcg", tolerance=1e-3, initial=first.spectra,
+                        full_output=True)
     assert again.iterations <= 1
     np.testing.assert_allclose(again.spectra.values, first.spectra.values, rtol=1e-3,
                                atol=1e-4 * float(np.abs(first.spectra).max()))
@@ -180,3 +181,33 @@ def test_prior_centre_stays_the_guided_estimate_under_a_warm_start(scene_factory
                                atol=1e-6 * float(np.abs(cold.cube).max()))
     plain = block_jacobi_pcg(problem, initial=np.zeros(problem.shape), **options)
     assert _relative_error(plain.cube, cold.cube) > 1e-3  # the prior did change the answer
+
+
+def test_the_prior_is_reachable_from_reconstruct_and_changes_the_result(scene_factory):
+    """``prior`` is the guided prior's weight: 0 is eq. 1 alone (``block-jacobi-pcg``'s
+    default), 0.1 the ``guided-prior-pcg`` default; a larger weight pulls the result
+    further towards the guided estimate."""
+    scene = scene_factory(size=24, n_wavelength=6, n_materials=3, shading=True, noise=0.1,
+                          filter_size=4.0)
+    options = {"tolerance": 1e-7, "max_iterations": 3000}
+    guided = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                         method="guided-projected").values
+    default = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                          method="guided-prior-pcg", **options)
+    assert default.attrs["prior"] == 0.1
+    strong = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                         method="guided-prior-pcg", prior=1.0, **options)
+    assert strong.attrs["prior"] == 1.0
+    none = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                       method="guided-prior-pcg", prior=0.0, **options)
+    plain = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                        method="block-jacobi-pcg", **options)
+    assert _relative_error(strong.values, default.values) > 1e-3
+    assert (_relative_error(strong.values, guided) < _relative_error(default.values, guided)
+            < _relative_error(none.values, guided))
+    # prior=0 is eq. 1 alone, whatever the start
+    assert _relative_error(none.values, plain.values) < 1e-3
+    with_prior = reconstruct(scene.rgb, scene.bands, scene.camera_matrix,
+                             method="block-jacobi-pcg", prior=0.1, **options)
+    np.testing.assert_allclose(with_prior.values, default.values, rtol=1e-5,
+                               atol=1e-5 * float(np.abs(default).max()))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from spectralize.nodes.simulation.camera_model import SimulationParameterError
-from spectralize.nodes.simulation.declarations import SIMULATE, SimulateParameters
+from spectralize.nodes.simulation.declarations import SIMULATE
 from spectralize.nodes.simulation.gantry import GROUPS, Gantry
 from spectralize.nodes.simulation.recipes import DESCRIPTIONS, RECIPES, get_recipe, recipe_names
 from spectralize.schemas import ParameterError
@@ -38,7 +38,8 @@ def test_overrides_are_validated():
     r = get_recipe("tiny", seed=5, size=40)
     assert (r.seed, r.size, r.name) == (5, 40, "tiny")
     assert get_recipe("tiny") is RECIPES["tiny"]
-    with pytest.raises(SimulationParameterError, match="known recipes"):
+    with pytest.raises(SimulationParameterError,
+                       match=r"recipe: expected one of \['demo', 'paper', 'tiny'\], found 'huge'"):
         get_recipe("huge")
     with pytest.raises(SimulationParameterError, match="sizee"):
         get_recipe("tiny", sizee=3)
@@ -72,10 +73,26 @@ def test_simulate_node_is_seeded_and_deterministic():
 def test_simulate_parameters_reject_unknown_keys():
     with pytest.raises(ParameterError, match="frames"):
         SIMULATE.parse_parameters({"frames": 3})
-    with pytest.raises(ParameterError, match="recipe"):
+    with pytest.raises(ParameterError, match=r"simulate.recipe: expected one of: 'demo', "
+                                             r"'paper', 'tiny' \(recipe\), found 'huge'"):
         SIMULATE.parse_parameters({"recipe": "huge"})
-    assert SimulateParameters().recipe == "demo"
+    assert SIMULATE.parse_parameters({}).recipe == "demo"
+    assert SIMULATE.parameter_choices()["recipe"] == tuple(sorted(RECIPES))
     with pytest.raises(SimulationParameterError, match="noise_tile"):
         SIMULATE({}, {"recipe": "tiny", "overrides": {"noise_tile": 3}})
     with pytest.raises(SimulationParameterError, match="max_gigabytes"):
         SIMULATE({}, {"recipe": "paper"})
+
+
+def test_recipe_overrides_report_each_problem_and_response_models_come_from_the_table():
+    with pytest.raises(SimulationParameterError) as info:
+        get_recipe("tiny", size=2, spectral_response={"model": "lgo"})
+    problems = {p.where: p for p in info.value.problems}
+    assert set(problems) == {"size", "spectral_response.model"}
+    assert problems["spectral_response.model"].expected == (
+        "one of: 'gamma', 'linear', 'log', 's_curve' (response model)")
+    assert problems["spectral_response.model"].found == "'lgo'"
+    with pytest.raises(SimulationParameterError) as info:
+        get_recipe("tiny", rgb_exposure_times=(0.01, 0.001))
+    [problem] = info.value.problems
+    assert problem.where == "recipe" and "must be increasing" in problem.found

@@ -1,178 +1,43 @@
-"""Solvers of the normal equations ``A^T A S = A^T b`` of eq. 1.
+"""Solver ``"block-jacobi-pcg"``: eq. 1 alone, solved fast (the default).
 
-:data:`SOLVER_METHODS` is the dispatch table:
+Conjugate gradients on ``A^T A`` applied directly (one pass of each term instead of ``A``
+then ``A^T``), preconditioned by the exact inverse of the per-pixel
+``n_wavelength x n_wavelength`` diagonal blocks of ``A^T A`` (block Jacobi, applied in
+closed form with a 3 x 3 Woodbury solve per pixel), float32, started from the filtered
+bands projected onto the RGB constraint, with a tiny ridge towards that start that only
+acts on directions eq. 1 leaves undetermined. Reaches the paper-CG's solution.
 
-``"paper-cg"``
-    The paper's solver, kept as the reference mode: conjugate gradients on the normal
-    equations (CGNR) with ``A`` and ``A^T`` as two functions, float64, started from zero.
-``"block-jacobi-pcg"``
-    Eq. 1 alone, solved fast: conjugate gradients on ``A^T A`` applied directly (one pass of
-    each term instead of ``A`` then ``A^T``), preconditioned by the exact inverse of the
-    per-pixel ``n_wavelength x n_wavelength`` diagonal blocks of ``A^T A`` (block Jacobi,
-    applied in closed form with a 3 x 3 Woodbury solve per pixel), float32, started from the
-    filtered bands projected onto the RGB constraint, with a tiny ridge towards that start
-    that only acts on directions eq. 1 leaves undetermined. Reaches the paper-CG's solution.
-    The default.
-``"guided-prior-pcg"``
-    The same solver on eq. 1 plus a Tikhonov prior
-    ``epsilon_prior ||S - S_0||^2`` (``prior=DEFAULT_PRIOR``) towards the RGB-guided filtered
-    bands ``S_0`` (baseline ``"guided-projected"``: per window the band is an affine function
-    of RGB), for every band and image that has a shot; bands an image has no shot of get
-    their spectra from eq. 1 alone (the neighbour term). Started from ``S_0`` unless a warm
-    start is given; the prior's centre is ``S_0`` either way.
-
-    Why the prior, a deliberate extension of the paper: on the benchmark scene the truth is
-    far from the minimiser of eq. 1 (its neighbour term at the truth is about 6 to 20 times
-    that at the solution; a fully converged solve is *less* accurate than one stopped at
-    ``tolerance=1e-3``): k nearest neighbours in noisy RGB tie pixels whose spectra differ
-    by about as much as the accuracy sought on bright specular pixels (22 % of neighbour
-    pairs join different materials). The locally-affine-in-RGB model of the guided filter
-    is exact for a material's mix of diffuse and illuminant-coloured specular reflection, so
-    it keeps that per-pixel detail; eq. 1 then corrects it where the filter, RGB and
-    neighbour terms agree. Not the default: on a single image with all bands it is more
-    accurate (benchmark: median nRMSE 0.0076 vs 0.0098), but on the demo run's sparse
-    multi-image sets at 64 px it is less accurate (0.107 vs 0.085 over all images).
-
-Both stop when the relative residual of the normal equations ``||A^T b - A^T A S|| /
-||A^T b||`` falls below ``tolerance``, or after ``max_iterations``.
+The same iteration with ``prior > 0`` adds a Tikhonov prior towards the RGB-guided filtered
+bands; :mod:`.guided_prior_pcg` is that method.
 
 References
 ----------
 .. [1] Fast Capture of Spectral Image Series, section 3, "Optimization", and section 6
    (convergence speed with large filters as the main limitation).
 .. [2] Saad, Y. (2003). Iterative Methods for Sparse Linear Systems, 2nd ed., SIAM
-   (CGNR, algorithm 8.4; preconditioned CG, algorithm 9.1).
+   (preconditioned CG, algorithm 9.1).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from .baselines import filtered_bands_projected, guided_filtered_projected
-from .operators import ReconstructionProblem
+from ..baselines import filtered_bands_projected, guided_filtered_projected
+from ..operators import ReconstructionProblem
+from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, Callback, SolverResult, vdot
 
 __all__ = [
-    "SolverResult",
-    "SOLVER_METHODS",
-    "SOLVER_DTYPES",
-    "DEFAULT_METHOD",
-    "DEFAULT_TOLERANCE",
-    "DEFAULT_MAX_ITERATIONS",
-    "DEFAULT_RIDGE",
-    "DEFAULT_PRIOR",
-    "paper_cg",
     "block_jacobi_pcg",
-    "guided_prior_pcg",
     "BlockJacobiPreconditioner",
     "projected_filtered_initial",
     "guided_initial",
+    "DEFAULT_RIDGE",
 ]
 
-DEFAULT_METHOD = "block-jacobi-pcg"
-DEFAULT_TOLERANCE = 1e-3
-DEFAULT_MAX_ITERATIONS = 2000
 DEFAULT_RIDGE = 1e-4
-DEFAULT_PRIOR = 0.1
-
-Callback = Callable[[int, np.ndarray], None]
-
-
-@dataclass
-class SolverResult:
-    """What a solver returns.
-
-    Attributes
-    ----------
-    cube
-        ``S``, ``(n_wavelength, n_image, height, width)``.
-    iterations
-        Iterations done.
-    residual_history
-        Relative normal-equation residual before the first and after every iteration.
-    converged
-        Whether the residual reached the tolerance.
-    wall_time
-        Seconds spent in the solver (set-up of its preconditioner and initial guess included).
-    method
-        Name of the method in :data:`SOLVER_METHODS`.
-    """
-
-    cube: np.ndarray
-    iterations: int
-    residual_history: np.ndarray
-    converged: bool
-    wall_time: float
-    method: str
-    info: dict = field(default_factory=dict)
-
-
-def _vdot(a: np.ndarray, b: np.ndarray) -> float:
-    # einsum, not BLAS: no thread pool to wait for on a busy machine (see operators._einsum)
-    return float(np.einsum("i,i->", a.ravel(), b.ravel(), optimize=False))
-
-
-def paper_cg(problem: ReconstructionProblem, *, initial: np.ndarray | None = None,
-             tolerance: float = DEFAULT_TOLERANCE,
-             max_iterations: int = DEFAULT_MAX_ITERATIONS,
-             callback: Callback | None = None) -> SolverResult:
-    """The paper's solver: CG on ``A^T A S = A^T b`` with ``A``, ``A^T`` as functions.
-
-    Float64, started from ``initial`` or zero, no preconditioner (CGNR).
-
-    Parameters
-    ----------
-    problem
-        Eq. 1 set up by :func:`~spectralize.nodes.reconstruction.operators.build_problem`.
-    initial
-        Starting cube ``(n_wavelength, n_image, height, width)`` (default: zeros).
-    tolerance
-        Relative normal-equation residual to stop at.
-    max_iterations
-        Iteration limit.
-    callback
-        Called as ``callback(iteration, cube)`` after every iteration (for benchmarks).
-
-    References
-    ----------
-    .. [1] Fast Capture of Spectral Image Series, section 3, "Optimization".
-    """
-    started = time.perf_counter()
-    problem = problem.astype(np.float64)
-    x = (np.zeros(problem.shape) if initial is None
-         else np.array(initial, dtype=np.float64, copy=True).reshape(problem.shape))
-    target = problem.target()
-    rhs_norm = np.sqrt(_vdot(g := problem.apply_adjoint(target), g)) or 1.0
-    applied = problem.apply(x)
-    residual_blocks = ([t - a for t, a in zip(target[0], applied[0], strict=True)],
-                       target[1] - applied[1], target[2] - applied[2])
-    r = problem.apply_adjoint(residual_blocks)
-    del g, applied, residual_blocks
-    p = r.copy()
-    rr = _vdot(r, r)
-    history = [np.sqrt(rr) / rhs_norm]
-    iterations = 0
-    while history[-1] > tolerance and iterations < max_iterations:
-        q = problem.apply(p)
-        qq = sum(_vdot(b, b) for b in q[0]) + _vdot(q[1], q[1]) + _vdot(q[2], q[2])
-        if qq <= 0:
-            break
-        step = rr / qq
-        x += step * p
-        r -= step * problem.apply_adjoint(q)
-        rr_new = _vdot(r, r)
-        p *= rr_new / rr
-        p += r
-        rr = rr_new
-        iterations += 1
-        history.append(np.sqrt(rr) / rhs_norm)
-        if callback is not None:
-            callback(iterations, x)
-    return SolverResult(x, iterations, np.asarray(history), history[-1] <= tolerance,
-                        time.perf_counter() - started, "paper-cg")
+"""Ridge towards the starting cube, relative to the mean diagonal of ``A^T A``."""
 
 
 class BlockJacobiPreconditioner:
@@ -250,7 +115,7 @@ class BlockJacobiPreconditioner:
 
 def projected_filtered_initial(problem: ReconstructionProblem) -> np.ndarray:
     """Initial guess: the filtered bands projected onto ``C S = R`` (baseline
-    ``"filtered-projected"``)."""
+    ``"filtered-projected"``); zeros for a problem built without its inputs."""
     inputs = problem.extras.get("inputs")
     if inputs is None:
         return np.zeros(problem.shape, dtype=problem.dtype)
@@ -259,7 +124,8 @@ def projected_filtered_initial(problem: ReconstructionProblem) -> np.ndarray:
 
 def guided_initial(problem: ReconstructionProblem) -> np.ndarray:
     """Initial guess and prior ``S_0``: the RGB-guided filtered bands projected onto
-    ``C S = R`` (baseline ``"guided-projected"``)."""
+    ``C S = R`` (baseline ``"guided-projected"``); zeros for a problem built without its
+    inputs."""
     inputs = problem.extras.get("inputs")
     if inputs is None:
         return np.zeros(problem.shape, dtype=problem.dtype)
@@ -280,8 +146,7 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
                      dtype: np.dtype | type = np.float32,
                      ridge: float = DEFAULT_RIDGE,
                      prior: float = 0.0,
-                     precondition: bool | str = True,
-                     method: str = "block-jacobi-pcg") -> SolverResult:
+                     precondition: bool | str = True) -> SolverResult:
     """Block-Jacobi preconditioned CG on the normal equations, float32, warm-started.
 
     Minimises eq. 1 plus ``epsilon_r ||S - S_start||^2 + epsilon_p M ||S - S_0||^2``:
@@ -293,8 +158,9 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
     ``epsilon / lambda``) and keeps the spectra of directions it does not determine at all
     (e.g. a neighbourhood component of an image without bands that no filter sees) at the
     initial guess, instead of letting rounding errors of a float32 CG drift along them.
-    ``prior`` is a real Tikhonov prior (see the module docstring for why; the default method
-    ``"guided-prior-pcg"`` sets it); ``ridge=0, prior=0`` solves eq. 1 exactly.
+    ``prior`` is a real Tikhonov prior (0 here; method ``"guided-prior-pcg"``,
+    :func:`~spectralize.nodes.reconstruction.solvers.guided_prior_pcg.guided_prior_pcg`, sets
+    it and says why); ``ridge=0, prior=0`` solves eq. 1 exactly.
 
     Parameters
     ----------
@@ -319,8 +185,12 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
     precondition
         ``True``: block Jacobi; ``"jacobi"``: the scalar diagonal; ``False``: none (the
         last two for measurements).
-    method
-        The name recorded in the result.
+
+    Returns
+    -------
+    SolverResult
+        ``method="block-jacobi-pcg"``; the cube is in ``dtype``; ``info`` records the
+        absolute ridge, the prior and the preconditioner.
 
     References
     ----------
@@ -349,7 +219,7 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
         if centre is not None:
             rhs += (epsilon - towards) * centre
             del centre
-    rhs_norm = np.sqrt(_vdot(rhs, rhs)) or 1.0
+    rhs_norm = np.sqrt(vdot(rhs, rhs)) or 1.0
     r = rhs - work.normal(x)
     if regularised:
         r -= epsilon * x
@@ -363,14 +233,14 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
             return residual.copy()
     z = apply_preconditioner(r)
     p = z.copy()
-    rz = _vdot(r, z)
-    history = [np.sqrt(_vdot(r, r)) / rhs_norm]
+    rz = vdot(r, z)
+    history = [np.sqrt(vdot(r, r)) / rhs_norm]
     iterations = 0
     while history[-1] > tolerance and iterations < max_iterations:
         q = work.normal(p)
         if regularised:
             q += epsilon * p
-        pq = _vdot(p, q)
+        pq = vdot(p, q)
         if not pq > 0:
             break
         step = dtype.type(rz / pq)
@@ -379,42 +249,17 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
         r -= q
         del q
         iterations += 1
-        history.append(np.sqrt(_vdot(r, r)) / rhs_norm)
+        history.append(np.sqrt(vdot(r, r)) / rhs_norm)
         if callback is not None:
             callback(iterations, x)
         if history[-1] <= tolerance:
             break
         z = apply_preconditioner(r)
-        rz_new = _vdot(r, z)
+        rz_new = vdot(r, z)
         p *= dtype.type(rz_new / rz)
         p += z
         rz = rz_new
     return SolverResult(x, iterations, np.asarray(history), history[-1] <= tolerance,
-                        time.perf_counter() - started, method,
+                        time.perf_counter() - started, "block-jacobi-pcg",
                         {"ridge": float(np.min(epsilon)), "prior": float(prior),
                          "precondition": precondition})
-
-
-def guided_prior_pcg(problem: ReconstructionProblem, *, prior: float = DEFAULT_PRIOR,
-                     **options) -> SolverResult:
-    """Eq. 1 plus the prior towards the guided estimate (method ``"guided-prior-pcg"``).
-
-    :func:`block_jacobi_pcg` with ``prior=DEFAULT_PRIOR``; see the module docstring for why
-    and ``options`` there.
-    """
-    return block_jacobi_pcg(problem, prior=prior, method="guided-prior-pcg", **options)
-
-
-SOLVER_METHODS: dict[str, Callable[..., SolverResult]] = {
-    "guided-prior-pcg": guided_prior_pcg,
-    "block-jacobi-pcg": block_jacobi_pcg,
-    "paper-cg": paper_cg,
-}
-"""Solvers by name; see the module docstring."""
-
-SOLVER_DTYPES: dict[str, np.dtype] = {
-    "guided-prior-pcg": np.dtype(np.float32),
-    "block-jacobi-pcg": np.dtype(np.float32),
-    "paper-cg": np.dtype(np.float64),
-}
-"""The floating dtype each solver works in (problems are set up in it directly)."""

@@ -1,0 +1,66 @@
+"""Baseline spectral reconstructions, for comparison with eq. 1 on the same data.
+
+Every baseline takes a :class:`~spectralize.nodes.reconstruction.inputs.ReconstructionInputs`
+and returns a cube ``(n_wavelength, n_image, height, width)``; one method per module, all
+of them listed in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`
+and run through :func:`~spectralize.nodes.reconstruction.reconstruct`:
+
+``"pseudo-inverse"`` (:mod:`.pseudo_inverse`)
+    ``S = C^+ R`` (Imai and Berns): the minimum-norm spectrum with the measured RGB.
+``"wiener"`` (:mod:`.wiener`)
+    Wiener estimation / linear regression ``S = K C^T (C K C^T + s I)^-1 R`` with the
+    second-moment matrix ``K`` of the 190 training reflectances colour-science ships
+    (RAW to ACES v1) lit by an illuminant estimated from the bands (:mod:`.training`).
+``"mallett2019"`` (:mod:`.mallett2019`)
+    colour-science's Mallett and Yuksel (2019) reflectance basis, lit by the same illuminant
+    estimate, with coefficients that reproduce the camera RGB exactly.
+``"filtered-bands"`` (:mod:`.filtered_bands`)
+    The band images filtered by their Gaussian (``sigma_i = s_i / 5``) alone; a band an image
+    has no shot of is predicted from its RGB by a linear fit on the images that have it.
+``"filtered-projected"`` (:mod:`.filtered_bands`)
+    ``filtered-bands`` projected per pixel onto the RGB constraint ``C S = R``
+    (:mod:`.projection`): ``S = B + C^T (C C^T)^-1 (R - C B)``.
+``"guided-projected"`` (:mod:`.guided_filter`)
+    Every band image filtered with the RGB image as guide (He et al.'s guided filter with
+    Gaussian windows), then projected onto ``C S = R``. The ``"guided-prior-pcg"`` solver's
+    initial guess and prior.
+
+References
+----------
+.. [1] Imai, F. H., Berns, R. S. (1998). High-resolution multi-spectral image archives: a
+   hybrid approach. Color Imaging Conference.
+.. [2] Hardeberg, J. Y., Schmitt, F., Brettel, H. (1999). Multispectral image capture using
+   a tunable filter. (Wiener-type estimation with prior knowledge of spectra.)
+.. [3] Mallett, I., Yuksel, C. (2019). Spectral Primary Decomposition for Rendering with
+   sRGB Reflectance. Eurographics Symposium on Rendering.
+.. [4] Fast Capture of Spectral Image Series, section 2 ("Hybrid Methods") and section 3.
+.. [5] He, K., Sun, J., Tang, X. (2013). Guided Image Filtering. IEEE TPAMI 35(6).
+"""
+
+from .filtered_bands import filtered_bands, filtered_bands_projected
+from .guided_filter import (
+    GUIDED_EPSILON,
+    GUIDED_WINDOW_SCALE,
+    guided_filtered_bands,
+    guided_filtered_projected,
+)
+from .mallett2019 import mallett2019_basis
+from .projection import project_onto_rgb
+from .pseudo_inverse import pseudo_inverse
+from .training import estimate_illuminant, training_reflectances
+from .wiener import wiener_estimation
+
+__all__ = [
+    "pseudo_inverse",
+    "wiener_estimation",
+    "mallett2019_basis",
+    "filtered_bands",
+    "filtered_bands_projected",
+    "guided_filtered_bands",
+    "guided_filtered_projected",
+    "GUIDED_WINDOW_SCALE",
+    "GUIDED_EPSILON",
+    "project_onto_rgb",
+    "training_reflectances",
+    "estimate_illuminant",
+]
