@@ -39,8 +39,12 @@ def log(message: str) -> None:
 def recipe_parameters(quick: bool) -> dict:
     if quick:
         return {"recipe": "tiny"}
-    return {"recipe": "demo", "size": 64, "n_rotations": 3,
-            "overrides": {"rgb_camera_thetas": [15.0, 45.0, 75.0]}}
+    return {
+        "recipe": "demo",
+        "size": 64,
+        "n_rotations": 3,
+        "overrides": {"rgb_camera_thetas": [15.0, 45.0, 75.0]},
+    }
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -103,15 +107,22 @@ def main(argv: list[str] | None = None) -> dict:
     seed_group = store.read("spectra_seed")
     throughput = {}
     for workers in (1, 2):
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                          dashboard_address=":0") as cluster, Client(cluster):
-            lazy = reconstruct_image_sets(hdr, bands, calibration, sets, seed_group,
-                                          **_settings(spectra, full=True))
+        with (
+            LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
+            ) as cluster,
+            Client(cluster),
+        ):
+            lazy = reconstruct_image_sets(
+                hdr, bands, calibration, sets, seed_group, **_settings(spectra, full=True)
+            )
             begin = time.perf_counter()
             lazy["radiance"].data.sum().compute()
             seconds = time.perf_counter() - begin
-        throughput[f"{workers}_workers"] = {"seconds": round(seconds, 2),
-                                            "images_per_second": round(n_images / seconds, 3)}
+        throughput[f"{workers}_workers"] = {
+            "seconds": round(seconds, 2),
+            "images_per_second": round(n_images / seconds, 3),
+        }
         log(f"{workers} worker(s): {seconds:.1f} s")
 
     evaluation = store.read("evaluation") if store.has("evaluation") else None
@@ -123,7 +134,8 @@ def main(argv: list[str] | None = None) -> dict:
             accuracy[subset] = {
                 "median_nrmse": round(float(stats.sel(subset=subset, statistic="median")), 4),
                 "p95_nrmse": round(float(stats.sel(subset=subset, statistic="p95")), 4),
-                "fraction_under_0.03": round(float(below.sel(subset=subset)), 4)}
+                "fraction_under_0.03": round(float(below.sel(subset=subset)), 4),
+            }
     result = {
         "benchmark": "btf_flow",
         "recipe": recipe_parameters(args.quick),
@@ -133,13 +145,19 @@ def main(argv: list[str] | None = None) -> dict:
         "flow_seconds": round(flow_seconds, 1),
         "node_seconds": nodes,
         "processing_seconds_per_image": round(processing / n_images, 3),
-        "iterations": {"warm_start": warm, "cold_start": cold,
-                       "mean_saved_fraction": round(1 - np.mean(list(warm.values()))
-                                                    / max(np.mean(list(cold.values())), 1), 3)
-                       if cold else None},
+        "iterations": {
+            "warm_start": warm,
+            "cold_start": cold,
+            "mean_saved_fraction": round(
+                1 - np.mean(list(warm.values())) / max(np.mean(list(cold.values())), 1), 3
+            )
+            if cold
+            else None,
+        },
         "throughput": throughput,
-        "speedup_2_vs_1_workers": round(throughput["1_workers"]["seconds"]
-                                        / throughput["2_workers"]["seconds"], 2),
+        "speedup_2_vs_1_workers": round(
+            throughput["1_workers"]["seconds"] / throughput["2_workers"]["seconds"], 2
+        ),
         "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         "accuracy": accuracy,
         "cpu_count": os.cpu_count(),

@@ -58,13 +58,13 @@ BITS = 10
 FULL = 2**BITS - 1
 OFFSET = 16.0
 SIGMA = 3.0
-BLACK_LEVEL = int(OFFSET + 3 * SIGMA)       # 25: codes at or below are read noise
+BLACK_LEVEL = int(OFFSET + 3 * SIGMA)  # 25: codes at or below are read noise
 MODEL = "s_curve"
 RGB_TIMES = np.array([1.0, 3.0, 8.0, 25.0, 60.0]) / 60.0
 LOW_RATIOS = np.array([1, 1.4, 2, 2.7, 3.8, 5.3, 7.2, 10, 14, 19, 27, 37, 52, 72, 100.0])
-LOW_TOP = 150.0                              # the low-SNR series reaches ~150 DN above dark
-LOW_END = 0.05 * (FULL - OFFSET)             # lowest 5% of the signal range [DN]
-REPEAT = 5                                   # wall times: best of 5 (the machine is shared)
+LOW_TOP = 150.0  # the low-SNR series reaches ~150 DN above dark
+LOW_END = 0.05 * (FULL - OFFSET)  # lowest 5% of the signal range [DN]
+REPEAT = 5  # wall times: best of 5 (the machine is shared)
 RESULTS = Path(__file__).resolve().parent / "results" / "calibration.json"
 
 
@@ -73,24 +73,49 @@ def simulate(side: int, seed: int = 2026) -> dict:
     rng = np.random.default_rng(seed)
     truth = response_model(MODEL)
     radiance = np.exp(rng.uniform(np.log(3e-2), np.log(40.0), (side, side, 3)))
-    rgb = capture(radiance[None], RGB_TIMES[:, None, None, None], response=truth,
-                  adc_offset=OFFSET, noise_sigma=SIGMA, bit_depth=BITS, seed=rng)
+    rgb = capture(
+        radiance[None],
+        RGB_TIMES[:, None, None, None],
+        response=truth,
+        adc_offset=OFFSET,
+        noise_sigma=SIGMA,
+        bit_depth=BITS,
+        seed=rng,
+    )
 
     yy, xx = np.mgrid[0:side, 0:side]
     target = np.exp(np.log(30.0) * xx / (side - 1)) * (1 + 0.1 * np.sin(yy / (side / 12.8)))
     grid = np.linspace(0.0, 1.0, 400_001)
     top = np.interp(LOW_TOP, truth.oecf(grid) * FULL, grid)
     low_times = top / target.max() * LOW_RATIOS / LOW_RATIOS.max()
-    low = capture(target[None] * np.ones((low_times.size, 1, 1)), low_times[:, None, None],
-                  response=truth, adc_offset=OFFSET, noise_sigma=SIGMA, bit_depth=BITS,
-                  seed=rng)
+    low = capture(
+        target[None] * np.ones((low_times.size, 1, 1)),
+        low_times[:, None, None],
+        response=truth,
+        adc_offset=OFFSET,
+        noise_sigma=SIGMA,
+        bit_depth=BITS,
+        seed=rng,
+    )
     dark_sum = np.zeros((side, side))
-    for _ in range(200):                        # the paper's 200 dark frames; no dark current,
-        dark_sum += capture(np.zeros((side, side)), 1.0, adc_offset=OFFSET,   # so one mean
-                            noise_sigma=SIGMA, bit_depth=BITS, seed=rng)      # serves all t
+    for _ in range(200):  # the paper's 200 dark frames; no dark current,
+        dark_sum += capture(
+            np.zeros((side, side)),
+            1.0,
+            adc_offset=OFFSET,  # so one mean
+            noise_sigma=SIGMA,
+            bit_depth=BITS,
+            seed=rng,
+        )  # serves all t
     dark_mean = (dark_sum / 200).astype(np.float32)
-    return {"truth": truth, "radiance": radiance, "rgb": rgb, "low": low,
-            "low_times": low_times, "dark_mean": dark_mean}
+    return {
+        "truth": truth,
+        "radiance": radiance,
+        "rgb": rgb,
+        "low": low,
+        "low_times": low_times,
+        "dark_mean": dark_mean,
+    }
 
 
 def f_true(truth, signal: np.ndarray) -> np.ndarray:
@@ -99,8 +124,9 @@ def f_true(truth, signal: np.ndarray) -> np.ndarray:
 
 
 # -- metrics ------------------------------------------------------------------------------------
-def response_errors(signal: np.ndarray, estimate: np.ndarray, truth,
-                    fit: tuple[float, float] | None = None) -> dict:
+def response_errors(
+    signal: np.ndarray, estimate: np.ndarray, truth, fit: tuple[float, float] | None = None
+) -> dict:
     """Max and median of |s f/f_true - 1| over the whole range and the lowest 5%.
 
     ``signal`` (n,) DN above dark of each tabulated value; ``estimate`` (n,) or (channels, n).
@@ -124,13 +150,19 @@ def response_errors(signal: np.ndarray, estimate: np.ndarray, truth,
             return None
         values = errors[:, mask]
         finite = values[np.isfinite(values)]
-        return {"max": float(finite.max()), "median": float(np.median(finite)),
-                "values": int(mask.sum()), "nan": int((~np.isfinite(values)).sum())}
+        return {
+            "max": float(finite.max()),
+            "median": float(np.median(finite)),
+            "values": int(mask.sum()),
+            "nan": int((~np.isfinite(values)).sum()),
+        }
 
     covered = signal <= np.max(signal[np.isfinite(estimate).all(axis=0)])
-    return {"whole_range": stats(whole & covered) if fit is None else None,
-            "lowest_5pct": stats(lowest),
-            "upper_95pct": stats(upper) if fit is None else None}
+    return {
+        "whole_range": stats(whole & covered) if fit is None else None,
+        "lowest_5pct": stats(lowest),
+        "upper_95pct": stats(upper) if fit is None else None,
+    }
 
 
 def hdr_errors(estimate: np.ndarray, radiance: np.ndarray, usable: np.ndarray) -> dict:
@@ -138,8 +170,12 @@ def hdr_errors(estimate: np.ndarray, radiance: np.ndarray, usable: np.ndarray) -
     finite = np.isfinite(ratio)
     scale = np.median(ratio[finite])
     error = np.abs(ratio[finite] / scale - 1)
-    return {"median": float(np.median(error)), "p99": float(np.quantile(error, 0.99)),
-            "max": float(error.max()), "nonfinite": int((~finite).sum())}
+    return {
+        "median": float(np.median(error)),
+        "p99": float(np.quantile(error, 0.99)),
+        "max": float(error.max()),
+        "nonfinite": int((~finite).sum()),
+    }
 
 
 def race(*functions, repeat: int = REPEAT) -> list[dict]:
@@ -167,8 +203,10 @@ def run_opencv(data: dict, usable: np.ndarray) -> dict:
     try:
         import cv2
     except ImportError:
-        print("opencv-python-headless is not installed: skipping the OpenCV anchor "
-              "(pip install opencv-python-headless)")
+        print(
+            "opencv-python-headless is not installed: skipping the OpenCV anchor "
+            "(pip install opencv-python-headless)"
+        )
         return {"skipped": "opencv-python-headless not installed"}
     images = [np.ascontiguousarray((frame >> 2).astype(np.uint8)) for frame in data["rgb"]]
     times = RGB_TIMES.astype(np.float32)
@@ -177,29 +215,38 @@ def run_opencv(data: dict, usable: np.ndarray) -> dict:
     ds10 = rgb_dataset(data)
     ds8 = xr.Dataset({"counts": ds10["counts"] // 4}, attrs={"bit_depth": 8})
     converged8 = oecf.recover_oecf(ds8, black_level=BLACK_LEVEL // 4)["response"].attrs
-    seconds = race(lambda: calibrate.process(images, times),
-                   lambda: oecf.recover_oecf(ds10, black_level=BLACK_LEVEL),
-                   lambda: oecf.recover_oecf(ds8, black_level=BLACK_LEVEL // 4))
-    curve = response[:, 0, :].T.astype(np.float64)                   # (channel, 256)
+    seconds = race(
+        lambda: calibrate.process(images, times),
+        lambda: oecf.recover_oecf(ds10, black_level=BLACK_LEVEL),
+        lambda: oecf.recover_oecf(ds8, black_level=BLACK_LEVEL // 4),
+    )
+    curve = response[:, 0, :].T.astype(np.float64)  # (channel, 256)
     # 8-bit code c collects 10-bit codes 4c .. 4c+3: on average signal 4c + 2 - offset
     signal = 4 * np.arange(256) + 2.0 - OFFSET
     merge = cv2.createMergeRobertson()
     merged, merge_seconds = timed(merge.process, images, times, response)
-    return {"version": cv2.__version__, "input": "8 bit (10-bit codes >> 2), 3 channels",
-            "iterations": int(calibrate.getMaxIter()), "threshold": calibrate.getThreshold(),
-            "calibrate_seconds": seconds[0]["min"],
-            "calibrate_seconds_median": seconds[0]["median"],
-            "race": {"note": "alternating runs, best and median of each",
-                     "opencv_30_iterations_8bit": seconds[0],
-                     "spectralize_recover_oecf_10bit": seconds[1],
-                     "spectralize_recover_oecf_same_8bit_data": {
-                         **seconds[2], "iterations": int(converged8["iterations"]),
-                         "converged": bool(converged8["converged"])}},
-            "merge_seconds": merge_seconds,
-            "response_nan_codes": int(np.isnan(curve).any(axis=0).sum()),
-            "response_error": response_errors(signal, curve, data["truth"]),
-            "hdr_error": hdr_errors(np.asarray(merged, dtype=np.float64), data["radiance"],
-                                    usable)}
+    return {
+        "version": cv2.__version__,
+        "input": "8 bit (10-bit codes >> 2), 3 channels",
+        "iterations": int(calibrate.getMaxIter()),
+        "threshold": calibrate.getThreshold(),
+        "calibrate_seconds": seconds[0]["min"],
+        "calibrate_seconds_median": seconds[0]["median"],
+        "race": {
+            "note": "alternating runs, best and median of each",
+            "opencv_30_iterations_8bit": seconds[0],
+            "spectralize_recover_oecf_10bit": seconds[1],
+            "spectralize_recover_oecf_same_8bit_data": {
+                **seconds[2],
+                "iterations": int(converged8["iterations"]),
+                "converged": bool(converged8["converged"]),
+            },
+        },
+        "merge_seconds": merge_seconds,
+        "response_nan_codes": int(np.isnan(curve).any(axis=0).sum()),
+        "response_error": response_errors(signal, curve, data["truth"]),
+        "hdr_error": hdr_errors(np.asarray(merged, dtype=np.float64), data["radiance"], usable),
+    }
 
 
 def run_debevec(data: dict, usable: np.ndarray) -> dict:
@@ -207,34 +254,40 @@ def run_debevec(data: dict, usable: np.ndarray) -> dict:
         import colour_hdri
         from colour_hdri.utilities.image import Image, ImageStack, Metadata
     except ImportError:
-        print("colour-hdri is not installed: skipping the colour-hdri anchor "
-              "(pip install colour-hdri)")
+        print("colour-hdri is not installed: skipping the colour-hdri anchor (pip install colour-hdri)")
         return {"skipped": "colour-hdri not installed"}
     stack = ImageStack()
     for frame, t in zip(data["rgb"], RGB_TIMES, strict=True):
-        stack.append(Image(data=(frame >> 2).astype(np.float64) / 255,
-                           metadata=Metadata(f_number=1.0, exposure_time=float(t), iso=100.0)))
+        stack.append(
+            Image(
+                data=(frame >> 2).astype(np.float64) / 255,
+                metadata=Metadata(f_number=1.0, exposure_time=float(t), iso=100.0),
+            )
+        )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         crfs, seconds = timed(colour_hdri.camera_response_functions_Debevec1997, stack)
-        merged, merge_seconds = timed(colour_hdri.image_stack_to_HDRI, stack,
-                                      camera_response_functions=crfs)
+        merged, merge_seconds = timed(
+            colour_hdri.image_stack_to_HDRI, stack, camera_response_functions=crfs
+        )
     signal = 4 * np.arange(256) + 2.0 - OFFSET
-    return {"version": colour_hdri.__version__,
-            "input": "8 bit (10-bit codes >> 2) as float in [0, 1], defaults (n=256, "
-                     "1000 Grossberg samples, lambda=30)",
-            "calibrate_seconds": seconds, "merge_seconds": merge_seconds,
-            "response_error": response_errors(signal, np.asarray(crfs).T, data["truth"]),
-            "hdr_error": hdr_errors(np.asarray(merged, dtype=np.float64), data["radiance"],
-                                    usable)}
+    return {
+        "version": colour_hdri.__version__,
+        "input": "8 bit (10-bit codes >> 2) as float in [0, 1], defaults (n=256, "
+        "1000 Grossberg samples, lambda=30)",
+        "calibrate_seconds": seconds,
+        "merge_seconds": merge_seconds,
+        "response_error": response_errors(signal, np.asarray(crfs).T, data["truth"]),
+        "hdr_error": hdr_errors(np.asarray(merged, dtype=np.float64), data["radiance"], usable),
+    }
 
 
 def rgb_dataset(data: dict) -> xr.Dataset:
     return xr.Dataset(
         {"counts": (("image", "exposure", "y", "x", "channel"), data["rgb"][None])},
-        coords={"exposure_time": (("image", "exposure"), RGB_TIMES[None]),
-                "channel": ["R", "G", "B"]},
-        attrs={"bit_depth": BITS})
+        coords={"exposure_time": (("image", "exposure"), RGB_TIMES[None]), "channel": ["R", "G", "B"]},
+        attrs={"bit_depth": BITS},
+    )
 
 
 def run_ours(data: dict, usable: np.ndarray) -> tuple[dict, xr.Dataset]:
@@ -243,23 +296,32 @@ def run_ours(data: dict, usable: np.ndarray) -> tuple[dict, xr.Dataset]:
     table = response["response"]
     merged, merge_seconds = timed(hdr.merge_hdr, ds, response)
     signal = np.arange(FULL + 1) + 0.5 - OFFSET
-    return {"input": "10 bit, 3 channels", "calibrate_seconds": seconds,
-            "merge_seconds": merge_seconds, "iterations": int(table.attrs["iterations"]),
-            "converged": bool(table.attrs["converged"]),
-            "tolerance": float(table.attrs["tolerance"]),
-            "response_error": response_errors(signal, table.values, data["truth"]),
-            "hdr_error": hdr_errors(merged["radiance"].values[0].astype(np.float64),
-                                    data["radiance"], usable)}, response
+    return {
+        "input": "10 bit, 3 channels",
+        "calibrate_seconds": seconds,
+        "merge_seconds": merge_seconds,
+        "iterations": int(table.attrs["iterations"]),
+        "converged": bool(table.attrs["converged"]),
+        "tolerance": float(table.attrs["tolerance"]),
+        "response_error": response_errors(signal, table.values, data["truth"]),
+        "hdr_error": hdr_errors(
+            merged["radiance"].values[0].astype(np.float64), data["radiance"], usable
+        ),
+    }, response
 
 
 def low_snr_inputs(data: dict) -> tuple[xr.DataArray, xr.Dataset]:
     times = data["low_times"]
-    series = xr.DataArray(data["low"], dims=("exposure", "y", "x"),
-                          coords={"exposure_time": ("exposure", times)},
-                          attrs={"bit_depth": BITS})
-    dark = xr.Dataset({"mean": (("exposure_time", "y", "x"),
-                                np.repeat(data["dark_mean"][None], times.size, 0))},
-                      coords={"exposure_time": times})
+    series = xr.DataArray(
+        data["low"],
+        dims=("exposure", "y", "x"),
+        coords={"exposure_time": ("exposure", times)},
+        attrs={"bit_depth": BITS},
+    )
+    dark = xr.Dataset(
+        {"mean": (("exposure_time", "y", "x"), np.repeat(data["dark_mean"][None], times.size, 0))},
+        coords={"exposure_time": times},
+    )
     return series, dark
 
 
@@ -269,31 +331,37 @@ def run_low_snr(data: dict, full_response: xr.Dataset, filter_size: float) -> tu
     dark_level = float(data["dark_mean"].mean())
     plain_signal = plain["response"]["code"].values - dark_level
     plain_result = {
-        "input": "raw low-SNR series, 10 bit, monochrome", "calibrate_seconds": plain_seconds,
+        "input": "raw low-SNR series, 10 bit, monochrome",
+        "calibrate_seconds": plain_seconds,
         "iterations": int(plain["response"].attrs["iterations"]),
         "converged": bool(plain["response"].attrs["converged"]),
-        "response_error": response_errors(plain_signal, plain["response"].values,
-                                          data["truth"], fit=(10.0, 40.0))}
+        "response_error": response_errors(
+            plain_signal, plain["response"].values, data["truth"], fit=(10.0, 40.0)
+        ),
+    }
     low, seconds = timed(oecf.recover_oecf_low_snr, series, dark, filter_size=filter_size)
     combined = oecf.combine_responses(low, full_response["response"].sel(channel="G"))
     # the extension's own table, and the combined one evaluated at the raw codes
     low_table = low["response"]
     raw_codes = np.arange(FULL + 1)
-    at_codes = oecf.apply_response(xr.DataArray(raw_codes - dark_level, dims="v"),
-                                   combined).values
+    at_codes = oecf.apply_response(xr.DataArray(raw_codes - dark_level, dims="v"), combined).values
     signal = raw_codes + 0.5 - OFFSET
     attrs = low_table.attrs
     result = {
         "input": f"low-SNR series, dark-subtracted, filter_size {filter_size} px, stretched "
-                 f"to {attrs['levels']} levels; joined to spectralize_robertson (G channel)",
-        "calibrate_seconds": seconds, "iterations": int(attrs["iterations"]),
+        f"to {attrs['levels']} levels; joined to spectralize_robertson (G channel)",
+        "calibrate_seconds": seconds,
+        "iterations": int(attrs["iterations"]),
         "converged": bool(attrs["converged"]),
-        "debiased": bool(attrs["debiased"]), "fit_below_dn": float(attrs["fit_below"]),
+        "debiased": bool(attrs["debiased"]),
+        "fit_below_dn": float(attrs["fit_below"]),
         "stretch_interval_dn": [attrs["stretch_low"], attrs["stretch_high"]],
         "response_error_own_table": response_errors(
-            low_table["code"].values, low_table.values, data["truth"], fit=(10.0, 40.0)),
+            low_table["code"].values, low_table.values, data["truth"], fit=(10.0, 40.0)
+        ),
         "response_error": response_errors(signal, at_codes, data["truth"]),
-        "at_snr_le_1": snr_table(low_table, plain, dark_level, data["truth"])}
+        "at_snr_le_1": snr_table(low_table, plain, dark_level, data["truth"]),
+    }
     return plain_result, result
 
 
@@ -302,26 +370,33 @@ def snr_table(low: xr.DataArray, plain: xr.Dataset, dark_level: float, truth) ->
     at = np.array([1.0, 1.5, 2.0, 3.0, 5.0, 10.0, 20.0, 40.0])
     out = {}
     for name, code, values in (
-            ("extension", low["code"].values, low.values),
-            ("plain", plain["response"]["code"].values - dark_level, plain["response"].values)):
+        ("extension", low["code"].values, low.values),
+        ("plain", plain["response"]["code"].values - dark_level, plain["response"].values),
+    ):
         reference = f_true(truth, code)
         fit = (code >= 10) & (code <= 40)
         scale = np.median(values[fit] / reference[fit])
         estimate = np.interp(at, code, values)
-        out[name] = {f"{v:g}_dn": float(abs(e / (scale * f_true(truth, v)) - 1))
-                     for v, e in zip(at, estimate, strict=True)}
+        out[name] = {
+            f"{v:g}_dn": float(abs(e / (scale * f_true(truth, v)) - 1))
+            for v, e in zip(at, estimate, strict=True)
+        }
     return out
 
 
 def run_true_response(data: dict, usable: np.ndarray) -> dict:
     codes = np.arange(FULL + 1)
     f = f_true(data["truth"], codes + 0.5 - OFFSET)
-    table = xr.DataArray(f / f[511], dims="code", coords={"code": codes},
-                         attrs={"black_level": BLACK_LEVEL})
+    table = xr.DataArray(
+        f / f[511], dims="code", coords={"code": codes}, attrs={"black_level": BLACK_LEVEL}
+    )
     merged, seconds = timed(hdr.merge_hdr, rgb_dataset(data), table)
-    return {"merge_seconds": seconds,
-            "hdr_error": hdr_errors(merged["radiance"].values[0].astype(np.float64),
-                                    data["radiance"], usable)}
+    return {
+        "merge_seconds": seconds,
+        "hdr_error": hdr_errors(
+            merged["radiance"].values[0].astype(np.float64), data["radiance"], usable
+        ),
+    }
 
 
 # -- main ---------------------------------------------------------------------------------------
@@ -336,7 +411,7 @@ def main(argv: list[str] | None = None) -> dict:
     data = simulate(side)
     print(f"simulated {side}x{side} px series in {time.perf_counter() - start:.1f} s")
     rgb = data["rgb"]
-    usable = ((rgb > BLACK_LEVEL) & (rgb < FULL)).any(axis=0)       # (y, x, channel)
+    usable = ((rgb > BLACK_LEVEL) & (rgb < FULL)).any(axis=0)  # (y, x, channel)
 
     methods = {}
     methods["opencv_robertson"] = run_opencv(data, usable)
@@ -355,34 +430,50 @@ def main(argv: list[str] | None = None) -> dict:
     targets = {
         "response_median_error_whole_range_below_0.5pct": {
             "spectralize_robertson": ours["response_error"]["whole_range"]["median"] < 0.005,
-            "spectralize_low_snr_extension": ext_err["whole_range"]["median"] < 0.005},
+            "spectralize_low_snr_extension": ext_err["whole_range"]["median"] < 0.005,
+        },
         "response_max_error_whole_range_below_0.5pct": {
             "spectralize_robertson": ours["response_error"]["whole_range"]["max"] < 0.005,
-            "spectralize_low_snr_extension": ext_err["whole_range"]["max"] < 0.005},
+            "spectralize_low_snr_extension": ext_err["whole_range"]["max"] < 0.005,
+        },
         "response_max_error_upper_95pct_below_0.5pct": {
             "spectralize_robertson": ours["response_error"]["upper_95pct"]["max"] < 0.005,
-            "spectralize_low_snr_extension": ext_err["upper_95pct"]["max"] < 0.005},
+            "spectralize_low_snr_extension": ext_err["upper_95pct"]["max"] < 0.005,
+        },
         "extension_clearly_better_at_low_end (3x lower median and max than plain Robertson "
-        "on either series)": all(low_ext[k] * 3 < p[k] for p in low_plain
-                                 for k in ("median", "max")),
+        "on either series)": all(low_ext[k] * 3 < p[k] for p in low_plain for k in ("median", "max")),
         "converged_faster_than_opencv_30_iterations (alternating race, best of 5)": (
-            None if "skipped" in cv else {
-                "10bit_data": bool(ours["converged"] and cv["race"][
-                    "spectralize_recover_oecf_10bit"]["min"] < cv["calibrate_seconds"]),
-                "same_8bit_data": bool(cv["race"]["spectralize_recover_oecf_same_8bit_data"][
-                    "converged"] and cv["race"]["spectralize_recover_oecf_same_8bit_data"][
-                    "min"] < cv["calibrate_seconds"])}),
+            None
+            if "skipped" in cv
+            else {
+                "10bit_data": bool(
+                    ours["converged"]
+                    and cv["race"]["spectralize_recover_oecf_10bit"]["min"] < cv["calibrate_seconds"]
+                ),
+                "same_8bit_data": bool(
+                    cv["race"]["spectralize_recover_oecf_same_8bit_data"]["converged"]
+                    and cv["race"]["spectralize_recover_oecf_same_8bit_data"]["min"]
+                    < cv["calibrate_seconds"]
+                ),
+            }
+        ),
     }
     result = {
         "benchmark": "calibration",
-        "setup": {"pixels": f"{side}x{side}", "bit_depth": BITS, "adc_offset_dn": OFFSET,
-                  "read_noise_dn": SIGMA, "true_oecf": f"camera_model {MODEL}",
-                  "rgb_exposure_times_s": RGB_TIMES.tolist(),
-                  "low_snr_exposures": int(LOW_RATIOS.size), "low_snr_top_dn": LOW_TOP,
-                  "dark_frames": 200, "black_level": BLACK_LEVEL,
-                  "lowest_5pct_dn": [1.0, LOW_END]},
-        "machine": {"python": platform.python_version(), "cpu_count": _cpus(),
-                    "numpy": np.__version__},
+        "setup": {
+            "pixels": f"{side}x{side}",
+            "bit_depth": BITS,
+            "adc_offset_dn": OFFSET,
+            "read_noise_dn": SIGMA,
+            "true_oecf": f"camera_model {MODEL}",
+            "rgb_exposure_times_s": RGB_TIMES.tolist(),
+            "low_snr_exposures": int(LOW_RATIOS.size),
+            "low_snr_top_dn": LOW_TOP,
+            "dark_frames": 200,
+            "black_level": BLACK_LEVEL,
+            "lowest_5pct_dn": [1.0, LOW_END],
+        },
+        "machine": {"python": platform.python_version(), "cpu_count": _cpus(), "numpy": np.__version__},
         "methods": methods,
         "targets_met": targets,
         "seconds_total": time.perf_counter() - start,
@@ -397,6 +488,7 @@ def main(argv: list[str] | None = None) -> dict:
 
 def _cpus() -> int:
     import os
+
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
@@ -404,8 +496,10 @@ def _print_summary(result: dict) -> None:
     def pct(x: float | None) -> str:
         return "   -   " if x is None else f"{100 * x:7.3f}"
 
-    print(f"{'method':40s} {'whole max%':>10s} {'whole med%':>10s} {'low5 max%':>10s} "
-          f"{'low5 med%':>10s} {'hdr med%':>9s} {'calib s':>8s}")
+    print(
+        f"{'method':40s} {'whole max%':>10s} {'whole med%':>10s} {'low5 max%':>10s} "
+        f"{'low5 med%':>10s} {'hdr med%':>9s} {'calib s':>8s}"
+    )
     for name, m in result["methods"].items():
         if "skipped" in m:
             print(f"{name:40s} skipped: {m['skipped']}")
@@ -413,9 +507,11 @@ def _print_summary(result: dict) -> None:
         r = m.get("response_error", {})
         whole, low = r.get("whole_range") or {}, r.get("lowest_5pct") or {}
         h = m.get("hdr_error", {})
-        print(f"{name:40s} {pct(whole.get('max')):>10s} {pct(whole.get('median')):>10s} "
-              f"{pct(low.get('max')):>10s} {pct(low.get('median')):>10s} "
-              f"{pct(h.get('median')):>9s} {m.get('calibrate_seconds', float('nan')):8.3f}")
+        print(
+            f"{name:40s} {pct(whole.get('max')):>10s} {pct(whole.get('median')):>10s} "
+            f"{pct(low.get('max')):>10s} {pct(low.get('median')):>10s} "
+            f"{pct(h.get('median')):>9s} {m.get('calibrate_seconds', float('nan')):8.3f}"
+        )
     print("targets:", json.dumps(result["targets_met"]))
 
 

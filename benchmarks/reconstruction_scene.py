@@ -45,19 +45,26 @@ NOISE_DN = 3.0
 class SimulatedCapture:
     """A simulated capture and its ground truth, as the reconstruction API takes them."""
 
-    rgb: xr.DataArray            # (image, y, x, channel)
-    bands: xr.DataArray          # (shot, y, x), coords wavelength, image, filter_size
+    rgb: xr.DataArray  # (image, y, x, channel)
+    bands: xr.DataArray  # (shot, y, x), coords wavelength, image, filter_size
     camera_matrix: xr.DataArray  # (channel, wavelength)
-    truth: xr.DataArray          # (image, wavelength, y, x)
-    plan: xr.Dataset             # the exposure plan (eq. 2, 3)
+    truth: xr.DataArray  # (image, wavelength, y, x)
+    plan: xr.Dataset  # the exposure plan (eq. 2, 3)
 
 
-def _voronoi_truth(rng: np.random.Generator, size: int, n_images: int, wavelength: np.ndarray,
-                   illuminant: np.ndarray, cell: float = 40.0) -> np.ndarray:
+def _voronoi_truth(
+    rng: np.random.Generator,
+    size: int,
+    n_images: int,
+    wavelength: np.ndarray,
+    illuminant: np.ndarray,
+    cell: float = 40.0,
+) -> np.ndarray:
     import colour
 
-    shape = colour.SpectralShape(float(wavelength[0]), float(wavelength[-1]),
-                                 float(wavelength[1] - wavelength[0]))
+    shape = colour.SpectralShape(
+        float(wavelength[0]), float(wavelength[-1]), float(wavelength[1] - wavelength[0])
+    )
     checker = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
     reflectances = np.stack([sd.copy().align(shape).values for sd in checker.values()])
     n_cells = max(4, int(round(size * size / cell**2)))
@@ -80,11 +87,18 @@ def _voronoi_truth(rng: np.random.Generator, size: int, n_images: int, wavelengt
     return truth
 
 
-def simulate_capture(size: int = 256, *, n_images: int = 1,
-                     images_with_bands: int | None = None, scene: str = "texture",
-                     n_materials: int = 6, max_filter_size: float | None = 25.0,
-                     spectral_total_time: float = 6.0, rgb_noise: float = 0.005,
-                     seed: int = 0) -> SimulatedCapture:
+def simulate_capture(
+    size: int = 256,
+    *,
+    n_images: int = 1,
+    images_with_bands: int | None = None,
+    scene: str = "texture",
+    n_materials: int = 6,
+    max_filter_size: float | None = 25.0,
+    spectral_total_time: float = 6.0,
+    rgb_noise: float = 0.005,
+    seed: int = 0,
+) -> SimulatedCapture:
     """Simulate HDR RGB images and noisy band shots with ground truth.
 
     Parameters
@@ -145,10 +159,12 @@ def simulate_capture(size: int = 256, *, n_images: int = 1,
         other_views = other_views[~np.isclose(other_views, PAPER_VIEW_THETA)]
         for m in range(n_images):
             phi_i = 180.0 + 15.0 * (m % 12)
-            theta_o = (PAPER_VIEW_THETA if m < max(images_with_bands, 1)
-                       else other_views[m % other_views.size])
-            truth[m] = render(texture, illuminant, theta_i=40.0, phi_i=phi_i,
-                              theta_o=theta_o, phi_o=0.0).values
+            theta_o = (
+                PAPER_VIEW_THETA if m < max(images_with_bands, 1) else other_views[m % other_views.size]
+            )
+            truth[m] = render(
+                texture, illuminant, theta_i=40.0, phi_i=phi_i, theta_o=theta_o, phi_o=0.0
+            ).values
     elif scene == "voronoi":
         truth = _voronoi_truth(rng, size, n_images, wavelength, illuminant.values)
     else:
@@ -171,23 +187,34 @@ def simulate_capture(size: int = 256, *, n_images: int = 1,
     image = np.arange(n_images)
     channel = ["R", "G", "B"]
     wl_attrs = {"units": "nm", "long_name": "wavelength"}
-    rgb_da = xr.DataArray(rgb.astype(np.float32), dims=("image", "y", "x", "channel"),
-                          coords={"image": image, "channel": channel},
-                          attrs={"units": "1", "long_name": "relative RGB radiance"})
+    rgb_da = xr.DataArray(
+        rgb.astype(np.float32),
+        dims=("image", "y", "x", "channel"),
+        coords={"image": image, "channel": channel},
+        attrs={"units": "1", "long_name": "relative RGB radiance"},
+    )
     bands_da = xr.DataArray(
-        shots.astype(np.float32), dims=("shot", "y", "x"),
-        coords={"wavelength": ("shot", wavelength, wl_attrs),
-                "image": ("shot", shot_image),
-                "filter_size": ("shot", plan["filter_size"].values, {"units": "px"}),
-                "exposure_time": ("shot", exposure, {"units": "s"})},
-        attrs={"units": "1", "long_name": "relative band radiance"})
-    c_da = xr.DataArray(camera_matrix, dims=("channel", "wavelength"),
-                        coords={"channel": channel, "wavelength": ("wavelength", wavelength,
-                                                                   wl_attrs)})
-    truth_da = xr.DataArray(truth.astype(np.float32), dims=("image", "wavelength", "y", "x"),
-                            coords={"image": image,
-                                    "wavelength": ("wavelength", wavelength, wl_attrs)},
-                            attrs={"units": "1", "long_name": "relative spectral radiance"})
+        shots.astype(np.float32),
+        dims=("shot", "y", "x"),
+        coords={
+            "wavelength": ("shot", wavelength, wl_attrs),
+            "image": ("shot", shot_image),
+            "filter_size": ("shot", plan["filter_size"].values, {"units": "px"}),
+            "exposure_time": ("shot", exposure, {"units": "s"}),
+        },
+        attrs={"units": "1", "long_name": "relative band radiance"},
+    )
+    c_da = xr.DataArray(
+        camera_matrix,
+        dims=("channel", "wavelength"),
+        coords={"channel": channel, "wavelength": ("wavelength", wavelength, wl_attrs)},
+    )
+    truth_da = xr.DataArray(
+        truth.astype(np.float32),
+        dims=("image", "wavelength", "y", "x"),
+        coords={"image": image, "wavelength": ("wavelength", wavelength, wl_attrs)},
+        attrs={"units": "1", "long_name": "relative spectral radiance"},
+    )
     return SimulatedCapture(rgb_da, bands_da, c_da, truth_da, plan)
 
 

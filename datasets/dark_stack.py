@@ -62,8 +62,11 @@ def make_raw_dark(
     """
     times = np.asarray(exposure_times, dtype=float)
     if times.ndim != 1 or times.size == 0 or np.any(times <= 0) or np.any(np.diff(times) <= 0):
-        raise SimulationError.single("exposure_times", "a non-empty 1-D sequence of positive, "
-                                     "increasing exposure times [s]", np.ravel(times).tolist())
+        raise SimulationError.single(
+            "exposure_times",
+            "a non-empty 1-D sequence of positive, increasing exposure times [s]",
+            np.ravel(times).tolist(),
+        )
     pattern = np.random.default_rng([seed, 0])
     offset = adc_offset + pattern.normal(0.0, 1.0, shape)
     rate = dark_current * np.where(pattern.random(shape) < 0.01, 20.0, 1.0)
@@ -77,19 +80,30 @@ def make_raw_dark(
 
     rows = []
     for e in range(times.size):
-        pieces = [da.from_delayed(_delayed(block, e, f0, min(frames_per_chunk, frames - f0)),
-                                  shape=(1, min(frames_per_chunk, frames - f0), *shape),
-                                  dtype=np.uint16)
-                  for f0 in range(0, frames, frames_per_chunk)]
+        pieces = [
+            da.from_delayed(
+                _delayed(block, e, f0, min(frames_per_chunk, frames - f0)),
+                shape=(1, min(frames_per_chunk, frames - f0), *shape),
+                dtype=np.uint16,
+            )
+            for f0 in range(0, frames, frames_per_chunk)
+        ]
         rows.append(da.concatenate(pieces, axis=1))
     data = da.concatenate(rows, axis=0)
     return xr.Dataset(
-        {"frames": (("exposure_time", "frame", "y", "x"), data,
-                    {"units": "DN", "long_name": "raw dark frame"})},
-        coords={"exposure_time": ("exposure_time", times,
-                                  {"units": "s", "long_name": "exposure time"})},
-        attrs={"camera": "spectral", "bit_depth": bit_depth,
-               "description": "simulated closed-shutter frames (spectralize.datasets.dark_stack)"},
+        {
+            "frames": (
+                ("exposure_time", "frame", "y", "x"),
+                data,
+                {"units": "DN", "long_name": "raw dark frame"},
+            )
+        },
+        coords={"exposure_time": ("exposure_time", times, {"units": "s", "long_name": "exposure time"})},
+        attrs={
+            "camera": "spectral",
+            "bit_depth": bit_depth,
+            "description": "simulated closed-shutter frames (spectralize.datasets.dark_stack)",
+        },
     )
 
 

@@ -42,21 +42,31 @@ def discover_nodes(eps: Iterable[EntryPoint] | None = None) -> dict[str, Registe
         try:
             obj = ep.load()
         except Exception as error:  # a broken plugin must not break the engine
-            warnings.warn(f"spectralize node plugin {ep.name!r} ({ep.value}) failed to load: "
-                          f"{type(error).__name__}: {error}", RuntimeWarning, stacklevel=2)
+            warnings.warn(
+                f"spectralize node plugin {ep.name!r} ({ep.value}) failed to load: "
+                f"{type(error).__name__}: {error}",
+                RuntimeWarning,
+                stacklevel=2,
+            )
             continue
         if not isinstance(obj, Node):
-            warnings.warn(f"spectralize node plugin {ep.name!r} ({ep.value}) is a "
-                          f"{type(obj).__name__}, not a spectralize Node; ignored",
-                          RuntimeWarning, stacklevel=2)
+            warnings.warn(
+                f"spectralize node plugin {ep.name!r} ({ep.value}) is a "
+                f"{type(obj).__name__}, not a spectralize Node; ignored",
+                RuntimeWarning,
+                stacklevel=2,
+            )
             continue
         dist = getattr(ep, "dist", None)
         origin = f" ({dist.name} {dist.version})" if dist is not None else ""
         source = f"entry point {ENTRY_POINT_GROUP}: {ep.name} = {ep.value}{origin}"
         if obj.name in found:
-            warnings.warn(f"node {obj.name!r} from {source} duplicates the one from "
-                          f"{found[obj.name].source}; keeping the first", RuntimeWarning,
-                          stacklevel=2)
+            warnings.warn(
+                f"node {obj.name!r} from {source} duplicates the one from "
+                f"{found[obj.name].source}; keeping the first",
+                RuntimeWarning,
+                stacklevel=2,
+            )
             continue
         found[obj.name] = RegisteredNode(obj, source)
     return found

@@ -50,8 +50,8 @@ class PlannedStep:
     step: Step
     node: Node
     parameters: Parameters
-    inputs: dict[str, str]    # argument -> group
-    outputs: dict[str, str]   # schema -> group
+    inputs: dict[str, str]  # argument -> group
+    outputs: dict[str, str]  # schema -> group
 
 
 def _provides(have: str, wanted: str) -> bool:
@@ -101,9 +101,13 @@ def check_graph(
     for step in steps:
         node = lookup.get(step.node)
         if node is None:
-            problems.append(Problem(f"step {step.node!r}",
-                                    f"an installed node ({', '.join(sorted(lookup)) or 'none'})",
-                                    "an unknown node"))
+            problems.append(
+                Problem(
+                    f"step {step.node!r}",
+                    f"an installed node ({', '.join(sorted(lookup)) or 'none'})",
+                    "an unknown node",
+                )
+            )
             continue
         try:
             params = node.parse_parameters(step.parameters)
@@ -115,20 +119,31 @@ def check_graph(
         unknown_in = sorted(set(step.inputs) - set(node.inputs))
         unknown_out = sorted(set(step.outputs) - set(node.outputs))
         if unknown_in or unknown_out:
-            problems.append(Problem(f"step {step.node!r}",
-                                    f"bindings for inputs {sorted(node.inputs)} / outputs "
-                                    f"{list(node.outputs)}",
-                                    f"unknown inputs {unknown_in} / outputs {unknown_out}"))
+            problems.append(
+                Problem(
+                    f"step {step.node!r}",
+                    f"bindings for inputs {sorted(node.inputs)} / outputs {list(node.outputs)}",
+                    f"unknown inputs {unknown_in} / outputs {unknown_out}",
+                )
+            )
             continue
-        planned.append(PlannedStep(step, node, params,  # type: ignore[arg-type]
-                                   step.input_groups(node), step.output_groups(node)))
+        planned.append(
+            PlannedStep(
+                step,
+                node,
+                params,  # type: ignore[arg-type]
+                step.input_groups(node),
+                step.output_groups(node),
+            )
+        )
 
     # Leave out optional steps whose inputs can never be there (repeat: dropping one may
     # orphan another optional step downstream of it).
     while True:
         made = set(available) | {g for item in planned for g in item.outputs.values()}
-        orphans = [item for item in planned if item.step.optional
-                   and not set(item.inputs.values()) <= made]
+        orphans = [
+            item for item in planned if item.step.optional and not set(item.inputs.values()) <= made
+        ]
         if not orphans:
             break
         planned = [item for item in planned if item not in orphans]
@@ -137,9 +152,14 @@ def check_graph(
     for index, item in enumerate(planned):
         for group in item.outputs.values():
             if group in producer:
-                problems.append(Problem(f"group {group!r}", "one producing node",
-                                        f"nodes {planned[producer[group]].node.name!r} and "
-                                        f"{item.node.name!r} both write it"))
+                problems.append(
+                    Problem(
+                        f"group {group!r}",
+                        "one producing node",
+                        f"nodes {planned[producer[group]].node.name!r} and "
+                        f"{item.node.name!r} both write it",
+                    )
+                )
             else:
                 producer[group] = index
 
@@ -153,21 +173,31 @@ def check_graph(
                 sorter.add(index, producer[group])
                 made = next(s for s, g in source.outputs.items() if g == group)
                 if not _provides(made, wanted):
-                    problems.append(Problem(
-                        f"node {item.node.name!r} input {argument!r} (group {group!r})",
-                        f"schema {wanted!r}",
-                        f"schema {made!r} written by node {source.node.name!r}"))
+                    problems.append(
+                        Problem(
+                            f"node {item.node.name!r} input {argument!r} (group {group!r})",
+                            f"schema {wanted!r}",
+                            f"schema {made!r} written by node {source.node.name!r}",
+                        )
+                    )
             elif group in available:
                 have = available[group]
                 if have is not None and not _provides(have, wanted):
-                    problems.append(Problem(
-                        f"node {item.node.name!r} input {argument!r} (group {group!r})",
-                        f"schema {wanted!r}", f"schema {have!r} in the store"))
+                    problems.append(
+                        Problem(
+                            f"node {item.node.name!r} input {argument!r} (group {group!r})",
+                            f"schema {wanted!r}",
+                            f"schema {have!r} in the store",
+                        )
+                    )
             else:
-                problems.append(Problem(
-                    f"node {item.node.name!r} input {argument!r}",
-                    f"group {group!r} in the store or written by an earlier node",
-                    "no such group"))
+                problems.append(
+                    Problem(
+                        f"node {item.node.name!r} input {argument!r}",
+                        f"group {group!r} in the store or written by an earlier node",
+                        "no such group",
+                    )
+                )
 
     order: list[PlannedStep] = []
     try:

@@ -71,8 +71,9 @@ class Choices:
             return value
         allowed = ", ".join(map(repr, self.allowed)) or "none (the table is empty)"
         kind = f" ({self.name})" if self.name else ""
-        raise PydanticCustomError("choice", "one of: {allowed}{kind}",
-                                  {"allowed": allowed, "kind": kind})
+        raise PydanticCustomError(
+            "choice", "one of: {allowed}{kind}", {"allowed": allowed, "kind": kind}
+        )
 
     def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> core_schema.CoreSchema:
         return core_schema.no_info_after_validator_function(self._check, handler(source))
@@ -98,8 +99,8 @@ def choices_of(info: FieldInfo) -> tuple[str, ...] | None:
 
 
 _SECTION = re.compile(
-    r"^\s*Parameters\s*\n\s*-{3,}\s*\n(?P<body>.*?)(?:\n\s*\n\s*\w[\w ]*\n\s*-{3,}|\Z)",
-    re.S | re.M)
+    r"^\s*Parameters\s*\n\s*-{3,}\s*\n(?P<body>.*?)(?:\n\s*\n\s*\w[\w ]*\n\s*-{3,}|\Z)", re.S | re.M
+)
 
 
 def _docstring_descriptions(function: Callable[..., Any]) -> dict[str, str]:
@@ -128,7 +129,10 @@ def _camel(name: str) -> str:
 
 
 def parameters_from_signature(
-    function: Callable[..., Any], *, exclude: typing.Iterable[str] = (), name: str | None = None,
+    function: Callable[..., Any],
+    *,
+    exclude: typing.Iterable[str] = (),
+    name: str | None = None,
 ) -> type[Parameters]:
     """Derive a frozen :class:`Parameters` model from ``function``'s keyword-only arguments.
 
@@ -149,8 +153,10 @@ def parameters_from_signature(
         hints = typing.get_type_hints(target, include_extras=True)
     except Exception as error:  # a forward reference that does not resolve
         raise NodeDeclarationError.single(
-            f"parameters of {label}", "annotations that resolve in the function's module",
-            f"{type(error).__name__}: {error}") from None
+            f"parameters of {label}",
+            "annotations that resolve in the function's module",
+            f"{type(error).__name__}: {error}",
+        ) from None
     descriptions = _docstring_descriptions(target)
     excluded = set(exclude)
     fields: dict[str, Any] = {}
@@ -159,18 +165,20 @@ def parameters_from_signature(
             continue
         annotation = hints.get(parameter.name, Any)
         default = ... if parameter.default is parameter.empty else parameter.default
-        has_description = any(isinstance(m, FieldInfo) and m.description
-                              for m in getattr(annotation, "__metadata__", ()))
+        has_description = any(
+            isinstance(m, FieldInfo) and m.description for m in getattr(annotation, "__metadata__", ())
+        )
         text = descriptions.get(parameter.name)
         if text and not has_description:
             fields[parameter.name] = (annotation, FieldInfo(default=default, description=text))
         else:
             fields[parameter.name] = (annotation, default)
     model_name = f"{_camel(name or getattr(target, '__name__', 'node'))}Parameters"
-    model = create_model(model_name, __base__=Parameters, __module__=target.__module__,
-                         **fields)
-    model.__doc__ = f"Parameters of :func:`{target.__module__}.{target.__qualname__}` " \
-                    "(derived from its keyword-only arguments)."
+    model = create_model(model_name, __base__=Parameters, __module__=target.__module__, **fields)
+    model.__doc__ = (
+        f"Parameters of :func:`{target.__module__}.{target.__qualname__}` "
+        "(derived from its keyword-only arguments)."
+    )
     return model
 
 
@@ -224,29 +232,48 @@ class Node:
         if self.parameters is None:
             if signature is None:
                 raise NodeDeclarationError.single(
-                    f"{label} parameters", "a function with an inspectable signature, or "
-                    "parameters=<a Parameters model>", repr(self.function))
-            object.__setattr__(self, "parameters", parameters_from_signature(
-                self.function, exclude=self.inputs, name=self.name))
+                    f"{label} parameters",
+                    "a function with an inspectable signature, or parameters=<a Parameters model>",
+                    repr(self.function),
+                )
+            object.__setattr__(
+                self,
+                "parameters",
+                parameters_from_signature(self.function, exclude=self.inputs, name=self.name),
+            )
         if signature is not None:
             accepts_any = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
             names = set(signature.parameters)
             function = getattr(self.function, "__qualname__", repr(self.function))
             for argument in self.inputs:
                 if argument not in names and not accepts_any:
-                    problems.append(Problem(f"{label} input {argument!r}",
-                                            f"an argument of {function}", "no such argument"))
+                    problems.append(
+                        Problem(
+                            f"{label} input {argument!r}",
+                            f"an argument of {function}",
+                            "no such argument",
+                        )
+                    )
             for argument in self.parameters.model_fields:
                 if argument not in names and not accepts_any:
-                    problems.append(Problem(f"{label} parameter {argument!r}",
-                                            f"a keyword of {function}", "no such keyword"))
+                    problems.append(
+                        Problem(
+                            f"{label} parameter {argument!r}",
+                            f"a keyword of {function}",
+                            "no such keyword",
+                        )
+                    )
         if not self.outputs:
             problems.append(Problem(f"{label} outputs", "at least one output", "none"))
         for group in list(self.chunks) + list(self.resumable_along):
             if group not in self.outputs:
-                problems.append(Problem(f"{label} chunks/resumable_along {group!r}",
-                                        f"one of the outputs {list(self.outputs)}",
-                                        "not an output"))
+                problems.append(
+                    Problem(
+                        f"{label} chunks/resumable_along {group!r}",
+                        f"one of the outputs {list(self.outputs)}",
+                        "not an output",
+                    )
+                )
         if problems:
             raise NodeDeclarationError(f"node {self.name!r} is declared wrongly:", problems)
 
@@ -270,11 +297,11 @@ class Node:
             for item in error.errors():
                 key = ".".join(str(p) for p in item["loc"]) or "?"
                 if item["type"] == "extra_forbidden":
-                    problems.append(Problem(f"{self.name}.{key}", f"one of: {known}",
-                                            "an unknown parameter"))
+                    problems.append(
+                        Problem(f"{self.name}.{key}", f"one of: {known}", "an unknown parameter")
+                    )
                 else:
-                    problems.append(Problem(f"{self.name}.{key}", item["msg"],
-                                            repr(item.get("input"))))
+                    problems.append(Problem(f"{self.name}.{key}", item["msg"], repr(item.get("input"))))
             raise ParameterError(f"invalid parameters for node {self.name!r}:", problems) from None
 
     def check_inputs(self, inputs: Mapping[str, xr.Dataset]) -> None:
@@ -292,24 +319,41 @@ class Node:
         problems: list[Problem | str] = []
         missing = sorted(set(self.inputs) - set(inputs))
         for argument in missing:
-            problems.append(Problem(f"node {self.name!r} input {argument!r}",
-                                    f"a Dataset of schema {self.inputs[argument]!r}", "nothing"))
+            problems.append(
+                Problem(
+                    f"node {self.name!r} input {argument!r}",
+                    f"a Dataset of schema {self.inputs[argument]!r}",
+                    "nothing",
+                )
+            )
         for argument, schema_name in self.inputs.items():
             if argument not in inputs or schema_name not in GROUP_SCHEMAS:
                 continue
             data = inputs[argument]
             if not isinstance(data, xr.Dataset):
-                problems.append(Problem(f"node {self.name!r} input {argument!r}",
-                                        "an xarray.Dataset", type(data).__name__))
+                problems.append(
+                    Problem(
+                        f"node {self.name!r} input {argument!r}",
+                        "an xarray.Dataset",
+                        type(data).__name__,
+                    )
+                )
                 continue
-            problems += validate_dataset(data, GROUP_SCHEMAS[schema_name],
-                                         group=f"{self.name}({argument}: {schema_name})")
+            problems += validate_dataset(
+                data, GROUP_SCHEMAS[schema_name], group=f"{self.name}({argument}: {schema_name})"
+            )
         if problems:
-            raise SchemaError(f"node {self.name!r}: inputs do not follow their declared "
-                              f"schemas ({len(problems)} problem(s)):", problems)
+            raise SchemaError(
+                f"node {self.name!r}: inputs do not follow their declared "
+                f"schemas ({len(problems)} problem(s)):",
+                problems,
+            )
 
-    def __call__(self, inputs: Mapping[str, xr.Dataset] | None = None,
-                 parameters: Mapping[str, Any] | Parameters | None = None) -> dict[str, xr.Dataset]:
+    def __call__(
+        self,
+        inputs: Mapping[str, xr.Dataset] | None = None,
+        parameters: Mapping[str, Any] | Parameters | None = None,
+    ) -> dict[str, xr.Dataset]:
         """Check the inputs, run the node's function and return ``{output schema: Dataset}``.
 
         Raises
@@ -326,25 +370,30 @@ class Node:
         if isinstance(result, xr.Dataset):
             if len(self.outputs) != 1:
                 raise SpectralizeError.single(
-                    f"node {self.name!r} result", f"{{group: Dataset}} for outputs "
-                    f"{list(self.outputs)}", "one Dataset (returned one Dataset but declares "
-                    f"outputs {self.outputs})")
+                    f"node {self.name!r} result",
+                    f"{{group: Dataset}} for outputs {list(self.outputs)}",
+                    f"one Dataset (returned one Dataset but declares outputs {self.outputs})",
+                )
             return {self.outputs[0]: result}
         if not isinstance(result, Mapping) or set(result) != set(self.outputs):
             found = sorted(result) if isinstance(result, Mapping) else type(result).__name__
             raise SpectralizeError.single(
-                f"node {self.name!r} result", f"{{group: Dataset}} for {list(self.outputs)}",
-                f"{found}")
+                f"node {self.name!r} result", f"{{group: Dataset}} for {list(self.outputs)}", f"{found}"
+            )
         return dict(result)
 
     def describe_parameters(self) -> list[tuple[str, str, Any, str]]:
         """(name, type, default, description) of every parameter."""
         rows = []
         for name, info in self.parameters.model_fields.items():
-            annotation = info.annotation.__name__ if isinstance(info.annotation, type) \
+            annotation = (
+                info.annotation.__name__
+                if isinstance(info.annotation, type)
                 else str(info.annotation).replace("typing.", "")
-            default = info.get_default(call_default_factory=True) if not info.is_required() \
-                else "(required)"
+            )
+            default = (
+                info.get_default(call_default_factory=True) if not info.is_required() else "(required)"
+            )
             rows.append((name, annotation, default, info.description or ""))
         return rows
 

@@ -18,12 +18,17 @@ for _key, _value in {
 from .pipelines import FLOWS, FlowDefinition, get_flow  # noqa: E402
 from .runtime import RunReport, StepReport, run_steps  # noqa: E402
 
-__all__ = ["FLOWS", "FlowDefinition", "get_flow", "run_flow", "run_steps", "RunReport",
-           "StepReport"]
+__all__ = ["FLOWS", "FlowDefinition", "get_flow", "run_flow", "run_steps", "RunReport", "StepReport"]
 
 
-def run_flow(name: str, store: str | os.PathLike[str], *, parameters=None, retries: int = 0,
-             dask_address: str | None = None) -> RunReport:
+def run_flow(
+    name: str,
+    store: str | os.PathLike[str],
+    *,
+    parameters=None,
+    retries: int = 0,
+    dask_address: str | None = None,
+) -> RunReport:
     """Run the named flow (see ``spectralize flows``) against ``store``.
 
     Parameters
@@ -44,5 +49,12 @@ def run_flow(name: str, store: str | os.PathLike[str], *, parameters=None, retri
     definition = get_flow(name)
     problems: list = []
     steps = step_parameters(definition.steps, dict(parameters or {}), problems=problems)
-    return run_steps(store, steps, flow_name=name, problems=problems, retries=retries,
-                     dask_address=dask_address, report=definition.report)
+    return run_steps(
+        store,
+        steps,
+        flow_name=name,
+        problems=problems,
+        retries=retries,
+        dask_address=dask_address,
+        report=definition.report,
+    )

@@ -1,11 +1,11 @@
 """The ``spectralize`` command line.
 
-    spectralize nodes                       registered nodes, their groups and parameters
-    spectralize flows                       named flows
-    spectralize validate STORE              check a run store against the contract
-    spectralize run FLOW STORE [--set k=v]  run a flow (resumes: finished nodes are skipped)
-    spectralize serve ROOT [--cron ...]     nightly processing of new runs (needs a Prefect server)
-    spectralize demo                        make the sample run and process it
+spectralize nodes                       registered nodes, their groups and parameters
+spectralize flows                       named flows
+spectralize validate STORE              check a run store against the contract
+spectralize run FLOW STORE [--set k=v]  run a flow (resumes: finished nodes are skipped)
+spectralize serve ROOT [--cron ...]     nightly processing of new runs (needs a Prefect server)
+spectralize demo                        make the sample run and process it
 """
 
 from __future__ import annotations
@@ -33,8 +33,9 @@ def _parse_assignments(items: Sequence[str]) -> dict[str, Any]:
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise SpectralizeError(f"--set expects KEY=VALUE (e.g. dark_average.frames_per_chunk=8),"
-                                   f" got {item!r}")
+            raise SpectralizeError(
+                f"--set expects KEY=VALUE (e.g. dark_average.frames_per_chunk=8), got {item!r}"
+            )
         values[key.strip()] = _parse_value(value.strip())
     return values
 
@@ -100,8 +101,13 @@ def _print_report(report) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from spectralize.flows import run_flow
 
-    report = run_flow(args.flow, args.store, parameters=_parse_assignments(args.set),
-                      retries=args.retries, dask_address=args.dask_address)
+    report = run_flow(
+        args.flow,
+        args.store,
+        parameters=_parse_assignments(args.set),
+        retries=args.retries,
+        dask_address=args.dask_address,
+    )
     _print_report(report)
     return 0
 
@@ -129,17 +135,26 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             raise SpectralizeError(
                 "schedules need a Prefect server: start one with `prefect server start "
                 "--background` and `prefect config set PREFECT_API_URL="
-                "http://127.0.0.1:4200/api`, then run `spectralize serve` again")
-    print(f"serving nightly processing of {args.root} ({args.flow!r} flow, cron {args.cron!r});"
-          " Ctrl-C stops it")
-    serve_nightly(args.root, flow_name=args.flow, cron=args.cron, pattern=args.pattern,
-                  dask_address=args.dask_address)
+                "http://127.0.0.1:4200/api`, then run `spectralize serve` again"
+            )
+    print(
+        f"serving nightly processing of {args.root} ({args.flow!r} flow, cron {args.cron!r});"
+        " Ctrl-C stops it"
+    )
+    serve_nightly(
+        args.root,
+        flow_name=args.flow,
+        cron=args.cron,
+        pattern=args.pattern,
+        dask_address=args.dask_address,
+    )
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="spectralize", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="spectralize", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     commands = parser.add_subparsers(dest="command", required=True)
     commands.add_parser("nodes", help="list registered nodes").set_defaults(handler=_cmd_nodes)
     commands.add_parser("flows", help="list named flows").set_defaults(handler=_cmd_flows)
@@ -149,11 +164,19 @@ def build_parser() -> argparse.ArgumentParser:
     run = commands.add_parser("run", help="run a flow against a store")
     run.add_argument("flow")
     run.add_argument("store")
-    run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                     help="node parameter: NODE.PARAM=VALUE or PARAM=VALUE (repeatable)")
+    run.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="node parameter: NODE.PARAM=VALUE or PARAM=VALUE (repeatable)",
+    )
     run.add_argument("--retries", type=int, default=0, help="Prefect task retries per node")
-    run.add_argument("--dask-address", default=None,
-                     help="address of an existing dask.distributed scheduler (default: local)")
+    run.add_argument(
+        "--dask-address",
+        default=None,
+        help="address of an existing dask.distributed scheduler (default: local)",
+    )
     run.set_defaults(handler=_cmd_run)
     serve = commands.add_parser("serve", help="serve scheduled processing of a folder of runs")
     serve.add_argument("root", help="folder whose run stores (*.zarr) are processed")
@@ -164,8 +187,13 @@ def build_parser() -> argparse.ArgumentParser:
     serve.set_defaults(handler=_cmd_serve)
     demo = commands.add_parser("demo", help="make the sample run and process it")
     demo.add_argument("--store", default=None, help="where to put the demo run store")
-    demo.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                      help="node parameter, e.g. simulate.recipe=tiny (repeatable)")
+    demo.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="node parameter, e.g. simulate.recipe=tiny (repeatable)",
+    )
     demo.set_defaults(handler=_cmd_demo)
     return parser
 

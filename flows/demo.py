@@ -14,8 +14,9 @@ __all__ = ["DEMO_STORE", "run_demo"]
 DEMO_STORE = Path("demo") / "run.zarr"
 
 
-def run_demo(path: str | Path = DEMO_STORE, *, parameters: dict | None = None
-             ) -> tuple[RunStore, RunReport]:
+def run_demo(
+    path: str | Path = DEMO_STORE, *, parameters: dict | None = None
+) -> tuple[RunStore, RunReport]:
     """Run the ``demo`` flow: simulate the sample run (recipe ``demo``) and process it.
 
     Both halves resume: a second call finds every group up to date and skips every node.

@@ -49,10 +49,13 @@ FLOWS: dict[str, FlowDefinition] = {
         ),
         FlowDefinition(
             name="calibrate",
-            description="radiometric calibration (sec. 4): dark -> OECFs -> QE, C and "
-                        "cross-validation",
-            steps=(Step("dark_average"), Step("recover_rgb_oecf"),
-                   Step("recover_spectral_oecf"), Step("calibrate_spectral")),
+            description="radiometric calibration (sec. 4): dark -> OECFs -> QE, C and cross-validation",
+            steps=(
+                Step("dark_average"),
+                Step("recover_rgb_oecf"),
+                Step("recover_spectral_oecf"),
+                Step("calibrate_spectral"),
+            ),
         ),
         FlowDefinition(
             name="btf",
@@ -85,5 +88,7 @@ def get_flow(name: str) -> FlowDefinition:
     nodes = registry()
     if name in nodes:
         return FlowDefinition(name, f"the single node {name}", (Step(name),))
-    raise SpectralizeError(f"unknown flow or node {name!r}; flows: {', '.join(sorted(FLOWS))}; "
-                           f"nodes: {', '.join(sorted(nodes)) or 'none'}")
+    raise SpectralizeError(
+        f"unknown flow or node {name!r}; flows: {', '.join(sorted(FLOWS))}; "
+        f"nodes: {', '.join(sorted(nodes)) or 'none'}"
+    )

@@ -70,26 +70,38 @@ BASELINES_GROUP: str = "baselines"
 #: The page's Jinja2 template, in this package's ``templates`` folder.
 TEMPLATE: str = "report.html.j2"
 _DPI = 100
-_METRIC_LABELS = (("nrmse", "nRMSE"), ("spectral_angle", "spectral angle [°]"),
-                  ("delta_e", "CIEDE2000"))
+_METRIC_LABELS = (("nrmse", "nRMSE"), ("spectral_angle", "spectral angle [°]"), ("delta_e", "CIEDE2000"))
 
 
 @lru_cache(maxsize=1)
 def _environment() -> jinja2.Environment:
-    return jinja2.Environment(loader=jinja2.PackageLoader("spectralize.flows", "templates"),
-                              autoescape=True, undefined=jinja2.StrictUndefined,
-                              trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+    return jinja2.Environment(
+        loader=jinja2.PackageLoader("spectralize.flows", "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+    )
 
 
 def _check_evaluation(evaluation: xr.Dataset) -> None:
     """Every variable and coordinate of the ``evaluation`` schema is drawn or tabulated."""
-    missing = [spec.name for spec in EVALUATION.variables + EVALUATION.coords
-               if spec.name not in evaluation]
+    missing = [
+        spec.name for spec in EVALUATION.variables + EVALUATION.coords if spec.name not in evaluation
+    ]
     if missing:
-        raise SchemaError("cannot report this evaluation:", [
-            Problem(f"evaluation:{name}", "a variable made by "
-                    "spectralize.nodes.evaluation.metrics.evaluate", "nothing")
-            for name in missing])
+        raise SchemaError(
+            "cannot report this evaluation:",
+            [
+                Problem(
+                    f"evaluation:{name}",
+                    "a variable made by spectralize.nodes.evaluation.metrics.evaluate",
+                    "nothing",
+                )
+                for name in missing
+            ],
+        )
 
 
 # -- tables --------------------------------------------------------------------------------
@@ -98,10 +110,15 @@ def _fmt(value: Any, digits: int = 4) -> str:
     return "—" if not np.isfinite(value) else f"{value:.{digits}g}"
 
 
-def _table(table_id: str, caption: str, header: Sequence[str],
-           rows: Sequence[Sequence[str]]) -> dict[str, Any]:
-    return {"id": table_id, "caption": caption, "header": list(header),
-            "rows": [list(row) for row in rows]}
+def _table(
+    table_id: str, caption: str, header: Sequence[str], rows: Sequence[Sequence[str]]
+) -> dict[str, Any]:
+    return {
+        "id": table_id,
+        "caption": caption,
+        "header": list(header),
+        "rows": [list(row) for row in rows],
+    }
 
 
 def _summary_rows(table: xr.Dataset, subsets: Sequence[str]) -> list[list[str]]:
@@ -124,8 +141,11 @@ def _summary_header(threshold: float) -> list[str]:
 
 
 def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
-    coords = [c for c in ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
-              if c in evaluation.coords]
+    coords = [
+        c
+        for c in ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
+        if c in evaluation.coords
+    ]
     header = ["image", *coords]
     if "has_band_shots" in evaluation:
         header.append("band shots")
@@ -138,23 +158,27 @@ def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
             row.append("yes" if bool(evaluation["has_band_shots"][image]) else "no")
         row += [_fmt(evaluation["nrmse_statistics"][image].sel(statistic=s)) for s in STATISTICS]
         row.append(_fmt(evaluation["nrmse_fraction_below"][image]))
-        for name, stat in (("spectral_angle", "median"), ("delta_e", "median"),
-                           ("delta_e", "p95")):
+        for name, stat in (("spectral_angle", "median"), ("delta_e", "median"), ("delta_e", "p95")):
             row.append(_fmt(evaluation[f"{name}_statistics"][image].sel(statistic=stat)))
         row.append(str(int(evaluation["invalid_count"][image])))
         rows.append(row)
     return _table("per-image", "Statistics per image", header, rows)
 
 
-def _run_table(evaluation: xr.Dataset, spectra: xr.Dataset, truth: xr.Dataset,
-               run: str | os.PathLike[str] | None) -> dict[str, Any]:
+def _run_table(
+    evaluation: xr.Dataset, spectra: xr.Dataset, truth: xr.Dataset, run: str | os.PathLike[str] | None
+) -> dict[str, Any]:
     rows = [["run store", str(run) if run is not None else "(not given)"]]
     for role, ds in (("spectra", spectra), ("truth/spectra", truth), ("evaluation", evaluation)):
         fingerprint = ds.attrs.get("spectralize_fingerprint") or evaluation.attrs.get(
-            f"{role.split('/')[0]}_fingerprint")
+            f"{role.split('/')[0]}_fingerprint"
+        )
         provenance = ds.attrs.get("spectralize_provenance") or {}
-        made_by = (f"{provenance.get('node', '?')} v{provenance.get('version', '?')}"
-                   if provenance else "(no provenance)")
+        made_by = (
+            f"{provenance.get('node', '?')} v{provenance.get('version', '?')}"
+            if provenance
+            else "(no provenance)"
+        )
         rows.append([f"{role} fingerprint", str(fingerprint) if fingerprint else "(none)"])
         rows.append([f"{role} made by", made_by])
     sizes = spectra["radiance"].sizes
@@ -163,31 +187,40 @@ def _run_table(evaluation: xr.Dataset, spectra: xr.Dataset, truth: xr.Dataset,
         ["images", str(sizes["image"])],
         ["image size", f"{sizes['y']} x {sizes['x']} px"],
         ["wavelengths", f"{wavelength.size} bands, {wavelength[0]:g}..{wavelength[-1]:g} nm"],
-        ["colour difference", f"CIEDE2000 under {evaluation.attrs.get('illuminant', '?')}, "
-                              f"{evaluation.attrs.get('observer', 'CIE 1931 2°')}"],
+        [
+            "colour difference",
+            f"CIEDE2000 under {evaluation.attrs.get('illuminant', '?')}, "
+            f"{evaluation.attrs.get('observer', 'CIE 1931 2°')}",
+        ],
     ]
     return _table("run", "What this report describes", ["item", "value"], rows)
 
 
 def _capture_table(capture: xr.Dataset) -> dict[str, Any]:
-    rows = [[str(c), _fmt(capture["spectral_time"].sel(capture=c)),
-             _fmt(capture["rgb_time"].sel(capture=c)),
-             _fmt(capture["total_time"].sel(capture=c)),
-             str(int(capture["band_shots"].sel(capture=c)))]
-            for c in capture["capture"].values]
-    return _table("capture-time", "Total exposure of the captures [s]; "
-                  f"speed-up {float(capture['speedup']):.1f}x. "
-                  + str(capture.attrs.get("summary", "")),
-                  ["capture", "band shots [s]", "RGB [s]", "total [s]", "band shots"], rows)
+    rows = [
+        [
+            str(c),
+            _fmt(capture["spectral_time"].sel(capture=c)),
+            _fmt(capture["rgb_time"].sel(capture=c)),
+            _fmt(capture["total_time"].sel(capture=c)),
+            str(int(capture["band_shots"].sel(capture=c))),
+        ]
+        for c in capture["capture"].values
+    ]
+    return _table(
+        "capture-time",
+        "Total exposure of the captures [s]; "
+        f"speed-up {float(capture['speedup']):.1f}x. " + str(capture.attrs.get("summary", "")),
+        ["capture", "band shots [s]", "RGB [s]", "total [s]", "band shots"],
+        rows,
+    )
 
 
-def _baselines_table(evaluation: xr.Dataset, table: xr.Dataset, threshold: float
-                     ) -> dict[str, Any]:
+def _baselines_table(evaluation: xr.Dataset, table: xr.Dataset, threshold: float) -> dict[str, Any]:
     header = ["method"] + _summary_header(threshold)[2:]
     rows = [["this run (spectra)"] + _summary_rows(evaluation, ["all"])[0][2:]]
     for method in table[METHOD_DIM].values:
-        rows.append([str(method)]
-                    + _summary_rows(table.sel({METHOD_DIM: method}), ["all"])[0][2:])
+        rows.append([str(method)] + _summary_rows(table.sel({METHOD_DIM: method}), ["all"])[0][2:])
     return _table("baselines", "Comparison of methods on all images of the run", header, rows)
 
 
@@ -201,15 +234,24 @@ def _save(figure: Figure, directory: Path, name: str, caption: str) -> dict[str,
 def _cross_validation(calibration: xr.Dataset, directory: Path) -> dict[str, Any]:
     checked = calibration[["measured_rgb", "predicted_rgb", "relative_error"]].compute()
     error = np.asarray(checked["relative_error"].values, dtype=float)
-    rows = [[str(patch), _fmt(float(e))]
-            for patch, e in zip(checked["patch"].values, error, strict=True)]
-    table = _table("cross-validation", "RGB of the colour-checker patches predicted through C "
-                   "from the spectral camera's capture vs measured: relative error per patch "
-                   f"(mean {_fmt(float(np.nanmean(error)))})", ["patch", "relative error"], rows)
-    figure = _save(plot_cross_validation(checked.rename(measured_rgb="measured",
-                                                        predicted_rgb="predicted")),
-                   directory, "cross_validation.png", "(a) measured RGB, (b) RGB predicted "
-                   "through C from the spectral capture, (c) their difference scaled 10x.")
+    rows = [
+        [str(patch), _fmt(float(e))] for patch, e in zip(checked["patch"].values, error, strict=True)
+    ]
+    table = _table(
+        "cross-validation",
+        "RGB of the colour-checker patches predicted through C "
+        "from the spectral camera's capture vs measured: relative error per patch "
+        f"(mean {_fmt(float(np.nanmean(error)))})",
+        ["patch", "relative error"],
+        rows,
+    )
+    figure = _save(
+        plot_cross_validation(checked.rename(measured_rgb="measured", predicted_rgb="predicted")),
+        directory,
+        "cross_validation.png",
+        "(a) measured RGB, (b) RGB predicted "
+        "through C from the spectral capture, (c) their difference scaled 10x.",
+    )
     return {"table": table, "figure": figure}
 
 
@@ -284,8 +326,10 @@ def write_report(
     """
     _check_evaluation(evaluation)
     if int(max_images) < 1:
-        raise ParameterError("cannot write the report:", [
-            Problem("max_images", "at least 1 image with figures", repr(max_images))])
+        raise ParameterError(
+            "cannot write the report:",
+            [Problem("max_images", "at least 1 image with figures", repr(max_images))],
+        )
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     evaluation = evaluation.compute()
@@ -293,8 +337,9 @@ def write_report(
     shown = list(range(min(n_images, int(max_images))))
     threshold = float(evaluation.attrs.get("threshold", DEFAULT_THRESHOLD))
 
-    truth_srgb = render_srgb(truth["radiance"].isel(image=shown),
-                             percentile=exposure_percentile).compute()
+    truth_srgb = render_srgb(
+        truth["radiance"].isel(image=shown), percentile=exposure_percentile
+    ).compute()
     scale = float(truth_srgb.attrs["exposure_scale"])
     recon_srgb = render_srgb(spectra["radiance"].isel(image=shown), exposure=scale).compute()
     finite = np.asarray(evaluation["nrmse"].isel(image=shown).values, dtype=np.float64)
@@ -306,13 +351,20 @@ def write_report(
         "title": title,
         "written": time.strftime("%Y-%m-%d %H:%M:%S"),
         "run": _run_table(evaluation, spectra, truth, run),
-        "summary": _table("summary", "Statistics over all pixels of each subset of images",
-                          _summary_header(threshold),
-                          _summary_rows(evaluation, [str(s) for s in evaluation["subset"].values])),
+        "summary": _table(
+            "summary",
+            "Statistics over all pixels of each subset of images",
+            _summary_header(threshold),
+            _summary_rows(evaluation, [str(s) for s in evaluation["subset"].values]),
+        ),
         "per_image": _per_image_table(evaluation),
-        "histogram": _save(plot_histograms(evaluation), directory, "histogram.png",
-                           "Histogram of the per-pixel normalised RMSE over all pixels of the "
-                           "images with and without band shots; logarithmic count axis."),
+        "histogram": _save(
+            plot_histograms(evaluation),
+            directory,
+            "histogram.png",
+            "Histogram of the per-pixel normalised RMSE over all pixels of the "
+            "images with and without band shots; logarithmic count axis.",
+        ),
         "capture": None,
         "cross_validation": None,
         "baselines": None,
@@ -324,29 +376,48 @@ def write_report(
     if capture is not None:
         context["capture"] = {
             "table": _capture_table(capture),
-            "figure": _save(plot_capture_time(capture), directory, "capture_time.png",
-                            "Total exposure of the reference and the fast capture.")}
+            "figure": _save(
+                plot_capture_time(capture),
+                directory,
+                "capture_time.png",
+                "Total exposure of the reference and the fast capture.",
+            ),
+        }
     if calibration is not None and "measured_rgb" in calibration:
         context["cross_validation"] = _cross_validation(calibration, directory)
     if baselines is not None:
         table = baselines
         if not (isinstance(table, xr.Dataset) and "nrmse_subset_statistics" in table):
-            table = compare_methods(baselines, truth, shots=shots,
-                                    illuminant=str(evaluation.attrs.get("illuminant", "D65")),
-                                    threshold=threshold)
+            table = compare_methods(
+                baselines,
+                truth,
+                shots=shots,
+                illuminant=str(evaluation.attrs.get("illuminant", "D65")),
+                threshold=threshold,
+            )
         context["baselines"] = _baselines_table(evaluation, table.compute(), threshold)
-    context["images"] = [{
-        "label": image_label(evaluation, image),
-        "error_map": _save(plot_error_map(evaluation, image, truth_srgb=truth_srgb,
-                                          reconstruction_srgb=recon_srgb, vmax=vmax),
-                           directory, f"error_map_{image:03d}.png",
-                           f"Image {image}: ground truth and reconstruction (sRGB) and the "
-                           "normalised RMSE map; numbered pixels are the representative "
-                           "spectra."),
-        "spectra": _save(plot_spectra(evaluation, image), directory, f"spectra_{image:03d}.png",
-                         f"Image {image}: representative spectra, ground truth solid, "
-                         "reconstruction dotted."),
-    } for image in shown]
+    context["images"] = [
+        {
+            "label": image_label(evaluation, image),
+            "error_map": _save(
+                plot_error_map(
+                    evaluation, image, truth_srgb=truth_srgb, reconstruction_srgb=recon_srgb, vmax=vmax
+                ),
+                directory,
+                f"error_map_{image:03d}.png",
+                f"Image {image}: ground truth and reconstruction (sRGB) and the "
+                "normalised RMSE map; numbered pixels are the representative "
+                "spectra.",
+            ),
+            "spectra": _save(
+                plot_spectra(evaluation, image),
+                directory,
+                f"spectra_{image:03d}.png",
+                f"Image {image}: representative spectra, ground truth solid, reconstruction dotted.",
+            ),
+        }
+        for image in shown
+    ]
 
     index = directory / "index.html"
     index.write_text(_environment().get_template(TEMPLATE).render(context), encoding="utf-8")
@@ -409,14 +480,23 @@ def write_run_report(
             plan = run.read("raw/exposure_plan") if run.has("raw/exposure_plan") else None
             capture = run_capture_time(shots, raw_rgb, plan, evaluation=evaluation)
         else:
-            capture = capture_time(capture_time_from_run(shots, raw_rgb), reference,
-                                   evaluation=evaluation)
+            capture = capture_time(
+                capture_time_from_run(shots, raw_rgb), reference, evaluation=evaluation
+            )
     prefix = BASELINES_GROUP + "/"
-    baselines = {group[len(prefix):]: run.read(group) for group in run.groups()
-                 if group.startswith(prefix)}
+    baselines = {
+        group[len(prefix) :]: run.read(group) for group in run.groups() if group.startswith(prefix)
+    }
     return write_report(
-        evaluation, spectra=spectra, truth=truth,
+        evaluation,
+        spectra=spectra,
+        truth=truth,
         directory=run.path / "report" if directory is None else directory,
-        baselines=baselines or None, capture=capture, shots=shots, run=str(run.path),
+        baselines=baselines or None,
+        capture=capture,
+        shots=shots,
+        run=str(run.path),
         calibration=run.read("calibration/spectral") if run.has("calibration/spectral") else None,
-        title=title or f"spectralize: {run.path.name}", max_images=max_images)
+        title=title or f"spectralize: {run.path.name}",
+        max_images=max_images,
+    )

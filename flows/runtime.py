@@ -40,9 +40,9 @@ class StepReport:
     """What one step did."""
 
     node: str
-    status: str                       # "ran" or "skipped"
+    status: str  # "ran" or "skipped"
     seconds: float
-    outputs: dict[str, str]           # group -> fingerprint
+    outputs: dict[str, str]  # group -> fingerprint
 
 
 @dataclass
@@ -52,7 +52,7 @@ class RunReport:
     store: str
     flow: str
     steps: list[StepReport] = field(default_factory=list)
-    report: str | None = None          # path of the HTML report, when one was written
+    report: str | None = None  # path of the HTML report, when one was written
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -102,8 +102,9 @@ def run_node(
     log = _log()
     node = registry()[node_name].node
     params = node.parse_parameters(parameters)
-    run_fp = compute_fingerprint(node.name, node.version, params.model_dump(mode="json"),
-                                 input_fingerprints)
+    run_fp = compute_fingerprint(
+        node.name, node.version, params.model_dump(mode="json"), input_fingerprints
+    )
     expected = {group: output_fingerprint(run_fp, group) for group in outputs.values()}
     store = RunStore.open(store_path)
     if all(store.fingerprint(group) == fp for group, fp in expected.items()):
@@ -118,15 +119,23 @@ def run_node(
         for schema, ds in results.items():
             group = outputs[schema]
             log(f"{node.name}: writing {group}")
-            provenance = {"node": node.name, "version": node.version,
-                          "parameters": params.model_dump(mode="json"),
-                          "inputs": dict(input_fingerprints)}
-            store.write(group, ds, schema=schema if _known(schema) else None,
-                        fingerprint=expected[group], provenance=provenance,
-                        chunks=node.chunks.get(schema),
-                        resumable_along=node.resumable_along.get(schema),
-                        concurrent_regions=parallel,
-                        progress=lambda message, g=group: log(f"{node.name}: {g}: {message}"))
+            provenance = {
+                "node": node.name,
+                "version": node.version,
+                "parameters": params.model_dump(mode="json"),
+                "inputs": dict(input_fingerprints),
+            }
+            store.write(
+                group,
+                ds,
+                schema=schema if _known(schema) else None,
+                fingerprint=expected[group],
+                provenance=provenance,
+                chunks=node.chunks.get(schema),
+                resumable_along=node.resumable_along.get(schema),
+                concurrent_regions=parallel,
+                progress=lambda message, g=group: log(f"{node.name}: {g}: {message}"),
+            )
     seconds = time.perf_counter() - start
     log(f"{node.name}: done in {seconds:.1f} s")
     return StepReport(node.name, "ran", seconds, expected)
@@ -179,8 +188,15 @@ def run_steps(
         if any(item.inputs for item in planned[:1]):
             raise StoreError(f"{str(path)!r} is not a run store: no such directory")
         RunStore.create(path)
-    return _graph_flow(str(path), flow_name, [_as_dict(item.step) for item in planned],
-                       retries, retry_delay_seconds, dask_address, report)
+    return _graph_flow(
+        str(path),
+        flow_name,
+        [_as_dict(item.step) for item in planned],
+        retries,
+        retry_delay_seconds,
+        dask_address,
+        report,
+    )
 
 
 def report_directory(store_path: str | Path) -> Path:
@@ -214,9 +230,13 @@ def write_report_task(store_path: str) -> str | None:
 
 
 def _as_dict(step: Step) -> dict[str, Any]:
-    return {"node": step.node, "parameters": dict(step.parameters),
-            "inputs": dict(step.inputs), "outputs": dict(step.outputs),
-            "optional": step.optional}
+    return {
+        "node": step.node,
+        "parameters": dict(step.parameters),
+        "inputs": dict(step.inputs),
+        "outputs": dict(step.outputs),
+        "optional": step.optional,
+    }
 
 
 @flow(name="spectralize", flow_run_name="{flow_name}: {store_path}", validate_parameters=False)
@@ -243,11 +263,20 @@ def _graph_flow(
                 raise StoreError(f"input group {group!r} of node {item.node.name!r} is missing")
             input_fps[group] = fp
         node_task = run_node.with_options(
-            name=item.node.name, retries=retries, retry_delay_seconds=retry_delay_seconds,
-            task_run_name=item.node.name)
-        step_report = node_task(store_path, item.node.name,
-                                item.parameters.model_dump(mode="json"), item.inputs,
-                                item.outputs, input_fps, dask_address)
+            name=item.node.name,
+            retries=retries,
+            retry_delay_seconds=retry_delay_seconds,
+            task_run_name=item.node.name,
+        )
+        step_report = node_task(
+            store_path,
+            item.node.name,
+            item.parameters.model_dump(mode="json"),
+            item.inputs,
+            item.outputs,
+            input_fps,
+            dask_address,
+        )
         fingerprints.update(step_report.outputs)
         run_report.steps.append(step_report)
     ran = sum(s.status == "ran" for s in run_report.steps)
@@ -258,7 +287,10 @@ def _graph_flow(
 
 
 def step_parameters(
-    steps: Sequence[Step], assignments: Mapping[str, Any], *, problems: list | None = None,
+    steps: Sequence[Step],
+    assignments: Mapping[str, Any],
+    *,
+    problems: list | None = None,
 ) -> list[Step]:
     """Apply ``--set`` style assignments to the steps of a flow.
 
@@ -285,15 +317,25 @@ def step_parameters(
         if len(matches) == 1:
             updates[matches[0]][parameter] = value
             continue
-        known = sorted(f"{s.node}.{p}" for s in steps if s.node in nodes
-                       for p in nodes[s.node].node.parameters.model_fields)
+        known = sorted(
+            f"{s.node}.{p}"
+            for s in steps
+            if s.node in nodes
+            for p in nodes[s.node].node.parameters.model_fields
+        )
         if not matches:
-            problems.append(Problem(f"--set {key}", f"one of: {', '.join(known) or 'none'}",
-                                    "an unknown parameter"))
+            problems.append(
+                Problem(f"--set {key}", f"one of: {', '.join(known) or 'none'}", "an unknown parameter")
+            )
         else:
             names = ", ".join(steps[i].node for i in matches)
-            problems.append(Problem(f"--set {key}", "a parameter of exactly one node",
-                                    f"a parameter of nodes {names}; write NODE.{parameter}"))
+            problems.append(
+                Problem(
+                    f"--set {key}",
+                    "a parameter of exactly one node",
+                    f"a parameter of nodes {names}; write NODE.{parameter}",
+                )
+            )
     if problems and not collect:
         raise ParameterError("invalid --set:", problems)
     return [dataclasses.replace(s, parameters=u) for s, u in zip(steps, updates, strict=True)]

@@ -35,8 +35,9 @@ def find_run_stores(root: str | Path, pattern: str = "*.zarr") -> list[Path]:
 
 
 @flow(name="spectralize-nightly", log_prints=True)
-def process_new_runs(root: str, flow_name: str = "btf", pattern: str = "*.zarr",
-                     dask_address: str | None = None) -> dict[str, str]:
+def process_new_runs(
+    root: str, flow_name: str = "btf", pattern: str = "*.zarr", dask_address: str | None = None
+) -> dict[str, str]:
     """Run ``flow_name`` on every run store under ``root``; report each store's outcome.
 
     A store that fails does not stop the others; the flow run fails at the end if any did,
@@ -65,13 +66,24 @@ def process_new_runs(root: str, flow_name: str = "btf", pattern: str = "*.zarr",
     return outcome
 
 
-def serve_nightly(root: str, *, flow_name: str = "btf", cron: str = "0 2 * * *",
-                  pattern: str = "*.zarr", dask_address: str | None = None,
-                  name: str = "nightly") -> None:
+def serve_nightly(
+    root: str,
+    *,
+    flow_name: str = "btf",
+    cron: str = "0 2 * * *",
+    pattern: str = "*.zarr",
+    dask_address: str | None = None,
+    name: str = "nightly",
+) -> None:
     """Serve :func:`process_new_runs` on a cron schedule (needs a Prefect server)."""
     process_new_runs.serve(
-        name=name, cron=cron,
-        parameters={"root": str(Path(root).absolute()), "flow_name": flow_name,
-                    "pattern": pattern, "dask_address": dask_address},
+        name=name,
+        cron=cron,
+        parameters={
+            "root": str(Path(root).absolute()),
+            "flow_name": flow_name,
+            "pattern": pattern,
+            "dask_address": dask_address,
+        },
         description=f"process run stores under {root} with the {flow_name!r} flow",
     )

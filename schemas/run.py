@@ -62,8 +62,15 @@ def image_coords(dim: str = "image") -> tuple[ArraySpec, ...]:
 def shot_coords(dim: str = "shot") -> tuple[ArraySpec, ...]:
     """Per-shot coords of band-filtered monochrome frames."""
     return (
-        ArraySpec("wavelength", (dim,), "kind:f", "nm", "centre wavelength of the tunable filter",
-                  (300, 1100), finite=True),
+        ArraySpec(
+            "wavelength",
+            (dim,),
+            "kind:f",
+            "nm",
+            "centre wavelength of the tunable filter",
+            (300, 1100),
+            finite=True,
+        ),
         ArraySpec("exposure_time", (dim,), "kind:f", "s", "exposure time", (0, 1e4), finite=True),
         ArraySpec("image", (dim,), "kind:iu", None, "index of the RGB image the shot pairs with"),
         ArraySpec("rotation", (dim,), "kind:iu", None, "sample rotation step"),
@@ -75,12 +82,12 @@ RAW_DARK = GroupSchema(
     name="raw/dark",
     description="raw dark frames (closed shutter) of the spectral camera, many per exposure time",
     variables=(
-        ArraySpec("frames", ("exposure_time", "frame", "y", "x"), "uint16", "DN",
-                  "raw dark frame"),
+        ArraySpec("frames", ("exposure_time", "frame", "y", "x"), "uint16", "DN", "raw dark frame"),
     ),
     coords=(
-        ArraySpec("exposure_time", ("exposure_time",), "kind:f", "s", "exposure time",
-                  (0, 1e4), finite=True),
+        ArraySpec(
+            "exposure_time", ("exposure_time",), "kind:f", "s", "exposure time", (0, 1e4), finite=True
+        ),
     ),
     attrs={"camera": "which camera took the frames", "bit_depth": "ADC bit depth, 8..16"},
 )
@@ -89,12 +96,14 @@ RAW_RGB = GroupSchema(
     name="raw/rgb",
     description="LDR exposure series of the RGB cameras, one series per image",
     variables=(
-        ArraySpec("counts", ("image", "exposure", "y", "x", "channel"), "uint16", "DN",
-                  "raw RGB pixel value"),
+        ArraySpec(
+            "counts", ("image", "exposure", "y", "x", "channel"), "uint16", "DN", "raw RGB pixel value"
+        ),
     ),
     coords=(
-        ArraySpec("exposure_time", ("image", "exposure"), "kind:f", "s", "exposure time",
-                  (0, 1e4), finite=True),
+        ArraySpec(
+            "exposure_time", ("image", "exposure"), "kind:f", "s", "exposure time", (0, 1e4), finite=True
+        ),
         ArraySpec("channel", ("channel",), "kind:UOT", None, "colour channel"),
         *image_coords(),
     ),
@@ -116,12 +125,18 @@ DARK = GroupSchema(
     description="per-pixel mean and standard deviation of the dark frames, per exposure time",
     variables=(
         ArraySpec("mean", ("exposure_time", "y", "x"), "float32", "DN", "mean dark frame"),
-        ArraySpec("std", ("exposure_time", "y", "x"), "float32", "DN",
-                  "per-pixel standard deviation of the dark frames"),
+        ArraySpec(
+            "std",
+            ("exposure_time", "y", "x"),
+            "float32",
+            "DN",
+            "per-pixel standard deviation of the dark frames",
+        ),
     ),
     coords=(
-        ArraySpec("exposure_time", ("exposure_time",), "kind:f", "s", "exposure time",
-                  (0, 1e4), finite=True),
+        ArraySpec(
+            "exposure_time", ("exposure_time",), "kind:f", "s", "exposure time", (0, 1e4), finite=True
+        ),
     ),
     attrs={"frame_count": "number of dark frames averaged per exposure time"},
 )
@@ -130,8 +145,7 @@ HDR = GroupSchema(
     name="hdr",
     description="HDR RGB radiance merged from the exposure series",
     variables=(
-        ArraySpec("radiance", ("image", "y", "x", "channel"), "float32", "1",
-                  "relative RGB radiance"),
+        ArraySpec("radiance", ("image", "y", "x", "channel"), "float32", "1", "relative RGB radiance"),
     ),
     coords=(ArraySpec("channel", ("channel",), "kind:UOT", None, "colour channel"), *image_coords()),
 )
@@ -139,23 +153,28 @@ HDR = GroupSchema(
 BANDS = GroupSchema(
     name="bands",
     description="calibrated, registered noisy band radiance with the filter size of its band",
-    variables=(
-        ArraySpec("radiance", ("shot", "y", "x"), "float32", "1", "relative band radiance"),
-    ),
+    variables=(ArraySpec("radiance", ("shot", "y", "x"), "float32", "1", "relative band radiance"),),
     coords=(
         *shot_coords(),
-        ArraySpec("filter_size", ("shot",), "kind:f", "px", "Gaussian filter size s_i (eq. 3)",
-                  (0, 1e5), finite=True),
+        ArraySpec(
+            "filter_size",
+            ("shot",),
+            "kind:f",
+            "px",
+            "Gaussian filter size s_i (eq. 3)",
+            (0, 1e5),
+            finite=True,
+        ),
     ),
 )
 
 _SPECTRA_VARIABLES = (
-    ArraySpec("radiance", ("image", "wavelength", "y", "x"), "float32", "1",
-              "relative spectral radiance"),
+    ArraySpec(
+        "radiance", ("image", "wavelength", "y", "x"), "float32", "1", "relative spectral radiance"
+    ),
 )
 _SPECTRA_COORDS = (
-    ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100),
-              finite=True),
+    ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100), finite=True),
     *image_coords(),
 )
 
@@ -170,12 +189,12 @@ CAMERA_MATRIX = GroupSchema(
     name="camera_matrix",
     description="any group with the RGB camera matrix C (calibration/spectral, truth/camera)",
     variables=(
-        ArraySpec("camera_matrix", ("channel", "wavelength"), "kind:f", None,
-                  "RGB camera matrix C: RGB = C S"),
+        ArraySpec(
+            "camera_matrix", ("channel", "wavelength"), "kind:f", None, "RGB camera matrix C: RGB = C S"
+        ),
     ),
     coords=(
-        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100),
-                  finite=True),
+        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100), finite=True),
     ),
 )
 
@@ -194,42 +213,87 @@ TRUTH_SPECTRA = GroupSchema(
     coords=_SPECTRA_COORDS,
 )
 
+
 # -- calibration shots, registration shots, the exposure plan and simulated truth --------
 def _counts(name: str, dims: tuple[str, ...], long_name: str) -> ArraySpec:
     return ArraySpec(name, dims, "uint16", "DN", long_name)
 
 
-_WL = ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "centre wavelength of the band",
-                (300, 1100), finite=True)
+_WL = ArraySpec(
+    "wavelength",
+    ("wavelength",),
+    "kind:f",
+    "nm",
+    "centre wavelength of the band",
+    (300, 1100),
+    finite=True,
+)
 _CHANNEL = ArraySpec("channel", ("channel",), "kind:UOT", None, "colour channel")
 _CALIBRATION_VARIABLES = (
-    _counts("rgb_counts", ("rgb_exposure", "y", "x", "channel"),
-            "RGB exposure series of the RGB camera paired with the spectral camera"),
-    _counts("spectral_counts", ("wavelength", "spectral_exposure", "y", "x"),
-            "exposure series of every band of the spectral camera"),
-    ArraySpec("illuminant", ("wavelength",), "kind:f", "1",
-              "measured relative spectral radiance of the LEDs", (0, 1e6), finite=True),
+    _counts(
+        "rgb_counts",
+        ("rgb_exposure", "y", "x", "channel"),
+        "RGB exposure series of the RGB camera paired with the spectral camera",
+    ),
+    _counts(
+        "spectral_counts",
+        ("wavelength", "spectral_exposure", "y", "x"),
+        "exposure series of every band of the spectral camera",
+    ),
+    ArraySpec(
+        "illuminant",
+        ("wavelength",),
+        "kind:f",
+        "1",
+        "measured relative spectral radiance of the LEDs",
+        (0, 1e6),
+        finite=True,
+    ),
 )
 _CALIBRATION_COORDS = (
-    _WL, _CHANNEL,
-    ArraySpec("rgb_exposure_time", ("rgb_exposure",), "kind:f", "s", "exposure time",
-              (0, 1e4), finite=True),
-    ArraySpec("spectral_exposure_time", ("spectral_exposure",), "kind:f", "s",
-              "exposure time", (0, 1e4), finite=True),
+    _WL,
+    _CHANNEL,
+    ArraySpec(
+        "rgb_exposure_time", ("rgb_exposure",), "kind:f", "s", "exposure time", (0, 1e4), finite=True
+    ),
+    ArraySpec(
+        "spectral_exposure_time",
+        ("spectral_exposure",),
+        "kind:f",
+        "s",
+        "exposure time",
+        (0, 1e4),
+        finite=True,
+    ),
 )
-_CALIBRATION_ATTRS = {"rgb_bit_depth": "ADC bit depth of the RGB camera",
-                      "spectral_bit_depth": "ADC bit depth of the spectral camera"}
+_CALIBRATION_ATTRS = {
+    "rgb_bit_depth": "ADC bit depth of the RGB camera",
+    "spectral_bit_depth": "ADC bit depth of the spectral camera",
+}
 
 RAW_EXPOSURE_PLAN = GroupSchema(
     name="raw/exposure_plan",
     description="exposure time and Gaussian filter size per band (eq. 2, 3) and their cost",
     variables=(
-        ArraySpec("exposure_time", ("wavelength",), "kind:f", "s", "exposure time (eq. 2)",
-                  (0, 1e4), finite=True),
-        ArraySpec("filter_size", ("wavelength",), "kind:f", "px", "filter size s_i (eq. 3)",
-                  (0, 1e5), finite=True),
-        ArraySpec("filter_sigma", ("wavelength",), "kind:f", "px", "s_i / 5", (0, 1e5),
-                  finite=True),
+        ArraySpec(
+            "exposure_time",
+            ("wavelength",),
+            "kind:f",
+            "s",
+            "exposure time (eq. 2)",
+            (0, 1e4),
+            finite=True,
+        ),
+        ArraySpec(
+            "filter_size",
+            ("wavelength",),
+            "kind:f",
+            "px",
+            "filter size s_i (eq. 3)",
+            (0, 1e5),
+            finite=True,
+        ),
+        ArraySpec("filter_sigma", ("wavelength",), "kind:f", "px", "s_i / 5", (0, 1e5), finite=True),
         ArraySpec("spectral_capture_time", (), "kind:f", "s", "total spectral exposure"),
         ArraySpec("rgb_capture_time", (), "kind:f", "s", "total RGB exposure"),
     ),
@@ -239,22 +303,40 @@ RAW_EXPOSURE_PLAN = GroupSchema(
 RAW_WHITE_REFERENCE = GroupSchema(
     name="raw/white_reference",
     description="white diffuse target under the LEDs: RGB and per-band exposure series",
-    variables=_CALIBRATION_VARIABLES + (
-        ArraySpec("target_reflectance", ("wavelength",), "kind:f", "1",
-                  "certified reflectance of the white target", (0, 1), finite=True),),
-    coords=_CALIBRATION_COORDS, attrs=_CALIBRATION_ATTRS,
+    variables=_CALIBRATION_VARIABLES
+    + (
+        ArraySpec(
+            "target_reflectance",
+            ("wavelength",),
+            "kind:f",
+            "1",
+            "certified reflectance of the white target",
+            (0, 1),
+            finite=True,
+        ),
+    ),
+    coords=_CALIBRATION_COORDS,
+    attrs=_CALIBRATION_ATTRS,
 )
 RAW_COLOUR_CHECKER = GroupSchema(
     name="raw/colour_checker",
     description="ColorChecker chart under the LEDs: RGB and per-band exposure series",
-    variables=_CALIBRATION_VARIABLES + (
-        ArraySpec("patch_reflectance", ("patch", "wavelength"), "kind:f", "1",
-                  "published reflectance of the patches", (0, 1), finite=True),
-        ArraySpec("patch_index", ("y", "x"), "kind:iu", "1",
-                  "patch under each RGB pixel, -1 on the frame"),
+    variables=_CALIBRATION_VARIABLES
+    + (
+        ArraySpec(
+            "patch_reflectance",
+            ("patch", "wavelength"),
+            "kind:f",
+            "1",
+            "published reflectance of the patches",
+            (0, 1),
+            finite=True,
+        ),
+        ArraySpec(
+            "patch_index", ("y", "x"), "kind:iu", "1", "patch under each RGB pixel, -1 on the frame"
+        ),
     ),
-    coords=_CALIBRATION_COORDS + (
-        ArraySpec("patch_name", ("patch",), "kind:UOT", None, "patch name"),),
+    coords=_CALIBRATION_COORDS + (ArraySpec("patch_name", ("patch",), "kind:UOT", None, "patch name"),),
     attrs=_CALIBRATION_ATTRS | {"chart": "name of the chart's reflectance data"},
 )
 RAW_REGISTRATION = GroupSchema(
@@ -266,8 +348,9 @@ RAW_REGISTRATION = GroupSchema(
     ),
     coords=(
         ArraySpec("rotation", ("rotation",), "kind:iu", "1", "rotation stage position"),
-        ArraySpec("rotation_angle", ("rotation",), "kind:f", "degree", "sample rotation",
-                  (0, 360), finite=True),
+        ArraySpec(
+            "rotation_angle", ("rotation",), "kind:f", "degree", "sample rotation", (0, 360), finite=True
+        ),
         _CHANNEL,
         ArraySpec("rgb_exposure_time", (), "kind:f", "s", "exposure time", (0, 1e4)),
         ArraySpec("spectral_exposure_time", (), "kind:f", "s", "exposure time", (0, 1e4)),
@@ -279,45 +362,62 @@ TRUTH_CAMERA = GroupSchema(
     name="truth/camera",
     description="true camera parameters of a simulated run (evaluation only)",
     variables=(
-        ArraySpec("camera_matrix", ("channel", "wavelength"), "kind:f", "s-1",
-                  "RGB camera matrix C", (0, 1e9), finite=True),
-        ArraySpec("quantum_efficiency", ("wavelength",), "kind:f", "s-1",
-                  "quantum efficiency Q per band", (0, 1e9), finite=True),
-        ArraySpec("illuminant", ("wavelength",), "kind:f", "1", "LED spectrum L", (0, 1e6),
-                  finite=True),
+        ArraySpec(
+            "camera_matrix",
+            ("channel", "wavelength"),
+            "kind:f",
+            "s-1",
+            "RGB camera matrix C",
+            (0, 1e9),
+            finite=True,
+        ),
+        ArraySpec(
+            "quantum_efficiency",
+            ("wavelength",),
+            "kind:f",
+            "s-1",
+            "quantum efficiency Q per band",
+            (0, 1e9),
+            finite=True,
+        ),
+        ArraySpec("illuminant", ("wavelength",), "kind:f", "1", "LED spectrum L", (0, 1e6), finite=True),
         ArraySpec("bandpass", ("band", "wavelength"), "kind:f", "1", "filter bandpass"),
-        ArraySpec("oecf", ("sensor", "code"), "kind:f", "1",
-                  "exposure per code (NaN beyond the bit depth)"),
+        ArraySpec(
+            "oecf", ("sensor", "code"), "kind:f", "1", "exposure per code (NaN beyond the bit depth)"
+        ),
         ArraySpec("adc_offset", ("sensor",), "kind:f", "DN", "mean ADC offset"),
         ArraySpec("noise_sigma", ("sensor",), "kind:f", "DN", "Gaussian noise sigma"),
         ArraySpec("bit_depth", ("sensor",), "kind:iu", "1", "ADC bit depth", (8, 16)),
         ArraySpec("spectral_adc_offset", ("y", "x"), "float32", "DN", "offset per pixel"),
-        ArraySpec("spectral_dark_current", ("y", "x"), "float32", "DN s-1",
-                  "dark signal rate per pixel"),
-        ArraySpec("misregistration", ("axis",), "kind:f", "px",
-                  "spectral(p) = rgb(p - shift)", finite=True),
+        ArraySpec(
+            "spectral_dark_current", ("y", "x"), "float32", "DN s-1", "dark signal rate per pixel"
+        ),
+        ArraySpec(
+            "misregistration", ("axis",), "kind:f", "px", "spectral(p) = rgb(p - shift)", finite=True
+        ),
     ),
-    coords=(_WL, _CHANNEL,
-            ArraySpec("band", ("band",), "kind:f", "nm", "band centre", (300, 1100)),
-            ArraySpec("sensor", ("sensor",), "kind:UOT", None, "R, G, B or mono"),
-            ArraySpec("code", ("code",), "kind:iu", "DN", "code value"),
-            ArraySpec("axis", ("axis",), "kind:UOT", None, "y or x")),
+    coords=(
+        _WL,
+        _CHANNEL,
+        ArraySpec("band", ("band",), "kind:f", "nm", "band centre", (300, 1100)),
+        ArraySpec("sensor", ("sensor",), "kind:UOT", None, "R, G, B or mono"),
+        ArraySpec("code", ("code",), "kind:iu", "DN", "code value"),
+        ArraySpec("axis", ("axis",), "kind:UOT", None, "y or x"),
+    ),
 )
 
 REGISTRATION = GroupSchema(
     name="registration",
     description="misregistration of the spectral camera to its RGB camera (phase correlation)",
     variables=(
-        ArraySpec("shift", ("axis",), "kind:f", "px", "spectral(p) = rgb(p - shift)",
-                  finite=True),
+        ArraySpec("shift", ("axis",), "kind:f", "px", "spectral(p) = rgb(p - shift)", finite=True),
         ArraySpec("pair_shift", ("pair", "axis"), "kind:f", "px", "shift per rotation pair"),
         ArraySpec("residual", ("pair",), "kind:f", "px", "distance from the run's shift"),
     ),
     coords=(
         ArraySpec("axis", ("axis",), "kind:UOT", None, "y or x"),
         ArraySpec("rgb_rotation", ("pair",), "kind:iu", None, "rotation of the RGB shot"),
-        ArraySpec("spectral_rotation", ("pair",), "kind:iu", None,
-                  "rotation of the spectral shot"),
+        ArraySpec("spectral_rotation", ("pair",), "kind:iu", None, "rotation of the spectral shot"),
     ),
 )
 
@@ -339,57 +439,91 @@ CALIBRATION_OECF_RGB = GroupSchema(
     name="calibration/oecf_rgb",
     description="RGB camera response per camera and channel (Robertson 2003)",
     variables=(
-        ArraySpec("response", ("camera", "channel", "code"), "kind:f", "1",
-                  "relative exposure per pixel value (1 at the mid code)", finite=True),
+        ArraySpec(
+            "response",
+            ("camera", "channel", "code"),
+            "kind:f",
+            "1",
+            "relative exposure per pixel value (1 at the mid code)",
+            finite=True,
+        ),
     ),
     coords=(
         ArraySpec("camera", ("camera",), "kind:iu", None, "RGB camera index"),
         _CHANNEL,
         ArraySpec("code", ("code",), "kind:iu", "DN", "pixel value"),
     ),
-    attrs={"bit_depth": "ADC bit depth", "black_level": "under-exposed codes (weight 0)",
-           "saturation": "saturated codes (weight 0)"},
+    attrs={
+        "bit_depth": "ADC bit depth",
+        "black_level": "under-exposed codes (weight 0)",
+        "saturation": "saturated codes (weight 0)",
+    },
 )
 
 CALIBRATION_OECF_SPECTRAL = GroupSchema(
     name="calibration/oecf_spectral",
     description="spectral camera response over dark-subtracted values (low-SNR extension "
-                "joined to Robertson)",
+    "joined to Robertson)",
     variables=(
-        ArraySpec("response", ("code",), "kind:f", "1",
-                  "relative exposure per dark-subtracted pixel value", finite=True),
+        ArraySpec(
+            "response",
+            ("code",),
+            "kind:f",
+            "1",
+            "relative exposure per dark-subtracted pixel value",
+            finite=True,
+        ),
     ),
     coords=(
-        ArraySpec("code", ("code",), "kind:f", "DN", "pixel value above the dark frame",
-                  finite=True),
+        ArraySpec("code", ("code",), "kind:f", "DN", "pixel value above the dark frame", finite=True),
     ),
-    attrs={"bit_depth": "ADC bit depth", "band": "wavelength of the low-SNR series [nm]",
-           "dark_level": "mean dark level [DN]"},
+    attrs={
+        "bit_depth": "ADC bit depth",
+        "band": "wavelength of the low-SNR series [nm]",
+        "dark_level": "mean dark level [DN]",
+    },
 )
 
 CALIBRATION_SPECTRAL = GroupSchema(
     name="calibration/spectral",
     description="quantum efficiency, RGB camera matrix C and cross-validation (Fig. 4)",
     variables=(
-        ArraySpec("quantum_efficiency", ("wavelength",), "kind:f", "1",
-                  "relative quantum efficiency per band", finite=True),
-        ArraySpec("camera_matrix", ("channel", "wavelength"), "kind:f", "1",
-                  "RGB camera matrix C", finite=True),
-        ArraySpec("measured_rgb", ("patch", "channel"), "kind:f", "1",
-                  "HDR RGB of the colour-checker patches"),
-        ArraySpec("predicted_rgb", ("patch", "channel"), "kind:f", "1",
-                  "RGB predicted through C from the spectral capture"),
-        ArraySpec("relative_error", ("patch",), "kind:f", "1",
-                  "relative error of the prediction per patch"),
+        ArraySpec(
+            "quantum_efficiency",
+            ("wavelength",),
+            "kind:f",
+            "1",
+            "relative quantum efficiency per band",
+            finite=True,
+        ),
+        ArraySpec(
+            "camera_matrix", ("channel", "wavelength"), "kind:f", "1", "RGB camera matrix C", finite=True
+        ),
+        ArraySpec(
+            "measured_rgb", ("patch", "channel"), "kind:f", "1", "HDR RGB of the colour-checker patches"
+        ),
+        ArraySpec(
+            "predicted_rgb",
+            ("patch", "channel"),
+            "kind:f",
+            "1",
+            "RGB predicted through C from the spectral capture",
+        ),
+        ArraySpec(
+            "relative_error", ("patch",), "kind:f", "1", "relative error of the prediction per patch"
+        ),
     ),
     coords=(
-        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "band centre", (300, 1100),
-                  finite=True),
+        ArraySpec(
+            "wavelength", ("wavelength",), "kind:f", "nm", "band centre", (300, 1100), finite=True
+        ),
         _CHANNEL,
         ArraySpec("patch", ("patch",), "kind:iu", None, "colour-checker patch index"),
     ),
-    attrs={"mean_relative_error": "mean relative error over patches",
-           "max_relative_error": "largest relative error over patches"},
+    attrs={
+        "mean_relative_error": "mean relative error over patches",
+        "max_relative_error": "largest relative error over patches",
+    },
 )
 
 
@@ -406,58 +540,111 @@ EVALUATION = GroupSchema(
         _map_spec("spectral_angle", "degree", "spectral angle"),
         _map_spec("delta_e", "1", "CIEDE2000 colour difference"),
         ArraySpec("truth_mean", ("image",), "float64", "1", "mean ground-truth intensity"),
-        ArraySpec("nrmse_statistics", ("image", "statistic"), "float64", "1",
-                  "per-image nRMSE statistics"),
-        ArraySpec("spectral_angle_statistics", ("image", "statistic"), "float64", "degree",
-                  "per-image spectral angle statistics"),
-        ArraySpec("delta_e_statistics", ("image", "statistic"), "float64", "1",
-                  "per-image CIEDE2000 statistics"),
-        ArraySpec("nrmse_fraction_below", ("image",), "float64", "1",
-                  "fraction of pixels with nRMSE below the threshold"),
+        ArraySpec(
+            "nrmse_statistics", ("image", "statistic"), "float64", "1", "per-image nRMSE statistics"
+        ),
+        ArraySpec(
+            "spectral_angle_statistics",
+            ("image", "statistic"),
+            "float64",
+            "degree",
+            "per-image spectral angle statistics",
+        ),
+        ArraySpec(
+            "delta_e_statistics",
+            ("image", "statistic"),
+            "float64",
+            "1",
+            "per-image CIEDE2000 statistics",
+        ),
+        ArraySpec(
+            "nrmse_fraction_below",
+            ("image",),
+            "float64",
+            "1",
+            "fraction of pixels with nRMSE below the threshold",
+        ),
         ArraySpec("invalid_count", ("image",), "int64", "1", "pixels with undefined nRMSE"),
-        ArraySpec("nrmse_histogram", ("image", "nrmse_bin"), "int64", "1",
-                  "per-image nRMSE histogram"),
-        ArraySpec("nrmse_above_range", ("image",), "int64", "1",
-                  "pixels above the histogram range"),
-        ArraySpec("nrmse_subset_statistics", ("subset", "statistic"), "float64", "1",
-                  "nRMSE statistics per subset of images"),
-        ArraySpec("spectral_angle_subset_statistics", ("subset", "statistic"), "float64",
-                  "degree", "spectral angle statistics per subset of images"),
-        ArraySpec("delta_e_subset_statistics", ("subset", "statistic"), "float64", "1",
-                  "CIEDE2000 statistics per subset of images"),
-        ArraySpec("nrmse_subset_fraction_below", ("subset",), "float64", "1",
-                  "fraction of pixels with nRMSE below the threshold, per subset"),
-        ArraySpec("subset_pixel_count", ("subset",), "int64", "1",
-                  "pixels with a finite nRMSE, per subset"),
+        ArraySpec("nrmse_histogram", ("image", "nrmse_bin"), "int64", "1", "per-image nRMSE histogram"),
+        ArraySpec("nrmse_above_range", ("image",), "int64", "1", "pixels above the histogram range"),
+        ArraySpec(
+            "nrmse_subset_statistics",
+            ("subset", "statistic"),
+            "float64",
+            "1",
+            "nRMSE statistics per subset of images",
+        ),
+        ArraySpec(
+            "spectral_angle_subset_statistics",
+            ("subset", "statistic"),
+            "float64",
+            "degree",
+            "spectral angle statistics per subset of images",
+        ),
+        ArraySpec(
+            "delta_e_subset_statistics",
+            ("subset", "statistic"),
+            "float64",
+            "1",
+            "CIEDE2000 statistics per subset of images",
+        ),
+        ArraySpec(
+            "nrmse_subset_fraction_below",
+            ("subset",),
+            "float64",
+            "1",
+            "fraction of pixels with nRMSE below the threshold, per subset",
+        ),
+        ArraySpec(
+            "subset_pixel_count", ("subset",), "int64", "1", "pixels with a finite nRMSE, per subset"
+        ),
         ArraySpec("sample_y", ("image", "sample"), "int64", "px", "row of a picked pixel"),
         ArraySpec("sample_x", ("image", "sample"), "int64", "px", "column of a picked pixel"),
-        ArraySpec("sample_nrmse", ("image", "sample"), "float32", "1",
-                  "nRMSE of a picked pixel"),
-        ArraySpec("sample_truth", ("image", "sample", "wavelength"), "float32", "1",
-                  "ground-truth spectrum of a picked pixel"),
-        ArraySpec("sample_reconstruction", ("image", "sample", "wavelength"), "float32", "1",
-                  "reconstructed spectrum of a picked pixel"),
+        ArraySpec("sample_nrmse", ("image", "sample"), "float32", "1", "nRMSE of a picked pixel"),
+        ArraySpec(
+            "sample_truth",
+            ("image", "sample", "wavelength"),
+            "float32",
+            "1",
+            "ground-truth spectrum of a picked pixel",
+        ),
+        ArraySpec(
+            "sample_reconstruction",
+            ("image", "sample", "wavelength"),
+            "float32",
+            "1",
+            "reconstructed spectrum of a picked pixel",
+        ),
     ),
     coords=(
-        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100),
-                  finite=True),
-        ArraySpec("statistic", ("statistic",), "kind:UOT", None,
-                  "statistic: mean, median, p95, p99"),
-        ArraySpec("subset", ("subset",), "kind:UOT", None,
-                  "subset of images: all, with_band_shots, without_band_shots"),
+        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100), finite=True),
+        ArraySpec("statistic", ("statistic",), "kind:UOT", None, "statistic: mean, median, p95, p99"),
+        ArraySpec(
+            "subset",
+            ("subset",),
+            "kind:UOT",
+            None,
+            "subset of images: all, with_band_shots, without_band_shots",
+        ),
         ArraySpec("nrmse_bin_lower", ("nrmse_bin",), "kind:f", "1", "lower bin edge"),
         ArraySpec("nrmse_bin_upper", ("nrmse_bin",), "kind:f", "1", "upper bin edge"),
-        ArraySpec("sample_quantile", ("sample",), "kind:f", "1",
-                  "quantile a representative pixel was picked at", (0, 1)),
+        ArraySpec(
+            "sample_quantile",
+            ("sample",),
+            "kind:f",
+            "1",
+            "quantile a representative pixel was picked at",
+            (0, 1),
+        ),
     ),
     optional_variables=(
-        ArraySpec("has_band_shots", ("image",), "bool", "1",
-                  "image has at least one band shot"),
+        ArraySpec("has_band_shots", ("image",), "bool", "1", "image has at least one band shot"),
     ),
-    attrs={"illuminant": "illuminant of the CIEDE2000 colour difference",
-           "threshold": "nRMSE level of the fraction-below statistics"},
+    attrs={
+        "illuminant": "illuminant of the CIEDE2000 colour difference",
+        "threshold": "nRMSE level of the fraction-below statistics",
+    },
 )
-
 
 
 GROUP_SCHEMAS: dict[str, GroupSchema] = {}
@@ -474,11 +661,29 @@ def register_schema(schema: GroupSchema, *, replace: bool = False) -> GroupSchem
     return schema
 
 
-for _schema in (RAW_DARK, RAW_RGB, RAW_SPECTRAL, RAW_EXPOSURE_PLAN, RAW_WHITE_REFERENCE,
-                RAW_COLOUR_CHECKER, RAW_REGISTRATION, DARK, HDR, BANDS, REGISTRATION,
-                IMAGE_SETS, CAMERA_MATRIX, SPECTRA, SPECTRA_SEED, TRUTH_SPECTRA, TRUTH_CAMERA,
-                EVALUATION,
-                CALIBRATION_OECF_RGB, CALIBRATION_OECF_SPECTRAL, CALIBRATION_SPECTRAL):
+for _schema in (
+    RAW_DARK,
+    RAW_RGB,
+    RAW_SPECTRAL,
+    RAW_EXPOSURE_PLAN,
+    RAW_WHITE_REFERENCE,
+    RAW_COLOUR_CHECKER,
+    RAW_REGISTRATION,
+    DARK,
+    HDR,
+    BANDS,
+    REGISTRATION,
+    IMAGE_SETS,
+    CAMERA_MATRIX,
+    SPECTRA,
+    SPECTRA_SEED,
+    TRUTH_SPECTRA,
+    TRUTH_CAMERA,
+    EVALUATION,
+    CALIBRATION_OECF_RGB,
+    CALIBRATION_OECF_SPECTRAL,
+    CALIBRATION_SPECTRAL,
+):
     register_schema(_schema)
 
 

@@ -57,8 +57,14 @@ class ArraySpec:
         return dtype == np.dtype(self.dtype)
 
     def describe_dtype(self) -> str:
-        kinds = {"f": "float", "i": "signed int", "u": "unsigned int", "U": "str", "O": "object",
-                 "T": "str"}
+        kinds = {
+            "f": "float",
+            "i": "signed int",
+            "u": "unsigned int",
+            "U": "str",
+            "O": "object",
+            "T": "str",
+        }
         if self.dtype.startswith("kind:"):
             return " or ".join(dict.fromkeys(kinds.get(k, k) for k in self.dtype[5:]))
         return self.dtype
@@ -131,12 +137,19 @@ def _check_array(where: str, array: xr.DataArray, spec: ArraySpec) -> list[Probl
     if spec.units is not None and array.attrs.get("units") != spec.units:
         found = array.attrs.get("units")
         problems.append(
-            Problem(where, f"attrs['units'] == {spec.units!r}",
-                    "no units attr" if found is None else f"units {found!r}")
+            Problem(
+                where,
+                f"attrs['units'] == {spec.units!r}",
+                "no units attr" if found is None else f"units {found!r}",
+            )
         )
     lazy = getattr(array.variable, "chunks", None) is not None
-    if (spec.valid_range or spec.finite) and not lazy and array.size <= _VALUE_CHECK_LIMIT \
-            and array.dtype.kind in "fiu":
+    if (
+        (spec.valid_range or spec.finite)
+        and not lazy
+        and array.size <= _VALUE_CHECK_LIMIT
+        and array.dtype.kind in "fiu"
+    ):
         values = np.asarray(array.values, dtype=float)
         if spec.finite and not np.isfinite(values).all():
             bad = int((~np.isfinite(values)).sum())
@@ -146,8 +159,11 @@ def _check_array(where: str, array: xr.DataArray, spec: ArraySpec) -> list[Probl
             finite = values[np.isfinite(values)]
             if finite.size and (finite.min() < low or finite.max() > high):
                 problems.append(
-                    Problem(where, f"values in [{low:g}, {high:g}]",
-                            f"range [{finite.min():g}, {finite.max():g}]")
+                    Problem(
+                        where,
+                        f"values in [{low:g}, {high:g}]",
+                        f"range [{finite.min():g}, {finite.max():g}]",
+                    )
                 )
     return problems
 

@@ -78,8 +78,7 @@ def compute_fingerprint(
     inputs
         Input group name -> that group's fingerprint.
     """
-    payload = {"node": node, "version": version, "parameters": dict(parameters),
-               "inputs": dict(inputs)}
+    payload = {"node": node, "version": version, "parameters": dict(parameters), "inputs": dict(inputs)}
     return hashlib.sha256(_canonical(payload).encode()).hexdigest()
 
 
@@ -88,7 +87,10 @@ def _stem(group: str) -> str:
 
 
 def _regular_chunks(
-    ds: xr.Dataset, chunks: Mapping[str, int] | None, *, region_dim: str | None = None,
+    ds: xr.Dataset,
+    chunks: Mapping[str, int] | None,
+    *,
+    region_dim: str | None = None,
 ) -> xr.Dataset:
     """Rechunk so every dask array has chunks zarr can store.
 
@@ -185,7 +187,10 @@ class RunStore:
     # -- opening ---------------------------------------------------------------------------
     @classmethod
     def create(
-        cls, path: str | os.PathLike[str], *, attrs: Mapping[str, Any] | None = None,
+        cls,
+        path: str | os.PathLike[str],
+        *,
+        attrs: Mapping[str, Any] | None = None,
         exist_ok: bool = False,
     ) -> RunStore:
         """Create an empty run store at ``path`` (or open it if ``exist_ok`` and it is one)."""
@@ -194,8 +199,10 @@ class RunStore:
             if exist_ok:
                 return cls.open(path)
             raise StoreError(f"cannot create run store {str(path)!r}: the path already exists")
-        meta = {"spectralize": {"format": STORE_FORMAT, "version": STORE_FORMAT_VERSION},
-                **dict(attrs or {})}
+        meta = {
+            "spectralize": {"format": STORE_FORMAT, "version": STORE_FORMAT_VERSION},
+            **dict(attrs or {}),
+        }
         zarr.open_group(str(path), mode="w-", zarr_format=3, attributes=meta)
         return cls(path)
 
@@ -324,7 +331,11 @@ class RunStore:
 
     # -- reading ---------------------------------------------------------------------------
     def read(
-        self, group: str, *, chunks: Mapping[str, int] | None = None, verify: bool = True,
+        self,
+        group: str,
+        *,
+        chunks: Mapping[str, int] | None = None,
+        verify: bool = True,
     ) -> xr.Dataset:
         """Open ``group`` lazily as an :class:`xarray.Dataset` (dask-backed).
 
@@ -349,7 +360,9 @@ class RunStore:
                     + "\n".join(f"  - {p}" for p in problems)
                 )
         return xr.open_zarr(
-            str(self.path), group=group.strip("/"), consolidated=False,
+            str(self.path),
+            group=group.strip("/"),
+            consolidated=False,
             chunks=dict(chunks) if chunks is not None else {},
         )
 
@@ -362,11 +375,17 @@ class RunStore:
         problems = []
         for rel, size in sorted(manifest.items()):
             if rel not in found:
-                problems.append(Problem(f"{group}/{rel}", f"a chunk file of {size} bytes",
-                                        "a missing file"))
+                problems.append(
+                    Problem(f"{group}/{rel}", f"a chunk file of {size} bytes", "a missing file")
+                )
             elif found[rel] != size:
-                problems.append(Problem(f"{group}/{rel}", f"{size} bytes",
-                                        f"{found[rel]} bytes (truncated or overwritten)"))
+                problems.append(
+                    Problem(
+                        f"{group}/{rel}",
+                        f"{size} bytes",
+                        f"{found[rel]} bytes (truncated or overwritten)",
+                    )
+                )
         return problems
 
     def validate(self) -> list[Problem]:
@@ -383,9 +402,13 @@ class RunStore:
         staging = self.path / STAGING
         if staging.is_dir():
             for leftover in sorted(p.name for p in staging.iterdir() if p.name != "zarr.json"):
-                problems.append(Problem(f"{STAGING}/{leftover}", "no unfinished writes",
-                                        "an unfinished or interrupted write (harmless; "
-                                        "a rerun resumes or replaces it)"))
+                problems.append(
+                    Problem(
+                        f"{STAGING}/{leftover}",
+                        "no unfinished writes",
+                        "an unfinished or interrupted write (harmless; a rerun resumes or replaces it)",
+                    )
+                )
         return problems
 
     # -- writing ---------------------------------------------------------------------------
@@ -444,17 +467,22 @@ class RunStore:
         if schema is not None:
             problems = validate_dataset(ds, schema, group=group)
             if problems:
-                raise SchemaError(f"refusing to write group {group!r}: it breaks schema "
-                                  f"{schema.name!r}", problems)
+                raise SchemaError(
+                    f"refusing to write group {group!r}: it breaks schema {schema.name!r}", problems
+                )
         if resumable_along is not None and resumable_along not in ds.dims:
-            raise StoreError(f"resumable_along={resumable_along!r} is not a dim of the data "
-                             f"for {group!r} (dims: {sorted(map(str, ds.dims))})")
+            raise StoreError(
+                f"resumable_along={resumable_along!r} is not a dim of the data "
+                f"for {group!r} (dims: {sorted(map(str, ds.dims))})"
+            )
         fingerprint = fingerprint or f"unrecorded:{uuid.uuid4().hex}"
         ds = _regular_chunks(ds, chunks, region_dim=resumable_along)
         attrs = {k: v for k, v in ds.attrs.items() if k not in _BOOKKEEPING}
         attrs[FINGERPRINT_ATTR] = fingerprint
-        attrs[PROVENANCE_ATTR] = {**dict(provenance or {}),
-                                  "written": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        attrs[PROVENANCE_ATTR] = {
+            **dict(provenance or {}),
+            "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
         if schema is not None:
             attrs[SCHEMA_ATTR] = schema.name
         ds = _variable_length_strings(ds.copy(deep=False))
@@ -469,23 +497,40 @@ class RunStore:
         if resumable_along is None:
             if staged_path.exists():
                 shutil.rmtree(staged_path)  # leftover of an interrupted attempt
-            ds.to_zarr(str(self.path), group=staged, mode="w", consolidated=False,
-                       zarr_format=3, encoding=enc or None)
+            ds.to_zarr(
+                str(self.path),
+                group=staged,
+                mode="w",
+                consolidated=False,
+                zarr_format=3,
+                encoding=enc or None,
+            )
         else:
             _region_encoding(ds, resumable_along, enc)
-            self._write_regions(ds, staged, staged_path, resumable_along, enc, progress,
-                                max(1, int(concurrent_regions)))
+            self._write_regions(
+                ds, staged, staged_path, resumable_along, enc, progress, max(1, int(concurrent_regions))
+            )
         self._commit(staged_path, target, group)
         return fingerprint
 
     def _write_regions(
-        self, ds: xr.Dataset, staged: str, staged_path: Path, dim: str,
-        encoding: dict[str, dict[str, Any]], progress: Callable[[str], None] | None,
+        self,
+        ds: xr.Dataset,
+        staged: str,
+        staged_path: Path,
+        dim: str,
+        encoding: dict[str, dict[str, Any]],
+        progress: Callable[[str], None] | None,
         concurrent: int,
     ) -> None:
-        dim_chunks = next((dict(zip(v.dims, v.chunks, strict=True))[dim]
-                           for v in ds.variables.values() if v.chunks and dim in v.dims),
-                          (ds.sizes[dim],))
+        dim_chunks = next(
+            (
+                dict(zip(v.dims, v.chunks, strict=True))[dim]
+                for v in ds.variables.values()
+                if v.chunks and dim in v.dims
+            ),
+            (ds.sizes[dim],),
+        )
         bounds = np.cumsum((0,) + tuple(dim_chunks))
         regions = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         flags_path = f"{STAGING}/{staged_path.name}.done"
@@ -498,10 +543,23 @@ class RunStore:
             for leftover in (staged_path, self.path / flags_path):
                 if leftover.exists():
                     shutil.rmtree(leftover)
-            ds.to_zarr(str(self.path), group=staged, mode="w", consolidated=False,
-                       zarr_format=3, compute=False, encoding=encoding or None)
-            flags = zarr.create_array(str(self.path), name=flags_path, shape=(len(regions),),
-                                      chunks=(1,), dtype="bool", fill_value=False)
+            ds.to_zarr(
+                str(self.path),
+                group=staged,
+                mode="w",
+                consolidated=False,
+                zarr_format=3,
+                compute=False,
+                encoding=encoding or None,
+            )
+            flags = zarr.create_array(
+                str(self.path),
+                name=flags_path,
+                shape=(len(regions),),
+                chunks=(1,),
+                dtype="bool",
+                fill_value=False,
+            )
         _remove_partial_chunks(staged_path)
         _remove_partial_chunks(self.path / flags_path)
         done = flags[:]
@@ -516,8 +574,9 @@ class RunStore:
             piece = ds[along].isel({dim: region})
             piece = piece.drop_vars([n for n in piece.variables if dim not in piece[n].dims])
             piece.attrs = {}
-            piece.to_zarr(str(self.path), group=staged, mode="r+", region={dim: region},
-                          consolidated=False)
+            piece.to_zarr(
+                str(self.path), group=staged, mode="r+", region={dim: region}, consolidated=False
+            )
             flags[index] = True  # its own chunk of the flag array: no two writers share one
             return index
 

@@ -33,11 +33,13 @@ def calibrate_bands(
     spectral: xr.Dataset,
     registration: xr.Dataset,
     *,
-    filter_size: Annotated[float | None, Field(gt=0, description="filter size [px] for shots "
-                                               "when raw/spectral has no filter_size "
-                                               "coord")] = None,
-    order: Annotated[int, Field(ge=0, le=5, description="spline order of the registration "
-                                "resampling")] = 1,
+    filter_size: Annotated[
+        float | None,
+        Field(gt=0, description="filter size [px] for shots when raw/spectral has no filter_size coord"),
+    ] = None,
+    order: Annotated[
+        int, Field(ge=0, le=5, description="spline order of the registration resampling")
+    ] = 1,
 ) -> xr.Dataset:
     """Band radiance of every shot: ``band_signal / Q(lambda_shot)``, registered to RGB.
 
@@ -88,24 +90,36 @@ def calibrate_bands(
     elif filter_size is not None:
         sizes = xr.full_like(raw_spectral["exposure_time"], float(filter_size))
     else:
-        raise SchemaError("cannot calibrate bands:", [Problem(
-            "raw/spectral:filter_size", "a per-shot coord [px] or the filter_size parameter",
-            "nothing")])
+        raise SchemaError(
+            "cannot calibrate bands:",
+            [
+                Problem(
+                    "raw/spectral:filter_size",
+                    "a per-shot coord [px] or the filter_size parameter",
+                    "nothing",
+                )
+            ],
+        )
     wavelengths = np.asarray(raw_spectral["wavelength"].values, dtype=float)
     q = spectral["quantum_efficiency"].load()
     grid = np.asarray(q["wavelength"].values, dtype=float)
     idx = np.array([int(np.argmin(np.abs(grid - w))) for w in wavelengths], dtype=int)
-    missing = np.flatnonzero(np.abs(grid[idx] - wavelengths) > 1e-6) if grid.size else \
-        np.arange(wavelengths.size)
+    missing = (
+        np.flatnonzero(np.abs(grid[idx] - wavelengths) > 1e-6)
+        if grid.size
+        else np.arange(wavelengths.size)
+    )
     if missing.size:
         raise CalibrationError(
             f"calibration/spectral:quantum_efficiency has no band at {wavelengths[missing]} nm "
-            f"(shots of raw/spectral); it covers {grid.tolist()} nm")
+            f"(shots of raw/spectral); it covers {grid.tolist()} nm"
+        )
     q_shot = xr.DataArray(np.asarray(q.values, dtype=float)[idx], dims="shot")
     if not np.all(q_shot.values > 0):
         raise CalibrationError(
             "calibration/spectral:quantum_efficiency is not positive at "
-            f"{wavelengths[~(q_shot.values > 0)].tolist()} nm")
+            f"{wavelengths[~(q_shot.values > 0)].tolist()} nm"
+        )
     counts = raw_spectral["counts"]
     if counts.chunks is None:
         counts = counts.chunk({"shot": 8})
@@ -117,12 +131,22 @@ def calibrate_bands(
     radiance = register_frames(radiance, registration["shift"], order=order)
     keep = [c for c in raw_spectral.coords if raw_spectral[c].dims == ("shot",)]
     radiance = radiance.drop_vars([c for c in radiance.coords if c not in keep])
-    radiance = radiance.assign_attrs(units="1", long_name="relative band radiance (units of "
-                                     "the measured illuminant), registered to the RGB camera")
+    radiance = radiance.assign_attrs(
+        units="1",
+        long_name="relative band radiance (units of "
+        "the measured illuminant), registered to the RGB camera",
+    )
     coords = {c: raw_spectral[c] for c in keep}
-    coords["filter_size"] = ("shot", np.asarray(sizes.values, dtype=float),
-                             {"units": "px", "long_name": "Gaussian filter size s_i (eq. 3)"})
-    return xr.Dataset({"radiance": radiance}, coords=coords,
-                      attrs={"registration_shift_px": [float(v) for v in
-                                                       registration["shift"].values],
-                             "negative_values": "kept (noise below the dark level)"})
+    coords["filter_size"] = (
+        "shot",
+        np.asarray(sizes.values, dtype=float),
+        {"units": "px", "long_name": "Gaussian filter size s_i (eq. 3)"},
+    )
+    return xr.Dataset(
+        {"radiance": radiance},
+        coords=coords,
+        attrs={
+            "registration_shift_px": [float(v) for v in registration["shift"].values],
+            "negative_values": "kept (noise below the dark level)",
+        },
+    )

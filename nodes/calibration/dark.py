@@ -33,10 +33,10 @@ EXPOSURE_TIME_RTOL: float = 1e-6
 def average_dark_frames(
     raw_dark: xr.Dataset,
     *,
-    frames_per_chunk: Annotated[int, Field(ge=1, description="dark frames read per dask "
-                                           "chunk")] = 16,
-    ddof: Annotated[int, Field(ge=0, le=1, description="delta degrees of freedom of the std "
-                               "(1: sample)")] = 1,
+    frames_per_chunk: Annotated[int, Field(ge=1, description="dark frames read per dask chunk")] = 16,
+    ddof: Annotated[
+        int, Field(ge=0, le=1, description="delta degrees of freedom of the std (1: sample)")
+    ] = 1,
 ) -> xr.Dataset:
     """Per-pixel mean and standard deviation of raw dark frames, per exposure time.
 
@@ -79,9 +79,16 @@ def average_dark_frames(
        time).
     """
     if raw_dark.sizes["frame"] < ddof + 1:
-        raise SchemaError("cannot average dark frames:", [Problem(
-            "raw/dark:frames", f"at least {ddof + 1} frames per exposure time",
-            f"{raw_dark.sizes['frame']}")])
+        raise SchemaError(
+            "cannot average dark frames:",
+            [
+                Problem(
+                    "raw/dark:frames",
+                    f"at least {ddof + 1} frames per exposure time",
+                    f"{raw_dark.sizes['frame']}",
+                )
+            ],
+        )
 
     max_code = 2 ** int(raw_dark.attrs["bit_depth"]) - 1
     frames = raw_dark["frames"].chunk({"frame": frames_per_chunk}).data
@@ -91,17 +98,23 @@ def average_dark_frames(
         as_float.mean(axis=1), as_float.std(axis=1, ddof=ddof), (frames >= max_code).sum()
     )
     if saturated:
-        warnings.warn(f"raw/dark:frames has {int(saturated)} pixel value(s) at the maximum code "
-                      f"{max_code}: the dark mean is biased low there (light leak or wrong "
-                      "bit_depth?)", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"raw/dark:frames has {int(saturated)} pixel value(s) at the maximum code "
+            f"{max_code}: the dark mean is biased low there (light leak or wrong "
+            "bit_depth?)",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     dims = ("exposure_time", "y", "x")
 
     out = xr.Dataset(
         {
-            "mean": (dims, mean.astype(np.float32),
-                     {"units": "DN", "long_name": "mean dark frame"}),
-            "std": (dims, std.astype(np.float32),
-                    {"units": "DN", "long_name": "per-pixel standard deviation of the dark frames"}),
+            "mean": (dims, mean.astype(np.float32), {"units": "DN", "long_name": "mean dark frame"}),
+            "std": (
+                dims,
+                std.astype(np.float32),
+                {"units": "DN", "long_name": "per-pixel standard deviation of the dark frames"},
+            ),
         },
         coords={"exposure_time": raw_dark["exposure_time"]},
         attrs={
@@ -112,7 +125,6 @@ def average_dark_frames(
         },
     )
     return out
-
 
 
 def dark_frames_at(
@@ -168,20 +180,26 @@ def dark_frames_at(
     ds = dark if isinstance(dark, xr.Dataset) else xr.Dataset({"mean": dark})
     mean = ds["mean"]
     if set(mean.dims) != {"exposure_time", "y", "x"}:
-        raise SchemaError("cannot look up dark frames:", [Problem(
-            "dark:mean", "dims (exposure_time, y, x)", f"dims {mean.dims}")])
+        raise SchemaError(
+            "cannot look up dark frames:",
+            [Problem("dark:mean", "dims (exposure_time, y, x)", f"dims {mean.dims}")],
+        )
     if frame_shape is not None and (mean.sizes["y"], mean.sizes["x"]) != tuple(frame_shape):
         raise CalibrationError(
             f"dark:mean frames are {mean.sizes['y']}x{mean.sizes['x']} px but the frames of "
             f"{used_by} are {frame_shape[0]}x{frame_shape[1]} px; use dark frames of the same "
-            "camera and region")
+            "camera and region"
+        )
     ds = ds[[v for v in ("mean", "std") if v in ds.data_vars]]
     if not ds.indexes["exposure_time"].is_monotonic_increasing:
         ds = ds.sortby("exposure_time")
     wanted = np.atleast_1d(np.asarray(exposure_time, dtype=np.float64))
     try:
-        return ds.sel(exposure_time=xr.DataArray(wanted, dims=dim), method="nearest",
-                      tolerance=rtol * np.abs(wanted))
+        return ds.sel(
+            exposure_time=xr.DataArray(wanted, dims=dim),
+            method="nearest",
+            tolerance=rtol * np.abs(wanted),
+        )
     except KeyError:
         pass
     available = np.asarray(ds["exposure_time"].values, dtype=np.float64)
@@ -190,8 +208,8 @@ def dark_frames_at(
     if missing.size == 1:
         what = f"exposure_time {float(wanted[missing[0]])} s ({dim} {int(missing[0])})"
     else:
-        what = (f"exposure_times {wanted[missing].tolist()} s ({dim}s "
-                f"{missing.tolist()})")
+        what = f"exposure_times {wanted[missing].tolist()} s ({dim}s {missing.tolist()})"
     raise CalibrationError(
         f"dark:mean has no frame for {what} used by {used_by}; dark frames exist for "
-        f"{available.tolist()} s. Record dark frames at every exposure time used")
+        f"{available.tolist()} s. Record dark frames at every exposure time used"
+    )

@@ -77,10 +77,12 @@ def merge_hdr_node(
     raw_rgb: xr.Dataset,
     oecf_rgb: xr.Dataset,
     *,
-    black_level: Annotated[int | None, Field(ge=0, description="under-exposed codes [DN]; "
-                                             "None: the response's black_level")] = None,
-    saturation: Annotated[int | None, Field(ge=1, description="saturated codes [DN]; None: "
-                                            "the response's")] = None,
+    black_level: Annotated[
+        int | None, Field(ge=0, description="under-exposed codes [DN]; None: the response's black_level")
+    ] = None,
+    saturation: Annotated[
+        int | None, Field(ge=1, description="saturated codes [DN]; None: the response's")
+    ] = None,
 ) -> xr.Dataset:
     """HDR RGB radiance of every raw/rgb image (Robertson's estimator), lazy per chunk.
 
@@ -99,8 +101,9 @@ def merge_hdr_node(
     if black_level is None:
         black_level = int(oecf_rgb.attrs.get("black_level", 0))
     out = merge_hdr(raw_rgb, response, black_level=black_level, saturation=saturation)
-    out["radiance"] = out["radiance"].astype(np.float32).assign_attrs(
-        units="1", long_name="relative RGB radiance")
+    out["radiance"] = (
+        out["radiance"].astype(np.float32).assign_attrs(units="1", long_name="relative RGB radiance")
+    )
     return out
 
 
@@ -115,38 +118,58 @@ DARK_AVERAGE = Node(
 )
 
 RECOVER_RGB_OECF = Node(
-    name="recover_rgb_oecf", version="1", function=recover_rgb_oecf,
-    inputs={"raw_rgb": "raw/rgb"}, outputs=("calibration/oecf_rgb",),
+    name="recover_rgb_oecf",
+    version="1",
+    function=recover_rgb_oecf,
+    inputs={"raw_rgb": "raw/rgb"},
+    outputs=("calibration/oecf_rgb",),
     description="RGB camera response per channel by Robertson 2003 from raw/rgb (sec. 4).",
 )
 
 RECOVER_SPECTRAL_OECF = Node(
-    name="recover_spectral_oecf", version="1", function=recover_spectral_oecf,
+    name="recover_spectral_oecf",
+    version="1",
+    function=recover_spectral_oecf,
     inputs={"white_reference": "raw/white_reference", "dark": "dark"},
     outputs=("calibration/oecf_spectral",),
     description="Spectral camera response: low-SNR extension joined to Robertson (sec. 4).",
 )
 
 CALIBRATE_SPECTRAL = Node(
-    name="calibrate_spectral", version="1", function=calibrate_spectral,
-    inputs={"white_reference": "raw/white_reference", "colour_checker": "raw/colour_checker",
-            "dark": "dark", "oecf_rgb": "calibration/oecf_rgb",
-            "oecf_spectral": "calibration/oecf_spectral"},
+    name="calibrate_spectral",
+    version="1",
+    function=calibrate_spectral,
+    inputs={
+        "white_reference": "raw/white_reference",
+        "colour_checker": "raw/colour_checker",
+        "dark": "dark",
+        "oecf_rgb": "calibration/oecf_rgb",
+        "oecf_spectral": "calibration/oecf_spectral",
+    },
     outputs=("calibration/spectral",),
     description="Quantum efficiency, camera matrix C and cross-validation (sec. 4, Fig. 4).",
 )
 
 HDR_MERGE = Node(
-    name="hdr_merge", version="1", function=merge_hdr_node,
-    inputs={"raw_rgb": "raw/rgb", "oecf_rgb": "calibration/oecf_rgb"}, outputs=("hdr",),
+    name="hdr_merge",
+    version="1",
+    function=merge_hdr_node,
+    inputs={"raw_rgb": "raw/rgb", "oecf_rgb": "calibration/oecf_rgb"},
+    outputs=("hdr",),
     description="HDR RGB radiance from the exposure series (Robertson), lazy per chunk.",
 )
 
 CALIBRATE_BANDS = Node(
-    name="calibrate_bands", version="1", function=calibrate_bands,
-    inputs={"raw_spectral": "raw/spectral", "dark": "dark",
-            "oecf_spectral": "calibration/oecf_spectral", "spectral": "calibration/spectral",
-            "registration": "registration"},
+    name="calibrate_bands",
+    version="1",
+    function=calibrate_bands,
+    inputs={
+        "raw_spectral": "raw/spectral",
+        "dark": "dark",
+        "oecf_spectral": "calibration/oecf_spectral",
+        "spectral": "calibration/spectral",
+        "registration": "registration",
+    },
     outputs=("bands",),
     description="Band radiance (signal / Q), registered onto the RGB grid, filter size per shot.",
 )

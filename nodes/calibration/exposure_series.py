@@ -68,17 +68,26 @@ def check_bit_depth(value: object, *, where: str) -> int:
         When the bit depth is unknown, not an integer, or outside 8..16.
     """
     if value is None:
-        raise SchemaError(f"{where}: the bit depth is unknown", [Problem(
-            where, "an ADC bit depth 8..16 (attrs['bit_depth'] or the keyword bit_depth=...)",
-            "nothing")])
+        raise SchemaError(
+            f"{where}: the bit depth is unknown",
+            [
+                Problem(
+                    where,
+                    "an ADC bit depth 8..16 (attrs['bit_depth'] or the keyword bit_depth=...)",
+                    "nothing",
+                )
+            ],
+        )
     try:
         depth = int(value)  # type: ignore[call-overload]
         ok = depth == value and 8 <= depth <= 16
     except (TypeError, ValueError):
         ok = False
     if not ok:
-        raise SchemaError(f"{where}: the bit depth is invalid", [Problem(
-            where, "an ADC bit depth, an integer in 8..16", repr(value))])
+        raise SchemaError(
+            f"{where}: the bit depth is invalid",
+            [Problem(where, "an ADC bit depth, an integer in 8..16", repr(value))],
+        )
     return depth
 
 
@@ -86,9 +95,16 @@ def counts_array(data: xr.Dataset | xr.DataArray, name: str = "counts") -> xr.Da
     """Variable ``name`` of a Dataset (group attrs merged into its attrs), or the DataArray."""
     if isinstance(data, xr.Dataset):
         if name not in data.data_vars:
-            raise SchemaError("cannot use the exposure series:", [Problem(
-                f"variable {name!r}", "a data variable of the series",
-                f"variables {sorted(map(str, data.data_vars))}")])
+            raise SchemaError(
+                "cannot use the exposure series:",
+                [
+                    Problem(
+                        f"variable {name!r}",
+                        "a data variable of the series",
+                        f"variables {sorted(map(str, data.data_vars))}",
+                    )
+                ],
+            )
         array = data[name]
         return array.assign_attrs({**data.attrs, **array.attrs})
     return data
@@ -97,8 +113,10 @@ def counts_array(data: xr.Dataset | xr.DataArray, name: str = "counts") -> xr.Da
 def check_integer(counts: xr.DataArray, where: str) -> None:
     """Raise a :class:`SchemaError` unless the pixel values are integers (raw DN)."""
     if not np.issubdtype(counts.dtype, np.integer):
-        raise SchemaError(f"{where}: pixel values must be integers (raw DN)", [Problem(
-            where, "integer pixel values [DN]", f"dtype {counts.dtype}")])
+        raise SchemaError(
+            f"{where}: pixel values must be integers (raw DN)",
+            [Problem(where, "integer pixel values [DN]", f"dtype {counts.dtype}")],
+        )
 
 
 def check_exposure_times(times: xr.DataArray, series_dim: str, where: str) -> None:
@@ -111,8 +129,9 @@ def check_exposure_times(times: xr.DataArray, series_dim: str, where: str) -> No
     """
     values = np.asarray(times.transpose(..., series_dim).values, dtype=np.float64)
     if not np.all(np.isfinite(values)) or np.any(values <= 0):
-        raise CalibrationError(f"{where}: exposure_time must be positive and finite, got "
-                               f"{values.tolist()}")
+        raise CalibrationError(
+            f"{where}: exposure_time must be positive and finite, got {values.tolist()}"
+        )
     rows = values.reshape(-1, values.shape[-1])
     for row_index, row in enumerate(rows):
         steps = np.diff(row)
@@ -124,7 +143,8 @@ def check_exposure_times(times: xr.DataArray, series_dim: str, where: str) -> No
                 f"{where}: exposure_time{label} must be strictly increasing along "
                 f"{series_dim!r}; found {kind} values {row[bad]} then {row[bad + 1]} at "
                 f"positions {bad}, {bad + 1} of {row.tolist()}; sort the series by exposure "
-                "time (e.g. ds.sortby('exposure_time')) and drop repeated exposures")
+                "time (e.g. ds.sortby('exposure_time')) and drop repeated exposures"
+            )
 
 
 def warn_if_geometric(times: xr.DataArray, series_dim: str, where: str) -> None:
@@ -138,11 +158,14 @@ def warn_if_geometric(times: xr.DataArray, series_dim: str, where: str) -> None:
             "then determined only up to a factor periodic in log exposure (Grossberg & Nayar "
             "2003) and only noise decides it. Use exposure times with unequal ratios "
             "(e.g. 1, 3, 8, 25, 60) or several series with different ratios",
-            RuntimeWarning, stacklevel=3)
+            RuntimeWarning,
+            stacklevel=3,
+        )
 
 
-def frame_flags(counts: xr.DataArray, pixel_dims: Sequence[str], *, black_level: float,
-                saturation: float) -> tuple[int, int, np.ndarray, np.ndarray]:
+def frame_flags(
+    counts: xr.DataArray, pixel_dims: Sequence[str], *, black_level: float, saturation: float
+) -> tuple[int, int, np.ndarray, np.ndarray]:
     """Smallest and largest value, and per frame whether it is not entirely saturated/dark.
 
     Returns
@@ -154,35 +177,55 @@ def frame_flags(counts: xr.DataArray, pixel_dims: Sequence[str], *, black_level:
         ``<= black_level``. One pass over the data (numpy or dask).
     """
     pixel_dims = [d for d in counts.dims if d in pixel_dims]
-    if counts.chunks is None:   # numpy: two reductions, no xarray/dask overhead
+    if counts.chunks is None:  # numpy: two reductions, no xarray/dask overhead
         axes = tuple(counts.get_axis_num(pixel_dims))
         # pixel dims last and flattened (one copy when they are not already last): numpy
         # reduces a contiguous last axis many times faster than axes in the middle
-        values = np.ascontiguousarray(
-            np.moveaxis(counts.values, axes, tuple(range(-len(axes), 0))))
-        values = values.reshape(values.shape[:values.ndim - len(axes)] + (-1,))
+        values = np.ascontiguousarray(np.moveaxis(counts.values, axes, tuple(range(-len(axes), 0))))
+        values = values.reshape(values.shape[: values.ndim - len(axes)] + (-1,))
         frame_min, frame_max = values.min(axis=-1), values.max(axis=-1)
-        return (int(frame_min.min()), int(frame_max.max()), frame_min < saturation,
-                frame_max > black_level)
+        return (
+            int(frame_min.min()),
+            int(frame_max.max()),
+            frame_min < saturation,
+            frame_max > black_level,
+        )
     lo, hi, not_saturated, not_dark = dask.compute(
-        counts.min().data, counts.max().data, (counts < saturation).any(pixel_dims).data,
-        (counts > black_level).any(pixel_dims).data)
+        counts.min().data,
+        counts.max().data,
+        (counts < saturation).any(pixel_dims).data,
+        (counts > black_level).any(pixel_dims).data,
+    )
     return int(lo), int(hi), np.asarray(not_saturated), np.asarray(not_dark)
 
 
-def raise_for_frames(lo: int, hi: int, not_saturated: np.ndarray, not_dark: np.ndarray, *,
-                     frame_dims: Sequence[str], black_level: float, saturation: float,
-                     max_code: int, where: str, times: xr.DataArray | None = None) -> None:
+def raise_for_frames(
+    lo: int,
+    hi: int,
+    not_saturated: np.ndarray,
+    not_dark: np.ndarray,
+    *,
+    frame_dims: Sequence[str],
+    black_level: float,
+    saturation: float,
+    max_code: int,
+    where: str,
+    times: xr.DataArray | None = None,
+) -> None:
     """Raise for values beyond the bit depth and frames entirely saturated or dark.
 
     The arguments are :func:`frame_flags`'s results; ``frame_dims`` names the axes of the
     flag arrays, ``times`` (over some of them) gives the exposure time in the message.
     """
     if lo < 0 or hi > max_code:
-        raise CalibrationError(f"{where}: pixel values must lie in [0, {max_code}] for the bit "
-                               f"depth, found [{lo}, {hi}]; is bit_depth right?")
-    for flags, what, bound in ((not_saturated, "saturated (>= saturation", saturation),
-                               (not_dark, "dark (<= black_level", black_level)):
+        raise CalibrationError(
+            f"{where}: pixel values must lie in [0, {max_code}] for the bit "
+            f"depth, found [{lo}, {hi}]; is bit_depth right?"
+        )
+    for flags, what, bound in (
+        (not_saturated, "saturated (>= saturation", saturation),
+        (not_dark, "dark (<= black_level", black_level),
+    ):
         bad = np.argwhere(~np.asarray(flags, dtype=bool))
         if bad.size:
             position = dict(zip(frame_dims, bad[0].tolist(), strict=True))
@@ -193,12 +236,20 @@ def raise_for_frames(lo: int, hi: int, not_saturated: np.ndarray, not_dark: np.n
             label = ", ".join(f"{k}={v}" for k, v in position.items())
             raise CalibrationError(
                 f"{where}: frame {label}{t} is entirely {what} = {bound}): it carries no "
-                f"information; {len(bad)} such frame(s) in all. Drop it or fix its exposure")
+                f"information; {len(bad)} such frame(s) in all. Drop it or fix its exposure"
+            )
 
 
-def check_frames(counts: xr.DataArray, frame_dims: Sequence[str], *, black_level: float,
-                 saturation: float, max_code: int, where: str,
-                 times: xr.DataArray | None = None) -> None:
+def check_frames(
+    counts: xr.DataArray,
+    frame_dims: Sequence[str],
+    *,
+    black_level: float,
+    saturation: float,
+    max_code: int,
+    where: str,
+    times: xr.DataArray | None = None,
+) -> None:
     """No value beyond the bit depth, no frame entirely saturated or entirely dark.
 
     Raises
@@ -209,12 +260,20 @@ def check_frames(counts: xr.DataArray, frame_dims: Sequence[str], *, black_level
     frame_dims = [d for d in counts.dims if d in frame_dims]
     pixel_dims = [d for d in counts.dims if d not in frame_dims]
     flags = frame_flags(counts, pixel_dims, black_level=black_level, saturation=saturation)
-    raise_for_frames(*flags, frame_dims=frame_dims, black_level=black_level,
-                     saturation=saturation, max_code=max_code, where=where, times=times)
+    raise_for_frames(
+        *flags,
+        frame_dims=frame_dims,
+        black_level=black_level,
+        saturation=saturation,
+        max_code=max_code,
+        where=where,
+        times=times,
+    )
 
 
-def saturated_frames(counts: xr.DataArray, depth: int,
-                     pixel_dims: Sequence[str] = ("y", "x")) -> np.ndarray:
+def saturated_frames(
+    counts: xr.DataArray, depth: int, pixel_dims: Sequence[str] = ("y", "x")
+) -> np.ndarray:
     """Per frame, whether any pixel is at the ADC's maximum code ``2**depth - 1``.
 
     Returns
@@ -242,10 +301,14 @@ def target_spectral_series(target: xr.Dataset, group: str) -> tuple[xr.DataArray
         The counts loaded in memory with coord ``spectral_exposure_time`` (float, [s]) and the
         spectral camera's bit depth (``attrs["spectral_bit_depth"]``, checked 8..16).
     """
-    depth = check_bit_depth(target.attrs.get("spectral_bit_depth"),
-                            where=f"{group}.attrs['spectral_bit_depth']")
+    depth = check_bit_depth(
+        target.attrs.get("spectral_bit_depth"), where=f"{group}.attrs['spectral_bit_depth']"
+    )
     counts = target["spectral_counts"].transpose("wavelength", "spectral_exposure", "y", "x")
     counts = counts.assign_coords(
-        spectral_exposure_time=("spectral_exposure",
-                                np.asarray(target["spectral_exposure_time"].values, float)))
+        spectral_exposure_time=(
+            "spectral_exposure",
+            np.asarray(target["spectral_exposure_time"].values, float),
+        )
+    )
     return counts.load(), depth

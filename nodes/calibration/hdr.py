@@ -97,10 +97,12 @@ def merge_robertson(
         saturated = c >= saturation
         t_sat = np.where(saturated, t, np.inf).min(axis=-1)
         t_dark = np.where(c <= black_level, t, 0.0).max(axis=-1)
-        f_sat = np.take_along_axis(response, np.full(c.shape[:-1] + (1,), saturation, np.intp),
-                                   axis=-1)[..., 0]
+        f_sat = np.take_along_axis(response, np.full(c.shape[:-1] + (1,), saturation, np.intp), axis=-1)[
+            ..., 0
+        ]
         f_dark = np.take_along_axis(
-            response, np.full(c.shape[:-1] + (1,), max(black_level, 0), np.intp), axis=-1)[..., 0]
+            response, np.full(c.shape[:-1] + (1,), max(black_level, 0), np.intp), axis=-1
+        )[..., 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             bound = np.where(saturated.any(axis=-1), f_sat / t_sat, f_dark / t_dark)
         x = np.where(missing, bound, x)
@@ -110,8 +112,10 @@ def merge_robertson(
 def _validate(raw: xr.Dataset, where: str) -> xr.DataArray:
     if not isinstance(raw, xr.Dataset) or "counts" not in raw.data_vars:
         found = sorted(map(str, raw.data_vars)) if isinstance(raw, xr.Dataset) else type(raw)
-        raise SchemaError(f"{where}: raw/rgb breaks the contract", [Problem(
-            "raw/rgb:counts", "the raw/rgb group with variable 'counts'", str(found))])
+        raise SchemaError(
+            f"{where}: raw/rgb breaks the contract",
+            [Problem("raw/rgb:counts", "the raw/rgb group with variable 'counts'", str(found))],
+        )
     counts = raw["counts"]
     problems = []
     if set(counts.dims) != set(_DIMS):
@@ -119,48 +123,59 @@ def _validate(raw: xr.Dataset, where: str) -> xr.DataArray:
     if not np.issubdtype(counts.dtype, np.integer):
         problems.append(Problem("raw/rgb:counts", "integer DN", f"dtype {counts.dtype}"))
     if "exposure_time" not in raw.coords:
-        problems.append(Problem("raw/rgb:exposure_time", "a coord (image, exposure) [s]",
-                                "nothing"))
+        problems.append(Problem("raw/rgb:exposure_time", "a coord (image, exposure) [s]", "nothing"))
     elif set(raw["exposure_time"].dims) != {"image", "exposure"}:
-        problems.append(Problem("raw/rgb:exposure_time", "dims (image, exposure)",
-                                f"dims {raw['exposure_time'].dims}"))
+        problems.append(
+            Problem(
+                "raw/rgb:exposure_time", "dims (image, exposure)", f"dims {raw['exposure_time'].dims}"
+            )
+        )
     if problems:
         raise SchemaError(f"{where}: raw/rgb breaks the contract", problems)
     return counts.transpose(*_DIMS)
 
 
-def _response_table(response: xr.Dataset | xr.DataArray, counts: xr.DataArray,
-                    n_codes: int, where: str) -> xr.DataArray:
+def _response_table(
+    response: xr.Dataset | xr.DataArray, counts: xr.DataArray, n_codes: int, where: str
+) -> xr.DataArray:
     """The response at integer codes 0..n_codes-1, dims (image, channel, code)."""
     table = response["response"] if isinstance(response, xr.Dataset) else response
     if "code" not in table.dims or set(table.dims) - {"camera", "channel", "code"}:
-        raise SchemaError(f"{where}: the response breaks the contract", [Problem(
-            "response", "dims ([camera,] [channel,] code)", f"dims {table.dims}")])
+        raise SchemaError(
+            f"{where}: the response breaks the contract",
+            [Problem("response", "dims ([camera,] [channel,] code)", f"dims {table.dims}")],
+        )
     if table.attrs.get("dark_subtracted"):
         raise CalibrationError(
             f"{where}: the response is over dark-subtracted values (low-SNR/combined); the HDR "
-            "merge needs a response over raw codes from recover_oecf")
+            "merge needs a response over raw codes from recover_oecf"
+        )
     codes = np.asarray(table["code"].values)
     if not (codes.size == n_codes and np.array_equal(codes, np.arange(n_codes))):
         table = response_at_codes(table, np.arange(n_codes))
     if "channel" in table.dims:
-        missing = sorted(set(counts["channel"].values.tolist())
-                         - set(table["channel"].values.tolist()))
+        missing = sorted(set(counts["channel"].values.tolist()) - set(table["channel"].values.tolist()))
         if missing:
-            raise CalibrationError(f"{where}: response has no channel(s) {missing}; it has "
-                                   f"{table['channel'].values.tolist()}")
+            raise CalibrationError(
+                f"{where}: response has no channel(s) {missing}; it has "
+                f"{table['channel'].values.tolist()}"
+            )
         table = table.sel(channel=counts["channel"].values)
     else:
         table = table.expand_dims(channel=counts.sizes["channel"])
     if "camera" in table.dims:
         if "camera" not in counts.coords:
-            raise SchemaError(f"{where}: the response is per camera", [Problem(
-                "raw/rgb:camera", "a coord camera (image,)", "nothing")])
+            raise SchemaError(
+                f"{where}: the response is per camera",
+                [Problem("raw/rgb:camera", "a coord camera (image,)", "nothing")],
+            )
         cameras = counts["camera"].values
         missing = sorted(set(cameras.tolist()) - set(table["camera"].values.tolist()))
         if missing:
-            raise CalibrationError(f"{where}: no response for camera(s) {missing}; responses "
-                                   f"exist for {table['camera'].values.tolist()}")
+            raise CalibrationError(
+                f"{where}: no response for camera(s) {missing}; responses "
+                f"exist for {table['camera'].values.tolist()}"
+            )
         table = table.sel(camera=xr.DataArray(cameras, dims="image")).drop_vars("camera")
     else:
         table = table.expand_dims(image=counts.sizes["image"])
@@ -239,8 +254,9 @@ def merge_hdr(
     """
     where = "merge_hdr"
     counts = _validate(raw_rgb, where)
-    depth = check_bit_depth(raw_rgb.attrs.get("bit_depth", counts.attrs.get("bit_depth")),
-                            where="raw/rgb.attrs['bit_depth']")
+    depth = check_bit_depth(
+        raw_rgb.attrs.get("bit_depth", counts.attrs.get("bit_depth")), where="raw/rgb.attrs['bit_depth']"
+    )
     n_codes = 2**depth
     table_da = response["response"] if isinstance(response, xr.Dataset) else response
     attrs = table_da.attrs
@@ -248,10 +264,11 @@ def merge_hdr(
     sat = int(attrs.get("saturation", n_codes - 1) if saturation is None else saturation)
     kind: Weighting = attrs.get("weighting", "gaussian") if weighting is None else weighting
     if not 0 <= black < sat <= n_codes - 1:
-        raise CalibrationError(f"{where}: need 0 <= black_level < saturation <= {n_codes - 1}, "
-                               f"got black_level={black}, saturation={sat}")
-    weights = weighting_function(np.arange(n_codes), black_level=black, saturation=sat,
-                                 kind=kind)
+        raise CalibrationError(
+            f"{where}: need 0 <= black_level < saturation <= {n_codes - 1}, "
+            f"got black_level={black}, saturation={sat}"
+        )
+    weights = weighting_function(np.arange(n_codes), black_level=black, saturation=sat, kind=kind)
     times = raw_rgb["exposure_time"].transpose("image", "exposure")
     check_exposure_times(times, "exposure", f"{where}: raw/rgb")
     table = _response_table(response, counts, n_codes, where)
@@ -267,15 +284,27 @@ def merge_hdr(
     # (or dark) in every exposure has no weighted sample; "other" ones mix both.
     pixel_dims = ["y", "x"]
     lo, hi, not_sat, not_dark, n_sat, n_dark, n_none = dask.compute(
-        counts.min(), counts.max(), (counts < sat).any(pixel_dims),
-        (counts > black).any(pixel_dims), (counts >= sat).all("exposure").sum(),
+        counts.min(),
+        counts.max(),
+        (counts < sat).any(pixel_dims),
+        (counts > black).any(pixel_dims),
+        (counts >= sat).all("exposure").sum(),
         (counts <= black).all("exposure").sum(),
-        (~((counts > black) & (counts < sat)).any("exposure")).sum())
+        (~((counts > black) & (counts < sat)).any("exposure")).sum(),
+    )
     frame_dims = ("image", "exposure", "channel")
-    raise_for_frames(int(lo), int(hi), not_sat.transpose(*frame_dims).values,
-                     not_dark.transpose(*frame_dims).values, frame_dims=frame_dims,
-                     black_level=black, saturation=sat, max_code=n_codes - 1,
-                     where=f"{where}: raw/rgb:counts", times=times)
+    raise_for_frames(
+        int(lo),
+        int(hi),
+        not_sat.transpose(*frame_dims).values,
+        not_dark.transpose(*frame_dims).values,
+        frame_dims=frame_dims,
+        black_level=black,
+        saturation=sat,
+        max_code=n_codes - 1,
+        where=f"{where}: raw/rgb:counts",
+        times=times,
+    )
     n_sat, n_dark, n_none = int(n_sat), int(n_dark), int(n_none)
     n_other = n_none - n_sat - n_dark
     if n_none:
@@ -283,27 +312,44 @@ def merge_hdr(
             f"{where}: {n_none} pixel-channel(s) have no weighted sample: {n_sat} saturated in "
             f"every exposure (given the lower bound f(saturation)/t_min), {n_dark} dark in every "
             f"exposure (given the upper bound f(black_level)/t_max), {n_other} other; add "
-            "shorter/longer exposures to resolve them", RuntimeWarning, stacklevel=2)
+            "shorter/longer exposures to resolve them",
+            RuntimeWarning,
+            stacklevel=2,
+        )
 
     t = times.astype(np.float64).chunk({"image": counts.chunks[0]})
     tab = table.chunk({"image": counts.chunks[0], "code": -1, "channel": -1})
     radiance = xr.apply_ufunc(
-        merge_robertson, counts, t, tab,
+        merge_robertson,
+        counts,
+        t,
+        tab,
         input_core_dims=[["exposure"], ["exposure"], ["code"]],
         output_core_dims=[[]],
         kwargs={"weights": weights, "black_level": black, "saturation": sat},
-        dask="parallelized", output_dtypes=[np.float32],
+        dask="parallelized",
+        output_dtypes=[np.float32],
     ).transpose("image", "y", "x", "channel")
     if not lazy:
         radiance = radiance.compute()
     radiance.attrs = {"units": "1", "long_name": "relative RGB radiance"}
-    coords = {k: v for k, v in raw_rgb.coords.items()
-              if "exposure" not in v.dims and set(v.dims) <= {"image", "channel"}}
+    coords = {
+        k: v
+        for k, v in raw_rgb.coords.items()
+        if "exposure" not in v.dims and set(v.dims) <= {"image", "channel"}
+    }
     out = xr.Dataset(
         {"radiance": radiance.drop_vars([c for c in radiance.coords if c not in coords])},
         coords=coords,
-        attrs={"method": "robertson2003", "bit_depth": int(depth), "black_level": black,
-               "saturation": sat, "weighting": kind, "n_saturated": n_sat,
-               "n_underexposed": n_dark, "n_unresolved": n_other},
+        attrs={
+            "method": "robertson2003",
+            "bit_depth": int(depth),
+            "black_level": black,
+            "saturation": sat,
+            "weighting": kind,
+            "n_saturated": n_sat,
+            "n_underexposed": n_dark,
+            "n_unresolved": n_other,
+        },
     )
     return out

@@ -77,8 +77,10 @@ def estimate_shift(
     from skimage.filters import window
 
     if reference.shape != moving.shape or reference.ndim != 2:
-        raise SchemaError("cannot estimate a shift:", [Problem(
-            "moving", f"a 2-D image of shape {reference.shape}", f"shape {moving.shape}")])
+        raise SchemaError(
+            "cannot estimate a shift:",
+            [Problem("moving", f"a 2-D image of shape {reference.shape}", f"shape {moving.shape}")],
+        )
     hann = window("hann", reference.shape)
     ref = (reference - reference.mean()) * hann
     total = np.zeros(2)
@@ -86,8 +88,9 @@ def estimate_shift(
     current = np.asarray(moving, dtype=float)
     for _ in range(1 + refinements):
         mov = (current - current.mean()) * hann
-        found, error, _ = phase_cross_correlation(ref, mov, upsample_factor=upsample_factor,
-                                                  normalization="phase")
+        found, error, _ = phase_cross_correlation(
+            ref, mov, upsample_factor=upsample_factor, normalization="phase"
+        )
         # skimage returns the shift registering `moving` onto `reference`: minus ours
         total -= np.asarray(found, dtype=float)
         current = ndimage.shift(np.asarray(moving, dtype=float), -total, order=3, mode="nearest")
@@ -134,12 +137,13 @@ def pair_rotations(
 def estimate_registration(
     registration: xr.Dataset,
     *,
-    azimuth_offset: Annotated[float, Field(description="azimuth between the spectral camera "
-                                           "and its RGB camera [degree]")] = 15.0,
-    upsample_factor: Annotated[int, Field(ge=1, le=1000, description="1/precision of the "
-                                          "shift [px]")] = 50,
-    max_shift: Annotated[float, Field(gt=0, description="largest plausible misregistration "
-                                      "[px]")] = 8.0,
+    azimuth_offset: Annotated[
+        float, Field(description="azimuth between the spectral camera and its RGB camera [degree]")
+    ] = 15.0,
+    upsample_factor: Annotated[
+        int, Field(ge=1, le=1000, description="1/precision of the shift [px]")
+    ] = 50,
+    max_shift: Annotated[float, Field(gt=0, description="largest plausible misregistration [px]")] = 8.0,
 ) -> xr.Dataset:
     """Estimate the fixed misregistration of the spectral camera from registration shots.
 
@@ -178,10 +182,16 @@ def estimate_registration(
     pairs = pair_rotations(registration["rotation_angle"].values, azimuth_offset=azimuth_offset)
     if not pairs:
         angles = registration["rotation_angle"].values.tolist()
-        raise SchemaError("cannot estimate the registration:", [Problem(
-            "raw/registration:rotation_angle",
-            f"two rotations {azimuth_offset:g} degree apart (spectral after RGB)",
-            f"angles {angles}")])
+        raise SchemaError(
+            "cannot estimate the registration:",
+            [
+                Problem(
+                    "raw/registration:rotation_angle",
+                    f"two rotations {azimuth_offset:g} degree apart (spectral after RGB)",
+                    f"angles {angles}",
+                )
+            ],
+        )
     rgb = registration["rgb_counts"]
     spectral = registration["spectral_counts"]
     shifts, errors = [], []
@@ -194,33 +204,53 @@ def estimate_registration(
     shifts_arr = np.asarray(shifts)
     plausible = np.all(np.abs(shifts_arr) <= max_shift, axis=1)
     if not plausible.any():
-        raise SchemaError("cannot estimate the registration:", [Problem(
-            "raw/registration", f"shifts within {max_shift:g} px",
-            f"shifts {shifts_arr.round(2).tolist()} (do the shots show the same content?)")])
+        raise SchemaError(
+            "cannot estimate the registration:",
+            [
+                Problem(
+                    "raw/registration",
+                    f"shifts within {max_shift:g} px",
+                    f"shifts {shifts_arr.round(2).tolist()} (do the shots show the same content?)",
+                )
+            ],
+        )
     combined = np.median(shifts_arr[plausible], axis=0)
     residual = np.linalg.norm(shifts_arr - combined, axis=1)
     px = {"units": "px"}
     return xr.Dataset(
         {
-            "shift": ("axis", combined, {**px, "long_name": "misregistration: spectral(p) = "
-                                                             "rgb(p - shift)"}),
+            "shift": (
+                "axis",
+                combined,
+                {**px, "long_name": "misregistration: spectral(p) = rgb(p - shift)"},
+            ),
             "pair_shift": (("pair", "axis"), shifts_arr, {**px, "long_name": "shift per pair"}),
-            "residual": ("pair", residual, {**px, "long_name": "distance of a pair's shift from "
-                                                               "the run's shift"}),
-            "error": ("pair", np.asarray(errors), {"units": "1",
-                                                    "long_name": "phase-correlation error"}),
+            "residual": (
+                "pair",
+                residual,
+                {**px, "long_name": "distance of a pair's shift from the run's shift"},
+            ),
+            "error": (
+                "pair",
+                np.asarray(errors),
+                {"units": "1", "long_name": "phase-correlation error"},
+            ),
             "plausible": ("pair", plausible, {"long_name": f"shift within {max_shift:g} px"}),
         },
         coords={
             "axis": ("axis", np.array(["y", "x"], dtype=object)),
-            "rgb_rotation": ("pair", np.array([registration["rotation"].values[i]
-                                               for i, _ in pairs])),
-            "spectral_rotation": ("pair", np.array([registration["rotation"].values[j]
-                                                    for _, j in pairs])),
+            "rgb_rotation": ("pair", np.array([registration["rotation"].values[i] for i, _ in pairs])),
+            "spectral_rotation": (
+                "pair",
+                np.array([registration["rotation"].values[j] for _, j in pairs]),
+            ),
         },
-        attrs={"method": "phase correlation (scikit-image), Hann window, refined, median over pairs",
-               "upsample_factor": upsample_factor, "azimuth_offset": azimuth_offset,
-               "residual_rms": float(np.sqrt(np.mean(residual[plausible] ** 2)))},
+        attrs={
+            "method": "phase correlation (scikit-image), Hann window, refined, median over pairs",
+            "upsample_factor": upsample_factor,
+            "azimuth_offset": azimuth_offset,
+            "residual_rms": float(np.sqrt(np.mean(residual[plausible] ** 2))),
+        },
     )
 
 
@@ -228,8 +258,9 @@ def _shift_frames(frames: np.ndarray, shift: tuple[float, float], order: int) ->
     out = np.empty_like(frames, dtype=np.float32)
     for index in np.ndindex(frames.shape[:-2]):
         # registered(p) = spectral(p + shift): ndimage.shift(x, t)(p) = x(p - t) with t = -shift
-        out[index] = ndimage.shift(frames[index].astype(np.float32), (-shift[0], -shift[1]),
-                                   order=order, mode="nearest")
+        out[index] = ndimage.shift(
+            frames[index].astype(np.float32), (-shift[0], -shift[1]), order=order, mode="nearest"
+        )
     return out
 
 
@@ -263,12 +294,17 @@ def register_frames(frames: xr.DataArray, shift: xr.DataArray, *, order: int = 1
     """
     dy, dx = (float(shift.sel(axis=a)) for a in ("y", "x"))
     if tuple(frames.dims[-2:]) != ("y", "x"):
-        raise SchemaError("cannot register frames:", [Problem(
-            frames.name or "frames", "trailing dims ('y', 'x')", f"dims {frames.dims}")])
+        raise SchemaError(
+            "cannot register frames:",
+            [Problem(frames.name or "frames", "trailing dims ('y', 'x')", f"dims {frames.dims}")],
+        )
     out = xr.apply_ufunc(
-        _shift_frames, frames, kwargs={"shift": (dy, dx), "order": order},
-        input_core_dims=[["y", "x"]], output_core_dims=[["y", "x"]],
-        dask="parallelized", output_dtypes=[np.float32],
+        _shift_frames,
+        frames,
+        kwargs={"shift": (dy, dx), "order": order},
+        input_core_dims=[["y", "x"]],
+        output_core_dims=[["y", "x"]],
+        dask="parallelized",
+        output_dtypes=[np.float32],
     )
     return out.assign_attrs({**frames.attrs, "registration_shift_px": [dy, dx]})
-

@@ -58,9 +58,16 @@ __all__ = [
 def _shots(data: xr.Dataset | xr.DataArray, where: str) -> xr.DataArray:
     counts = data["counts"] if isinstance(data, xr.Dataset) and "counts" in data else data
     if isinstance(counts, xr.Dataset):
-        raise SchemaError(f"{where}: band-filtered shots break the raw/spectral contract", [
-            Problem("counts", "a variable (shot, y, x)",
-                    f"variables {sorted(map(str, counts.data_vars))}")])
+        raise SchemaError(
+            f"{where}: band-filtered shots break the raw/spectral contract",
+            [
+                Problem(
+                    "counts",
+                    "a variable (shot, y, x)",
+                    f"variables {sorted(map(str, counts.data_vars))}",
+                )
+            ],
+        )
     problems = []
     if counts.dims != ("shot", "y", "x"):
         problems.append(Problem("counts", "dims ('shot', 'y', 'x')", f"dims {counts.dims}"))
@@ -69,19 +76,24 @@ def _shots(data: xr.Dataset | xr.DataArray, where: str) -> xr.DataArray:
             found = f"dims {counts[name].dims}" if name in counts.coords else "nothing"
             problems.append(Problem(name, "a coord (shot,)", found))
     if problems:
-        raise SchemaError(f"{where}: band-filtered shots break the raw/spectral contract",
-                          problems)
+        raise SchemaError(f"{where}: band-filtered shots break the raw/spectral contract", problems)
     times = np.asarray(counts["exposure_time"].values, dtype=np.float64)
     if not np.all(np.isfinite(times)) or np.any(times <= 0):
         raise CalibrationError(f"{where}: exposure_time must be positive, got {times.tolist()}")
     return counts
 
 
-def _dark_for_shots(dark: xr.Dataset | xr.DataArray, counts: xr.DataArray,
-                    where: str) -> tuple[xr.DataArray, xr.DataArray | None]:
+def _dark_for_shots(
+    dark: xr.Dataset | xr.DataArray, counts: xr.DataArray, where: str
+) -> tuple[xr.DataArray, xr.DataArray | None]:
     """Mean (and std, if any) dark frame of every shot's exposure time, (shot, y, x)."""
-    frames = dark_frames_at(dark, counts["exposure_time"].values, used_by=where, dim="shot",
-                            frame_shape=(counts.sizes["y"], counts.sizes["x"]))
+    frames = dark_frames_at(
+        dark,
+        counts["exposure_time"].values,
+        used_by=where,
+        dim="shot",
+        frame_shape=(counts.sizes["y"], counts.sizes["x"]),
+    )
     frames = frames.drop_vars("exposure_time").transpose("shot", "y", "x")
     return frames["mean"], frames["std"] if "std" in frames else None
 
@@ -135,16 +147,19 @@ def band_signal(
     return _linearise(counts, mean, response, where)
 
 
-def _linearise(counts: xr.DataArray, mean: xr.DataArray,
-               response: xr.Dataset | xr.DataArray | None, where: str) -> xr.DataArray:
+def _linearise(
+    counts: xr.DataArray, mean: xr.DataArray, response: xr.Dataset | xr.DataArray | None, where: str
+) -> xr.DataArray:
     raw = counts.astype(np.float64)
     if response is None:
         linear = raw - mean
     else:
         table = response["response"] if isinstance(response, xr.Dataset) else response
         if table.ndim != 1:
-            raise CalibrationError(f"{where}: the spectral camera's response must be "
-                                   f"monochrome (code,), got dims {table.dims}")
+            raise CalibrationError(
+                f"{where}: the spectral camera's response must be "
+                f"monochrome (code,), got dims {table.dims}"
+            )
         if table.attrs.get("dark_subtracted"):
             linear = apply_response(raw - mean, table)
         else:
@@ -154,16 +169,19 @@ def _linearise(counts: xr.DataArray, mean: xr.DataArray,
 
 
 # -- quantum efficiency -------------------------------------------------------------------------
-def _on_wavelengths(spectrum: xr.DataArray | float, wavelengths: np.ndarray, name: str,
-                    where: str) -> np.ndarray:
+def _on_wavelengths(
+    spectrum: xr.DataArray | float, wavelengths: np.ndarray, name: str, where: str
+) -> np.ndarray:
     if not isinstance(spectrum, xr.DataArray):
         value = float(spectrum)
         if not value > 0:
             raise CalibrationError(f"{where}: {name} must be positive, got {value}")
         return np.full(wavelengths.shape, value)
     if spectrum.dims != ("wavelength",):
-        raise SchemaError(f"{where}: {name} must be a spectrum over 'wavelength'", [Problem(
-            name, "dims ('wavelength',)", f"dims {spectrum.dims}")])
+        raise SchemaError(
+            f"{where}: {name} must be a spectrum over 'wavelength'",
+            [Problem(name, "dims ('wavelength',)", f"dims {spectrum.dims}")],
+        )
     grid = np.asarray(spectrum["wavelength"].values, dtype=np.float64)
     order = np.argsort(grid)
     grid, values = grid[order], np.asarray(spectrum.values, dtype=np.float64)[order]
@@ -171,7 +189,8 @@ def _on_wavelengths(spectrum: xr.DataArray | float, wavelengths: np.ndarray, nam
     if outside.any():
         raise CalibrationError(
             f"{where}: {name} covers {grid[0]}..{grid[-1]} nm but shots are at "
-            f"{wavelengths[outside].tolist()} nm")
+            f"{wavelengths[outside].tolist()} nm"
+        )
     result = np.interp(wavelengths, grid, values)
     if np.any(~(result > 0)):
         bad = wavelengths[~(result > 0)].tolist()
@@ -254,7 +273,7 @@ def quantum_efficiency(
     part = counts.isel(region)
     if part.sizes["y"] * part.sizes["x"] == 0:
         raise CalibrationError(f"{where}: the roi {region} selects no pixel")
-    raw_dn = (part.astype(np.float64) - mean.isel(region))
+    raw_dn = part.astype(np.float64) - mean.isel(region)
     level = np.asarray(raw_dn.mean(("y", "x")).values)
     if std is not None:
         noise = np.asarray(std.isel(region).mean(("y", "x")).values, dtype=np.float64)
@@ -267,7 +286,8 @@ def quantum_efficiency(
             f"{where}: white reference shot {int(i)} ({wavelengths[i]} nm, exposure_time "
             f"{float(counts['exposure_time'].values[i])} s) is darker than the noise: mean "
             f"signal {level[i]:.3g} DN above dark vs noise {noise[i]:.3g} DN (SNR "
-            f"{snr[i]:.3g} < min_snr {min_snr}); use a longer exposure or more light")
+            f"{snr[i]:.3g} < min_snr {min_snr}); use a longer exposure or more light"
+        )
     signal = _linearise(part, mean.isel(region), response, where)
     per_shot = np.asarray(signal.mean(("y", "x")).values, dtype=np.float64)
     rho = _on_wavelengths(reflectance, wavelengths, "reflectance", where)
@@ -278,14 +298,22 @@ def quantum_efficiency(
     snr_band = np.bincount(inverse, snr) / np.bincount(inverse)
     return xr.Dataset(
         {
-            "quantum_efficiency": ("wavelength", q, {
-                "units": "1", "long_name": "relative quantum efficiency Q_lambda (eq. 5)"}),
-            "snr": ("wavelength", snr_band, {
-                "units": "1", "long_name": "per-pixel SNR of the white reference"}),
+            "quantum_efficiency": (
+                "wavelength",
+                q,
+                {"units": "1", "long_name": "relative quantum efficiency Q_lambda (eq. 5)"},
+            ),
+            "snr": (
+                "wavelength",
+                snr_band,
+                {"units": "1", "long_name": "per-pixel SNR of the white reference"},
+            ),
         },
         coords={"wavelength": ("wavelength", bands, {"units": "nm", "long_name": "wavelength"})},
-        attrs={"method": "white reference / (reflectance * illuminant)",
-               "shots": int(counts.sizes["shot"])},
+        attrs={
+            "method": "white reference / (reflectance * illuminant)",
+            "shots": int(counts.sizes["shot"]),
+        },
     )
 
 
@@ -352,20 +380,24 @@ def camera_matrix(
     """
     where = "camera_matrix"
     if set(rgb.dims) != {"patch", "channel"}:
-        raise SchemaError(f"{where}: rgb must be (patch, channel)", [Problem(
-            "rgb", "dims (patch, channel)", f"dims {rgb.dims}")])
+        raise SchemaError(
+            f"{where}: rgb must be (patch, channel)",
+            [Problem("rgb", "dims (patch, channel)", f"dims {rgb.dims}")],
+        )
     if set(spectra.dims) != {"patch", "wavelength"}:
-        raise SchemaError(f"{where}: spectra must be (patch, wavelength)", [Problem(
-            "spectra", "dims (patch, wavelength)", f"dims {spectra.dims}")])
+        raise SchemaError(
+            f"{where}: spectra must be (patch, wavelength)",
+            [Problem("spectra", "dims (patch, wavelength)", f"dims {spectra.dims}")],
+        )
     if rgb.sizes["patch"] != spectra.sizes["patch"]:
-        raise CalibrationError(f"{where}: rgb has {rgb.sizes['patch']} patches, spectra "
-                               f"{spectra.sizes['patch']}")
+        raise CalibrationError(
+            f"{where}: rgb has {rgb.sizes['patch']} patches, spectra {spectra.sizes['patch']}"
+        )
     if "patch" in rgb.coords and "patch" in spectra.coords:
         if not np.array_equal(rgb["patch"].values, spectra["patch"].values):
             raise CalibrationError(f"{where}: rgb and spectra list different patches")
     if spectra.sizes["wavelength"] < 3:
-        raise CalibrationError(f"{where}: need at least 3 bands, got "
-                               f"{spectra.sizes['wavelength']}")
+        raise CalibrationError(f"{where}: need at least 3 bands, got {spectra.sizes['wavelength']}")
     if smoothness < 0:
         raise CalibrationError(f"{where}: smoothness must be >= 0, got {smoothness}")
     s = np.asarray(spectra.transpose("patch", "wavelength").values, dtype=np.float64)
@@ -385,29 +417,44 @@ def camera_matrix(
             c[k] = np.linalg.lstsq(a, b, rcond=None)[0]
     residual = s @ c.T - r
     rel = float(np.sqrt(np.mean(residual**2)) / max(np.sqrt(np.mean(r**2)), 1e-300))
-    coords = {"channel": rgb["channel"].values if "channel" in rgb.coords
-              else np.arange(r.shape[1]),
-              "wavelength": spectra["wavelength"].values if "wavelength" in spectra.coords
-              else np.arange(n_bands)}
+    coords = {
+        "channel": rgb["channel"].values if "channel" in rgb.coords else np.arange(r.shape[1]),
+        "wavelength": spectra["wavelength"].values
+        if "wavelength" in spectra.coords
+        else np.arange(n_bands),
+    }
     patch = {"patch": rgb["patch"].values} if "patch" in rgb.coords else {}
     return xr.Dataset(
         {
-            "camera_matrix": (("channel", "wavelength"), c, {
-                "units": "1", "long_name": "RGB camera matrix C (spectral sensitivity)"}),
-            "residual": (("patch", "channel"), residual, {
-                "units": "1", "long_name": "C S - R on the calibration patches"}),
+            "camera_matrix": (
+                ("channel", "wavelength"),
+                c,
+                {"units": "1", "long_name": "RGB camera matrix C (spectral sensitivity)"},
+            ),
+            "residual": (
+                ("patch", "channel"),
+                residual,
+                {"units": "1", "long_name": "C S - R on the calibration patches"},
+            ),
         },
         coords={**coords, **patch},
-        attrs={"method": "nnls + second-difference penalty" if nonnegative
-               else "least squares + second-difference penalty",
-               "smoothness": float(smoothness), "mu": mu, "nonnegative": bool(nonnegative),
-               "relative_rms_residual": rel},
+        attrs={
+            "method": "nnls + second-difference penalty"
+            if nonnegative
+            else "least squares + second-difference penalty",
+            "smoothness": float(smoothness),
+            "mu": mu,
+            "nonnegative": bool(nonnegative),
+            "relative_rms_residual": rel,
+        },
     )
 
 
 # -- patches, prediction and cross-validation ---------------------------------------------------
 def patch_means(
-    data: xr.DataArray, labels: xr.DataArray | np.ndarray, *,
+    data: xr.DataArray,
+    labels: xr.DataArray | np.ndarray,
+    *,
     names: Sequence[str] | None = None,
 ) -> xr.DataArray:
     """Mean of ``data`` over each labelled patch.
@@ -440,15 +487,15 @@ def patch_means(
     lab = np.asarray(labels.values if isinstance(labels, xr.DataArray) else labels)
     shape = (data.sizes.get("y"), data.sizes.get("x"))
     if lab.shape != shape:
-        raise CalibrationError(f"patch_means: labels have shape {lab.shape}, data (y, x) "
-                               f"{shape}")
+        raise CalibrationError(f"patch_means: labels have shape {lab.shape}, data (y, x) {shape}")
     n = int(lab.max()) + 1 if lab.size and lab.max() >= 0 else 0
     if n == 0:
         raise CalibrationError("patch_means: labels contain no patch (all negative)")
     counts = np.bincount(lab[lab >= 0].ravel(), minlength=n)
     if np.any(counts == 0):
-        raise CalibrationError(f"patch_means: patch(es) {np.flatnonzero(counts == 0).tolist()} "
-                               "have no pixel")
+        raise CalibrationError(
+            f"patch_means: patch(es) {np.flatnonzero(counts == 0).tolist()} have no pixel"
+        )
     if names is not None and len(names) != n:
         raise CalibrationError(f"patch_means: {len(names)} names for {n} patches")
     label_da = xr.DataArray(lab, dims=("y", "x"))
@@ -485,16 +532,18 @@ def predict_rgb(spectra: xr.DataArray, camera_matrix: xr.Dataset | xr.DataArray)
     """
     c = camera_matrix["camera_matrix"] if isinstance(camera_matrix, xr.Dataset) else camera_matrix
     if "wavelength" not in spectra.dims:
-        raise SchemaError("predict_rgb: spectra have no wavelength dim", [Problem(
-            "spectra", "a 'wavelength' dim", f"dims {spectra.dims}")])
+        raise SchemaError(
+            "predict_rgb: spectra have no wavelength dim",
+            [Problem("spectra", "a 'wavelength' dim", f"dims {spectra.dims}")],
+        )
     a = np.asarray(spectra["wavelength"].values, dtype=np.float64)
     b = np.asarray(c["wavelength"].values, dtype=np.float64)
     if a.shape != b.shape or not np.allclose(a, b, rtol=0, atol=1e-6):
-        raise CalibrationError(f"predict_rgb: spectra are at {a.tolist()} nm, C at "
-                               f"{b.tolist()} nm")
+        raise CalibrationError(f"predict_rgb: spectra are at {a.tolist()} nm, C at {b.tolist()} nm")
     out = xr.dot(c.assign_coords(wavelength=a), spectra, dim="wavelength")
-    out = out.transpose(*[d for d in spectra.dims if d != "wavelength"],
-                        *[d for d in c.dims if d != "wavelength"])
+    out = out.transpose(
+        *[d for d in spectra.dims if d != "wavelength"], *[d for d in c.dims if d != "wavelength"]
+    )
     return out.assign_attrs(units="1", long_name="RGB radiance predicted through C")
 
 
@@ -536,41 +585,47 @@ def cross_validate(
     if measured_rgb.sizes.get("patch") != spectra.sizes.get("patch"):
         raise CalibrationError(
             f"cross_validate: measured_rgb has {measured_rgb.sizes.get('patch')} patches, "
-            f"spectra {spectra.sizes.get('patch')}")
+            f"spectra {spectra.sizes.get('patch')}"
+        )
     predicted = predict_rgb(spectra, camera_matrix).transpose("patch", "channel")
     measured = measured_rgb.transpose("patch", "channel")
     if "patch" in measured.coords:
         predicted = predicted.assign_coords(patch=measured["patch"].values)
-    predicted = predicted.assign_coords(channel=measured["channel"].values) \
-        if "channel" in measured.coords else predicted
+    predicted = (
+        predicted.assign_coords(channel=measured["channel"].values)
+        if "channel" in measured.coords
+        else predicted
+    )
     difference = predicted - measured
     norm = np.sqrt((measured**2).sum("channel"))
     relative = np.sqrt((difference**2).sum("channel")) / norm.where(norm > 0)
     worst = int(np.nanargmax(relative.values))
-    patch_labels = relative["patch"].values if "patch" in relative.coords else np.arange(
-        relative.size)
+    patch_labels = relative["patch"].values if "patch" in relative.coords else np.arange(relative.size)
     return xr.Dataset(
         {
             "measured": measured.assign_attrs(units="1", long_name="measured RGB radiance"),
-            "predicted": predicted.assign_attrs(units="1",
-                                                long_name="RGB predicted through C"),
+            "predicted": predicted.assign_attrs(units="1", long_name="RGB predicted through C"),
             "difference": difference.assign_attrs(units="1", long_name="predicted - measured"),
             "relative_error": relative.assign_attrs(
-                units="1", long_name="|predicted - measured| / |measured| per patch"),
+                units="1", long_name="|predicted - measured| / |measured| per patch"
+            ),
         },
-        attrs={"mean_relative_error": float(np.nanmean(relative.values)),
-               "max_relative_error": float(np.nanmax(relative.values)),
-               "worst_patch": str(patch_labels[worst])},
+        attrs={
+            "mean_relative_error": float(np.nanmean(relative.values)),
+            "max_relative_error": float(np.nanmax(relative.values)),
+            "worst_patch": str(patch_labels[worst]),
+        },
     )
 
 
 # -- the calibrate_spectral node: Q, C and the cross-check from the calibration targets --
-def _shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int,
-                 group: str) -> xr.DataArray:
+def _shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int, group: str) -> xr.DataArray:
     """One frame per band: ``counts[band, picks[band]]`` as (shot, y, x) band shots."""
     times = counts["spectral_exposure_time"].values[picks]
-    frames = counts.isel(wavelength=xr.DataArray(np.arange(picks.size), dims="shot"),
-                         spectral_exposure=xr.DataArray(picks, dims="shot"))
+    frames = counts.isel(
+        wavelength=xr.DataArray(np.arange(picks.size), dims="shot"),
+        spectral_exposure=xr.DataArray(picks, dims="shot"),
+    )
     frames = frames.drop_vars(list(frames.coords))
     return frames.assign_coords(
         wavelength=("shot", counts["wavelength"].values.astype(float), {"units": "nm"}),
@@ -580,35 +635,40 @@ def _shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int,
 
 def _longest_unsaturated(counts: xr.DataArray, depth: int, group: str) -> np.ndarray:
     """Per band, the index of the longest exposure without a saturated pixel."""
-    top = ~saturated_frames(counts, depth)                              # (wavelength, exp)
+    top = ~saturated_frames(counts, depth)  # (wavelength, exp)
     bad = np.flatnonzero(~top.any(axis=1))
     if bad.size:
         wl = counts["wavelength"].values[bad].tolist()
         raise CalibrationError(
             f"{group}:spectral_counts: every exposure of band(s) {wl} nm has saturated pixels "
-            f"(value {2**depth - 1}); add shorter exposures")
+            f"(value {2**depth - 1}); add shorter exposures"
+        )
     return np.asarray([int(np.flatnonzero(row)[-1]) for row in top])
 
 
 def _rgb_series(target: xr.Dataset, group: str) -> xr.Dataset:
     """The target's RGB exposure series as a one-image raw/rgb Dataset (usable exposures)."""
-    depth = check_bit_depth(target.attrs.get("rgb_bit_depth"),
-                            where=f"{group}.attrs['rgb_bit_depth']")
+    depth = check_bit_depth(target.attrs.get("rgb_bit_depth"), where=f"{group}.attrs['rgb_bit_depth']")
     counts = target["rgb_counts"].transpose("rgb_exposure", "y", "x", "channel").load()
-    _, _, not_saturated, not_dark = frame_flags(counts, ("y", "x"), black_level=0,
-                                                saturation=2**depth - 1)
-    usable = not_saturated.all(axis=1) & not_dark.all(axis=1)            # per exposure
+    _, _, not_saturated, not_dark = frame_flags(
+        counts, ("y", "x"), black_level=0, saturation=2**depth - 1
+    )
+    usable = not_saturated.all(axis=1) & not_dark.all(axis=1)  # per exposure
     if usable.sum() < 1:
         raise CalibrationError(f"{group}:rgb_counts: every exposure is saturated or dark")
     counts = counts.isel(rgb_exposure=np.flatnonzero(usable))
     times = np.asarray(target["rgb_exposure_time"].values, dtype=float)[usable]
     camera = int(target.attrs.get("rgb_camera", 0))
-    data = counts.rename(rgb_exposure="exposure").drop_vars(
-        [c for c in counts.coords if c != "channel"]).expand_dims(image=[0])
-    return xr.Dataset({"counts": data},
-                      coords={"exposure_time": (("image", "exposure"), times[None]),
-                              "camera": ("image", [camera])},
-                      attrs={"bit_depth": depth})
+    data = (
+        counts.rename(rgb_exposure="exposure")
+        .drop_vars([c for c in counts.coords if c != "channel"])
+        .expand_dims(image=[0])
+    )
+    return xr.Dataset(
+        {"counts": data},
+        coords={"exposure_time": (("image", "exposure"), times[None]), "camera": ("image", [camera])},
+        attrs={"bit_depth": depth},
+    )
 
 
 def _eroded_labels(labels: np.ndarray, margin: int) -> np.ndarray:
@@ -617,7 +677,7 @@ def _eroded_labels(labels: np.ndarray, margin: int) -> np.ndarray:
     out = np.full_like(labels, -1)
     for k in np.unique(labels[labels >= 0]):
         patch = labels == k
-        for iterations in range(margin, -1, -1):   # small patches: erode less, keep pixels
+        for iterations in range(margin, -1, -1):  # small patches: erode less, keep pixels
             inner = ndimage.binary_erosion(patch, iterations=iterations) if iterations else patch
             if inner.any():
                 break
@@ -632,14 +692,23 @@ def calibrate_spectral(
     oecf_rgb: xr.Dataset,
     oecf_spectral: xr.Dataset,
     *,
-    smoothness: Annotated[float, Field(ge=0, description="relative weight of the "
-                                       "second-difference penalty of C")] = 1e-3,
+    smoothness: Annotated[
+        float, Field(ge=0, description="relative weight of the second-difference penalty of C")
+    ] = 1e-3,
     nonnegative: Annotated[bool, Field(description="constrain C >= 0")] = True,
-    patch_margin: Annotated[int, Field(ge=0, description="pixels removed at every patch "
-                                       "border (misregistration, blur) before patch means; "
-                                       "less where a patch would vanish")] = 2,
-    min_snr: Annotated[float, Field(gt=0, description="smallest accepted per-pixel SNR of "
-                                    "the white reference in a band")] = 1.0,
+    patch_margin: Annotated[
+        int,
+        Field(
+            ge=0,
+            description="pixels removed at every patch "
+            "border (misregistration, blur) before patch means; "
+            "less where a patch would vanish",
+        ),
+    ] = 2,
+    min_snr: Annotated[
+        float,
+        Field(gt=0, description="smallest accepted per-pixel SNR of the white reference in a band"),
+    ] = 1.0,
 ) -> xr.Dataset:
     """Quantum efficiency, camera matrix C and the cross-validation of paper Fig. 4.
 
@@ -681,9 +750,14 @@ def calibrate_spectral(
     shots = _shot_frames(white_counts, picks, depth, "raw/white_reference")
     illuminant = white_reference["illuminant"].load()
     try:
-        qe = quantum_efficiency(shots, dark, illuminant,
-                                reflectance=white_reference["target_reflectance"].load(),
-                                response=oecf_spectral, min_snr=min_snr)
+        qe = quantum_efficiency(
+            shots,
+            dark,
+            illuminant,
+            reflectance=white_reference["target_reflectance"].load(),
+            response=oecf_spectral,
+            min_snr=min_snr,
+        )
     except CalibrationError as error:
         raise CalibrationError(f"raw/white_reference:spectral_counts: {error}") from None
     q = qe["quantum_efficiency"]
@@ -700,13 +774,20 @@ def calibrate_spectral(
     rgb_raw = rgb_raw.drop_vars("camera")
     hdr = merge_hdr(rgb_raw, response.assign_attrs(oecf_rgb.attrs | response.attrs))
     labels = _eroded_labels(np.asarray(colour_checker["patch_index"].values), patch_margin)
-    names = [str(v) for v in colour_checker["patch_name"].values] \
-        if "patch_name" in colour_checker.coords else None
+    names = (
+        [str(v) for v in colour_checker["patch_name"].values]
+        if "patch_name" in colour_checker.coords
+        else None
+    )
     measured = patch_means(hdr["radiance"].isel(image=0), labels).compute()
     spectra = (colour_checker["patch_reflectance"] * colour_checker["illuminant"]).load()
     spectra = spectra.assign_coords(patch=measured["patch"].values)
-    cm = camera_matrix(measured, spectra.transpose("patch", "wavelength"),
-                       smoothness=smoothness, nonnegative=nonnegative)
+    cm = camera_matrix(
+        measured,
+        spectra.transpose("patch", "wavelength"),
+        smoothness=smoothness,
+        nonnegative=nonnegative,
+    )
 
     # -- cross-validation: the spectral camera's capture of the checker through C
     checker_counts, cdepth = target_spectral_series(colour_checker, group)
@@ -719,41 +800,50 @@ def calibrate_spectral(
     q_shot = q.sel(wavelength=cshots["wavelength"].values).values
     band_radiance = (signal / xr.DataArray(q_shot, dims="shot")).compute()
     band_radiance = band_radiance.swap_dims(shot="wavelength").drop_vars(
-        [c for c in band_radiance.coords if c != "wavelength"])
-    patch_spectra = patch_means(band_radiance, labels).assign_coords(
-        patch=measured["patch"].values)
+        [c for c in band_radiance.coords if c != "wavelength"]
+    )
+    patch_spectra = patch_means(band_radiance, labels).assign_coords(patch=measured["patch"].values)
     table = cross_validate(measured, patch_spectra, cm)
 
     unit = {"units": "1"}
     out = xr.Dataset(
         {
             "quantum_efficiency": q.assign_attrs(
-                **unit, long_name="relative quantum efficiency Q (band signal per unit of the "
-                "measured illuminant)"),
-            "qe_snr": qe["snr"].assign_attrs(**unit, long_name="per-pixel SNR of the white "
-                                             "reference"),
+                **unit,
+                long_name="relative quantum efficiency Q (band signal per unit of the "
+                "measured illuminant)",
+            ),
+            "qe_snr": qe["snr"].assign_attrs(**unit, long_name="per-pixel SNR of the white reference"),
             "camera_matrix": cm["camera_matrix"].assign_attrs(
-                **unit, long_name="RGB camera matrix C (HDR units per band radiance unit)"),
+                **unit, long_name="RGB camera matrix C (HDR units per band radiance unit)"
+            ),
             "measured_rgb": table["measured"].assign_attrs(
-                **unit, long_name="HDR RGB radiance of the patch, measured"),
+                **unit, long_name="HDR RGB radiance of the patch, measured"
+            ),
             "predicted_rgb": table["predicted"].assign_attrs(
-                **unit, long_name="RGB predicted through C from the spectral capture"),
+                **unit, long_name="RGB predicted through C from the spectral capture"
+            ),
             "relative_error": table["relative_error"].assign_attrs(
-                **unit, long_name="|predicted - measured| / |measured| per patch"),
+                **unit, long_name="|predicted - measured| / |measured| per patch"
+            ),
             "patch_spectra": patch_spectra.transpose("patch", "wavelength").assign_attrs(
-                **unit, long_name="patch band radiance from the spectral camera"),
+                **unit, long_name="patch band radiance from the spectral camera"
+            ),
         },
-        attrs={"mean_relative_error": table.attrs["mean_relative_error"],
-               "max_relative_error": table.attrs["max_relative_error"],
-               "worst_patch": table.attrs["worst_patch"],
-               "c_relative_rms_residual": cm.attrs["relative_rms_residual"],
-               "smoothness": float(smoothness), "nonnegative": bool(nonnegative),
-               "patch_margin": int(patch_margin), "rgb_camera": camera,
-               "units_note": "band radiance relative to the measured illuminant; C maps it to "
-                             "HDR units (RGB = C @ spectrum)"},
+        attrs={
+            "mean_relative_error": table.attrs["mean_relative_error"],
+            "max_relative_error": table.attrs["max_relative_error"],
+            "worst_patch": table.attrs["worst_patch"],
+            "c_relative_rms_residual": cm.attrs["relative_rms_residual"],
+            "smoothness": float(smoothness),
+            "nonnegative": bool(nonnegative),
+            "patch_margin": int(patch_margin),
+            "rgb_camera": camera,
+            "units_note": "band radiance relative to the measured illuminant; C maps it to "
+            "HDR units (RGB = C @ spectrum)",
+        },
     )
-    out = out.drop_vars([c for c in out.coords if c not in
-                         ("wavelength", "channel", "patch")])
+    out = out.drop_vars([c for c in out.coords if c not in ("wavelength", "channel", "patch")])
     if names is not None:
         out = out.assign_coords(patch_name=("patch", names))
     out["wavelength"].attrs.update(units="nm", long_name="band centre wavelength")

@@ -48,9 +48,16 @@ PAPER_FAST_TIME: float = 7.463
 def _positive_times(values: object, where: str) -> np.ndarray:
     times = np.asarray(values, dtype=np.float64).reshape(-1)
     if times.size and (not np.all(np.isfinite(times)) or np.any(times < 0)):
-        raise SchemaError("cannot account the capture time:", [Problem(
-            where, "finite exposure times >= 0 [s]",
-            np.array2string(times, precision=4, threshold=8))])
+        raise SchemaError(
+            "cannot account the capture time:",
+            [
+                Problem(
+                    where,
+                    "finite exposure times >= 0 [s]",
+                    np.array2string(times, precision=4, threshold=8),
+                )
+            ],
+        )
     return times
 
 
@@ -85,16 +92,23 @@ def plan_exposure(
     Fast Capture of Spectral Image Series, sec. 3 eq. 2 (exposure times of the band shots).
     """
     times = plan.get("exposure_time") if isinstance(plan, xr.Dataset) else None
-    if times is None or "wavelength" not in times.dims or times.ndim != 1 or times.attrs.get(
-            "units", "s") != "s":
-        found = ("nothing" if times is None else
-                 f"dims {times.dims}, units {times.attrs.get('units')!r}")
-        raise SchemaError(f"cannot account the capture time of the {name}:", [
-            Problem(f"{name}:exposure_time", "a variable exposure_time (wavelength) in s", found)])
+    if (
+        times is None
+        or "wavelength" not in times.dims
+        or times.ndim != 1
+        or times.attrs.get("units", "s") != "s"
+    ):
+        found = "nothing" if times is None else f"dims {times.dims}, units {times.attrs.get('units')!r}"
+        raise SchemaError(
+            f"cannot account the capture time of the {name}:",
+            [Problem(f"{name}:exposure_time", "a variable exposure_time (wavelength) in s", found)],
+        )
     sets = int(plan.attrs.get("spectral_sets", 1))
     if sets < 0:
-        raise SchemaError(f"cannot account the capture time of the {name}:", [
-            Problem(f"{name}.attrs['spectral_sets']", ">= 0 sets of bands", str(sets))])
+        raise SchemaError(
+            f"cannot account the capture time of the {name}:",
+            [Problem(f"{name}.attrs['spectral_sets']", ">= 0 sets of bands", str(sets))],
+        )
     spectral = float(_positive_times(times.values, f"{name}:exposure_time").sum() * sets)
     shots = int(plan.attrs.get("band_shots", times.size * sets))
     if rgb_exposure_times is None:
@@ -104,20 +118,29 @@ def plan_exposure(
     rgb_series = _positive_times(rgb_series, f"{name}: rgb exposure times")
     images = int(plan.attrs.get("rgb_images", 0)) if rgb_images is None else int(rgb_images)
     if images < 0:
-        raise SchemaError(f"cannot account the capture time of the {name}:", [
-            Problem(f"{name}: rgb_images", ">= 0 RGB images", str(images))])
+        raise SchemaError(
+            f"cannot account the capture time of the {name}:",
+            [Problem(f"{name}: rgb_images", ">= 0 RGB images", str(images))],
+        )
     return spectral, float(images * rgb_series.sum()), shots
 
 
-def _capture(value: xr.Dataset | float, name: str, rgb_exposure_times: Sequence[float] | None,
-             rgb_images: int | None) -> tuple[float, float, int]:
+def _capture(
+    value: xr.Dataset | float,
+    name: str,
+    rgb_exposure_times: Sequence[float] | None,
+    rgb_images: int | None,
+) -> tuple[float, float, int]:
     if isinstance(value, xr.Dataset):
-        return plan_exposure(value, rgb_exposure_times=rgb_exposure_times,
-                             rgb_images=rgb_images, name=name)
+        return plan_exposure(
+            value, rgb_exposure_times=rgb_exposure_times, rgb_images=rgb_images, name=name
+        )
     total = float(value)
     if not np.isfinite(total) or total < 0:
-        raise SchemaError(f"cannot account the capture time of the {name}:", [
-            Problem(name, "a plan Dataset or a total exposure >= 0 [s]", repr(value))])
+        raise SchemaError(
+            f"cannot account the capture time of the {name}:",
+            [Problem(name, "a plan Dataset or a total exposure >= 0 [s]", repr(value))],
+        )
     return total, 0.0, 0
 
 
@@ -183,42 +206,61 @@ def capture_time(
         r_rgb = 0.0
     f_total, r_total = f_spec + f_rgb, r_spec + r_rgb
     if f_total <= 0:
-        raise SchemaError("fast capture: its total exposure is 0 s, so no speed-up can be "
-                          "stated:", [Problem("fast capture", "a plan with exposure_time > 0 "
-                                              "or its total in seconds", "0 s")])
+        raise SchemaError(
+            "fast capture: its total exposure is 0 s, so no speed-up can be stated:",
+            [Problem("fast capture", "a plan with exposure_time > 0 or its total in seconds", "0 s")],
+        )
     speedup = r_total / f_total
 
     def seconds(values: list[float], long_name: str) -> tuple[str, np.ndarray, dict[str, str]]:
-        return ("capture", np.asarray(values, dtype=np.float64),
-                {"units": "s", "long_name": long_name})
+        return ("capture", np.asarray(values, dtype=np.float64), {"units": "s", "long_name": long_name})
 
     out = xr.Dataset(
         {
             "spectral_time": seconds([r_spec, f_spec], "total exposure of the band shots"),
             "rgb_time": seconds([r_rgb, f_rgb], "total exposure of the RGB images"),
             "total_time": seconds([r_total, f_total], "total exposure of the capture"),
-            "band_shots": ("capture", np.asarray([r_shots, f_shots], dtype=np.int64),
-                           {"units": "1", "long_name": "number of band shots"}),
-            "speedup": ((), float(speedup), {"units": "1", "long_name":
-                                            "reference total exposure / fast total exposure"}),
+            "band_shots": (
+                "capture",
+                np.asarray([r_shots, f_shots], dtype=np.int64),
+                {"units": "1", "long_name": "number of band shots"},
+            ),
+            "speedup": (
+                (),
+                float(speedup),
+                {"units": "1", "long_name": "reference total exposure / fast total exposure"},
+            ),
         },
         coords={"capture": ("capture", ["reference", "fast"], {"long_name": "capture"})},
     )
-    summary = (f"reference {r_total:.3f} s vs fast {f_total:.3f} s (spectral {f_spec:.3f} s + "
-               f"RGB {f_rgb:.3f} s): {speedup:.1f}x faster ({np.log10(speedup):.2f} orders of "
-               "magnitude)")
+    summary = (
+        f"reference {r_total:.3f} s vs fast {f_total:.3f} s (spectral {f_spec:.3f} s + "
+        f"RGB {f_rgb:.3f} s): {speedup:.1f}x faster ({np.log10(speedup):.2f} orders of "
+        "magnitude)"
+    )
     if evaluation is not None:
         accuracy = _accuracy(evaluation)
         for key, value in accuracy.items():
-            out[key] = ((), value, {"units": "1", "long_name": f"{key.replace('_', ' ')} of the "
-                                    "reconstruction from the fast capture (all images)"})
-        summary += (f"; nRMSE median {accuracy['nrmse_median']:.4f}, p95 "
-                    f"{accuracy['nrmse_p95']:.4f}")
-    given = [name for name, value in (("reference", reference), ("fast", fast))
-             if not isinstance(value, xr.Dataset)]
-    out.attrs = {"summary": summary,
-                 "given_as_total": ",".join(given),
-                 "references": "Fast Capture of Spectral Image Series, sec. 5, Figure 8"}
+            out[key] = (
+                (),
+                value,
+                {
+                    "units": "1",
+                    "long_name": f"{key.replace('_', ' ')} of the "
+                    "reconstruction from the fast capture (all images)",
+                },
+            )
+        summary += f"; nRMSE median {accuracy['nrmse_median']:.4f}, p95 {accuracy['nrmse_p95']:.4f}"
+    given = [
+        name
+        for name, value in (("reference", reference), ("fast", fast))
+        if not isinstance(value, xr.Dataset)
+    ]
+    out.attrs = {
+        "summary": summary,
+        "given_as_total": ",".join(given),
+        "references": "Fast Capture of Spectral Image Series, sec. 5, Figure 8",
+    }
     return out
 
 
@@ -226,20 +268,24 @@ def _accuracy(evaluation: xr.Dataset) -> dict[str, float]:
     needed = ("nrmse_subset_statistics", "nrmse_subset_fraction_below")
     missing = [name for name in needed if name not in evaluation]
     if missing:
-        raise SchemaError("cannot show the accuracy next to the capture time:", [
-            Problem(f"evaluation:{name}", "a variable of the evaluation group", "nothing")
-            for name in missing])
+        raise SchemaError(
+            "cannot show the accuracy next to the capture time:",
+            [
+                Problem(f"evaluation:{name}", "a variable of the evaluation group", "nothing")
+                for name in missing
+            ],
+        )
     stats = evaluation["nrmse_subset_statistics"].sel(subset="all")
     return {
         "nrmse_median": float(stats.sel(statistic="median")),
         "nrmse_p95": float(stats.sel(statistic="p95")),
-        "nrmse_fraction_below": float(evaluation["nrmse_subset_fraction_below"].sel(
-            subset="all")),
+        "nrmse_fraction_below": float(evaluation["nrmse_subset_fraction_below"].sel(subset="all")),
     }
 
 
-def capture_time_from_run(raw_spectral: xr.Dataset | None = None,
-                          raw_rgb: xr.Dataset | None = None) -> xr.Dataset:
+def capture_time_from_run(
+    raw_spectral: xr.Dataset | None = None, raw_rgb: xr.Dataset | None = None
+) -> xr.Dataset:
     """The exposure a run actually shot, as a plan for :func:`capture_time`.
 
     Parameters
@@ -274,33 +320,45 @@ def capture_time_from_run(raw_spectral: xr.Dataset | None = None,
         times = raw_spectral.get("exposure_time")
         bands = raw_spectral.get("wavelength")
         if times is None or bands is None or times.dims != ("shot",) or bands.dims != ("shot",):
-            found = {name: (None if v is None else v.dims)
-                     for name, v in (("exposure_time", times), ("wavelength", bands))}
-            problems.append(Problem("raw/spectral", "exposure_time [s] and wavelength [nm] "
-                                    "over shot", f"{found}"))
+            found = {
+                name: (None if v is None else v.dims)
+                for name, v in (("exposure_time", times), ("wavelength", bands))
+            }
+            problems.append(
+                Problem("raw/spectral", "exposure_time [s] and wavelength [nm] over shot", f"{found}")
+            )
         else:
             per_shot = _positive_times(times.values, "raw/spectral:exposure_time")
-            wavelengths, index = np.unique(np.asarray(bands.values, dtype=np.float64),
-                                           return_inverse=True)
-            band_times = np.bincount(index.reshape(-1), weights=per_shot,
-                                     minlength=wavelengths.size)
+            wavelengths, index = np.unique(
+                np.asarray(bands.values, dtype=np.float64), return_inverse=True
+            )
+            band_times = np.bincount(index.reshape(-1), weights=per_shot, minlength=wavelengths.size)
             shots = int(per_shot.size)
     rgb_times = np.zeros(0)
     if raw_rgb is not None:
         times = raw_rgb.get("exposure_time")
         if times is None or tuple(times.dims) != ("image", "exposure"):
             found = "nothing" if times is None else f"dims {times.dims}"
-            problems.append(Problem("raw/rgb:exposure_time", "exposure_time (image, exposure) "
-                                    "in s", found))
+            problems.append(
+                Problem("raw/rgb:exposure_time", "exposure_time (image, exposure) in s", found)
+            )
         else:
             rgb_times = _positive_times(times.values, "raw/rgb:exposure_time")
     if problems:
         raise SchemaError("cannot sum the exposure of the run:", problems)
     return xr.Dataset(
-        {"exposure_time": ("wavelength", band_times, {
-            "units": "s", "long_name": "total exposure of the band shots of each band"}),
-         "rgb_exposure_time": ("rgb_exposure", rgb_times, {
-             "units": "s", "long_name": "every RGB exposure of the run"})},
+        {
+            "exposure_time": (
+                "wavelength",
+                band_times,
+                {"units": "s", "long_name": "total exposure of the band shots of each band"},
+            ),
+            "rgb_exposure_time": (
+                "rgb_exposure",
+                rgb_times,
+                {"units": "s", "long_name": "every RGB exposure of the run"},
+            ),
+        },
         coords={"wavelength": ("wavelength", wavelengths, {"units": "nm"})},
         attrs={"spectral_sets": 1, "rgb_images": 1, "band_shots": shots, "kind": "measured"},
     )
@@ -348,8 +406,10 @@ def run_capture_time(
             images = max(1, int(exposure_plan.attrs.get("rgb_images", 1)))
         seconds = float(per_set)
         reference = images * seconds
-        note = (f"reference: {images} image(s) x {seconds:.3f} s, one long-exposure set of "
-                "bands each (raw/exposure_plan)")
+        note = (
+            f"reference: {images} image(s) x {seconds:.3f} s, one long-exposure set of "
+            "bands each (raw/exposure_plan)"
+        )
     else:
         reference = PAPER_REFERENCE_TIME
         note = f"reference: the paper's long-exposure capture of one image ({reference:g} s)"

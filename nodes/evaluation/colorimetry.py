@@ -66,8 +66,11 @@ _WAVELENGTH_TOLERANCE_NM = 1e-6
 def _quiet_colour() -> Iterator[None]:
     """Silence colour-science's notes about aligning spectral shapes (expected here)."""
     with warnings.catch_warnings():
-        for category in (colour.utilities.ColourWarning, colour.utilities.ColourRuntimeWarning,
-                         colour.utilities.ColourUsageWarning):
+        for category in (
+            colour.utilities.ColourWarning,
+            colour.utilities.ColourRuntimeWarning,
+            colour.utilities.ColourUsageWarning,
+        ):
             warnings.simplefilter("ignore", category)
         yield
 
@@ -94,17 +97,32 @@ def illuminant_sd(illuminant: Illuminant) -> colour.SpectralDistribution | None:
             return colour.SDS_ILLUMINANTS[illuminant]
         except KeyError:
             known = ", ".join(list(colour.SDS_ILLUMINANTS)[:12])
-            raise ParameterError("unknown illuminant:", [Problem(
-                "illuminant", f"a key of colour.SDS_ILLUMINANTS (e.g. {known}, ...), 'E', a "
-                "SpectralDistribution or None",
-                f"{illuminant!r}, which is not a colour-science illuminant")]) from None
-    raise ParameterError("unknown illuminant:", [Problem(
-        "illuminant", "a name, a colour.SpectralDistribution or None",
-        f"a {type(illuminant).__name__}")])
+            raise ParameterError(
+                "unknown illuminant:",
+                [
+                    Problem(
+                        "illuminant",
+                        f"a key of colour.SDS_ILLUMINANTS (e.g. {known}, ...), 'E', a "
+                        "SpectralDistribution or None",
+                        f"{illuminant!r}, which is not a colour-science illuminant",
+                    )
+                ],
+            ) from None
+    raise ParameterError(
+        "unknown illuminant:",
+        [
+            Problem(
+                "illuminant",
+                "a name, a colour.SpectralDistribution or None",
+                f"a {type(illuminant).__name__}",
+            )
+        ],
+    )
 
 
-def white_point(illuminant: Illuminant, wavelength: npt.ArrayLike | None = None
-                ) -> npt.NDArray[np.float64]:
+def white_point(
+    illuminant: Illuminant, wavelength: npt.ArrayLike | None = None
+) -> npt.NDArray[np.float64]:
     """CIE 1931 xy chromaticity of the white of ``illuminant`` (``None``: E, (1/3, 1/3)).
 
     With ``wavelength``, the chromaticity of a perfect reflector integrated on those bands
@@ -145,14 +163,27 @@ def white_point(illuminant: Illuminant, wavelength: npt.ArrayLike | None = None
 def _spectral_shape(wavelength: npt.ArrayLike) -> colour.SpectralShape:
     wl = np.asarray(wavelength, dtype=np.float64).reshape(-1)
     if wl.size < 2:
-        raise SchemaError("cannot integrate the spectra:", [
-            Problem("wavelength", "at least 2 wavelengths [nm]", f"{wl.size}")])
+        raise SchemaError(
+            "cannot integrate the spectra:",
+            [Problem("wavelength", "at least 2 wavelengths [nm]", f"{wl.size}")],
+        )
     steps = np.diff(wl)
-    if not np.all(np.isfinite(wl)) or np.any(steps <= 0) or not np.allclose(
-            steps, steps[0], rtol=0, atol=_WAVELENGTH_TOLERANCE_NM):
-        raise SchemaError("cannot integrate the spectra:", [Problem(
-            "wavelength", "finite, increasing, evenly spaced values [nm] (colour-science "
-            "integrates on a SpectralShape)", np.array2string(wl, precision=2))])
+    if (
+        not np.all(np.isfinite(wl))
+        or np.any(steps <= 0)
+        or not np.allclose(steps, steps[0], rtol=0, atol=_WAVELENGTH_TOLERANCE_NM)
+    ):
+        raise SchemaError(
+            "cannot integrate the spectra:",
+            [
+                Problem(
+                    "wavelength",
+                    "finite, increasing, evenly spaced values [nm] (colour-science "
+                    "integrates on a SpectralShape)",
+                    np.array2string(wl, precision=2),
+                )
+            ],
+        )
     return colour.SpectralShape(float(wl[0]), float(wl[-1]), float(steps[0]))
 
 
@@ -191,14 +222,22 @@ def xyz_weights(wavelength: npt.ArrayLike, *, illuminant: Illuminant = "D65") ->
     n = len(shape.wavelengths)
     cmfs = colour.MSDS_CMFS[OBSERVER]
     with _quiet_colour():
-        weights = colour.msds_to_XYZ(np.eye(n), cmfs=cmfs, illuminant=sd, method="Integration",
-                                     shape=shape) / 100.0
+        weights = (
+            colour.msds_to_XYZ(np.eye(n), cmfs=cmfs, illuminant=sd, method="Integration", shape=shape)
+            / 100.0
+        )
     return xr.DataArray(
-        np.asarray(weights, dtype=np.float64), dims=("wavelength", "xyz"),
-        coords={"wavelength": np.asarray(wavelength, dtype=np.float64).reshape(-1),
-                "xyz": ["X", "Y", "Z"]},
-        attrs={"long_name": "CIE XYZ weights per wavelength", "observer": OBSERVER,
-               "illuminant": _illuminant_name(illuminant)},
+        np.asarray(weights, dtype=np.float64),
+        dims=("wavelength", "xyz"),
+        coords={
+            "wavelength": np.asarray(wavelength, dtype=np.float64).reshape(-1),
+            "xyz": ["X", "Y", "Z"],
+        },
+        attrs={
+            "long_name": "CIE XYZ weights per wavelength",
+            "observer": OBSERVER,
+            "illuminant": _illuminant_name(illuminant),
+        },
     )
 
 
@@ -239,9 +278,16 @@ def spectra_to_xyz(radiance: xr.DataArray, *, illuminant: Illuminant = "D65") ->
     for display"); CIE 015:2018 Colorimetry.
     """
     if "wavelength" not in radiance.dims or "wavelength" not in radiance.coords:
-        raise SchemaError("cannot integrate the spectra:", [Problem(
-            "radiance:wavelength", "a 'wavelength' dim with coordinates [nm]",
-            f"dims {radiance.dims} and coords {list(radiance.coords)}")])
+        raise SchemaError(
+            "cannot integrate the spectra:",
+            [
+                Problem(
+                    "radiance:wavelength",
+                    "a 'wavelength' dim with coordinates [nm]",
+                    f"dims {radiance.dims} and coords {list(radiance.coords)}",
+                )
+            ],
+        )
     weights = xyz_weights(radiance["wavelength"].values, illuminant=illuminant)
     if radiance.chunks is not None:
         radiance = radiance.chunk({"wavelength": -1})
@@ -250,22 +296,28 @@ def spectra_to_xyz(radiance: xr.DataArray, *, illuminant: Illuminant = "D65") ->
     dims = [d for d in radiance.dims if d != "wavelength"] + ["xyz"]
     xyz = xyz.transpose(*dims)
     white = colour.XYZ_to_xy(weights.values.sum(axis=0))
-    xyz.attrs = {"units": "1", "long_name": "CIE 1931 XYZ tristimulus values",
-                 "observer": OBSERVER, "illuminant": _illuminant_name(illuminant),
-                 "white_xy": [float(white[0]), float(white[1])]}
+    xyz.attrs = {
+        "units": "1",
+        "long_name": "CIE 1931 XYZ tristimulus values",
+        "observer": OBSERVER,
+        "illuminant": _illuminant_name(illuminant),
+        "white_xy": [float(white[0]), float(white[1])],
+    }
     return xyz
 
 
 def _xyz_to_srgb_numpy(xyz: np.ndarray, white: np.ndarray) -> np.ndarray:
     with _quiet_colour():
-        rgb = colour.XYZ_to_sRGB(xyz, illuminant=white, chromatic_adaptation_transform="CAT02",
-                                 apply_cctf_encoding=True)
+        rgb = colour.XYZ_to_sRGB(
+            xyz, illuminant=white, chromatic_adaptation_transform="CAT02", apply_cctf_encoding=True
+        )
     rgb = np.nan_to_num(np.asarray(rgb, dtype=np.float64), nan=0.0, posinf=1.0, neginf=0.0)
     return np.clip(rgb, 0.0, 1.0)
 
 
-def xyz_to_srgb(xyz: xr.DataArray, *, white: npt.ArrayLike | None = None,
-                dtype: Literal["uint8", "float"] = "uint8") -> xr.DataArray:
+def xyz_to_srgb(
+    xyz: xr.DataArray, *, white: npt.ArrayLike | None = None, dtype: Literal["uint8", "float"] = "uint8"
+) -> xr.DataArray:
     """Encoded sRGB (``..., channel``) of XYZ (``..., xyz``), clipped to [0, 1] (NaN -> 0).
 
     The scene white ``white`` (xy; default ``xyz.attrs["white_xy"]`` as written by
@@ -291,25 +343,33 @@ def xyz_to_srgb(xyz: xr.DataArray, *, white: npt.ArrayLike | None = None,
     IEC 61966-2-1:1999 (sRGB); CIE 160:2004 (CAT02 chromatic adaptation).
     """
     if dtype not in ("uint8", "float"):
-        raise ParameterError("cannot encode sRGB:", [
-            Problem("dtype", "'uint8' or 'float'", repr(dtype))])
+        raise ParameterError(
+            "cannot encode sRGB:", [Problem("dtype", "'uint8' or 'float'", repr(dtype))]
+        )
     if white is None:
         white = xyz.attrs.get("white_xy", white_point("D65"))
     white = np.asarray(white, dtype=np.float64)
     rgb = xr.apply_ufunc(
-        _xyz_to_srgb_numpy, xyz, kwargs={"white": white},
-        input_core_dims=[["xyz"]], output_core_dims=[["channel"]],
-        dask="parallelized", output_dtypes=[np.float64],
+        _xyz_to_srgb_numpy,
+        xyz,
+        kwargs={"white": white},
+        input_core_dims=[["xyz"]],
+        output_core_dims=[["channel"]],
+        dask="parallelized",
+        output_dtypes=[np.float64],
         dask_gufunc_kwargs={"output_sizes": {"channel": 3}},
     ).assign_coords(channel=["R", "G", "B"])
     if dtype == "uint8":
         rgb = (rgb * 255.0).round().astype(np.uint8)
     else:
         rgb = rgb.astype(np.float32)
-    rgb.attrs = {"units": "1", "long_name": "sRGB (IEC 61966-2-1, encoded) for display",
-                 "observer": xyz.attrs.get("observer", OBSERVER),
-                 "illuminant": xyz.attrs.get("illuminant", "?"),
-                 "white_xy": [float(white[0]), float(white[1])]}
+    rgb.attrs = {
+        "units": "1",
+        "long_name": "sRGB (IEC 61966-2-1, encoded) for display",
+        "observer": xyz.attrs.get("observer", OBSERVER),
+        "illuminant": xyz.attrs.get("illuminant", "?"),
+        "white_xy": [float(white[0]), float(white[1])],
+    }
     return rgb
 
 
@@ -336,8 +396,10 @@ def auto_exposure(xyz: xr.DataArray, *, percentile: float = 99.0) -> float:
     Fast Capture of Spectral Image Series, Figures 5, 6 and 8 (RGB renders for display).
     """
     if not 0.0 < percentile <= 100.0:
-        raise ParameterError("cannot choose the exposure:", [
-            Problem("percentile", "a value in (0, 100]", repr(percentile))])
+        raise ParameterError(
+            "cannot choose the exposure:",
+            [Problem("percentile", "a value in (0, 100]", repr(percentile))],
+        )
     luminance = np.asarray(xyz.sel(xyz="Y").values, dtype=np.float64).reshape(-1)
     luminance = luminance[np.isfinite(luminance)]
     if luminance.size == 0:
@@ -347,8 +409,9 @@ def auto_exposure(xyz: xr.DataArray, *, percentile: float = 99.0) -> float:
 
 
 def _bad_exposure(exposure: object) -> ParameterError:
-    return ParameterError("cannot render sRGB:", [
-        Problem("exposure", "'auto' or a positive number", repr(exposure))])
+    return ParameterError(
+        "cannot render sRGB:", [Problem("exposure", "'auto' or a positive number", repr(exposure))]
+    )
 
 
 def render_srgb(
@@ -396,8 +459,10 @@ def render_srgb(
         if exposure != "auto":
             raise _bad_exposure(exposure)
         scale = auto_exposure(xyz, percentile=percentile)
-        statement = (f"XYZ scaled by {scale:.6g} so that the {percentile:g}th percentile of the "
-                     "luminance Y over all pixels of all images is sRGB white (Y = 1)")
+        statement = (
+            f"XYZ scaled by {scale:.6g} so that the {percentile:g}th percentile of the "
+            "luminance Y over all pixels of all images is sRGB white (Y = 1)"
+        )
     else:
         scale = float(exposure)
         if not np.isfinite(scale) or scale <= 0:

@@ -22,5 +22,5 @@ EVALUATE = Node(
     inputs={"spectra": "spectra", "truth": "truth/spectra", "shots": "raw/spectral"},
     outputs=("evaluation",),
     description="nRMSE / spectral angle / CIEDE2000 maps and statistics against the ground "
-                "truth (sec. 5, Fig. 5-7).",
+    "truth (sec. 5, Fig. 5-7).",
 )

@@ -63,14 +63,17 @@ def image_label(evaluation: xr.Dataset, image: int) -> str:
     parts = [f"image {image}"]
     coords = evaluation.coords
     if "theta_o" in coords and "phi_o" in coords:
-        parts.append(f"view ({float(coords['theta_o'][image]):.0f}°, "
-                     f"{float(coords['phi_o'][image]):.0f}°)")
+        parts.append(
+            f"view ({float(coords['theta_o'][image]):.0f}°, {float(coords['phi_o'][image]):.0f}°)"
+        )
     if "theta_i" in coords and "phi_i" in coords:
-        parts.append(f"light ({float(coords['theta_i'][image]):.0f}°, "
-                     f"{float(coords['phi_i'][image]):.0f}°)")
+        parts.append(
+            f"light ({float(coords['theta_i'][image]):.0f}°, {float(coords['phi_i'][image]):.0f}°)"
+        )
     if "has_band_shots" in evaluation:
-        parts.append("with band shots" if bool(evaluation["has_band_shots"][image])
-                     else "without band shots")
+        parts.append(
+            "with band shots" if bool(evaluation["has_band_shots"][image]) else "without band shots"
+        )
     return ", ".join(parts)
 
 
@@ -80,10 +83,24 @@ def _mark_samples(ax: Axes, evaluation: xr.Dataset, image: int) -> None:
     for number, (y, x) in enumerate(zip(ys, xs, strict=True), start=1):
         if y < 0:  # an image without finite nRMSE has no picked pixels
             continue
-        ax.plot([x], [y], marker="o", markersize=7, markerfacecolor="none",
-                markeredgecolor="white", markeredgewidth=1.5)
-        ax.annotate(str(number), (x, y), xytext=(4, 4), textcoords="offset points",
-                    color="white", fontsize=9, fontweight="bold")
+        ax.plot(
+            [x],
+            [y],
+            marker="o",
+            markersize=7,
+            markerfacecolor="none",
+            markeredgecolor="white",
+            markeredgewidth=1.5,
+        )
+        ax.annotate(
+            str(number),
+            (x, y),
+            xytext=(4, 4),
+            textcoords="offset points",
+            color="white",
+            fontsize=9,
+            fontweight="bold",
+        )
 
 
 def plot_error_map(
@@ -130,8 +147,7 @@ def plot_error_map(
     if reconstruction_srgb is not None:
         axes[1].imshow(np.asarray(reconstruction_srgb[image].values), interpolation="nearest")
         axes[1].set_title("reconstruction (sRGB)")
-    shown = axes[-1].imshow(nrmse, cmap=ERROR_COLORMAP, vmin=0.0, vmax=top,
-                            interpolation="nearest")
+    shown = axes[-1].imshow(nrmse, cmap=ERROR_COLORMAP, vmin=0.0, vmax=top, interpolation="nearest")
     axes[-1].set_title("normalised RMSE")
     _mark_samples(axes[-1], evaluation, image)
     figure.colorbar(shown, ax=axes[-1], shrink=0.85, label="nRMSE")
@@ -179,14 +195,17 @@ def plot_spectra(evaluation: xr.Dataset, image: int) -> Figure:
         if ys[number] < 0:
             continue
         colour = f"C{number % 10}"
-        label = (f"{number + 1}: (y={ys[number]}, x={xs[number]}) nRMSE {errors[number]:.4f} "
-                 f"(q={quantiles[number]:g})")
+        label = (
+            f"{number + 1}: (y={ys[number]}, x={xs[number]}) nRMSE {errors[number]:.4f} "
+            f"(q={quantiles[number]:g})"
+        )
         ax.plot(wavelength, truth[number], "-", color=colour, label=label)
         ax.plot(wavelength, recon[number], ":", color=colour, linewidth=2.0)
     ax.set_xlabel("wavelength [nm]")
     ax.set_ylabel("relative radiance")
-    ax.set_title(f"{image_label(evaluation, image)}\ntruth (solid), reconstruction (dotted)",
-                 fontsize=10)
+    ax.set_title(
+        f"{image_label(evaluation, image)}\ntruth (solid), reconstruction (dotted)", fontsize=10
+    )
     ax.legend(fontsize=7, loc="best")
     ax.grid(alpha=0.3)
     return figure
@@ -226,19 +245,24 @@ def plot_histograms(evaluation: xr.Dataset) -> Figure:
     upper = np.asarray(evaluation["nrmse_bin_upper"].values, dtype=np.float64)
     edges = np.append(lower, upper[-1])
     counts = np.asarray(evaluation["nrmse_histogram"].values, dtype=np.int64)
-    above = (np.asarray(evaluation["nrmse_above_range"].values, dtype=np.int64)
-             if "nrmse_above_range" in evaluation
-             else np.zeros(evaluation.sizes["image"], dtype=np.int64))
+    above = (
+        np.asarray(evaluation["nrmse_above_range"].values, dtype=np.int64)
+        if "nrmse_above_range" in evaluation
+        else np.zeros(evaluation.sizes["image"], dtype=np.int64)
+    )
     figure = Figure(figsize=(7.5, 4.2), layout="constrained")
     ax = figure.subplots()
     for index, (label, mask) in enumerate(_subsets(evaluation).items()):
         total = counts[mask].sum(axis=0)
-        ax.stairs(np.where(total > 0, total, np.nan), edges, color=f"C{index}",
-                  linewidth=1.8, label=f"{label} ({int(total.sum())} px, "
-                                       f"{int(above[mask].sum())} above range)")
+        ax.stairs(
+            np.where(total > 0, total, np.nan),
+            edges,
+            color=f"C{index}",
+            linewidth=1.8,
+            label=f"{label} ({int(total.sum())} px, {int(above[mask].sum())} above range)",
+        )
     threshold = float(evaluation.attrs.get("threshold", DEFAULT_THRESHOLD))
-    ax.axvline(threshold, color="0.4", linestyle="--", linewidth=1.0,
-               label=f"nRMSE = {threshold:g}")
+    ax.axvline(threshold, color="0.4", linestyle="--", linewidth=1.0, label=f"nRMSE = {threshold:g}")
     ax.set_yscale("log")
     ax.set_xlim(edges[0], edges[-1])
     ax.set_xlabel("normalised RMSE")
@@ -281,8 +305,9 @@ def plot_capture_time(capture: xr.Dataset) -> Figure:
     ax.bar(positions, measured, color="C0", label="band shots")
     ax.bar(positions, rgb, bottom=measured, color="C1", label="RGB images")
     if as_total.any():
-        ax.bar(positions, np.where(as_total, spectral, 0.0), color="0.6",
-               label="total (given as a number)")
+        ax.bar(
+            positions, np.where(as_total, spectral, 0.0), color="0.6", label="total (given as a number)"
+        )
     totals = spectral + rgb
     for position, total in zip(positions, totals, strict=True):
         ax.annotate(f"{total:.3g} s", (position, total), ha="center", va="bottom")
@@ -297,8 +322,10 @@ def plot_capture_time(capture: xr.Dataset) -> Figure:
     ax.set_xticks(positions, names)
     title = f"speed-up {float(capture['speedup']):.1f}x"
     if "nrmse_median" in capture:
-        title += (f" at nRMSE median {float(capture['nrmse_median']):.4f}, "
-                  f"p95 {float(capture['nrmse_p95']):.4f}")
+        title += (
+            f" at nRMSE median {float(capture['nrmse_median']):.4f}, "
+            f"p95 {float(capture['nrmse_p95']):.4f}"
+        )
     ax.set_title(title)
     ax.legend()
     return figure

@@ -71,19 +71,27 @@ def plot_cross_validation(
     diff = np.clip(0.5 + difference_scale * (predicted - measured) / scale, 0, 1)
     fig = Figure(figsize=(12, 7), layout="constrained")
     spec = fig.add_gridspec(2, 3)
-    panels = [(encode(measured), "(a) measured RGB"), (encode(predicted), "(b) predicted C S"),
-              (diff, f"(c) difference x{difference_scale:g}")]
+    panels = [
+        (encode(measured), "(a) measured RGB"),
+        (encode(predicted), "(b) predicted C S"),
+        (diff, f"(c) difference x{difference_scale:g}"),
+    ]
     for column, (image, title) in enumerate(panels):
         ax = fig.add_subplot(spec[0, column])
         ax.imshow(grid(image, 1.0), interpolation="nearest")
         ax.set_title(title)
         ax.set_axis_off()
     bar = fig.add_subplot(spec[1, :])
-    labels = [str(p) for p in table["relative_error"]["patch"].values] \
-        if "patch" in table["relative_error"].coords else [str(i) for i in range(n)]
+    labels = (
+        [str(p) for p in table["relative_error"]["patch"].values]
+        if "patch" in table["relative_error"].coords
+        else [str(i) for i in range(n)]
+    )
     bar.bar(np.arange(n), 100 * np.asarray(table["relative_error"].values), color="0.4")
     bar.set_xticks(np.arange(n), labels, rotation=60, ha="right", fontsize=7)
     bar.set_ylabel("relative error [%]")
-    bar.set_title(f"(d) per patch: mean {100 * table.attrs.get('mean_relative_error', np.nan):.2f}"
-                  f" %, max {100 * table.attrs.get('max_relative_error', np.nan):.2f} %")
+    bar.set_title(
+        f"(d) per patch: mean {100 * table.attrs.get('mean_relative_error', np.nan):.2f}"
+        f" %, max {100 * table.attrs.get('max_relative_error', np.nan):.2f} %"
+    )
     return fig

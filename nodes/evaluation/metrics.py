@@ -73,12 +73,10 @@ DEFAULT_THRESHOLD: float = 0.03
 DEFAULT_SAMPLE_QUANTILES: tuple[float, ...] = (0.05, 0.5, 0.9, 0.99, 1.0)
 #: Illuminants of the CIEDE2000 colour difference by name: colour-science's table plus
 #: ``"E"`` (equal energy: the cubes are integrated as they are).
-ILLUMINANTS: Mapping[str, colour.SpectralDistribution | None] = {
-    "E": None, **colour.SDS_ILLUMINANTS}
+ILLUMINANTS: Mapping[str, colour.SpectralDistribution | None] = {"E": None, **colour.SDS_ILLUMINANTS}
 
 _METRICS = {
-    "nrmse": ("1", "normalised RMSE over wavelength (RMSE / mean ground-truth intensity of "
-                   "the image)"),
+    "nrmse": ("1", "normalised RMSE over wavelength (RMSE / mean ground-truth intensity of the image)"),
     "spectral_angle": ("degree", "spectral angle between reconstruction and ground truth"),
     "delta_e": ("1", "CIEDE2000 colour difference"),
 }
@@ -98,11 +96,17 @@ def _cube_problems(data: xr.Dataset | xr.DataArray, name: str) -> list[Problem]:
     array = data if isinstance(data, xr.DataArray) else data.get("radiance")
     if array is None:
         variables = list(data.data_vars) if isinstance(data, xr.Dataset) else []
-        return [Problem(f"{name}:radiance", f"a variable 'radiance' {CUBE_DIMS}",
-                        f"variables {variables}")]
+        return [
+            Problem(f"{name}:radiance", f"a variable 'radiance' {CUBE_DIMS}", f"variables {variables}")
+        ]
     if tuple(array.dims) != CUBE_DIMS:
-        return [Problem(f"{name}:radiance", f"dims {CUBE_DIMS}",
-                        f"dims {tuple(array.dims)} shape {tuple(array.shape)}")]
+        return [
+            Problem(
+                f"{name}:radiance",
+                f"dims {CUBE_DIMS}",
+                f"dims {tuple(array.dims)} shape {tuple(array.shape)}",
+            )
+        ]
     if "wavelength" not in array.coords:
         return [Problem(f"{name}:wavelength", "coordinate values [nm]", "none")]
     return []
@@ -110,24 +114,41 @@ def _cube_problems(data: xr.Dataset | xr.DataArray, name: str) -> list[Problem]:
 
 def _align(s: xr.DataArray, t: xr.DataArray) -> tuple[xr.DataArray, xr.DataArray]:
     """The reconstruction and its truth on the same images, or every mismatch at once."""
-    if ("image" in s.indexes and "image" in t.indexes
-            and not s.indexes["image"].equals(t.indexes["image"])
-            and set(s.indexes["image"]) <= set(t.indexes["image"])):
+    if (
+        "image" in s.indexes
+        and "image" in t.indexes
+        and not s.indexes["image"].equals(t.indexes["image"])
+        and set(s.indexes["image"]) <= set(t.indexes["image"])
+    ):
         # a reconstruction written set by set orders its images by set: follow its order
         t = t.sel(image=s.indexes["image"])
     problems = []
     if s.shape != t.shape:
-        problems.append(Problem("spectra:radiance", f"the shape of truth:radiance "
-                                f"{dict(t.sizes)}", f"{dict(s.sizes)}"))
+        problems.append(
+            Problem(
+                "spectra:radiance", f"the shape of truth:radiance {dict(t.sizes)}", f"{dict(s.sizes)}"
+            )
+        )
     elif not np.allclose(s["wavelength"].values, t["wavelength"].values, rtol=0, atol=1e-6):
-        problems.append(Problem("spectra:wavelength", "the wavelengths of the truth "
-                                f"{t['wavelength'].values.tolist()} nm",
-                                f"{s['wavelength'].values.tolist()} nm"))
-    elif "image" in s.indexes and "image" in t.indexes and not s.indexes["image"].equals(
-            t.indexes["image"]):
-        problems.append(Problem("spectra:image", "the image labels of the truth "
-                                f"{t.indexes['image'].tolist()}",
-                                f"{s.indexes['image'].tolist()}"))
+        problems.append(
+            Problem(
+                "spectra:wavelength",
+                f"the wavelengths of the truth {t['wavelength'].values.tolist()} nm",
+                f"{s['wavelength'].values.tolist()} nm",
+            )
+        )
+    elif (
+        "image" in s.indexes
+        and "image" in t.indexes
+        and not s.indexes["image"].equals(t.indexes["image"])
+    ):
+        problems.append(
+            Problem(
+                "spectra:image",
+                f"the image labels of the truth {t.indexes['image'].tolist()}",
+                f"{s.indexes['image'].tolist()}",
+            )
+        )
     if problems:
         raise SchemaError("cannot compare the reconstruction with the ground truth:", problems)
     # The truth's coordinates for both, so that arithmetic never realigns (drops) images.
@@ -136,8 +157,9 @@ def _align(s: xr.DataArray, t: xr.DataArray) -> tuple[xr.DataArray, xr.DataArray
     return s, t
 
 
-def _check_pair(spectra: xr.Dataset | xr.DataArray, truth: xr.Dataset | xr.DataArray
-                ) -> tuple[xr.DataArray, xr.DataArray]:
+def _check_pair(
+    spectra: xr.Dataset | xr.DataArray, truth: xr.Dataset | xr.DataArray
+) -> tuple[xr.DataArray, xr.DataArray]:
     problems = _cube_problems(spectra, "spectra") + _cube_problems(truth, "truth")
     if problems:
         raise SchemaError("cannot compare the reconstruction with the ground truth:", problems)
@@ -162,8 +184,9 @@ def _chunk_spectral(array: xr.DataArray) -> xr.DataArray:
 
 
 # -- per-pixel metrics ---------------------------------------------------------------------
-def normalised_rmse(spectra: xr.DataArray | xr.Dataset, truth: xr.DataArray | xr.Dataset
-                    ) -> xr.DataArray:
+def normalised_rmse(
+    spectra: xr.DataArray | xr.Dataset, truth: xr.DataArray | xr.Dataset
+) -> xr.DataArray:
     """Per-pixel RMSE over wavelength divided by the mean ground-truth intensity of the image.
 
     Parameters
@@ -201,8 +224,7 @@ def _nrmse(s: xr.DataArray, t: xr.DataArray) -> xr.DataArray:
     return nrmse
 
 
-def spectral_angle(spectra: xr.DataArray | xr.Dataset, truth: xr.DataArray | xr.Dataset
-                   ) -> xr.DataArray:
+def spectral_angle(spectra: xr.DataArray | xr.Dataset, truth: xr.DataArray | xr.Dataset) -> xr.DataArray:
     """Per-pixel angle between the reconstructed and the true spectrum, in degrees.
 
     ``2 atan2(|s - t|, |s + t|)`` with ``s = S / |S|`` and ``t = T / |T|``: equal to
@@ -235,8 +257,8 @@ def spectral_angle(spectra: xr.DataArray | xr.Dataset, truth: xr.DataArray | xr.
 
 def _angle(s: xr.DataArray, t: xr.DataArray) -> xr.DataArray:
     s, t = _as_float(_chunk_spectral(s)), _as_float(_chunk_spectral(t))
-    norm_s = np.sqrt((s ** 2).sum("wavelength", skipna=False))
-    norm_t = np.sqrt((t ** 2).sum("wavelength", skipna=False))
+    norm_s = np.sqrt((s**2).sum("wavelength", skipna=False))
+    norm_t = np.sqrt((t**2).sum("wavelength", skipna=False))
     unit_s = s / norm_s.where(norm_s > 0)
     unit_t = t / norm_t.where(norm_t > 0)
     difference = np.sqrt(((unit_s - unit_t) ** 2).sum("wavelength", skipna=False))
@@ -308,13 +330,22 @@ def _delta_e(s: xr.DataArray, t: xr.DataArray, *, illuminant: Illuminant) -> xr.
     xyz_s = spectra_to_xyz(s, illuminant=illuminant)
     xyz_t = spectra_to_xyz(t, illuminant=illuminant)
     delta = xr.apply_ufunc(
-        _ciede2000, xyz_s, xyz_t, kwargs={"white": np.asarray(xyz_t.attrs["white_xy"])},
-        input_core_dims=[["xyz"], ["xyz"]], dask="parallelized", output_dtypes=[np.float32],
+        _ciede2000,
+        xyz_s,
+        xyz_t,
+        kwargs={"white": np.asarray(xyz_t.attrs["white_xy"])},
+        input_core_dims=[["xyz"], ["xyz"]],
+        dask="parallelized",
+        output_dtypes=[np.float32],
     )
     name = xyz_s.attrs["illuminant"]
     delta.name = "delta_e"
-    delta.attrs = {"units": "1", "long_name": f"{_METRICS['delta_e'][1]} under {name}",
-                   "illuminant": name, "observer": xyz_s.attrs["observer"]}
+    delta.attrs = {
+        "units": "1",
+        "long_name": f"{_METRICS['delta_e'][1]} under {name}",
+        "illuminant": name,
+        "observer": xyz_s.attrs["observer"],
+    }
     return delta
 
 
@@ -333,8 +364,7 @@ def _statistics_numpy(values: np.ndarray, n_core: int) -> np.ndarray:
     return out
 
 
-def map_statistics(error_map: xr.DataArray, *, dims: Sequence[str] = ("y", "x")
-                   ) -> xr.DataArray:
+def map_statistics(error_map: xr.DataArray, *, dims: Sequence[str] = ("y", "x")) -> xr.DataArray:
     """Mean, median, 95th and 99th percentile of a map over ``dims``, NaN ignored.
 
     Parameters
@@ -362,18 +392,26 @@ def map_statistics(error_map: xr.DataArray, *, dims: Sequence[str] = ("y", "x")
     dims = list(dims)
     missing = [d for d in dims if d not in error_map.dims]
     if missing:
-        raise SchemaError("cannot summarise the map:", [Problem(
-            str(error_map.name), f"dims including {missing}", f"dims {error_map.dims}")])
+        raise SchemaError(
+            "cannot summarise the map:",
+            [Problem(str(error_map.name), f"dims including {missing}", f"dims {error_map.dims}")],
+        )
     if error_map.chunks is not None:
         error_map = error_map.chunk({d: -1 for d in dims})
     stats = xr.apply_ufunc(
-        _statistics_numpy, error_map, kwargs={"n_core": len(dims)},
-        input_core_dims=[dims], output_core_dims=[["statistic"]],
-        dask="parallelized", output_dtypes=[np.float64],
+        _statistics_numpy,
+        error_map,
+        kwargs={"n_core": len(dims)},
+        input_core_dims=[dims],
+        output_core_dims=[["statistic"]],
+        dask="parallelized",
+        output_dtypes=[np.float64],
         dask_gufunc_kwargs={"output_sizes": {"statistic": len(STATISTICS)}},
     ).assign_coords(statistic=_labels(STATISTICS))
-    stats.attrs = {"units": error_map.attrs.get("units", "1"),
-                   "long_name": f"statistics of {error_map.attrs.get('long_name', error_map.name)}"}
+    stats.attrs = {
+        "units": error_map.attrs.get("units", "1"),
+        "long_name": f"statistics of {error_map.attrs.get('long_name', error_map.name)}",
+    }
     return stats
 
 
@@ -385,8 +423,7 @@ def _histogram_numpy(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
 
 
 # -- band shots ----------------------------------------------------------------------------
-def band_shot_images(shots: xr.Dataset, images: xr.DataArray | Sequence[int] | int
-                     ) -> xr.DataArray:
+def band_shot_images(shots: xr.Dataset, images: xr.DataArray | Sequence[int] | int) -> xr.DataArray:
     """Which images have at least one band shot (Figure 7 separates the two kinds).
 
     Parameters
@@ -416,9 +453,17 @@ def band_shot_images(shots: xr.Dataset, images: xr.DataArray | Sequence[int] | i
     found = shots.get("image") if isinstance(shots, xr.Dataset) else None
     if found is None or found.dims != ("shot",) or found.dtype.kind not in "iu":
         what = "nothing" if found is None else f"dims {found.dims} dtype {found.dtype}"
-        raise SchemaError("cannot tell which images have band shots:", [
-            Problem("shots:image", "an integer coordinate 'image' (shot) naming the RGB image "
-                    "each shot pairs with (groups raw/spectral, bands)", what)])
+        raise SchemaError(
+            "cannot tell which images have band shots:",
+            [
+                Problem(
+                    "shots:image",
+                    "an integer coordinate 'image' (shot) naming the RGB image "
+                    "each shot pairs with (groups raw/spectral, bands)",
+                    what,
+                )
+            ],
+        )
     if isinstance(images, int | np.integer):
         index = np.arange(int(images))
     else:
@@ -428,9 +473,12 @@ def band_shot_images(shots: xr.Dataset, images: xr.DataArray | Sequence[int] | i
 
 def _has_band_shots(shots: xr.Dataset, images: np.ndarray) -> xr.DataArray:
     has = np.isin(images, np.unique(np.asarray(shots["image"].values)))
-    return xr.DataArray(has, dims=("image",), name="has_band_shots",
-                        attrs={"long_name": "image has at least one band shot",
-                               "units": "1"})
+    return xr.DataArray(
+        has,
+        dims=("image",),
+        name="has_band_shots",
+        attrs={"long_name": "image has at least one band shot", "units": "1"},
+    )
 
 
 def _image_index(cube: xr.DataArray) -> np.ndarray:
@@ -440,8 +488,9 @@ def _image_index(cube: xr.DataArray) -> np.ndarray:
 
 
 # -- representative spectra ----------------------------------------------------------------
-def _pick_numpy(nrmse: np.ndarray, spectra: np.ndarray, truth: np.ndarray,
-                quantiles: np.ndarray) -> tuple[np.ndarray, ...]:
+def _pick_numpy(
+    nrmse: np.ndarray, spectra: np.ndarray, truth: np.ndarray, quantiles: np.ndarray
+) -> tuple[np.ndarray, ...]:
     """Per leading index: the pixel whose nRMSE is closest to each quantile of the map."""
     lead = nrmse.shape[:-2]
     height, width = nrmse.shape[-2:]
@@ -467,8 +516,13 @@ def _pick_numpy(nrmse: np.ndarray, spectra: np.ndarray, truth: np.ndarray,
             picked_s[i, j] = flat_s[i, :, k]
             picked_t[i, j] = flat_t[i, :, k]
     shape = (*lead, n_q)
-    return (ys.reshape(shape), xs.reshape(shape), errs.reshape(shape),
-            picked_s.reshape(*shape, n_wl), picked_t.reshape(*shape, n_wl))
+    return (
+        ys.reshape(shape),
+        xs.reshape(shape),
+        errs.reshape(shape),
+        picked_s.reshape(*shape, n_wl),
+        picked_t.reshape(*shape, n_wl),
+    )
 
 
 def representative_spectra(
@@ -516,25 +570,35 @@ def representative_spectra(
     s, t = _check_pair(spectra, truth)
     q = _quantiles(quantiles)
     if tuple(nrmse.dims) != ("image", "y", "x") or nrmse.shape != (
-            s.sizes["image"], s.sizes["y"], s.sizes["x"]):
-        raise SchemaError("cannot pick representative spectra:", [Problem(
-            "nrmse", f"dims ('image', 'y', 'x') with shape "
-            f"{(s.sizes['image'], s.sizes['y'], s.sizes['x'])}",
-            f"dims {nrmse.dims} shape {nrmse.shape}")])
+        s.sizes["image"],
+        s.sizes["y"],
+        s.sizes["x"],
+    ):
+        raise SchemaError(
+            "cannot pick representative spectra:",
+            [
+                Problem(
+                    "nrmse",
+                    f"dims ('image', 'y', 'x') with shape "
+                    f"{(s.sizes['image'], s.sizes['y'], s.sizes['x'])}",
+                    f"dims {nrmse.dims} shape {nrmse.shape}",
+                )
+            ],
+        )
     return _representative(nrmse, s, t, q)
 
 
 def _quantiles(quantiles: Sequence[float]) -> np.ndarray:
     q = np.asarray(list(quantiles), dtype=np.float64)
-    if q.size == 0 or np.any(~np.isfinite(q)) or np.any((q < 0) | (q > 1)) or np.any(
-            np.diff(q) < 0):
-        raise ParameterError("cannot pick representative spectra:", [Problem(
-            "sample_quantiles", "ascending values in [0, 1]", str(q.tolist()))])
+    if q.size == 0 or np.any(~np.isfinite(q)) or np.any((q < 0) | (q > 1)) or np.any(np.diff(q) < 0):
+        raise ParameterError(
+            "cannot pick representative spectra:",
+            [Problem("sample_quantiles", "ascending values in [0, 1]", str(q.tolist()))],
+        )
     return q
 
 
-def _representative(nrmse: xr.DataArray, s: xr.DataArray, t: xr.DataArray, q: np.ndarray
-                    ) -> xr.Dataset:
+def _representative(nrmse: xr.DataArray, s: xr.DataArray, t: xr.DataArray, q: np.ndarray) -> xr.Dataset:
     if any(a.chunks is not None for a in (nrmse, s, t)):
         per_image = {"image": 1, "y": -1, "x": -1}
         nrmse = nrmse.chunk(per_image)
@@ -542,10 +606,19 @@ def _representative(nrmse: xr.DataArray, s: xr.DataArray, t: xr.DataArray, q: np
         t = t.chunk({**per_image, "wavelength": -1})
     core = ["wavelength", "y", "x"]
     outputs = xr.apply_ufunc(
-        _pick_numpy, nrmse, s, t, kwargs={"quantiles": q},
+        _pick_numpy,
+        nrmse,
+        s,
+        t,
+        kwargs={"quantiles": q},
         input_core_dims=[["y", "x"], core, core],
-        output_core_dims=[["sample"], ["sample"], ["sample"], ["sample", "wavelength"],
-                          ["sample", "wavelength"]],
+        output_core_dims=[
+            ["sample"],
+            ["sample"],
+            ["sample"],
+            ["sample", "wavelength"],
+            ["sample", "wavelength"],
+        ],
         dask="parallelized",
         output_dtypes=[np.int64, np.int64, np.float32, np.float32, np.float32],
         dask_gufunc_kwargs={"output_sizes": {"sample": q.size}},
@@ -554,23 +627,29 @@ def _representative(nrmse: xr.DataArray, s: xr.DataArray, t: xr.DataArray, q: np
     out = xr.Dataset(
         {
             "sample_y": sample_y.assign_attrs(units="px", long_name="row of the picked pixel"),
-            "sample_x": sample_x.assign_attrs(units="px",
-                                              long_name="column of the picked pixel"),
-            "sample_nrmse": sample_err.assign_attrs(units="1",
-                                                    long_name="nRMSE of the picked pixel"),
+            "sample_x": sample_x.assign_attrs(units="px", long_name="column of the picked pixel"),
+            "sample_nrmse": sample_err.assign_attrs(units="1", long_name="nRMSE of the picked pixel"),
             "sample_truth": picked_t.assign_attrs(
-                units="1", long_name="ground-truth spectrum of the picked pixel"),
+                units="1", long_name="ground-truth spectrum of the picked pixel"
+            ),
             "sample_reconstruction": picked_s.assign_attrs(
-                units="1", long_name="reconstructed spectrum of the picked pixel"),
+                units="1", long_name="reconstructed spectrum of the picked pixel"
+            ),
         },
     )
-    return out.assign_coords(sample_quantile=("sample", q, {
-        "units": "1", "long_name": "quantile of the image's nRMSE map the pixel was picked at"}))
+    return out.assign_coords(
+        sample_quantile=(
+            "sample",
+            q,
+            {"units": "1", "long_name": "quantile of the image's nRMSE map the pixel was picked at"},
+        )
+    )
 
 
 # -- the whole evaluation ------------------------------------------------------------------
-def _subset_statistics(maps: dict[str, xr.DataArray], masks: dict[str, np.ndarray],
-                       threshold: float) -> xr.Dataset:
+def _subset_statistics(
+    maps: dict[str, xr.DataArray], masks: dict[str, np.ndarray], threshold: float
+) -> xr.Dataset:
     per_metric: dict[str, list[xr.DataArray]] = {name: [] for name in maps}
     fractions, counts = [], []
     for mask in masks.values():
@@ -579,8 +658,7 @@ def _subset_statistics(maps: dict[str, xr.DataArray], masks: dict[str, np.ndarra
             if index.size == 0:
                 stats = xr.DataArray(np.full(len(STATISTICS), np.nan), dims=("statistic",))
             else:
-                stats = map_statistics(error_map.isel(image=index),
-                                       dims=("image", "y", "x"))
+                stats = map_statistics(error_map.isel(image=index), dims=("image", "y", "x"))
             per_metric[name].append(stats.drop_vars("statistic", errors="ignore"))
         if index.size == 0:
             fractions.append(xr.DataArray(np.nan))
@@ -597,12 +675,20 @@ def _subset_statistics(maps: dict[str, xr.DataArray], masks: dict[str, np.ndarra
         units, long_name = _METRICS[name]
         out[f"{name}_subset_statistics"] = xr.concat(items, dim="subset").assign_attrs(
             units=maps[name].attrs.get("units", units),
-            long_name=f"statistics of the {long_name} over all pixels of the subset")
-    out["nrmse_subset_fraction_below"] = xr.concat(fractions, dim="subset").astype(
-        np.float64).assign_attrs(units="1", threshold=threshold,
-                                 long_name=f"fraction of finite pixels with nRMSE < {threshold:g}")
+            long_name=f"statistics of the {long_name} over all pixels of the subset",
+        )
+    out["nrmse_subset_fraction_below"] = (
+        xr.concat(fractions, dim="subset")
+        .astype(np.float64)
+        .assign_attrs(
+            units="1",
+            threshold=threshold,
+            long_name=f"fraction of finite pixels with nRMSE < {threshold:g}",
+        )
+    )
     out["subset_pixel_count"] = xr.concat(counts, dim="subset").assign_attrs(
-        units="1", long_name="number of pixels with a finite nRMSE")
+        units="1", long_name="number of pixels with a finite nRMSE"
+    )
     return out.assign_coords(subset=_labels(subset), statistic=_labels(STATISTICS))
 
 
@@ -621,9 +707,9 @@ def evaluate(
     threshold: Annotated[float, Field(gt=0)] = DEFAULT_THRESHOLD,
     histogram_bins: Annotated[int, Field(ge=1, le=10000)] = 60,
     histogram_max: Annotated[float, Field(gt=0)] = 0.12,
-    sample_quantiles: Annotated[tuple[Annotated[float, Field(ge=0, le=1)], ...],
-                                Field(min_length=1),
-                                AfterValidator(_ascending)] = DEFAULT_SAMPLE_QUANTILES,
+    sample_quantiles: Annotated[
+        tuple[Annotated[float, Field(ge=0, le=1)], ...], Field(min_length=1), AfterValidator(_ascending)
+    ] = DEFAULT_SAMPLE_QUANTILES,
 ) -> xr.Dataset:
     """Compare a reconstructed spectral cube with its ground truth (paper sec. 5, Fig. 5-7).
 
@@ -700,40 +786,64 @@ def evaluate(
             **maps,
             "truth_mean": truth_mean.assign_attrs(
                 units=t.attrs.get("units", "1"),
-                long_name="mean ground-truth intensity of the image (nRMSE normaliser)"),
+                long_name="mean ground-truth intensity of the image (nRMSE normaliser)",
+            ),
         }
     )
     for name, error_map in maps.items():
         units, long_name = _METRICS[name]
         out[f"{name}_statistics"] = map_statistics(error_map).assign_attrs(
             units=error_map.attrs.get("units", units),
-            long_name=f"per-image statistics of the {long_name}")
+            long_name=f"per-image statistics of the {long_name}",
+        )
     finite = nrmse.notnull().sum(("y", "x")).astype(np.int64)
-    out["nrmse_fraction_below"] = ((nrmse < threshold).sum(("y", "x")) / finite.where(
-        finite > 0)).astype(np.float64).assign_attrs(
-        units="1", threshold=threshold,
-        long_name=f"fraction of finite pixels with nRMSE < {threshold:g}")
-    out["invalid_count"] = (nrmse.sizes["y"] * nrmse.sizes["x"] - finite).astype(
-        np.int64).assign_attrs(units="1", long_name="pixels with an undefined (NaN) nRMSE")
+    out["nrmse_fraction_below"] = (
+        ((nrmse < threshold).sum(("y", "x")) / finite.where(finite > 0))
+        .astype(np.float64)
+        .assign_attrs(
+            units="1",
+            threshold=threshold,
+            long_name=f"fraction of finite pixels with nRMSE < {threshold:g}",
+        )
+    )
+    out["invalid_count"] = (
+        (nrmse.sizes["y"] * nrmse.sizes["x"] - finite)
+        .astype(np.int64)
+        .assign_attrs(units="1", long_name="pixels with an undefined (NaN) nRMSE")
+    )
 
     edges = np.linspace(0.0, float(histogram_max), int(histogram_bins) + 1)
     source = nrmse.chunk({"y": -1, "x": -1}) if nrmse.chunks is not None else nrmse
     histogram = xr.apply_ufunc(
-        _histogram_numpy, source, kwargs={"edges": edges},
-        input_core_dims=[["y", "x"]], output_core_dims=[["nrmse_bin"]],
-        dask="parallelized", output_dtypes=[np.int64],
+        _histogram_numpy,
+        source,
+        kwargs={"edges": edges},
+        input_core_dims=[["y", "x"]],
+        output_core_dims=[["nrmse_bin"]],
+        dask="parallelized",
+        output_dtypes=[np.int64],
         dask_gufunc_kwargs={"output_sizes": {"nrmse_bin": edges.size - 1}},
     )
     out["nrmse_histogram"] = histogram.assign_attrs(
-        units="1", long_name="per-image histogram of the nRMSE (pixel counts)")
-    out["nrmse_above_range"] = (nrmse > histogram_max).sum(("y", "x")).astype(
-        np.int64).assign_attrs(units="1",
-                               long_name=f"pixels with nRMSE above {histogram_max:g}")
+        units="1", long_name="per-image histogram of the nRMSE (pixel counts)"
+    )
+    out["nrmse_above_range"] = (
+        (nrmse > histogram_max)
+        .sum(("y", "x"))
+        .astype(np.int64)
+        .assign_attrs(units="1", long_name=f"pixels with nRMSE above {histogram_max:g}")
+    )
     out = out.assign_coords(
-        nrmse_bin_lower=("nrmse_bin", edges[:-1], {"units": "1",
-                                                   "long_name": "lower edge of the nRMSE bin"}),
-        nrmse_bin_upper=("nrmse_bin", edges[1:], {"units": "1",
-                                                  "long_name": "upper edge of the nRMSE bin"}),
+        nrmse_bin_lower=(
+            "nrmse_bin",
+            edges[:-1],
+            {"units": "1", "long_name": "lower edge of the nRMSE bin"},
+        ),
+        nrmse_bin_upper=(
+            "nrmse_bin",
+            edges[1:],
+            {"units": "1", "long_name": "upper edge of the nRMSE bin"},
+        ),
     )
 
     images = _image_index(t)
@@ -748,8 +858,7 @@ def evaluate(
     samples = _representative(nrmse, s, t, quantiles)
     out = out.merge(samples, compat="override", join="exact")
 
-    per_image = {name: coord.variable for name, coord in t.coords.items()
-                 if coord.dims == ("image",)}
+    per_image = {name: coord.variable for name, coord in t.coords.items() if coord.dims == ("image",)}
     out = out.assign_coords(per_image)
     out = out.assign_coords(statistic=_labels(STATISTICS))
     out["wavelength"].attrs.update({"units": "nm", "long_name": "wavelength"})
@@ -761,8 +870,7 @@ def evaluate(
         "references": "Fast Capture of Spectral Image Series, sec. 5, Figures 5, 6 and 7",
     }
     for role, ds in (("spectra", spectra), ("truth", truth)):
-        fingerprint = ds.attrs.get("spectralize_fingerprint") if isinstance(
-            ds, xr.Dataset) else None
+        fingerprint = ds.attrs.get("spectralize_fingerprint") if isinstance(ds, xr.Dataset) else None
         if fingerprint:
             out.attrs[f"{role}_fingerprint"] = str(fingerprint)
     return out
@@ -772,18 +880,29 @@ def evaluate(
 METHOD_DIM: str = "reconstruction"
 
 
-def _method_cubes(candidates: Mapping[str, xr.DataArray | xr.Dataset] | xr.Dataset
-                  ) -> dict[str, xr.DataArray | xr.Dataset]:
+def _method_cubes(
+    candidates: Mapping[str, xr.DataArray | xr.Dataset] | xr.Dataset,
+) -> dict[str, xr.DataArray | xr.Dataset]:
     if isinstance(candidates, xr.Dataset):
         radiance = candidates.get("radiance")
-        dim = next((d for d in (METHOD_DIM, "method") if radiance is not None
-                    and d in radiance.dims), None)
+        dim = next(
+            (d for d in (METHOD_DIM, "method") if radiance is not None and d in radiance.dims), None
+        )
         if radiance is None or dim is None:
-            raise SchemaError("cannot compare methods:", [Problem(
-                "baselines:radiance", f"radiance ({METHOD_DIM}, image, wavelength, y, x)",
-                "nothing" if radiance is None else f"dims {radiance.dims}")])
-        names = [str(m) for m in (radiance[dim].values if dim in radiance.coords
-                                  else range(radiance.sizes[dim]))]
+            raise SchemaError(
+                "cannot compare methods:",
+                [
+                    Problem(
+                        "baselines:radiance",
+                        f"radiance ({METHOD_DIM}, image, wavelength, y, x)",
+                        "nothing" if radiance is None else f"dims {radiance.dims}",
+                    )
+                ],
+            )
+        names = [
+            str(m)
+            for m in (radiance[dim].values if dim in radiance.coords else range(radiance.sizes[dim]))
+        ]
         return {name: radiance.isel({dim: i}, drop=True) for i, name in enumerate(names)}
     return dict(candidates)
 
@@ -831,8 +950,9 @@ def compare_methods(
     """
     cubes = _method_cubes(candidates)
     if not cubes:
-        raise SchemaError("cannot compare methods:", [
-            Problem("candidates", "at least one method", "none")])
+        raise SchemaError(
+            "cannot compare methods:", [Problem("candidates", "at least one method", "none")]
+        )
     problems = _cube_problems(truth, "truth")
     if problems:
         raise SchemaError("cannot compare methods:", problems)
@@ -844,10 +964,14 @@ def compare_methods(
     rows = []
     for cube in cubes.values():
         s, t = _check_pair(cube, truth)
-        maps = {"nrmse": _nrmse(s, t), "spectral_angle": _angle(s, t),
-                "delta_e": _delta_e(s, t, illuminant=illuminant)}
+        maps = {
+            "nrmse": _nrmse(s, t),
+            "spectral_angle": _angle(s, t),
+            "delta_e": _delta_e(s, t, illuminant=illuminant),
+        }
         rows.append(_subset_statistics(maps, masks, threshold))
-    out = xr.concat(rows, dim=METHOD_DIM, coords="minimal", compat="override",
-                    join="override").assign_coords({METHOD_DIM: _labels(list(cubes))})
+    out = xr.concat(
+        rows, dim=METHOD_DIM, coords="minimal", compat="override", join="override"
+    ).assign_coords({METHOD_DIM: _labels(list(cubes))})
     out.attrs = {"illuminant": illuminant, "threshold": float(threshold)}
     return out

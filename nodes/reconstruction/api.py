@@ -72,53 +72,70 @@ def _is_array(value: object, dims: set[str]) -> bool:
     return isinstance(value, xr.DataArray) and set(value.dims) == dims and len(value.dims) == 3
 
 
-def _band_cube_as_shots(cube: xr.DataArray, rgb: xr.DataArray,
-                        filter_size: float | Sequence[float] | None) -> xr.DataArray:
+def _band_cube_as_shots(
+    cube: xr.DataArray, rgb: xr.DataArray, filter_size: float | Sequence[float] | None
+) -> xr.DataArray:
     """A ``(y, x, wavelength)`` band cube of one image as ``(shot, y, x)`` shots of it."""
     if rgb.sizes.get("image", 1) != 1:
         raise ReconstructionError(
             f"bands: a (y, x, wavelength) band cube is one image's bands, but rgb has "
             f"{rgb.sizes['image']} images; give bands as (shot, y, x) with the coordinates "
-            "wavelength, image and filter_size along shot")
+            "wavelength, image and filter_size along shot"
+        )
     if "wavelength" not in cube.coords:
-        raise ReconstructionError("bands: expected a 'wavelength' coordinate [nm] on the "
-                                  "(y, x, wavelength) band cube, found none")
+        raise ReconstructionError(
+            "bands: expected a 'wavelength' coordinate [nm] on the "
+            "(y, x, wavelength) band cube, found none"
+        )
     cube = cube.transpose("wavelength", "y", "x")
     n_band = cube.sizes["wavelength"]
     coord = cube.coords.get("filter_size")
     if coord is not None and filter_size is not None:
-        raise ReconstructionError("filter_size: given both as an option and as a coordinate of "
-                                  "bands; give one")
+        raise ReconstructionError(
+            "filter_size: given both as an option and as a coordinate of bands; give one"
+        )
     if coord is None and filter_size is None:
         raise ReconstructionError(
             "bands: a (y, x, wavelength) band cube needs the filter size s_i [px] of every "
             "band (eq. 3): a 'filter_size' coordinate along wavelength or "
-            "reconstruct(..., filter_size=s)")
+            "reconstruct(..., filter_size=s)"
+        )
     sizes = np.asarray(coord.values if coord is not None else filter_size, dtype=np.float64)
     if sizes.ndim == 0:
         sizes = np.full(n_band, float(sizes))
     if sizes.shape != (n_band,):
-        raise ReconstructionError(f"filter_size: expected one number or {n_band} (one per "
-                                  f"wavelength), found shape {sizes.shape}")
+        raise ReconstructionError(
+            f"filter_size: expected one number or {n_band} (one per "
+            f"wavelength), found shape {sizes.shape}"
+        )
     label = rgb["image"].values[0] if "image" in rgb.coords else 0
     return xr.DataArray(
-        cube.data, dims=("shot", "y", "x"),
-        coords={"wavelength": ("shot", np.asarray(cube["wavelength"].values, np.float64)),
-                "image": ("shot", np.full(n_band, label)),
-                "filter_size": ("shot", sizes)},
-        attrs=cube.attrs)
+        cube.data,
+        dims=("shot", "y", "x"),
+        coords={
+            "wavelength": ("shot", np.asarray(cube["wavelength"].values, np.float64)),
+            "image": ("shot", np.full(n_band, label)),
+            "filter_size": ("shot", sizes),
+        },
+        attrs=cube.attrs,
+    )
 
 
-def _one_form(rgb: Any, bands: Any, filter_size: float | Sequence[float] | None
-              ) -> tuple[Any, Any, bool]:
+def _one_form(
+    rgb: Any, bands: Any, filter_size: float | Sequence[float] | None
+) -> tuple[Any, Any, bool]:
     """``(rgb, bands, single)``: the set form ``(image, y, x, channel)`` / ``(shot, y, x)``;
     ``single`` when ``rgb`` came as one ``(y, x, channel)`` image."""
     single = _is_array(rgb, {"y", "x", "channel"})
     if single:
         if "image" in rgb.coords and rgb["image"].ndim == 0:
             label = rgb["image"].values.item()
-        elif (isinstance(bands, xr.DataArray) and "shot" in bands.dims
-              and "image" in bands.coords and np.unique(bands["image"].values).size == 1):
+        elif (
+            isinstance(bands, xr.DataArray)
+            and "shot" in bands.dims
+            and "image" in bands.coords
+            and np.unique(bands["image"].values).size == 1
+        ):
             label = np.unique(bands["image"].values)[0].item()
         else:
             label = 0
@@ -129,7 +146,8 @@ def _one_form(rgb: Any, bands: Any, filter_size: float | Sequence[float] | None
     elif filter_size is not None:
         raise ReconstructionError(
             "filter_size: only for bands given as a (y, x, wavelength) band cube; bands "
-            "(shot, y, x) carry their filter sizes as the coordinate 'filter_size'")
+            "(shot, y, x) carry their filter sizes as the coordinate 'filter_size'"
+        )
     return rgb, bands, single
 
 
@@ -145,23 +163,29 @@ def _checked_options(method: str, options: dict[str, Any]) -> dict[str, Any]:
     known = record.options
     unknown = sorted(set(options) - set(known))
     if unknown:
-        takers = {name: [m for m, r in RECONSTRUCTION_METHODS.items() if name in r.options]
-                  for name in unknown}
-        hints = "; ".join(f"{name!r} is an option of {', '.join(t)}" for name, t in
-                          takers.items() if t)
+        takers = {
+            name: [m for m, r in RECONSTRUCTION_METHODS.items() if name in r.options] for name in unknown
+        }
+        hints = "; ".join(f"{name!r} is an option of {', '.join(t)}" for name, t in takers.items() if t)
         raise ReconstructionError(
             f"method {method!r}: unknown option(s) {unknown}; its options are: "
-            f"{', '.join(known) or 'none'}" + (f" ({hints})" if hints else ""))
+            f"{', '.join(known) or 'none'}" + (f" ({hints})" if hints else "")
+        )
     for name, value in options.items():
         if name in _POSITIVE and not (_is_real(value) and np.isfinite(value) and value > 0):
             raise ReconstructionError(f"{name}: expected a finite number > 0, found {value!r}")
-        if name in _NON_NEGATIVE and value is not None and not (
-                _is_real(value) and np.isfinite(value) and value >= 0):
+        if (
+            name in _NON_NEGATIVE
+            and value is not None
+            and not (_is_real(value) and np.isfinite(value) and value >= 0)
+        ):
             raise ReconstructionError(f"{name}: expected a finite number >= 0, found {value!r}")
-        if name in _INTEGER and not (_is_real(value) and int(value) == value
-                                     and value >= _INTEGER[name]):
-            raise ReconstructionError(f"{name}: expected an integer >= {_INTEGER[name]}, "
-                                      f"found {value!r}")
+        if name in _INTEGER and not (
+            _is_real(value) and int(value) == value and value >= _INTEGER[name]
+        ):
+            raise ReconstructionError(
+                f"{name}: expected an integer >= {_INTEGER[name]}, found {value!r}"
+            )
     return options
 
 
@@ -187,38 +211,43 @@ def _recorded(options: dict[str, Any]) -> dict[str, Any]:
 
 
 # -- output --------------------------------------------------------------------------------
-def _spectra_array(cube: np.ndarray, rgb: xr.DataArray, inputs: ReconstructionInputs,
-                   attrs: dict) -> xr.DataArray:
+def _spectra_array(
+    cube: np.ndarray, rgb: xr.DataArray, inputs: ReconstructionInputs, attrs: dict
+) -> xr.DataArray:
     """``(n_wavelength, n_image, y, x)`` -> DataArray ``(image, wavelength, y, x)``."""
     values = np.ascontiguousarray(np.moveaxis(np.asarray(cube), 0, 1), dtype=np.float32)
-    coords = {name: coord for name, coord in rgb.coords.items()
-              if set(coord.dims) <= {"image"}}
-    coords["wavelength"] = xr.DataArray(inputs.wavelength, dims="wavelength",
-                                        attrs={"units": "nm", "long_name": "wavelength"})
-    return xr.DataArray(values, dims=("image", "wavelength", "y", "x"), coords=coords,
-                        attrs={"units": "1", "long_name": "relative spectral radiance",
-                               **attrs})
+    coords = {name: coord for name, coord in rgb.coords.items() if set(coord.dims) <= {"image"}}
+    coords["wavelength"] = xr.DataArray(
+        inputs.wavelength, dims="wavelength", attrs={"units": "nm", "long_name": "wavelength"}
+    )
+    return xr.DataArray(
+        values,
+        dims=("image", "wavelength", "y", "x"),
+        coords=coords,
+        attrs={"units": "1", "long_name": "relative spectral radiance", **attrs},
+    )
 
 
-def _initial_cube(initial: xr.DataArray | None,
-                  inputs: ReconstructionInputs) -> np.ndarray | None:
+def _initial_cube(initial: xr.DataArray | None, inputs: ReconstructionInputs) -> np.ndarray | None:
     if initial is None:
         return None
     wanted = ("image", "wavelength", "y", "x")
     if not isinstance(initial, xr.DataArray) or set(initial.dims) != set(wanted):
-        found = (dict(initial.sizes) if isinstance(initial, xr.DataArray)
-                 else type(initial).__name__)
-        raise ReconstructionError(f"initial: expected a DataArray with dims {wanted}, "
-                                  f"found {found}")
+        found = dict(initial.sizes) if isinstance(initial, xr.DataArray) else type(initial).__name__
+        raise ReconstructionError(f"initial: expected a DataArray with dims {wanted}, found {found}")
     initial = initial.transpose(*wanted)
     expected = (inputs.n_image, inputs.n_wavelength, inputs.height, inputs.width)
     if initial.shape != expected:
-        raise ReconstructionError(f"initial: expected shape {expected} (image, wavelength, y, "
-                                  f"x), found {initial.shape}")
-    if "wavelength" in initial.coords and not np.allclose(initial["wavelength"].values,
-                                                          inputs.wavelength, atol=0.01):
-        raise ReconstructionError(f"initial: wavelengths {initial['wavelength'].values.tolist()}"
-                                  f" differ from the bands' {inputs.wavelength.tolist()}")
+        raise ReconstructionError(
+            f"initial: expected shape {expected} (image, wavelength, y, x), found {initial.shape}"
+        )
+    if "wavelength" in initial.coords and not np.allclose(
+        initial["wavelength"].values, inputs.wavelength, atol=0.01
+    ):
+        raise ReconstructionError(
+            f"initial: wavelengths {initial['wavelength'].values.tolist()}"
+            f" differ from the bands' {inputs.wavelength.tolist()}"
+        )
     values = np.asarray(initial.values, dtype=np.float64)
     if not np.all(np.isfinite(values)):
         raise ReconstructionError("initial: expected finite values, found NaN or inf")
@@ -226,11 +255,16 @@ def _initial_cube(initial: xr.DataArray | None,
 
 
 # -- the entry point -------------------------------------------------------------------------
-def reconstruct(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataArray, *,
-                method: str = DEFAULT_METHOD,
-                filter_size: float | Sequence[float] | None = None,
-                full_output: bool = False,
-                **method_options: Any) -> xr.DataArray | ReconstructionResult:
+def reconstruct(
+    rgb: xr.DataArray,
+    bands: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    *,
+    method: str = DEFAULT_METHOD,
+    filter_size: float | Sequence[float] | None = None,
+    full_output: bool = False,
+    **method_options: Any,
+) -> xr.DataArray | ReconstructionResult:
     """Reconstruct spectral images from HDR RGB and noisy band shots (eq. 1), or a baseline.
 
     The solvers minimise ``E(S) = alpha sum_i ||sum_p F_i(p) (S_bi(p) - D_bi(p))||^2 + beta
@@ -334,8 +368,12 @@ def reconstruct(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataAr
         problem = build_problem(inputs, **setup, dtype=options.get("dtype", record.dtype))
         setup_time = time.perf_counter() - started
         solved = record.function(problem, **options)
-        cube, iterations, history, converged = (solved.cube, int(solved.iterations),
-                                                solved.residual_history, solved.converged)
+        cube, iterations, history, converged = (
+            solved.cube,
+            int(solved.iterations),
+            solved.residual_history,
+            solved.converged,
+        )
         wall_time = time.perf_counter() - started
         weights = problem.weights
         if used["gamma_hat"] is None:
@@ -347,7 +385,8 @@ def reconstruct(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataAr
             "final_relative_residual": float(history[-1]),
             "converged": int(converged),
             "wall_time_s": float(wall_time),
-            "alpha": float(weights.alpha), "beta": float(weights.beta),
+            "alpha": float(weights.alpha),
+            "beta": float(weights.beta),
             "gamma": float(weights.gamma),
             "filter_constraints": int(weights.n_filters),
             **_recorded(used),
@@ -362,5 +401,6 @@ def reconstruct(rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataAr
         spectra = spectra.isel(image=0)
     if not full_output:
         return spectra
-    return ReconstructionResult(spectra, iterations, np.asarray(history), bool(converged),
-                                wall_time, setup_time, method, problem)
+    return ReconstructionResult(
+        spectra, iterations, np.asarray(history), bool(converged), wall_time, setup_time, method, problem
+    )

@@ -39,8 +39,9 @@ def light_direction(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
-def _sweeps(anchors: list[int], labels: np.ndarray, shot_images: np.ndarray,
-            shot_wavelengths: np.ndarray) -> list[list[int]]:
+def _sweeps(
+    anchors: list[int], labels: np.ndarray, shot_images: np.ndarray, shot_wavelengths: np.ndarray
+) -> list[list[int]]:
     """Consecutive anchors grouped until each group has a shot of every wavelength."""
     every = set(np.round(shot_wavelengths, 3).tolist())
     groups: list[list[int]] = [[]]
@@ -62,8 +63,10 @@ def select_image_sets(
     images: xr.Dataset,
     shots: xr.Dataset,
     *,
-    anchors_per_set: Annotated[int | None, Field(
-        ge=1, description="images with band shots per set; None: one sweep of all bands")] = None,
+    anchors_per_set: Annotated[
+        int | None,
+        Field(ge=1, description="images with band shots per set; None: one sweep of all bands"),
+    ] = None,
     others_per_set: Annotated[int, Field(ge=0)] = 10,
 ) -> xr.Dataset:
     """Split a run's images into reconstruction sets.
@@ -96,8 +99,11 @@ def select_image_sets(
     SchemaError
         Missing coords, or no shot pairs with any image.
     """
-    problems = [Problem(f"images:{c}", "a per-image coordinate", "nothing")
-                for c in ("image", "theta_i", "phi_i") if c not in images.coords]
+    problems = [
+        Problem(f"images:{c}", "a per-image coordinate", "nothing")
+        for c in ("image", "theta_i", "phi_i")
+        if c not in images.coords
+    ]
     if "image" not in shots.coords:
         problems.append(Problem("shots:image", "a per-shot coordinate", "nothing"))
     if problems:
@@ -106,9 +112,16 @@ def select_image_sets(
     shot_images = shots["image"].values
     has_bands = np.isin(labels, shot_images)
     if not has_bands.any():
-        raise SchemaError("cannot select image sets:", [Problem(
-            "shots:image", f"labels of images in {labels.min()}..{labels.max()}",
-            f"{np.unique(shot_images).tolist()[:10]} (no shot pairs with an image)")])
+        raise SchemaError(
+            "cannot select image sets:",
+            [
+                Problem(
+                    "shots:image",
+                    f"labels of images in {labels.min()}..{labels.max()}",
+                    f"{np.unique(shot_images).tolist()[:10]} (no shot pairs with an image)",
+                )
+            ],
+        )
     directions = light_direction(images["theta_i"].values, images["phi_i"].values)
 
     # anchors in acquisition order (order of their first shot)
@@ -118,12 +131,17 @@ def select_image_sets(
     anchors = sorted(np.flatnonzero(has_bands), key=lambda i: first_shot[int(labels[i])])
     if anchors_per_set is None:
         if "wavelength" not in shots.coords:
-            raise SchemaError("cannot select image sets:", [Problem(
-                "shots:wavelength", "a per-shot coordinate (or give anchors_per_set)", "nothing")])
+            raise SchemaError(
+                "cannot select image sets:",
+                [
+                    Problem(
+                        "shots:wavelength", "a per-shot coordinate (or give anchors_per_set)", "nothing"
+                    )
+                ],
+            )
         groups = _sweeps(anchors, labels, shot_images, np.asarray(shots["wavelength"].values))
     else:
-        groups = [anchors[k:k + anchors_per_set]
-                  for k in range(0, len(anchors), anchors_per_set)]
+        groups = [anchors[k : k + anchors_per_set] for k in range(0, len(anchors), anchors_per_set)]
     centres = np.stack([directions[g].mean(axis=0) for g in groups])
     centres /= np.linalg.norm(centres, axis=1, keepdims=True)
 
@@ -139,12 +157,22 @@ def select_image_sets(
     for g, members in enumerate(groups):
         mine = others[nearest == g]
         mine = mine[np.argsort(distance[mine], kind="stable")]
-        chunks = ([mine[k:k + others_per_set] for k in range(0, mine.size, others_per_set)]
-                  if others_per_set > 0 else [])
+        chunks = (
+            [mine[k : k + others_per_set] for k in range(0, mine.size, others_per_set)]
+            if others_per_set > 0
+            else []
+        )
         if others_per_set == 0 and mine.size:
-            raise SchemaError("cannot select image sets:", [Problem(
-                "others_per_set", "at least 1 when images without band shots exist",
-                f"0 with {others.size} such images")])
+            raise SchemaError(
+                "cannot select image sets:",
+                [
+                    Problem(
+                        "others_per_set",
+                        "at least 1 when images without band shots exist",
+                        f"0 with {others.size} such images",
+                    )
+                ],
+            )
         chunks = chunks or [np.array([], int)]
         for c, chunk in enumerate(chunks):
             member = list(members) + chunk.tolist()
@@ -156,29 +184,40 @@ def select_image_sets(
     owned = np.zeros((len(sets), width), dtype=bool)
     image_set = np.full(labels.size, -1, dtype=np.int64)
     for s, (indices, flags) in enumerate(sets):
-        member[s, :len(indices)] = labels[indices]
-        owned[s, :len(indices)] = flags
+        member[s, : len(indices)] = labels[indices]
+        owned[s, : len(indices)] = flags
         for i, flag in zip(indices, flags, strict=True):
             if flag:
                 image_set[i] = s
     # the seed: the set whose anchor group is most central in light direction
     overall = directions.mean(axis=0)
-    seed = int(np.argmax([centres[_group_of(s, sets, groups)] @ overall
-                          for s in range(len(sets))]))
+    seed = int(np.argmax([centres[_group_of(s, sets, groups)] @ overall for s in range(len(sets))]))
     return xr.Dataset(
         {
             "image_set": ("image", image_set, {"long_name": "set that owns the image"}),
             "has_bands": ("image", has_bands, {"long_name": "image has band shots"}),
-            "light_distance": ("image", distance.astype(np.float32), {
-                "units": "degree",
-                "long_name": "angle to the mean light direction of the image's anchor group"}),
-            "member": (("set", "slot"), member, {"long_name": "image labels of the members, "
-                                                               "anchors first, -1: none"}),
+            "light_distance": (
+                "image",
+                distance.astype(np.float32),
+                {
+                    "units": "degree",
+                    "long_name": "angle to the mean light direction of the image's anchor group",
+                },
+            ),
+            "member": (
+                ("set", "slot"),
+                member,
+                {"long_name": "image labels of the members, anchors first, -1: none"},
+            ),
             "owned": (("set", "slot"), owned, {"long_name": "member is owned by the set"}),
         },
         coords={"image": ("image", labels), "set": ("set", np.arange(len(sets)))},
-        attrs={"seed_set": seed, "anchors_per_set": anchors_per_set or "one sweep",
-               "others_per_set": others_per_set, "anchor_groups": len(groups)},
+        attrs={
+            "seed_set": seed,
+            "anchors_per_set": anchors_per_set or "one sweep",
+            "others_per_set": others_per_set,
+            "anchor_groups": len(groups),
+        },
     )
 
 

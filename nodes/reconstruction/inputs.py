@@ -91,8 +91,9 @@ def _describe(array: xr.DataArray) -> str:
 
 def _check_dims(name: str, array: object, wanted: tuple[str, ...], problems: list[str]) -> bool:
     if not isinstance(array, xr.DataArray):
-        problems.append(f"{name}: expected an xarray.DataArray with dims {wanted}, "
-                        f"found {type(array).__name__}")
+        problems.append(
+            f"{name}: expected an xarray.DataArray with dims {wanted}, found {type(array).__name__}"
+        )
         return False
     if set(array.dims) != set(wanted) or len(array.dims) != len(wanted):
         problems.append(f"{name}: expected dims {wanted} (any order), found {_describe(array)}")
@@ -101,8 +102,9 @@ def _check_dims(name: str, array: object, wanted: tuple[str, ...], problems: lis
         problems.append(f"{name}: expected a real numeric dtype, found {array.dtype}")
         return False
     if 0 in array.shape:
-        problems.append(f"{name}: is empty ({_describe(array)}); an empty set has nothing "
-                        "to reconstruct")
+        problems.append(
+            f"{name}: is empty ({_describe(array)}); an empty set has nothing to reconstruct"
+        )
         return False
     return True
 
@@ -111,12 +113,15 @@ def _check_finite(name: str, values: np.ndarray, problems: list[str]) -> None:
     bad = ~np.isfinite(values)
     if bad.any():
         first = tuple(int(i) for i in np.argwhere(bad)[0])
-        problems.append(f"{name}: expected finite values, found {int(np.isnan(values).sum())} "
-                        f"NaN and {int(np.isinf(values).sum())} inf (first at index {first})")
+        problems.append(
+            f"{name}: expected finite values, found {int(np.isnan(values).sum())} "
+            f"NaN and {int(np.isinf(values).sum())} inf (first at index {first})"
+        )
 
 
-def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
-                       camera_matrix: xr.DataArray) -> ReconstructionInputs:
+def inputs_from_xarray(
+    rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataArray
+) -> ReconstructionInputs:
     """Check the three input arrays against each other and convert them to plain arrays.
 
     Parameters
@@ -143,12 +148,15 @@ def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
         Listing every problem found.
     """
     problems: list[str] = []
-    ok = [_check_dims("rgb", rgb, ("image", "y", "x", "channel"), problems),
-          _check_dims("bands", bands, ("shot", "y", "x"), problems),
-          _check_dims("camera_matrix", camera_matrix, ("channel", "wavelength"), problems)]
+    ok = [
+        _check_dims("rgb", rgb, ("image", "y", "x", "channel"), problems),
+        _check_dims("bands", bands, ("shot", "y", "x"), problems),
+        _check_dims("camera_matrix", camera_matrix, ("channel", "wavelength"), problems),
+    ]
     if not all(ok):
-        raise ReconstructionError("reconstruction inputs do not fit together:\n  - "
-                                  + "\n  - ".join(problems))
+        raise ReconstructionError(
+            "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
+        )
     rgb = rgb.transpose("image", "y", "x", "channel")
     bands = bands.transpose("shot", "y", "x")
     camera_matrix = camera_matrix.transpose("channel", "wavelength")
@@ -157,34 +165,42 @@ def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
     if rgb.sizes["channel"] != 3:
         problems.append(f"rgb: expected 3 channels, found {rgb.sizes['channel']}")
     if camera_matrix.sizes["channel"] != 3:
-        problems.append(f"camera_matrix: expected 3 channels (rows), found "
-                        f"{camera_matrix.sizes['channel']}")
-    if ("channel" in rgb.coords and "channel" in camera_matrix.coords
-            and rgb.sizes["channel"] == camera_matrix.sizes["channel"] == 3):
+        problems.append(
+            f"camera_matrix: expected 3 channels (rows), found {camera_matrix.sizes['channel']}"
+        )
+    if (
+        "channel" in rgb.coords
+        and "channel" in camera_matrix.coords
+        and rgb.sizes["channel"] == camera_matrix.sizes["channel"] == 3
+    ):
         rgb_channels = [str(c) for c in rgb["channel"].values]
         c_channels = [str(c) for c in camera_matrix["channel"].values]
         if sorted(rgb_channels) != sorted(c_channels):
-            problems.append(f"camera_matrix: channels {c_channels} differ from rgb's "
-                            f"{rgb_channels}")
+            problems.append(f"camera_matrix: channels {c_channels} differ from rgb's {rgb_channels}")
         elif rgb_channels != c_channels:
             camera_matrix = camera_matrix.sel(channel=rgb["channel"].values)
 
     # -- image grid ---------------------------------------------------------------------------
     if (bands.sizes["y"], bands.sizes["x"]) != (rgb.sizes["y"], rgb.sizes["x"]):
-        problems.append(f"bands: expected the rgb image size (y: {rgb.sizes['y']}, x: "
-                        f"{rgb.sizes['x']}), found (y: {bands.sizes['y']}, x: "
-                        f"{bands.sizes['x']})")
+        problems.append(
+            f"bands: expected the rgb image size (y: {rgb.sizes['y']}, x: "
+            f"{rgb.sizes['x']}), found (y: {bands.sizes['y']}, x: "
+            f"{bands.sizes['x']})"
+        )
 
     # -- shot coordinates -----------------------------------------------------------------------
     for coord in ("wavelength", "image", "filter_size"):
         if coord not in bands.coords or bands[coord].dims != ("shot",):
-            problems.append(f"bands: expected a coordinate {coord!r} along 'shot', found "
-                            f"coords {sorted(bands.coords)}")
+            problems.append(
+                f"bands: expected a coordinate {coord!r} along 'shot', found "
+                f"coords {sorted(bands.coords)}"
+            )
     if "wavelength" not in camera_matrix.coords:
         problems.append("camera_matrix: expected a 'wavelength' coordinate [nm], found none")
     if problems:
-        raise ReconstructionError("reconstruction inputs do not fit together:\n  - "
-                                  + "\n  - ".join(problems))
+        raise ReconstructionError(
+            "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
+        )
 
     wavelength = np.asarray(camera_matrix["wavelength"].values, dtype=np.float64)
     order = np.argsort(wavelength, kind="stable")
@@ -192,21 +208,25 @@ def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
         camera_matrix = camera_matrix.isel(wavelength=order)
         wavelength = wavelength[order]
     if np.any(np.diff(wavelength) <= WAVELENGTH_TOLERANCE_NM):
-        problems.append(f"camera_matrix: expected distinct wavelengths, found duplicates in "
-                        f"{wavelength.tolist()}")
+        problems.append(
+            f"camera_matrix: expected distinct wavelengths, found duplicates in {wavelength.tolist()}"
+        )
     shot_wavelength = np.asarray(bands["wavelength"].values, dtype=np.float64)
     nearest = np.clip(np.searchsorted(wavelength, shot_wavelength), 0, wavelength.size - 1)
     below = np.clip(nearest - 1, 0, wavelength.size - 1)
-    use_below = (np.abs(wavelength[below] - shot_wavelength)
-                 < np.abs(wavelength[nearest] - shot_wavelength))
+    use_below = np.abs(wavelength[below] - shot_wavelength) < np.abs(
+        wavelength[nearest] - shot_wavelength
+    )
     band = np.where(use_below, below, nearest)
     off_grid = np.abs(wavelength[band] - shot_wavelength) > WAVELENGTH_TOLERANCE_NM
     if off_grid.any():
-        problems.append(f"bands: wavelengths {np.unique(shot_wavelength[off_grid]).tolist()} nm "
-                        f"are not on camera_matrix's wavelength grid {wavelength.tolist()} "
-                        f"(within {WAVELENGTH_TOLERANCE_NM} nm); the bands' wavelengths are "
-                        f"{np.unique(shot_wavelength).tolist()}: give camera_matrix on a grid "
-                        "that contains them")
+        problems.append(
+            f"bands: wavelengths {np.unique(shot_wavelength[off_grid]).tolist()} nm "
+            f"are not on camera_matrix's wavelength grid {wavelength.tolist()} "
+            f"(within {WAVELENGTH_TOLERANCE_NM} nm); the bands' wavelengths are "
+            f"{np.unique(shot_wavelength).tolist()}: give camera_matrix on a grid "
+            "that contains them"
+        )
     elif np.unique(band).size < wavelength.size:
         # a wider grid: restrict C to the bands' wavelengths (nearest, within the tolerance)
         used = np.unique(band)
@@ -222,23 +242,28 @@ def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
     shot_image_labels = np.asarray(bands["image"].values).tolist()
     unknown = sorted({lab for lab in shot_image_labels if lab not in position}, key=str)
     if unknown:
-        problems.append(f"bands: coordinate 'image' names images {unknown} that rgb does not "
-                        f"have (rgb images: {labels[:10]}{' ...' if len(labels) > 10 else ''})")
+        problems.append(
+            f"bands: coordinate 'image' names images {unknown} that rgb does not "
+            f"have (rgb images: {labels[:10]}{' ...' if len(labels) > 10 else ''})"
+        )
     image = np.array([position.get(lab, -1) for lab in shot_image_labels], dtype=np.intp)
 
     filter_size = np.asarray(bands["filter_size"].values, dtype=np.float64)
     largest = (min(rgb.sizes["y"], rgb.sizes["x"]) - 1) / 2
     bad = ~np.isfinite(filter_size) | (filter_size <= 0)
     if bad.any():
-        problems.append(f"bands: filter_size must be finite and > 0, found "
-                        f"{filter_size[bad].tolist()} (shots {np.flatnonzero(bad).tolist()})")
+        problems.append(
+            f"bands: filter_size must be finite and > 0, found "
+            f"{filter_size[bad].tolist()} (shots {np.flatnonzero(bad).tolist()})"
+        )
     too_big = np.isfinite(filter_size) & (filter_size > largest)
     if too_big.any():
         problems.append(
             f"bands: filter_size {filter_size[too_big].tolist()} px (shots "
             f"{np.flatnonzero(too_big).tolist()}) is larger than the image allows: filter "
             f"centres keep s_i from the borders of the {rgb.sizes['y']} x {rgb.sizes['x']} "
-            f"image, so s_i <= {largest:g} px")
+            f"image, so s_i <= {largest:g} px"
+        )
 
     rgb_values = np.asarray(rgb.values, dtype=np.float64)
     band_values = np.asarray(bands.values, dtype=np.float64)
@@ -247,11 +272,20 @@ def inputs_from_xarray(rgb: xr.DataArray, bands: xr.DataArray,
     _check_finite("bands", band_values, problems)
     _check_finite("camera_matrix", c_values, problems)
     if np.all(np.isfinite(c_values)) and np.linalg.matrix_rank(c_values) < 3:
-        problems.append("camera_matrix: expected rank 3 (three independent channels), found "
-                        f"rank {np.linalg.matrix_rank(c_values)}")
+        problems.append(
+            "camera_matrix: expected rank 3 (three independent channels), found "
+            f"rank {np.linalg.matrix_rank(c_values)}"
+        )
     if problems:
-        raise ReconstructionError("reconstruction inputs do not fit together:\n  - "
-                                  + "\n  - ".join(problems))
-    return ReconstructionInputs(rgb=rgb_values, band_data=band_values, band=band.astype(np.intp),
-                                image=image, filter_size=filter_size, camera_matrix=c_values,
-                                wavelength=wavelength)
+        raise ReconstructionError(
+            "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
+        )
+    return ReconstructionInputs(
+        rgb=rgb_values,
+        band_data=band_values,
+        band=band.astype(np.intp),
+        image=image,
+        filter_size=filter_size,
+        camera_matrix=c_values,
+        wavelength=wavelength,
+    )

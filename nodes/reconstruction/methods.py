@@ -37,18 +37,28 @@ from .baselines import (
 from .operators import build_problem
 from .solvers import block_jacobi_pcg, guided_prior_pcg, paper_cg
 
-__all__ = ["ReconstructionMethod", "RECONSTRUCTION_METHODS", "DEFAULT_METHOD", "get_method",
-           "SETUP_OPTIONS"]
+__all__ = [
+    "ReconstructionMethod",
+    "RECONSTRUCTION_METHODS",
+    "DEFAULT_METHOD",
+    "get_method",
+    "SETUP_OPTIONS",
+]
 
 
-def _keyword_options(function: Callable[..., Any], leave_out: tuple[str, ...] = ()
-                     ) -> dict[str, inspect.Parameter]:
-    return {name: parameter for name, parameter in inspect.signature(function).parameters.items()
-            if parameter.kind is parameter.KEYWORD_ONLY and name not in leave_out}
+def _keyword_options(
+    function: Callable[..., Any], leave_out: tuple[str, ...] = ()
+) -> dict[str, inspect.Parameter]:
+    return {
+        name: parameter
+        for name, parameter in inspect.signature(function).parameters.items()
+        if parameter.kind is parameter.KEYWORD_ONLY and name not in leave_out
+    }
 
 
 SETUP_OPTIONS: Mapping[str, inspect.Parameter] = MappingProxyType(
-    _keyword_options(build_problem, leave_out=("neighbours", "dtype")))
+    _keyword_options(build_problem, leave_out=("neighbours", "dtype"))
+)
 """Options every solver takes for setting up eq. 1 (:func:`~.operators.build_problem`):
 ``alpha_hat``, ``beta_hat``, ``gamma_hat``, ``k``, ``centre_spacing``,
 ``normalize_camera_matrix``."""
@@ -93,31 +103,76 @@ class ReconstructionMethod:
         return {name: parameter.default for name, parameter in self.options.items()}
 
 
-def _method(name: str, kind: Literal["solver", "baseline"], function: Callable[..., Any],
-            dtype: type, description: str) -> ReconstructionMethod:
+def _method(
+    name: str,
+    kind: Literal["solver", "baseline"],
+    function: Callable[..., Any],
+    dtype: type,
+    description: str,
+) -> ReconstructionMethod:
     return ReconstructionMethod(name, kind, function, np.dtype(dtype), description)
 
 
 RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
-    method.name: method for method in (
-        _method("block-jacobi-pcg", "solver", block_jacobi_pcg, np.float32,
-                "eq. 1 alone: block-Jacobi preconditioned CG, float32, warm-started"),
-        _method("guided-prior-pcg", "solver", guided_prior_pcg, np.float32,
-                "eq. 1 plus a prior towards the RGB-guided filtered bands (weight: prior)"),
-        _method("paper-cg", "solver", paper_cg, np.float64,
-                "the paper's CG on the normal equations (CGNR), float64, from zero"),
-        _method("pseudo-inverse", "baseline", pseudo_inverse, np.float64,
-                "S = C^+ R (Imai and Berns)"),
-        _method("wiener", "baseline", wiener_estimation, np.float64,
-                "Wiener estimation from RGB with a training-set prior"),
-        _method("mallett2019", "baseline", mallett2019_basis, np.float64,
-                "Mallett and Yuksel (2019) basis fitted to the camera RGB"),
-        _method("filtered-bands", "baseline", filtered_bands, np.float64,
-                "band images filtered by their Gaussian (sigma = s_i / 5) alone"),
-        _method("filtered-projected", "baseline", filtered_bands_projected, np.float64,
-                "filtered bands projected onto C S = R"),
-        _method("guided-projected", "baseline", guided_filtered_projected, np.float64,
-                "RGB-guided filtered bands projected onto C S = R"),
+    method.name: method
+    for method in (
+        _method(
+            "block-jacobi-pcg",
+            "solver",
+            block_jacobi_pcg,
+            np.float32,
+            "eq. 1 alone: block-Jacobi preconditioned CG, float32, warm-started",
+        ),
+        _method(
+            "guided-prior-pcg",
+            "solver",
+            guided_prior_pcg,
+            np.float32,
+            "eq. 1 plus a prior towards the RGB-guided filtered bands (weight: prior)",
+        ),
+        _method(
+            "paper-cg",
+            "solver",
+            paper_cg,
+            np.float64,
+            "the paper's CG on the normal equations (CGNR), float64, from zero",
+        ),
+        _method("pseudo-inverse", "baseline", pseudo_inverse, np.float64, "S = C^+ R (Imai and Berns)"),
+        _method(
+            "wiener",
+            "baseline",
+            wiener_estimation,
+            np.float64,
+            "Wiener estimation from RGB with a training-set prior",
+        ),
+        _method(
+            "mallett2019",
+            "baseline",
+            mallett2019_basis,
+            np.float64,
+            "Mallett and Yuksel (2019) basis fitted to the camera RGB",
+        ),
+        _method(
+            "filtered-bands",
+            "baseline",
+            filtered_bands,
+            np.float64,
+            "band images filtered by their Gaussian (sigma = s_i / 5) alone",
+        ),
+        _method(
+            "filtered-projected",
+            "baseline",
+            filtered_bands_projected,
+            np.float64,
+            "filtered bands projected onto C S = R",
+        ),
+        _method(
+            "guided-projected",
+            "baseline",
+            guided_filtered_projected,
+            np.float64,
+            "RGB-guided filtered bands projected onto C S = R",
+        ),
     )
 }
 """Every reconstruction method by name; see :class:`ReconstructionMethod`. A plugin adds a
@@ -137,6 +192,7 @@ def get_method(name: str) -> ReconstructionMethod:
         For an unknown name, listing the known ones.
     """
     if name not in RECONSTRUCTION_METHODS:
-        raise ReconstructionError(f"unknown method {name!r}; known methods: "
-                                  f"{', '.join(sorted(RECONSTRUCTION_METHODS))}")
+        raise ReconstructionError(
+            f"unknown method {name!r}; known methods: {', '.join(sorted(RECONSTRUCTION_METHODS))}"
+        )
     return RECONSTRUCTION_METHODS[name]

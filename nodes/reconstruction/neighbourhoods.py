@@ -107,9 +107,9 @@ class NeighbourGraph:
             here = np.repeat(np.arange(n_pixels), k)
             data = np.concatenate([np.ones(pairs), -np.ones(pairs)]).astype(self.dtype)
             self._difference = sp.csr_array(
-                (data, (np.concatenate([rows, rows]),
-                        np.concatenate([here, self.neighbours.ravel()]))),
-                shape=(pairs, n_pixels))
+                (data, (np.concatenate([rows, rows]), np.concatenate([here, self.neighbours.ravel()]))),
+                shape=(pairs, n_pixels),
+            )
         return self._difference
 
     @property
@@ -142,8 +142,9 @@ class NeighbourGraph:
         """``D^T y``: ``(n_channels, n_pixels)`` from ``(n_channels, n_pairs)``."""
         return np.asarray(pairs @ self.difference_operator)
 
-    def laplacian_apply(self, flat: np.ndarray, *, scale: float = 1.0,
-                        out: np.ndarray | None = None) -> np.ndarray:
+    def laplacian_apply(
+        self, flat: np.ndarray, *, scale: float = 1.0, out: np.ndarray | None = None
+    ) -> np.ndarray:
         """``scale * L S`` for ``S`` of shape ``(n_channels, n_pixels)``; added to ``out``
         when given.
 

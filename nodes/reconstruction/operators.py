@@ -50,6 +50,7 @@ __all__ = [
     "build_problem",
 ]
 
+
 def _einsum(subscripts: str, *operands: np.ndarray) -> np.ndarray:
     """Products with the 3 x n_wavelength camera matrix without BLAS.
 
@@ -90,8 +91,7 @@ def filter_centres(length: int, filter_size: float, *, centre_spacing: float = 2
     .. [1] Fast Capture of Spectral Image Series, section 3, "Filter Placement".
     """
     if not centre_spacing > 0:
-        raise ReconstructionError(f"centre_spacing: expected a number > 0, found "
-                                  f"{centre_spacing!r}")
+        raise ReconstructionError(f"centre_spacing: expected a number > 0, found {centre_spacing!r}")
     low, high = float(filter_size), float(length - 1) - float(filter_size)
     if high < low:
         raise ReconstructionError(
@@ -103,8 +103,9 @@ def filter_centres(length: int, filter_size: float, *, centre_spacing: float = 2
 
 
 @lru_cache(maxsize=256)
-def _filter_matrix_cached(length: int, filter_size: float, centre_spacing: float,
-                          dtype_name: str) -> sp.csr_array:
+def _filter_matrix_cached(
+    length: int, filter_size: float, centre_spacing: float, dtype_name: str
+) -> sp.csr_array:
     centres = filter_centres(length, filter_size, centre_spacing=centre_spacing)
     sigma = filter_sigma(filter_size)
     radius = filter_radius(filter_size)  # = s_i: a kernel centred s_i from a border stays inside
@@ -117,14 +118,14 @@ def _filter_matrix_cached(length: int, filter_size: float, centre_spacing: float
     values = np.exp(-0.5 * offsets**2)
     sums = np.bincount(rows, weights=values, minlength=len(centres))
     values /= sums[rows]
-    matrix = sp.csr_array((values.astype(dtype_name), (rows, cols)),
-                          shape=(len(centres), length))
+    matrix = sp.csr_array((values.astype(dtype_name), (rows, cols)), shape=(len(centres), length))
     matrix.sort_indices()
     return matrix
 
 
-def gaussian_filter_matrix(length: int, filter_size: float, *, centre_spacing: float = 2.5,
-                           dtype: np.dtype | type = np.float64) -> sp.csr_array:
+def gaussian_filter_matrix(
+    length: int, filter_size: float, *, centre_spacing: float = 2.5, dtype: np.dtype | type = np.float64
+) -> sp.csr_array:
     """One axis of the separable filter operator: Gaussian weights at the filter centres.
 
     Row ``j`` holds the 1-D Gaussian with ``sigma = filter_size / 5`` centred at
@@ -154,15 +155,16 @@ def gaussian_filter_matrix(length: int, filter_size: float, *, centre_spacing: f
     .. [1] Fast Capture of Spectral Image Series, section 3, "Filtering" and
        "Filter Placement".
     """
-    return _filter_matrix_cached(int(length), float(filter_size), float(centre_spacing),
-                                 np.dtype(dtype).name)
+    return _filter_matrix_cached(
+        int(length), float(filter_size), float(centre_spacing), np.dtype(dtype).name
+    )
 
 
 @dataclass(frozen=True)
 class _Axis:
     forward: sp.csr_array  # (n_centres, length)
     adjoint: sp.csr_array  # (length, n_centres)
-    diagonal: np.ndarray   # column sums of forward**2, (length,)
+    diagonal: np.ndarray  # column sums of forward**2, (length,)
 
 
 @dataclass
@@ -208,10 +210,14 @@ class FilterConstraints:
         def axis(length: int, size: float) -> _Axis:
             key = (length, size)
             if key not in cache:
-                forward = gaussian_filter_matrix(length, size, centre_spacing=self.centre_spacing,
-                                                 dtype=self.dtype)
-                cache[key] = _Axis(forward, forward.T.tocsr(),
-                                   np.asarray((forward.multiply(forward)).sum(axis=0)).ravel())
+                forward = gaussian_filter_matrix(
+                    length, size, centre_spacing=self.centre_spacing, dtype=self.dtype
+                )
+                cache[key] = _Axis(
+                    forward,
+                    forward.T.tocsr(),
+                    np.asarray((forward.multiply(forward)).sum(axis=0)).ravel(),
+                )
             return cache[key]
 
         self._rows = [axis(height, s) for s in self.filter_size]
@@ -225,8 +231,9 @@ class FilterConstraints:
     @property
     def centre_grid(self) -> list[tuple[int, int]]:
         """Per shot ``(n_centres_y, n_centres_x)``."""
-        return [(r.forward.shape[0], c.forward.shape[0])
-                for r, c in zip(self._rows, self._cols, strict=True)]
+        return [
+            (r.forward.shape[0], c.forward.shape[0]) for r, c in zip(self._rows, self._cols, strict=True)
+        ]
 
     @property
     def count(self) -> int:
@@ -236,19 +243,18 @@ class FilterConstraints:
     def apply_plane(self, shot: int, plane: np.ndarray) -> np.ndarray:
         """Filter responses of one band image at the centres of ``shot``: ``G_y X G_x^T``."""
         rows, cols = self._rows[shot], self._cols[shot]
-        partial = rows.forward @ plane                   # (n_cy, width)
+        partial = rows.forward @ plane  # (n_cy, width)
         return np.ascontiguousarray((cols.forward @ partial.T).T)  # (n_cy, n_cx)
 
     def adjoint_plane(self, shot: int, responses: np.ndarray) -> np.ndarray:
         """Adjoint of :meth:`apply_plane`: ``G_y^T R G_x``, shape ``(height, width)``."""
         rows, cols = self._rows[shot], self._cols[shot]
-        partial = (cols.adjoint @ responses.T).T        # (n_cy, width)
+        partial = (cols.adjoint @ responses.T).T  # (n_cy, width)
         return rows.adjoint @ np.ascontiguousarray(partial)
 
     def forward(self, cube: np.ndarray) -> list[np.ndarray]:
         """``F S``: the responses of every shot's filters to the cube, one array per shot."""
-        return [self.apply_plane(i, cube[self.band[i], self.image[i]])
-                for i in range(self.n_shots)]
+        return [self.apply_plane(i, cube[self.band[i], self.image[i]]) for i in range(self.n_shots)]
 
     def adjoint(self, responses: list[np.ndarray], out: np.ndarray | None = None) -> np.ndarray:
         """``F^T r``: scatter every shot's responses back into a cube of :attr:`shape`."""
@@ -258,8 +264,7 @@ class FilterConstraints:
             out[self.band[i], self.image[i]] += self.adjoint_plane(i, response)
         return out
 
-    def normal(self, cube: np.ndarray, out: np.ndarray | None = None,
-               scale: float = 1.0) -> np.ndarray:
+    def normal(self, cube: np.ndarray, out: np.ndarray | None = None, scale: float = 1.0) -> np.ndarray:
         """``scale * F^T F S`` (added to ``out`` when given), one shot at a time."""
         if out is None:
             out = np.zeros(self.shape, dtype=self.dtype)
@@ -276,14 +281,14 @@ class FilterConstraints:
         """Diagonal of ``F^T F`` as a cube of :attr:`shape` (separable: an outer product)."""
         out = np.zeros(self.shape, dtype=np.float64)
         for i in range(self.n_shots):
-            out[self.band[i], self.image[i]] += np.outer(self._rows[i].diagonal,
-                                                         self._cols[i].diagonal)
+            out[self.band[i], self.image[i]] += np.outer(self._rows[i].diagonal, self._cols[i].diagonal)
         return out
 
     def astype(self, dtype: np.dtype | type) -> FilterConstraints:
         """The same constraints in another floating dtype."""
-        return FilterConstraints(self.shape, self.band, self.image, self.filter_size,
-                                 self.centre_spacing, np.dtype(dtype))
+        return FilterConstraints(
+            self.shape, self.band, self.image, self.filter_size, self.centre_spacing, np.dtype(dtype)
+        )
 
 
 def rgb_forward(cube: np.ndarray, camera_matrix: np.ndarray) -> np.ndarray:
@@ -372,15 +377,13 @@ class ReconstructionProblem:
         nbr = np.sqrt(w.gamma) * self.neighbours.differences(cube.reshape(cube.shape[0], -1))
         return filt, rgb, nbr
 
-    def apply_adjoint(self, blocks: tuple[list[np.ndarray], np.ndarray, np.ndarray]
-                      ) -> np.ndarray:
+    def apply_adjoint(self, blocks: tuple[list[np.ndarray], np.ndarray, np.ndarray]) -> np.ndarray:
         """``A^T y`` for blocks shaped like the output of :meth:`apply`."""
         filt, rgb, nbr = blocks
         w = self.weights
         out = self.filters.adjoint([np.sqrt(w.alpha) * r for r in filt])
         out += np.sqrt(w.beta) * rgb_adjoint(rgb, self.camera_matrix, self.shape)
-        out += (np.sqrt(w.gamma) * self.neighbours.differences_adjoint(nbr)).reshape(
-            self.shape)
+        out += (np.sqrt(w.gamma) * self.neighbours.differences_adjoint(nbr)).reshape(self.shape)
         return out
 
     def target(self) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
@@ -400,7 +403,7 @@ class ReconstructionProblem:
         c = self.camera_matrix
         projected = _einsum("cw,wn->cn", c, flat)
         projected *= self.dtype.type(w.beta)
-        out = _einsum("cw,cn->wn", c, projected)                # rank 3: two thin products
+        out = _einsum("cw,cn->wn", c, projected)  # rank 3: two thin products
         self.neighbours.laplacian_apply(flat, scale=w.gamma, out=out)
         out = out.reshape(self.shape)
         self.filters.normal(cube, out=out, scale=w.alpha)
@@ -416,8 +419,10 @@ class ReconstructionProblem:
     def energy(self, cube: np.ndarray) -> float:
         """Eq. 1, ``E(S) = ||A S - b||^2``, in float64."""
         applied, wanted = self.apply(cube), self.target()
-        total = sum(float(np.sum((a.astype(np.float64) - b) ** 2))
-                    for a, b in zip(applied[0], wanted[0], strict=True))
+        total = sum(
+            float(np.sum((a.astype(np.float64) - b) ** 2))
+            for a, b in zip(applied[0], wanted[0], strict=True)
+        )
         total += float(np.sum((applied[1].astype(np.float64) - wanted[1]) ** 2))
         total += float(np.sum(applied[2].astype(np.float64) ** 2))
         return total
@@ -434,11 +439,18 @@ def camera_scale(camera_matrix: np.ndarray) -> float:
     return scale if scale > 0 else 1.0
 
 
-def build_problem(inputs: ReconstructionInputs, *, alpha_hat: float = 1.0,
-                  beta_hat: float = 1.0, gamma_hat: float | None = None, k: int = 3,
-                  centre_spacing: float = 2.5, normalize_camera_matrix: bool = True,
-                  neighbours: np.ndarray | None = None,
-                  dtype: np.dtype | type = np.float64) -> ReconstructionProblem:
+def build_problem(
+    inputs: ReconstructionInputs,
+    *,
+    alpha_hat: float = 1.0,
+    beta_hat: float = 1.0,
+    gamma_hat: float | None = None,
+    k: int = 3,
+    centre_spacing: float = 2.5,
+    normalize_camera_matrix: bool = True,
+    neighbours: np.ndarray | None = None,
+    dtype: np.dtype | type = np.float64,
+) -> ReconstructionProblem:
     """Set up eq. 1 for a set of images: filters, neighbour graph and eq. 4 weights.
 
     Parameters
@@ -476,18 +488,26 @@ def build_problem(inputs: ReconstructionInputs, *, alpha_hat: float = 1.0,
         neighbours = appearance_neighbours(rgb.T, k=k)
     graph = NeighbourGraph(neighbours, dtype)
     neighbour_seconds = time.perf_counter() - started
-    filters = FilterConstraints(inputs.cube_shape, inputs.band, inputs.image,
-                                inputs.filter_size, centre_spacing, dtype)
-    targets = [filters.apply_plane(i, inputs.band_data[i].astype(dtype))
-               for i in range(filters.n_shots)]
+    filters = FilterConstraints(
+        inputs.cube_shape, inputs.band, inputs.image, inputs.filter_size, centre_spacing, dtype
+    )
+    targets = [filters.apply_plane(i, inputs.band_data[i].astype(dtype)) for i in range(filters.n_shots)]
     if gamma_hat is None:
         gamma_hat = default_gamma_hat(inputs.n_image)
-    weights = term_weights(filters.count, graph.n_pixels, graph.n_pairs, alpha_hat=alpha_hat,
-                           beta_hat=beta_hat, gamma_hat=gamma_hat)
+    weights = term_weights(
+        filters.count,
+        graph.n_pixels,
+        graph.n_pairs,
+        alpha_hat=alpha_hat,
+        beta_hat=beta_hat,
+        gamma_hat=gamma_hat,
+    )
     return ReconstructionProblem(
-        filters=filters, filter_targets=targets,
-        camera_matrix=(inputs.camera_matrix / scale).astype(dtype), rgb=rgb.astype(dtype),
-        neighbours=graph, weights=weights,
-        extras={"camera_scale": scale, "neighbour_seconds": neighbour_seconds,
-                "inputs": inputs},
+        filters=filters,
+        filter_targets=targets,
+        camera_matrix=(inputs.camera_matrix / scale).astype(dtype),
+        rgb=rgb.astype(dtype),
+        neighbours=graph,
+        weights=weights,
+        extras={"camera_scale": scale, "neighbour_seconds": neighbour_seconds, "inputs": inputs},
     )

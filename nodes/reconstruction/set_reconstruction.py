@@ -47,24 +47,40 @@ _PER_IMAGE = ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o
 
 
 # The set nodes' parameters, shared by the seed set and the other sets.
-Method = Annotated[str, Choices(RECONSTRUCTION_METHODS, "reconstruction method"), Field(
-    description="reconstruction method: a solver of eq. 1 or a baseline")]
-GammaHat = Annotated[float, Field(ge=0, description="neighbour-term weight (eq. 4; paper: 20 "
-                                                      "for multi-image sets); solvers only")]
-Tolerance = Annotated[float, Field(gt=0, description="relative normal-equation residual to "
-                                                      "stop at; solvers only")]
+Method = Annotated[
+    str,
+    Choices(RECONSTRUCTION_METHODS, "reconstruction method"),
+    Field(description="reconstruction method: a solver of eq. 1 or a baseline"),
+]
+GammaHat = Annotated[
+    float,
+    Field(
+        ge=0, description="neighbour-term weight (eq. 4; paper: 20 for multi-image sets); solvers only"
+    ),
+]
+Tolerance = Annotated[
+    float, Field(gt=0, description="relative normal-equation residual to stop at; solvers only")
+]
 MaxIterations = Annotated[int, Field(ge=1, description="iteration limit per set; solvers only")]
-Neighbours = Annotated[int, Field(ge=1, description="appearance neighbours per pixel (paper: "
-                                                     "3); solvers only")]
-Prior = Annotated[float | None, Field(
-    ge=0, description="weight of the guided prior (None: the method's default, 0.1 for "
-                      "guided-prior-pcg, 0 for block-jacobi-pcg); only methods with a prior")]
-WarmStartPixels = Annotated[int, Field(ge=1000, description="seed pixels used to transport "
-                                                             "spectra to the other sets")]
+Neighbours = Annotated[
+    int, Field(ge=1, description="appearance neighbours per pixel (paper: 3); solvers only")
+]
+Prior = Annotated[
+    float | None,
+    Field(
+        ge=0,
+        description="weight of the guided prior (None: the method's default, 0.1 for "
+        "guided-prior-pcg, 0 for block-jacobi-pcg); only methods with a prior",
+    ),
+]
+WarmStartPixels = Annotated[
+    int, Field(ge=1000, description="seed pixels used to transport spectra to the other sets")
+]
 
 
-def _method_options(method: str, *, gamma_hat: float, tolerance: float, max_iterations: int,
-                    k: int, prior: float | None) -> dict[str, Any]:
+def _method_options(
+    method: str, *, gamma_hat: float, tolerance: float, max_iterations: int, k: int, prior: float | None
+) -> dict[str, Any]:
     """The settings ``method`` takes: all of them for a solver, none for a baseline.
 
     Raises
@@ -75,16 +91,22 @@ def _method_options(method: str, *, gamma_hat: float, tolerance: float, max_iter
     options = get_method(method).options
     if prior is not None and "prior" not in options:
         takers = [name for name, m in RECONSTRUCTION_METHODS.items() if "prior" in m.options]
-        raise ReconstructionError(f"prior: method {method!r} has no prior; methods with one: "
-                                  f"{', '.join(takers)}")
-    settings = {"gamma_hat": gamma_hat, "tolerance": tolerance,
-                "max_iterations": max_iterations, "k": k, "prior": prior}
-    return {name: value for name, value in settings.items()
-            if name in options and value is not None}
+        raise ReconstructionError(
+            f"prior: method {method!r} has no prior; methods with one: {', '.join(takers)}"
+        )
+    settings = {
+        "gamma_hat": gamma_hat,
+        "tolerance": tolerance,
+        "max_iterations": max_iterations,
+        "k": k,
+        "prior": prior,
+    }
+    return {name: value for name, value in settings.items() if name in options and value is not None}
 
 
-def _set_inputs(hdr: xr.Dataset, bands: xr.Dataset, labels: np.ndarray
-                ) -> tuple[xr.DataArray, xr.DataArray]:
+def _set_inputs(
+    hdr: xr.Dataset, bands: xr.Dataset, labels: np.ndarray
+) -> tuple[xr.DataArray, xr.DataArray]:
     """The HDR RGB of the images ``labels`` and the band shots that pair with them."""
     rgb = hdr["radiance"].sel(image=labels)
     shots = bands["radiance"].isel(shot=np.flatnonzero(np.isin(bands["image"].values, labels)))
@@ -130,15 +152,19 @@ def solve_set(
         For a set without band shots, and everything :func:`reconstruct` raises.
     """
     if shots.sizes["shot"] == 0:
-        raise ReconstructionError("an image set without any band shot cannot be solved on its "
-                                  "own: it needs at least one image with bands")
-    options = _method_options(method, gamma_hat=gamma_hat, tolerance=tolerance,
-                              max_iterations=max_iterations, k=k, prior=prior)
+        raise ReconstructionError(
+            "an image set without any band shot cannot be solved on its "
+            "own: it needs at least one image with bands"
+        )
+    options = _method_options(
+        method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
+    )
     if initial is not None and "initial" in get_method(method).options:
         options["initial"] = initial
     start = time.perf_counter()
-    result = reconstruct(rgb.load(), shots.load(), camera_matrix, method=method,
-                         full_output=True, **options)
+    result = reconstruct(
+        rgb.load(), shots.load(), camera_matrix, method=method, full_output=True, **options
+    )
     return result.spectra, int(result.iterations), time.perf_counter() - start
 
 
@@ -146,7 +172,8 @@ def _camera_matrix(calibration: xr.Dataset, wavelength: np.ndarray) -> xr.DataAr
     """``C`` of a group of schema ``camera_matrix`` on the bands' wavelengths (within 0.5 nm)."""
     matrix = calibration["camera_matrix"].load()
     return matrix.sel(wavelength=wavelength, method="nearest", tolerance=0.5).assign_coords(
-        wavelength=wavelength)
+        wavelength=wavelength
+    )
 
 
 def _wavelengths(bands: xr.Dataset) -> np.ndarray:
@@ -196,34 +223,57 @@ def reconstruct_seed_set(
     wavelength = _wavelengths(bands)
     rgb, shots = _set_inputs(hdr, bands, members)
     spectra, iterations, seconds = solve_set(
-        rgb, shots, _camera_matrix(calibration, wavelength), method=method,
-        gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k,
-        prior=prior)
-    spectra = spectra.drop_vars([c for c in spectra.coords if c not in
-                                 ("image", "wavelength", *_PER_IMAGE)])
-    return xr.Dataset({"radiance": spectra.assign_attrs(
-        units="1", long_name="relative spectral radiance")},
-        attrs={"seed_set": seed, "iterations": iterations, "seconds": round(seconds, 3),
-               "method": method, **({} if prior is None else {"prior": prior})})
+        rgb,
+        shots,
+        _camera_matrix(calibration, wavelength),
+        method=method,
+        gamma_hat=gamma_hat,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        k=k,
+        prior=prior,
+    )
+    spectra = spectra.drop_vars(
+        [c for c in spectra.coords if c not in ("image", "wavelength", *_PER_IMAGE)]
+    )
+    return xr.Dataset(
+        {"radiance": spectra.assign_attrs(units="1", long_name="relative spectral radiance")},
+        attrs={
+            "seed_set": seed,
+            "iterations": iterations,
+            "seconds": round(seconds, 3),
+            "method": method,
+            **({} if prior is None else {"prior": prior}),
+        },
+    )
 
 
-def _solve_region(rgb: xr.DataArray, shots: xr.DataArray, camera_matrix: xr.DataArray,
-                  owned: np.ndarray, warm: tuple[np.ndarray, np.ndarray] | None,
-                  settings: dict) -> tuple[np.ndarray, np.ndarray]:
+def _solve_region(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    owned: np.ndarray,
+    warm: tuple[np.ndarray, np.ndarray] | None,
+    settings: dict,
+) -> tuple[np.ndarray, np.ndarray]:
     """Solve one set: the owned images' cube (image, wavelength, y, x) float32 and, per owned
     image, the set's iterations."""
     initial = None
     if warm is not None and "initial" in get_method(settings["method"]).options:
         source_rgb, source_spectra = warm
         target = rgb.transpose("image", "y", "x", "channel").values
-        moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3),
-                                  k=settings["k"])
+        moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3), k=settings["k"])
         cube = moved.reshape(*target.shape[:3], -1)
-        initial = xr.DataArray(np.moveaxis(cube, -1, 1), dims=("image", "wavelength", "y", "x"),
-                               coords={"wavelength": camera_matrix["wavelength"].values})
+        initial = xr.DataArray(
+            np.moveaxis(cube, -1, 1),
+            dims=("image", "wavelength", "y", "x"),
+            coords={"wavelength": camera_matrix["wavelength"].values},
+        )
     spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, initial=initial, **settings)
-    return (np.asarray(spectra.values[owned], dtype=np.float32),
-            np.full(int(owned.sum()), iterations, dtype=np.int32))
+    return (
+        np.asarray(spectra.values[owned], dtype=np.float32),
+        np.full(int(owned.sum()), iterations, dtype=np.int32),
+    )
 
 
 def reconstruct_image_sets(
@@ -271,15 +321,22 @@ def reconstruct_image_sets(
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     seed_members, seed_owned = set_members(image_sets, seed)
     seed_rgb = hdr["radiance"].sel(image=seed_members).transpose("image", "y", "x", "channel")
-    seed_cube = spectra_seed["radiance"].sel(image=seed_members).transpose(
-        "image", "y", "x", "wavelength")
+    seed_cube = (
+        spectra_seed["radiance"].sel(image=seed_members).transpose("image", "y", "x", "wavelength")
+    )
     pick = np.random.default_rng(0).permutation(seed_rgb.size // 3)[:warm_start_pixels]
-    warm = (seed_rgb.values.reshape(-1, 3)[pick],
-            seed_cube.values.reshape(-1, wavelength.size)[pick])
-    settings = {"method": method, "gamma_hat": gamma_hat, "tolerance": tolerance,
-                "max_iterations": max_iterations, "k": k, "prior": prior}
-    _method_options(method, gamma_hat=gamma_hat, tolerance=tolerance,
-                    max_iterations=max_iterations, k=k, prior=prior)  # fail before any solve
+    warm = (seed_rgb.values.reshape(-1, 3)[pick], seed_cube.values.reshape(-1, wavelength.size)[pick])
+    settings = {
+        "method": method,
+        "gamma_hat": gamma_hat,
+        "tolerance": tolerance,
+        "max_iterations": max_iterations,
+        "k": k,
+        "prior": prior,
+    }
+    _method_options(
+        method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
+    )  # fail before any solve
 
     pieces, counts, labels, set_of = [], [], [], []
     seed_iterations = int(spectra_seed.attrs.get("iterations", -1))
@@ -289,15 +346,25 @@ def reconstruct_image_sets(
             continue
         shape = (int(owned.sum()), wavelength.size, ny, nx)
         if index == seed:
-            block = spectra_seed["radiance"].sel(image=members[owned]).transpose(
-                "image", "wavelength", "y", "x").data
+            block = (
+                spectra_seed["radiance"]
+                .sel(image=members[owned])
+                .transpose("image", "wavelength", "y", "x")
+                .data
+            )
             block = da.asarray(block).astype(np.float32).rechunk((shape[0], -1, -1, -1))
             count = da.full(shape[0], seed_iterations, dtype=np.int32, chunks=shape[0])
         else:
             rgb, shots = _set_inputs(hdr, bands, members)
             task = dask.delayed(_solve_region, pure=True)(
-                rgb, shots, camera_matrix, owned, warm, settings,
-                dask_key_name=f"solve-set-{index}-{dask.base.tokenize(rgb.data, settings)}")
+                rgb,
+                shots,
+                camera_matrix,
+                owned,
+                warm,
+                settings,
+                dask_key_name=f"solve-set-{index}-{dask.base.tokenize(rgb.data, settings)}",
+            )
             block = da.from_delayed(task[0], shape=shape, dtype=np.float32)
             count = da.from_delayed(task[1], shape=shape[:1], dtype=np.int32)
         pieces.append(block)
@@ -309,15 +376,29 @@ def reconstruct_image_sets(
     coords = {name: per_image[name] for name in (*_PER_IMAGE, "image") if name in per_image.coords}
     coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
     return xr.Dataset(
-        {"radiance": (("image", "wavelength", "y", "x"), cube,
-                      {"units": "1", "long_name": "relative spectral radiance"}),
-         "image_set": ("image", np.asarray(set_of), {"long_name": "set the image was solved in"}),
-         "iterations": ("image", da.concatenate(counts), {
-             "long_name": "solver iterations of the image's set (seed: cold start, others: "
-                          "warm-started from the seed)"})},
+        {
+            "radiance": (
+                ("image", "wavelength", "y", "x"),
+                cube,
+                {"units": "1", "long_name": "relative spectral radiance"},
+            ),
+            "image_set": ("image", np.asarray(set_of), {"long_name": "set the image was solved in"}),
+            "iterations": (
+                "image",
+                da.concatenate(counts),
+                {
+                    "long_name": "solver iterations of the image's set (seed: cold start, others: "
+                    "warm-started from the seed)"
+                },
+            ),
+        },
         coords=coords,
-        attrs={"seed_set": seed, "method": method, "gamma_hat": gamma_hat,
-               **({} if prior is None else {"prior": prior}),
-               "seed_iterations": seed_iterations,
-               "ordering": "images ordered by image set; use .sel(image=label)"},
+        attrs={
+            "seed_set": seed,
+            "method": method,
+            "gamma_hat": gamma_hat,
+            **({} if prior is None else {"prior": prior}),
+            "seed_iterations": seed_iterations,
+            "ordering": "images ordered by image set; use .sel(image=label)",
+        },
     )

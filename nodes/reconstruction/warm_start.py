@@ -56,10 +56,10 @@ def transport_spectra(
     if source_rgb.shape[0] != source_spectra.shape[0] or source_rgb.shape[0] == 0:
         raise ReconstructionError(
             f"source_spectra: expected one spectrum per source pixel ({source_rgb.shape[0]}), "
-            f"found {source_spectra.shape[0]}")
+            f"found {source_spectra.shape[0]}"
+        )
     if source_rgb.shape[0] > max_source_pixels:
-        keep = np.random.default_rng(seed).choice(source_rgb.shape[0], max_source_pixels,
-                                                  replace=False)
+        keep = np.random.default_rng(seed).choice(source_rgb.shape[0], max_source_pixels, replace=False)
         source_rgb, source_spectra = source_rgb[keep], source_spectra[keep]
     k = int(min(k, source_rgb.shape[0]))
     _, index = cKDTree(source_rgb).query(target_rgb, k=k)
@@ -67,8 +67,9 @@ def transport_spectra(
     spectra = source_spectra[index].mean(axis=1)
     neighbour_level = source_rgb[index].sum(axis=2).mean(axis=1)
     target_level = target_rgb.sum(axis=1)
-    ratio = np.divide(target_level, neighbour_level, out=np.ones_like(target_level),
-                      where=neighbour_level > 0)
+    ratio = np.divide(
+        target_level, neighbour_level, out=np.ones_like(target_level), where=neighbour_level > 0
+    )
     return spectra * ratio[:, None]
 
 
@@ -100,24 +101,34 @@ def warm_start(
         initial=...)``.
     """
     rgb_dims = ("image", "y", "x", "channel")
-    for name, array, dims in (("source_rgb", source_rgb, rgb_dims),
-                              ("target_rgb", target_rgb, rgb_dims),
-                              ("source_spectra", source_spectra, ("image", "wavelength", "y", "x"))):
+    for name, array, dims in (
+        ("source_rgb", source_rgb, rgb_dims),
+        ("target_rgb", target_rgb, rgb_dims),
+        ("source_spectra", source_spectra, ("image", "wavelength", "y", "x")),
+    ):
         if set(array.dims) != set(dims):
             raise ReconstructionError(f"{name}: expected dims {dims}, found {array.dims}")
     src = source_rgb.transpose(*rgb_dims).values.reshape(-1, source_rgb.sizes["channel"])
     spectra = source_spectra.transpose("image", "y", "x", "wavelength").values
     spectra = spectra.reshape(-1, source_spectra.sizes["wavelength"])
     target = target_rgb.transpose(*rgb_dims)
-    moved = transport_spectra(src, spectra, target.values.reshape(-1, target.sizes["channel"]),
-                              k=k, max_source_pixels=max_source_pixels)
+    moved = transport_spectra(
+        src,
+        spectra,
+        target.values.reshape(-1, target.sizes["channel"]),
+        k=k,
+        max_source_pixels=max_source_pixels,
+    )
     cube = moved.reshape(target.sizes["image"], target.sizes["y"], target.sizes["x"], -1)
     return xr.DataArray(
         np.moveaxis(cube, -1, 1).astype(np.float32),
         dims=("image", "wavelength", "y", "x"),
-        coords={"wavelength": source_spectra["wavelength"],
-                **{name: coord for name, coord in target.coords.items()
-                   if set(coord.dims) <= {"image"}}},
-        attrs={"units": source_spectra.attrs.get("units", "1"),
-               "long_name": "spectra transported from a solved image set (warm start)"},
+        coords={
+            "wavelength": source_spectra["wavelength"],
+            **{name: coord for name, coord in target.coords.items() if set(coord.dims) <= {"image"}},
+        },
+        attrs={
+            "units": source_spectra.attrs.get("units", "1"),
+            "long_name": "spectra transported from a solved image set (warm start)",
+        },
     )

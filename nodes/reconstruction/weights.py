@@ -41,9 +41,15 @@ def default_gamma_hat(n_images: int) -> float:
     return 1.0 if n_images <= 1 else 20.0
 
 
-def term_weights(n_filters: int, n_pixels: int, n_neighbour_pairs: int, *,
-                 alpha_hat: float = 1.0, beta_hat: float = 1.0,
-                 gamma_hat: float = 1.0) -> TermWeights:
+def term_weights(
+    n_filters: int,
+    n_pixels: int,
+    n_neighbour_pairs: int,
+    *,
+    alpha_hat: float = 1.0,
+    beta_hat: float = 1.0,
+    gamma_hat: float = 1.0,
+) -> TermWeights:
     """Eq. 4: weight each term by the share of equations it contributes.
 
     ``M = K + 3P + sum_p |N_p|``, ``alpha = alpha_hat M / K``, ``beta = beta_hat M / (3P)``,
@@ -74,20 +80,23 @@ def term_weights(n_filters: int, n_pixels: int, n_neighbour_pairs: int, *,
     ----------
     .. [1] Fast Capture of Spectral Image Series, eq. 4.
     """
-    counts = {"n_filters": n_filters, "n_pixels": n_pixels,
-              "n_neighbour_pairs": n_neighbour_pairs}
+    counts = {"n_filters": n_filters, "n_pixels": n_pixels, "n_neighbour_pairs": n_neighbour_pairs}
     hats = {"alpha_hat": alpha_hat, "beta_hat": beta_hat, "gamma_hat": gamma_hat}
     for name, value in {**counts, **hats}.items():
         if not value >= 0:
             raise ReconstructionError(f"{name}: expected a number >= 0, found {value!r}")
     total = n_filters + 3 * n_pixels + n_neighbour_pairs
     if total == 0:
-        raise ReconstructionError("eq. 4 needs at least one equation: K, P and sum |N_p| are "
-                                  "all 0")
+        raise ReconstructionError("eq. 4 needs at least one equation: K, P and sum |N_p| are all 0")
 
     def share(hat: float, count: int) -> float:
         return float(hat) * total / count if count else 0.0
 
-    return TermWeights(share(alpha_hat, n_filters), share(beta_hat, 3 * n_pixels),
-                       share(gamma_hat, n_neighbour_pairs), int(n_filters), int(n_pixels),
-                       int(n_neighbour_pairs))
+    return TermWeights(
+        share(alpha_hat, n_filters),
+        share(beta_hat, 3 * n_pixels),
+        share(gamma_hat, n_neighbour_pairs),
+        int(n_filters),
+        int(n_pixels),
+        int(n_neighbour_pairs),
+    )

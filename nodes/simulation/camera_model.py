@@ -138,8 +138,7 @@ def check_wavelength(wavelength: npt.ArrayLike, name: str = "wavelength") -> np.
     wl = np.asarray(wavelength, dtype=np.float64)
     if wl.ndim != 1 or wl.size == 0:
         raise ShapeMismatchError(
-            f"{name} must be a non-empty 1-D array of wavelengths in nm; "
-            f"received shape {wl.shape}."
+            f"{name} must be a non-empty 1-D array of wavelengths in nm; received shape {wl.shape}."
         )
     if not np.all(np.isfinite(wl)) or np.any(wl <= 0):
         raise SimulationParameterError(f"{name} must be finite and > 0 nm; received {wl}.")
@@ -162,8 +161,7 @@ def as_generator(seed: SeedLike) -> np.random.Generator:
         return np.random.Generator(np.random.PCG64(seed))
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise SimulationParameterError(
-            f"seed must be a non-negative int, a numpy SeedSequence or Generator; "
-            f"received {seed!r}."
+            f"seed must be a non-negative int, a numpy SeedSequence or Generator; received {seed!r}."
         )
     return np.random.default_rng(int(seed))
 
@@ -267,9 +265,7 @@ class SCurveResponse:
     def __post_init__(self) -> None:
         check_positive(self.contrast, "contrast")
         if not 0.0 < self.midpoint < 1.0:
-            raise SimulationParameterError(
-                f"midpoint must be in (0, 1); received {self.midpoint!r}."
-            )
+            raise SimulationParameterError(f"midpoint must be in (0, 1); received {self.midpoint!r}.")
 
     @property
     def _t0(self) -> float:
@@ -463,18 +459,14 @@ def capture(
         )
     bit_depth = check_bit_depth(bit_depth)
     is_da = isinstance(irradiance, xr.DataArray)
-    x = check_positive(
-        irradiance.values if is_da else irradiance, "irradiance", allow_zero=True
-    )
+    x = check_positive(irradiance.values if is_da else irradiance, "irradiance", allow_zero=True)
     t = check_positive(exposure_time, "exposure_time")
     q = check_positive(quantum_efficiency, "quantum_efficiency")
     off = check_positive(adc_offset, "adc_offset", allow_zero=True)
     check_positive(noise_sigma, "noise_sigma", allow_zero=True)
     check_positive(full_well, "full_well")
     if noise not in ("gaussian", "shot"):
-        raise SimulationParameterError(
-            f"noise must be 'gaussian' or 'shot'; received {noise!r}."
-        )
+        raise SimulationParameterError(f"noise must be 'gaussian' or 'shot'; received {noise!r}.")
     try:
         shape = np.broadcast_shapes(x.shape, t.shape, q.shape, off.shape)
     except ValueError:
@@ -513,9 +505,7 @@ def capture(
 # --------------------------------------------------------------------------------------
 # spectral data of the cameras
 # --------------------------------------------------------------------------------------
-def camera_sensitivities(
-    wavelength: npt.ArrayLike, *, name: str = "Nikon 5100 (NPL)"
-) -> xr.DataArray:
+def camera_sensitivities(wavelength: npt.ArrayLike, *, name: str = "Nikon 5100 (NPL)") -> xr.DataArray:
     """Measured RGB camera sensitivities shipped by colour-science, sampled at ``wavelength``.
 
     Returns a DataArray (channel, wavelength), channel ``['R', 'G', 'B']``, normalised so the
@@ -534,8 +524,7 @@ def camera_sensitivities(
     lo, hi = msds.shape.start, msds.shape.end
     if wl[0] < lo or wl[-1] > hi:
         raise SimulationParameterError(
-            f"wavelength must lie in {lo:g}..{hi:g} nm for {name!r}; received "
-            f"{wl[0]:g}..{wl[-1]:g} nm."
+            f"wavelength must lie in {lo:g}..{hi:g} nm for {name!r}; received {wl[0]:g}..{wl[-1]:g} nm."
         )
     values = np.clip(np.asarray(msds[wl], dtype=np.float64).T, 0.0, None)
     values = values / values.max()
@@ -544,14 +533,15 @@ def camera_sensitivities(
         dims=("channel", "wavelength"),
         coords={"channel": ["R", "G", "B"], "wavelength": _wavelength_coord(wl)},
         name="camera_sensitivities",
-        attrs={"units": "1", "long_name": f"relative spectral sensitivity ({name})",
-               "source": f"colour.MSDS_CAMERA_SENSITIVITIES[{name!r}]"},
+        attrs={
+            "units": "1",
+            "long_name": f"relative spectral sensitivity ({name})",
+            "source": f"colour.MSDS_CAMERA_SENSITIVITIES[{name!r}]",
+        },
     )
 
 
-def spectral_quantum_efficiency(
-    wavelength: npt.ArrayLike, *, peak: float = 1.0
-) -> xr.DataArray:
+def spectral_quantum_efficiency(wavelength: npt.ArrayLike, *, peak: float = 1.0) -> xr.DataArray:
     """Combined quantum efficiency ``Q`` of a monochrome CCD behind a liquid-crystal filter.
 
     Smooth model of an interline CCD's QE (peak ~0.55 near 490 nm) times the peak
@@ -569,8 +559,11 @@ def spectral_quantum_efficiency(
         dims=("wavelength",),
         coords={"wavelength": _wavelength_coord(wl)},
         name="quantum_efficiency",
-        attrs={"units": "s-1", "long_name": "quantum efficiency Q of the spectral camera "
-               "system (sensor x tunable filter x gain)"},
+        attrs={
+            "units": "s-1",
+            "long_name": "quantum efficiency Q of the spectral camera "
+            "system (sensor x tunable filter x gain)",
+        },
     )
 
 
@@ -593,15 +586,22 @@ def gaussian_bandpass(wavelength: npt.ArrayLike, *, fwhm: float = 10.0) -> xr.Da
         dims=("band", "wavelength"),
         coords={"band": _wavelength_coord(wl, "band"), "wavelength": _wavelength_coord(wl)},
         name="bandpass",
-        attrs={"units": "1", "long_name": "tunable filter bandpass weights per band",
-               "fwhm_nm": float(fwhm)},
+        attrs={
+            "units": "1",
+            "long_name": "tunable filter bandpass weights per band",
+            "fwhm_nm": float(fwhm),
+        },
     )
 
 
 def _wavelength_coord(wl: np.ndarray, dim: str = "wavelength") -> xr.Variable:
     return xr.Variable(
-        (dim,), wl, attrs={"units": "nm", "long_name": "wavelength" if dim == "wavelength"
-                           else "centre wavelength of the filter band"}
+        (dim,),
+        wl,
+        attrs={
+            "units": "nm",
+            "long_name": "wavelength" if dim == "wavelength" else "centre wavelength of the filter band",
+        },
     )
 
 
@@ -669,13 +669,19 @@ class RGBCamera:
                 f"camera_matrix wavelengths ({wl_c.size} from {wl_c[0]:g} nm); resample "
                 "with `radiance.interp(wavelength=camera.camera_matrix.wavelength)`."
             )
-        out = xr.dot(self.camera_matrix.drop_vars("wavelength"),
-                     radiance.drop_vars("wavelength"), dim="wavelength")
+        out = xr.dot(
+            self.camera_matrix.drop_vars("wavelength"),
+            radiance.drop_vars("wavelength"),
+            dim="wavelength",
+        )
         dims = [d for d in radiance.dims if d != "wavelength"] + ["channel"]
         return out.transpose(*dims)
 
     def capture(
-        self, radiance: xr.DataArray, exposure_time: Sequence[float] | npt.ArrayLike, *,
+        self,
+        radiance: xr.DataArray,
+        exposure_time: Sequence[float] | npt.ArrayLike,
+        *,
         seed: SeedLike = None,
     ) -> xr.DataArray:
         """Exposure series of a spectral radiance: counts (..., exposure, y, x, channel).
@@ -685,29 +691,39 @@ class RGBCamera:
         """
         times = check_positive(np.atleast_1d(exposure_time), "exposure_time")
         if times.ndim != 1:
-            raise ShapeMismatchError(
-                f"exposure_time must be 1-D; received shape {times.shape}."
-            )
+            raise ShapeMismatchError(f"exposure_time must be 1-D; received shape {times.shape}.")
         x = self.channel_irradiance(radiance)  # (..., y, x, channel)
         rng = as_generator(seed)
         frames = []
         for t in times:
             per_channel = [
                 capture_with_generator(
-                    x.isel(channel=i).values, t, rng, response=self.responses[ch],
-                    adc_offset=self.adc_offset, noise_sigma=self.noise_sigma,
-                    bit_depth=self.bit_depth, noise=self.noise, full_well=self.full_well)
+                    x.isel(channel=i).values,
+                    t,
+                    rng,
+                    response=self.responses[ch],
+                    adc_offset=self.adc_offset,
+                    noise_sigma=self.noise_sigma,
+                    bit_depth=self.bit_depth,
+                    noise=self.noise,
+                    full_well=self.full_well,
+                )
                 for i, ch in enumerate(self.channels)
             ]
             frames.append(np.stack(per_channel, axis=-1))
         counts = np.stack(frames, axis=-4)  # (..., exposure, y, x, channel)
         dims = list(x.dims[:-3]) + ["exposure", *x.dims[-3:]]
         coords = {k: v for k, v in x.coords.items() if set(v.dims) <= set(dims)}
-        da = xr.DataArray(counts, dims=dims, coords=coords, name="counts",
-                          attrs={"units": "DN", "long_name": "raw RGB counts",
-                                 "bit_depth": self.bit_depth})
-        return da.assign_coords(exposure_time=("exposure", times, {"units": "s",
-                                                                   "long_name": "exposure time"}))
+        da = xr.DataArray(
+            counts,
+            dims=dims,
+            coords=coords,
+            name="counts",
+            attrs={"units": "DN", "long_name": "raw RGB counts", "bit_depth": self.bit_depth},
+        )
+        return da.assign_coords(
+            exposure_time=("exposure", times, {"units": "s", "long_name": "exposure time"})
+        )
 
 
 @dataclass(frozen=True)
@@ -783,9 +799,15 @@ class SpectralCamera:
         weights = xr.DataArray(self.bandpass().values[i], dims=("wavelength",))
         return xr.dot(weights, radiance.drop_vars("wavelength"), dim="wavelength")
 
-    def capture(self, radiance: xr.DataArray, *, wavelength: float, exposure_time: float,
-                adc_offset: npt.ArrayLike | None = None, seed: SeedLike = None
-                ) -> xr.DataArray:
+    def capture(
+        self,
+        radiance: xr.DataArray,
+        *,
+        wavelength: float,
+        exposure_time: float,
+        adc_offset: npt.ArrayLike | None = None,
+        seed: SeedLike = None,
+    ) -> xr.DataArray:
         """One band shot of a spectral radiance (..., wavelength, y, x): counts (..., y, x).
 
         ``adc_offset`` overrides the scalar offset (e.g. with a per-pixel dark pattern).
@@ -793,11 +815,18 @@ class SpectralCamera:
         x = self.band_irradiance(radiance, wavelength)
         q = float(self.quantum_efficiency.values[self.band_index(wavelength)])
         out = capture(
-            x, exposure_time, response=self.response, quantum_efficiency=q,
+            x,
+            exposure_time,
+            response=self.response,
+            quantum_efficiency=q,
             adc_offset=self.adc_offset if adc_offset is None else adc_offset,
-            noise_sigma=self.noise_sigma, bit_depth=self.bit_depth, noise=self.noise,
-            full_well=self.full_well, seed=seed)
+            noise_sigma=self.noise_sigma,
+            bit_depth=self.bit_depth,
+            noise=self.noise,
+            full_well=self.full_well,
+            seed=seed,
+        )
         return out.assign_coords(
             wavelength=((), float(wavelength), {"units": "nm", "long_name": "band centre"}),
-            exposure_time=((), float(exposure_time), {"units": "s",
-                                                       "long_name": "exposure time"}))
+            exposure_time=((), float(exposure_time), {"units": "s", "long_name": "exposure time"}),
+        )

@@ -69,8 +69,13 @@ def simulate(
     Fast Capture of Spectral Image Series, sec. 4 and 5 (eq. 2, 3, 5).
     """
     changes: dict[str, Any] = dict(overrides or {})
-    for key, value in (("seed", seed), ("size", size), ("n_rotations", n_rotations),
-                       ("spectral_mode", spectral_mode), ("noise", noise)):
+    for key, value in (
+        ("seed", seed),
+        ("size", size),
+        ("n_rotations", n_rotations),
+        ("spectral_mode", spectral_mode),
+        ("noise", noise),
+    ):
         if value is not None:
             changes[key] = value
     run = simulate_run(get_recipe(recipe, **changes))
@@ -81,7 +86,8 @@ def simulate(
             f"{max_gigabytes:g}); make it smaller (simulate.size, simulate.n_rotations, "
             "or 'leds' and 'rgb_camera_thetas' in simulate.overrides), raise "
             "simulate.max_gigabytes, or compute chunks of "
-            "spectralize.nodes.simulation.gantry.simulate_run(...) lazily instead.")
+            "spectralize.nodes.simulation.gantry.simulate_run(...) lazily instead."
+        )
     return run
 
 
@@ -92,5 +98,5 @@ SIMULATE = Node(
     inputs={},
     outputs=tuple(GROUPS),
     description="Simulate a raw gantry run (RGB series, noisy bands, darks, calibration "
-                "shots) and its ground truth from a named recipe (sec. 4, 5; eq. 2, 3, 5).",
+    "shots) and its ground truth from a named recipe (sec. 4, 5; eq. 2, 3, 5).",
 )

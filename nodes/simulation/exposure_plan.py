@@ -55,8 +55,7 @@ def _spectra(
         if isinstance(v, xr.DataArray):
             if v.dims != ("wavelength",):
                 raise ShapeMismatchError(
-                    f"{name} must be 1-D over 'wavelength'; received dims {v.dims} "
-                    f"and shape {v.shape}."
+                    f"{name} must be 1-D over 'wavelength'; received dims {v.dims} and shape {v.shape}."
                 )
             wls.append(check_wavelength(v["wavelength"].values, f"{name}.wavelength"))
             vals.append(np.asarray(v.values, dtype=np.float64))
@@ -82,9 +81,7 @@ def _spectra(
             )
     for name, a in zip(("quantum_efficiency", "illuminant"), vals, strict=True):
         if a.shape != wl.shape:
-            raise ShapeMismatchError(
-                f"{name} has {a.size} values but there are {wl.size} wavelengths."
-            )
+            raise ShapeMismatchError(f"{name} has {a.size} values but there are {wl.size} wavelengths.")
     q = check_positive(vals[0], "quantum_efficiency")
     ell = check_positive(vals[1], "illuminant")
     return wl, q, ell
@@ -177,26 +174,56 @@ def exposure_plan(
     wl_coord = xr.Variable(("wavelength",), wl, {"units": "nm", "long_name": "wavelength"})
     ds = xr.Dataset(
         {
-            "exposure_time": ("wavelength", t, {
-                "units": "s", "long_name": "exposure time of the band shot (eq. 2)"}),
-            "filter_size": ("wavelength", s, {
-                "units": "px", "long_name": "Gaussian filter size s_i (eq. 3)"}),
-            "filter_sigma": ("wavelength", s * SIGMA_PER_FILTER_SIZE, {
-                "units": "px", "long_name": "Gaussian filter standard deviation s_i / 5"}),
-            "relative_exposure": ("wavelength", ql * t, {
-                "units": "1", "long_name": "normalised exposure Q L t of a white target"}),
-            "quantum_efficiency": ("wavelength", q, {
-                "units": "s-1", "long_name": "quantum efficiency Q of the spectral camera"}),
-            "illuminant": ("wavelength", ell, {
-                "units": "1", "long_name": "spectral radiance L of the illumination"}),
-            "rgb_exposure_time": ("rgb_exposure", rgb_times, {
-                "units": "s", "long_name": "exposure times of one RGB exposure series"}),
-            "spectral_capture_time": ((), spectral_total, {
-                "units": "s", "long_name": "total exposure time of the spectral shots"}),
-            "rgb_capture_time": ((), rgb_total, {
-                "units": "s", "long_name": "total exposure time of the RGB images"}),
-            "total_capture_time": ((), spectral_total + rgb_total, {
-                "units": "s", "long_name": "total exposure time of the capture"}),
+            "exposure_time": (
+                "wavelength",
+                t,
+                {"units": "s", "long_name": "exposure time of the band shot (eq. 2)"},
+            ),
+            "filter_size": (
+                "wavelength",
+                s,
+                {"units": "px", "long_name": "Gaussian filter size s_i (eq. 3)"},
+            ),
+            "filter_sigma": (
+                "wavelength",
+                s * SIGMA_PER_FILTER_SIZE,
+                {"units": "px", "long_name": "Gaussian filter standard deviation s_i / 5"},
+            ),
+            "relative_exposure": (
+                "wavelength",
+                ql * t,
+                {"units": "1", "long_name": "normalised exposure Q L t of a white target"},
+            ),
+            "quantum_efficiency": (
+                "wavelength",
+                q,
+                {"units": "s-1", "long_name": "quantum efficiency Q of the spectral camera"},
+            ),
+            "illuminant": (
+                "wavelength",
+                ell,
+                {"units": "1", "long_name": "spectral radiance L of the illumination"},
+            ),
+            "rgb_exposure_time": (
+                "rgb_exposure",
+                rgb_times,
+                {"units": "s", "long_name": "exposure times of one RGB exposure series"},
+            ),
+            "spectral_capture_time": (
+                (),
+                spectral_total,
+                {"units": "s", "long_name": "total exposure time of the spectral shots"},
+            ),
+            "rgb_capture_time": (
+                (),
+                rgb_total,
+                {"units": "s", "long_name": "total exposure time of the RGB images"},
+            ),
+            "total_capture_time": (
+                (),
+                spectral_total + rgb_total,
+                {"units": "s", "long_name": "total exposure time of the capture"},
+            ),
         },
         coords={"wavelength": wl_coord},
         attrs={
@@ -240,8 +267,14 @@ def reference_exposure_plan(
             f"target_exposure must be in (0, 1] of full scale; received {target_exposure!r}."
         )
     ds = exposure_plan(
-        quantum_efficiency, illuminant, t0=float(target_exposure), s0=0.0, omega=1.0,
-        wavelength=wavelength, rgb_exposure_times=rgb_exposure_times, rgb_images=rgb_images,
+        quantum_efficiency,
+        illuminant,
+        t0=float(target_exposure),
+        s0=0.0,
+        omega=1.0,
+        wavelength=wavelength,
+        rgb_exposure_times=rgb_exposure_times,
+        rgb_images=rgb_images,
         spectral_sets=spectral_sets,
     )
     ds.attrs["kind"] = "reference"

@@ -63,14 +63,28 @@ __all__ = [
 WAVELENGTHS: np.ndarray = np.arange(410.0, 721.0, 10.0)
 
 _CHROMATIC_PATCHES = (
-    "dark skin", "light skin", "blue sky", "foliage", "blue flower", "bluish green",
-    "orange", "purplish blue", "moderate red", "purple", "yellow green", "orange yellow",
-    "blue", "green", "red", "yellow", "magenta", "cyan",
+    "dark skin",
+    "light skin",
+    "blue sky",
+    "foliage",
+    "blue flower",
+    "bluish green",
+    "orange",
+    "purplish blue",
+    "moderate red",
+    "purple",
+    "yellow green",
+    "orange yellow",
+    "blue",
+    "green",
+    "red",
+    "yellow",
+    "magenta",
+    "cyan",
 )
 
 
-def wavelength_grid(start: float = 410.0, stop: float = 720.0, step: float = 10.0
-                    ) -> np.ndarray:
+def wavelength_grid(start: float = 410.0, stop: float = 720.0, step: float = 10.0) -> np.ndarray:
     """Band centres ``start..stop`` (inclusive) in ``step`` nm steps; default 32 bands."""
     check_positive([start, stop, step], "start, stop, step")
     if stop < start:
@@ -120,17 +134,21 @@ def colourchecker_reflectances(
     return xr.DataArray(
         values.copy(),
         dims=("patch", "wavelength"),
-        coords={"patch": np.arange(len(names)), "patch_name": ("patch", list(names)),
-                "wavelength": _wl_coord(wl)},
+        coords={
+            "patch": np.arange(len(names)),
+            "patch_name": ("patch", list(names)),
+            "wavelength": _wl_coord(wl),
+        },
         name="reflectance",
-        attrs={"units": "1", "long_name": "spectral reflectance",
-               "source": f"colour.SDS_COLOURCHECKERS[{chart!r}]"},
+        attrs={
+            "units": "1",
+            "long_name": "spectral reflectance",
+            "source": f"colour.SDS_COLOURCHECKERS[{chart!r}]",
+        },
     )
 
 
-def illuminant_spd(
-    wavelength: npt.ArrayLike = WAVELENGTHS, *, name: str = "LED-B3"
-) -> xr.DataArray:
+def illuminant_spd(wavelength: npt.ArrayLike = WAVELENGTHS, *, name: str = "LED-B3") -> xr.DataArray:
     """A CIE illuminant's relative spectral power (wavelength), normalised to max 1.
 
     ``name`` is a key of ``colour.SDS_ILLUMINANTS`` (e.g. ``'LED-B3'``, a phosphor-converted
@@ -152,10 +170,15 @@ def illuminant_spd(
         )
     v = np.clip(np.asarray(sd[wl], dtype=np.float64), 0.0, None)
     return xr.DataArray(
-        v / v.max(), dims=("wavelength",), coords={"wavelength": _wl_coord(wl)},
+        v / v.max(),
+        dims=("wavelength",),
+        coords={"wavelength": _wl_coord(wl)},
         name="illuminant",
-        attrs={"units": "1", "long_name": f"relative spectral radiance of {name}",
-               "source": f"colour.SDS_ILLUMINANTS[{name!r}]"},
+        attrs={
+            "units": "1",
+            "long_name": f"relative spectral radiance of {name}",
+            "source": f"colour.SDS_ILLUMINANTS[{name!r}]",
+        },
     )
 
 
@@ -183,16 +206,16 @@ class _Fourier:
     coef: np.ndarray  # (F, J) complex amplitude a_j exp(i phase_j)
 
     @classmethod
-    def random(cls, rng: np.random.Generator, n_fields: int, n_features: int,
-               fmin: float, fmax: float) -> _Fourier:
+    def random(
+        cls, rng: np.random.Generator, n_fields: int, n_features: int, fmin: float, fmax: float
+    ) -> _Fourier:
         f = np.exp(rng.uniform(np.log(fmin), np.log(fmax), size=(n_fields, n_features)))
         ang = rng.uniform(0, 2 * np.pi, size=(n_fields, n_features))
         ph = rng.uniform(0, 2 * np.pi, size=(n_fields, n_features))
         a = math.sqrt(2.0 / n_features)
         return cls(f * np.sin(ang), f * np.cos(ang), a * np.exp(1j * ph))
 
-    def __call__(self, v: np.ndarray, u: np.ndarray, *, derivative: str | None = None
-                 ) -> np.ndarray:
+    def __call__(self, v: np.ndarray, u: np.ndarray, *, derivative: str | None = None) -> np.ndarray:
         """Fields (F, len(v), len(u)); ``derivative`` 'u' or 'v' gives d/du or d/dv."""
         ey = np.exp(2j * np.pi * self.fy[:, None, :] * v[None, :, None])  # (F, h, J)
         ex = np.exp(2j * np.pi * self.fx[:, None, :] * u[None, :, None])  # (F, w, J)
@@ -255,8 +278,9 @@ class SpectralTexture:
         """Normalised coordinates of pixel centres ``start..stop-1`` minus ``shift`` px."""
         return (np.arange(start, stop, dtype=np.float64) + 0.5 - shift) / self.size
 
-    def evaluate(self, rows: slice, cols: slice, *, shift: tuple[float, float] = (0.0, 0.0)
-                 ) -> TextureTile:
+    def evaluate(
+        self, rows: slice, cols: slice, *, shift: tuple[float, float] = (0.0, 0.0)
+    ) -> TextureTile:
         """Evaluate on pixel ``rows`` x ``cols``; the content moves by ``shift`` (dy, dx) px.
 
         Pixel (y, x) of the result shows the texture point (y - dy, x - dx).  Results are
@@ -284,9 +308,12 @@ class SpectralTexture:
         ks = np.tensordot(self.specular_albedo, w, axes=1)
         m = np.exp(np.tensordot(np.log(self.shininess), w, axes=1))
         tile = TextureTile(
-            weights=w.astype(np.float32), albedo=albedo.astype(np.float32),
-            normal=n.astype(np.float32), specular_albedo=ks.astype(np.float32),
-            shininess=m.astype(np.float32))
+            weights=w.astype(np.float32),
+            albedo=albedo.astype(np.float32),
+            normal=n.astype(np.float32),
+            specular_albedo=ks.astype(np.float32),
+            shininess=m.astype(np.float32),
+        )
         return self.remember(key, tile)
 
     def remember(self, key: tuple, value):
@@ -306,24 +333,43 @@ class SpectralTexture:
         tile = self.evaluate(slice(0, self.size), slice(0, self.size))
         return xr.Dataset(
             {
-                "diffuse_reflectance": (("wavelength", "y", "x"),
-                                        self.diffuse_reflectance(tile),
-                                        {"units": "1", "long_name": "diffuse reflectance"}),
-                "material": (("y", "x"), tile.material,
-                             {"units": "1", "long_name": "index of the dominant material"}),
-                "normal": (("component", "y", "x"), tile.normal,
-                           {"units": "1", "long_name": "surface normal (sample frame)"}),
-                "specular_albedo": (("y", "x"), tile.specular_albedo,
-                                    {"units": "1", "long_name": "specular albedo k_s"}),
-                "shininess": (("y", "x"), tile.shininess,
-                              {"units": "1", "long_name": "Blinn-Phong exponent m"}),
-                "material_reflectance": (("material_index", "wavelength"), self.reflectance,
-                                         {"units": "1", "long_name": "material reflectance"}),
+                "diffuse_reflectance": (
+                    ("wavelength", "y", "x"),
+                    self.diffuse_reflectance(tile),
+                    {"units": "1", "long_name": "diffuse reflectance"},
+                ),
+                "material": (
+                    ("y", "x"),
+                    tile.material,
+                    {"units": "1", "long_name": "index of the dominant material"},
+                ),
+                "normal": (
+                    ("component", "y", "x"),
+                    tile.normal,
+                    {"units": "1", "long_name": "surface normal (sample frame)"},
+                ),
+                "specular_albedo": (
+                    ("y", "x"),
+                    tile.specular_albedo,
+                    {"units": "1", "long_name": "specular albedo k_s"},
+                ),
+                "shininess": (
+                    ("y", "x"),
+                    tile.shininess,
+                    {"units": "1", "long_name": "Blinn-Phong exponent m"},
+                ),
+                "material_reflectance": (
+                    ("material_index", "wavelength"),
+                    self.reflectance,
+                    {"units": "1", "long_name": "material reflectance"},
+                ),
             },
-            coords={"wavelength": _wl_coord(self.wavelength),
-                    "component": ["x", "y", "z"],
-                    "material_index": np.arange(self.n_materials),
-                    "material_name": ("material_index", list(self.material_names))},
+            coords={
+                "wavelength": _wl_coord(self.wavelength),
+                "component": ["x", "y", "z"],
+                "material_index": np.arange(self.n_materials),
+                "material_name": ("material_index", list(self.material_names)),
+            },
         )
 
 
@@ -362,9 +408,7 @@ def spectral_texture(
             f"n_materials must be in 2..{len(_CHROMATIC_PATCHES)}; received {n_materials}."
         )
     if not 0.0 <= glossy_fraction <= 1.0:
-        raise SimulationParameterError(
-            f"glossy_fraction must be in [0, 1]; received {glossy_fraction}."
-        )
+        raise SimulationParameterError(f"glossy_fraction must be in [0, 1]; received {glossy_fraction}.")
     rng = as_generator(np.random.SeedSequence(seed, spawn_key=(0x7E,)))
     refl = colourchecker_reflectances(wl, chart=chart)
     names = list(refl["patch_name"].values)
@@ -374,12 +418,15 @@ def spectral_texture(
     n_glossy = int(round(glossy_fraction * n_materials))
     glossy = np.zeros(n_materials, dtype=bool)
     glossy[rng.choice(n_materials, size=n_glossy, replace=False)] = True
-    ks = np.where(glossy, rng.uniform(0.25, 0.6, n_materials), rng.uniform(0.0, 0.04,
-                                                                          n_materials))
+    ks = np.where(glossy, rng.uniform(0.25, 0.6, n_materials), rng.uniform(0.0, 0.04, n_materials))
     m = np.where(glossy, rng.uniform(40, 150, n_materials), rng.uniform(5, 15, n_materials))
     return SpectralTexture(
-        size=int(size), wavelength=wl, reflectance=values, material_names=chosen_names,
-        specular_albedo=ks, shininess=m,
+        size=int(size),
+        wavelength=wl,
+        reflectance=values,
+        material_names=chosen_names,
+        specular_albedo=ks,
+        shininess=m,
         layout=_Fourier.random(rng, n_materials, 10, 1.0, 4.0),
         sharpness=_Fourier.random(rng, 1, 6, 0.4, 1.2),
         detail=_Fourier.random(rng, 1, 24, 8.0, 24.0),
@@ -405,14 +452,15 @@ class ColourCheckerChart:
     def reflectances(self) -> xr.DataArray:
         return colourchecker_reflectances(self.wavelength, chart=self.chart)
 
-    def patch_index(self, rows: slice, cols: slice, *, shift: tuple[float, float] = (0.0, 0.0)
-                    ) -> np.ndarray:
+    def patch_index(
+        self, rows: slice, cols: slice, *, shift: tuple[float, float] = (0.0, 0.0)
+    ) -> np.ndarray:
         """(h, w) int16 patch index of pixel ``rows`` x ``cols``, content moved by ``shift``."""
         v = (np.arange(rows.start, rows.stop) + 0.5 - shift[0]) / self.size
         u = (np.arange(cols.start, cols.stop) + 0.5 - shift[1]) / self.size
         # patches laid out on a (rows + gap) x (cols + gap) pitch grid, margin = gap / 2
-        pv = (v * (self.rows + self.gap) - self.gap / 2)
-        pu = (u * (self.cols + self.gap) - self.gap / 2)
+        pv = v * (self.rows + self.gap) - self.gap / 2
+        pu = u * (self.cols + self.gap) - self.gap / 2
         iv, fv = np.floor(pv), pv - np.floor(pv)
         iu, fu = np.floor(pu), pu - np.floor(pu)
         inside_v = (fv < 1 - self.gap) & (iv >= 0) & (iv < self.rows)
@@ -429,8 +477,12 @@ class ColourCheckerChart:
 
 
 def shading(
-    normal: np.ndarray, light: np.ndarray, view: np.ndarray, *,
-    specular_albedo: np.ndarray, shininess: np.ndarray,
+    normal: np.ndarray,
+    light: np.ndarray,
+    view: np.ndarray,
+    *,
+    specular_albedo: np.ndarray,
+    shininess: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Diffuse and specular factors (h, w) of the reflectance model for unit directions.
 
@@ -445,7 +497,7 @@ def shading(
     nl = np.maximum(np.tensordot(light, normal, axes=1), 0.0)
     nh = np.maximum(np.tensordot(half, normal, axes=1), 0.0)
     nv = np.tensordot(view, normal, axes=1)
-    spec = specular_albedo * (shininess + 8.0) / 8.0 * nh ** shininess * nl
+    spec = specular_albedo * (shininess + 8.0) / 8.0 * nh**shininess * nl
     spec = np.where(nv > 0, spec, 0.0)
     return nl.astype(np.float32), spec.astype(np.float32)
 
@@ -467,8 +519,9 @@ def render(
     Angles in degrees in the sample frame (``theta`` from the normal). The specular term
     has the illuminant's spectrum.
     """
-    ell = np.asarray(illuminant.values if isinstance(illuminant, xr.DataArray)
-                     else illuminant, dtype=np.float32)
+    ell = np.asarray(
+        illuminant.values if isinstance(illuminant, xr.DataArray) else illuminant, dtype=np.float32
+    )
     if ell.shape != texture.wavelength.shape:
         raise ShapeMismatchError(
             f"illuminant has {ell.size} values but the texture has "
@@ -478,15 +531,27 @@ def render(
     rows = slice(0, texture.size) if rows is None else rows
     cols = slice(0, texture.size) if cols is None else cols
     tile = texture.evaluate(rows, cols, shift=shift)
-    d, s = shading(tile.normal, direction(theta_i, phi_i), direction(theta_o, phi_o),
-                   specular_albedo=tile.specular_albedo, shininess=tile.shininess)
+    d, s = shading(
+        tile.normal,
+        direction(theta_i, phi_i),
+        direction(theta_o, phi_o),
+        specular_albedo=tile.specular_albedo,
+        shininess=tile.shininess,
+    )
     rad = ell[:, None, None] * (texture.diffuse_reflectance(tile) * d[None] + s[None])
     return xr.DataArray(
-        rad.astype(np.float32), dims=("wavelength", "y", "x"),
-        coords={"wavelength": _wl_coord(texture.wavelength)}, name="radiance",
-        attrs={"units": "1", "long_name": "spectral radiance (relative)",
-               "theta_i": float(theta_i), "phi_i": float(phi_i),
-               "theta_o": float(theta_o), "phi_o": float(phi_o)},
+        rad.astype(np.float32),
+        dims=("wavelength", "y", "x"),
+        coords={"wavelength": _wl_coord(texture.wavelength)},
+        name="radiance",
+        attrs={
+            "units": "1",
+            "long_name": "spectral radiance (relative)",
+            "theta_i": float(theta_i),
+            "phi_i": float(phi_i),
+            "theta_o": float(theta_o),
+            "phi_o": float(phi_o),
+        },
     )
 
 
@@ -511,8 +576,10 @@ def spectral_scene(
     rad = render(tex, ell, theta_i=light[0], phi_i=light[1], theta_o=view[0], phi_o=view[1])
     tile = tex.evaluate(slice(0, size), slice(0, size))
     return xr.Dataset(
-        {"radiance": rad, "illuminant": ell,
-         "material": (("y", "x"), tile.material, {"units": "1",
-                                                   "long_name": "dominant material"})},
+        {
+            "radiance": rad,
+            "illuminant": ell,
+            "material": (("y", "x"), tile.material, {"units": "1", "long_name": "dominant material"}),
+        },
         attrs={"materials": ", ".join(tex.material_names), "seed": int(seed)},
     )

@@ -28,8 +28,7 @@ __all__ = ["RECIPES", "DESCRIPTIONS", "get_recipe", "recipe_names"]
 
 TINY = GantryRecipe(
     name="tiny",
-    description="32 x 32 px, 2 RGB cameras, 5 LEDs, 2 rotations: a run in about a second, "
-                "for tests.",
+    description="32 x 32 px, 2 RGB cameras, 5 LEDs, 2 rotations: a run in about a second, for tests.",
     size=32,
     rgb_camera_thetas=(15.0, 45.0),
     n_rotations=2,
@@ -42,8 +41,8 @@ TINY = GantryRecipe(
 DEMO = GantryRecipe(
     name="demo",
     description="The bundled sample run: 64 x 64 px, 3 RGB cameras (15, 45, 75 deg), 11 LEDs "
-                "on the 40 deg ring, 3 rotations; 32 noisy bands spread over 10 LED "
-                "positions per rotation (sparse mode, as in the paper).",
+    "on the 40 deg ring, 3 rotations; 32 noisy bands spread over 10 LED "
+    "positions per rotation (sparse mode, as in the paper).",
     size=64,
     rgb_camera_thetas=(15.0, 45.0, 75.0),
     n_rotations=3,
@@ -55,8 +54,8 @@ DEMO = GantryRecipe(
 PAPER = GantryRecipe(
     name="paper",
     description="The paper's gantry at full scale: 2048 x 2048 px, 11 RGB cameras on an arc "
-                "0..75 deg, 198 LEDs, 24 rotations, 200 dark frames per exposure time. "
-                "Lazy: compute chunks, never the whole run.",
+    "0..75 deg, 198 LEDs, 24 rotations, 200 dark frames per exposure time. "
+    "Lazy: compute chunks, never the whole run.",
     size=2048,
     chunk_size=512,
     noise_tile=256,
@@ -88,8 +87,8 @@ def get_recipe(name: str, **overrides: Any) -> GantryRecipe:
         base = RECIPES[name]
     except KeyError:
         raise SimulationParameterError.single(
-            "recipe", f"one of {recipe_names()}", repr(name),
-            hint=f"recipe {name!r} is unknown") from None
+            "recipe", f"one of {recipe_names()}", repr(name), hint=f"recipe {name!r} is unknown"
+        ) from None
     if not overrides:
         return base
     data = base.model_dump() | overrides
@@ -98,9 +97,11 @@ def get_recipe(name: str, **overrides: Any) -> GantryRecipe:
     except ValidationError as exc:
         problems = [
             Problem(".".join(str(p) for p in item["loc"]), item["msg"], repr(item["input"]))
-            if item["loc"] else  # a rule across fields: its message says what and why
-            Problem("recipe", "a consistent recipe", item["msg"].removeprefix("Value error, "))
-            for item in exc.errors()]
+            if item["loc"]
+            # a rule across fields: its message says what and why
+            else Problem("recipe", "a consistent recipe", item["msg"].removeprefix("Value error, "))
+            for item in exc.errors()
+        ]
         raise SimulationParameterError(
             f"invalid override(s) {sorted(overrides)} for recipe {name!r}:", problems
         ) from None

@@ -33,8 +33,13 @@ def scale(dark: xr.Dataset, *, factor: float = 2.0) -> xr.Dataset:
     return dark * factor
 
 
-SCALE = Node(name="scale", function=scale, inputs={"dark": "dark"}, outputs=("scaled",),
-             parameters=ScaleParameters)
+SCALE = Node(
+    name="scale",
+    function=scale,
+    inputs={"dark": "dark"},
+    outputs=("scaled",),
+    parameters=ScaleParameters,
+)
 NOT_A_NODE = object()
 
 
@@ -43,8 +48,9 @@ def average(raw_dark: xr.Dataset) -> xr.Dataset:
 
 
 # Stands in for the calibration stage's dark_average: same schemas, no dependency on its code.
-DARK_AVERAGE = Node(name="dark_average", function=average, inputs={"raw_dark": "raw/dark"},
-                    outputs=("dark",))
+DARK_AVERAGE = Node(
+    name="dark_average", function=average, inputs={"raw_dark": "raw/dark"}, outputs=("dark",)
+)
 
 
 def ep(name, value):
@@ -65,8 +71,9 @@ def test_discovery_from_fake_entry_points_warns_on_broken_plugins():
     assert found["scale"].node is SCALE
     assert found["scale"].source.startswith(f"entry point {ENTRY_POINT_GROUP}: scale = ")
     messages = [str(w.message) for w in caught]
-    assert any("'broken'" in m and "failed to load" in m and "ModuleNotFoundError" in m
-               for m in messages)
+    assert any(
+        "'broken'" in m and "failed to load" in m and "ModuleNotFoundError" in m for m in messages
+    )
     assert any("'wrong_type'" in m and "not a spectralize Node" in m for m in messages)
     assert any("duplicates" in m for m in messages)
 
@@ -97,8 +104,9 @@ def test_parameters_are_frozen_and_unknown_keys_are_errors():
 
 
 def test_declaration_errors_are_caught_when_the_node_is_declared():
-    with pytest.raises(NodeDeclarationError,
-                       match="input 'raw': expected an argument of scale, found no such argument"):
+    with pytest.raises(
+        NodeDeclarationError, match="input 'raw': expected an argument of scale, found no such argument"
+    ):
         Node(name="bad", function=scale, inputs={"raw": "raw/dark"}, outputs=("x",))
 
     class Extra(Parameters):
@@ -123,29 +131,52 @@ NODES = {"dark_average": DARK_AVERAGE, "scale": SCALE}
 
 
 def test_graph_is_ordered_by_dependencies():
-    order = check_graph([Step("scale"), Step("dark_average")], available={"raw/dark": "raw/dark"},
-                        nodes=NODES)
+    order = check_graph(
+        [Step("scale"), Step("dark_average")], available={"raw/dark": "raw/dark"}, nodes=NODES
+    )
     assert [p.node.name for p in order] == ["dark_average", "scale"]
 
 
 @pytest.mark.parametrize(
     ("steps", "available", "message"),
     [
-        ([Step("scale")], {}, "node 'scale' input 'dark': expected group 'dark' in the store or "
-                              "written by an earlier node, found no such group"),
-        ([Step("dark_average"), Step("dark_average")], {"raw/dark": "raw/dark"},
-         "group 'dark': expected one producing node, found nodes 'dark_average' and "
-         "'dark_average' both write it"),
-        ([Step("scale", inputs={"dark": "loop"}, outputs={"scaled": "loop"})], {},
-         "graph: expected no cycles, found a cycle among nodes scale -> scale"),
-        ([Step("scale", inputs={"dark": "raw/dark"})], {"raw/dark": "raw/dark"},
-         "expected schema 'dark', found schema 'raw/dark' in the store"),
-        ([Step("dark_average", outputs={"dark": "d2"}), Step("scale", inputs={"dark": "d2x"})],
-         {"raw/dark": "raw/dark"}, "input 'dark': expected group 'd2x'"),
-        ([Step("nope")], {}, "step 'nope': expected an installed node (dark_average, scale), "
-                             "found an unknown node"),
-        ([Step("scale", parameters={"factor": 0})], {"dark": "dark"},
-         "scale.factor: expected Input should be greater than 0"),
+        (
+            [Step("scale")],
+            {},
+            "node 'scale' input 'dark': expected group 'dark' in the store or "
+            "written by an earlier node, found no such group",
+        ),
+        (
+            [Step("dark_average"), Step("dark_average")],
+            {"raw/dark": "raw/dark"},
+            "group 'dark': expected one producing node, found nodes 'dark_average' and "
+            "'dark_average' both write it",
+        ),
+        (
+            [Step("scale", inputs={"dark": "loop"}, outputs={"scaled": "loop"})],
+            {},
+            "graph: expected no cycles, found a cycle among nodes scale -> scale",
+        ),
+        (
+            [Step("scale", inputs={"dark": "raw/dark"})],
+            {"raw/dark": "raw/dark"},
+            "expected schema 'dark', found schema 'raw/dark' in the store",
+        ),
+        (
+            [Step("dark_average", outputs={"dark": "d2"}), Step("scale", inputs={"dark": "d2x"})],
+            {"raw/dark": "raw/dark"},
+            "input 'dark': expected group 'd2x'",
+        ),
+        (
+            [Step("nope")],
+            {},
+            "step 'nope': expected an installed node (dark_average, scale), found an unknown node",
+        ),
+        (
+            [Step("scale", parameters={"factor": 0})],
+            {"dark": "dark"},
+            "scale.factor: expected Input should be greater than 0",
+        ),
     ],
 )
 def test_each_graph_error_is_reported(steps, available, message):
@@ -155,15 +186,26 @@ def test_each_graph_error_is_reported(steps, available, message):
 
 
 def test_schema_mismatch_between_producer_and_consumer():
-    with pytest.raises(PipelineError, match="expected schema 'dark', found schema 'scaled' written by node 'scale'"):
-        check_graph([Step("scale", inputs={"dark": "dark"}, outputs={"scaled": "s"}),
-                     Step("scale", inputs={"dark": "s"}, outputs={"scaled": "t"})],
-                    available={"dark": "dark"}, nodes=NODES)
+    with pytest.raises(
+        PipelineError, match="expected schema 'dark', found schema 'scaled' written by node 'scale'"
+    ):
+        check_graph(
+            [
+                Step("scale", inputs={"dark": "dark"}, outputs={"scaled": "s"}),
+                Step("scale", inputs={"dark": "s"}, outputs={"scaled": "t"}),
+            ],
+            available={"dark": "dark"},
+            nodes=NODES,
+        )
 
 
 def test_all_graph_problems_are_reported_together():
-    steps = [Step("nope"), Step("scale", parameters={"bogus": 1}),
-             Step("dark_average"), Step("dark_average")]
+    steps = [
+        Step("nope"),
+        Step("scale", parameters={"bogus": 1}),
+        Step("dark_average"),
+        Step("dark_average"),
+    ]
     with pytest.raises(PipelineError) as info:
         check_graph(steps, available={}, nodes=NODES)
     text = str(info.value)
@@ -173,8 +215,10 @@ def test_all_graph_problems_are_reported_together():
 
 
 def test_optional_steps_without_their_inputs_are_left_out():
-    steps = [Step("dark_average", outputs={"dark": "d"}, optional=True),
-             Step("scale", inputs={"dark": "d"}, optional=True)]
+    steps = [
+        Step("dark_average", outputs={"dark": "d"}, optional=True),
+        Step("scale", inputs={"dark": "d"}, optional=True),
+    ]
     assert check_graph(steps, available={}, nodes=NODES) == []  # the chain is dropped
     order = check_graph(steps, available={"raw/dark": "raw/dark"}, nodes=NODES)
     assert [p.node.name for p in order] == ["dark_average", "scale"]
@@ -191,12 +235,17 @@ def test_a_group_that_provides_the_wanted_variables_is_accepted():
     def need_c(calibration: xr.Dataset) -> xr.Dataset:
         return calibration
 
-    node = Node(name="need_c", function=need_c, inputs={"calibration": "camera_matrix"},
-                outputs=("out",))
+    node = Node(
+        name="need_c", function=need_c, inputs={"calibration": "camera_matrix"}, outputs=("out",)
+    )
     nodes = {"need_c": node}
     steps = [Step("need_c", inputs={"calibration": "truth/camera"})]
     assert check_graph(steps, available={"truth/camera": "truth/camera"}, nodes=nodes)
-    with pytest.raises(PipelineError, match="expected schema 'camera_matrix', found schema "
-                                            "'truth/spectra' in the store"):
-        check_graph([Step("need_c", inputs={"calibration": "truth/spectra"})],
-                    available={"truth/spectra": "truth/spectra"}, nodes=nodes)
+    with pytest.raises(
+        PipelineError, match="expected schema 'camera_matrix', found schema 'truth/spectra' in the store"
+    ):
+        check_graph(
+            [Step("need_c", inputs={"calibration": "truth/spectra"})],
+            available={"truth/spectra": "truth/spectra"},
+            nodes=nodes,
+        )

@@ -19,8 +19,7 @@ def average(raw_dark: xr.Dataset, *, ddof: int = 1) -> xr.Dataset:
     return xr.Dataset({"mean": raw_dark["frames"].mean("frame")})
 
 
-AVERAGE = Node(name="average", function=average, inputs={"raw_dark": "raw/dark"},
-               outputs=("dark",))
+AVERAGE = Node(name="average", function=average, inputs={"raw_dark": "raw/dark"}, outputs=("dark",))
 
 
 def camera_rows(calibration: xr.Dataset) -> xr.Dataset:
@@ -28,8 +27,9 @@ def camera_rows(calibration: xr.Dataset) -> xr.Dataset:
     return calibration
 
 
-CAMERA_ROWS = Node(name="camera_rows", function=camera_rows,
-                   inputs={"calibration": "camera_matrix"}, outputs=("rows",))
+CAMERA_ROWS = Node(
+    name="camera_rows", function=camera_rows, inputs={"calibration": "camera_matrix"}, outputs=("rows",)
+)
 
 
 def test_a_valid_input_runs_the_node():
@@ -45,8 +45,10 @@ def test_a_missing_variable_is_named_with_the_node_and_argument_and_nothing_runs
         AVERAGE({"raw_dark": raw})
     text = str(info.value)
     assert "node 'average': inputs do not follow their declared schemas" in text
-    assert ("average(raw_dark: raw/dark):frames: expected data variable with dims "
-            "('exposure_time', 'frame', 'y', 'x'), found nothing") in text
+    assert (
+        "average(raw_dark: raw/dark):frames: expected data variable with dims "
+        "('exposure_time', 'frame', 'y', 'x'), found nothing"
+    ) in text
     assert CALLS == []
 
 
@@ -59,13 +61,14 @@ def test_every_problem_of_an_input_is_listed():
     wheres = [p.where for p in info.value.problems]
     assert wheres.count("average(raw_dark: raw/dark):frames") == 2  # dtype and units
     assert "average(raw_dark: raw/dark).attrs" in wheres
-    assert any("dtype uint16" in p.expected and "float32" in p.found
-               for p in info.value.problems)
+    assert any("dtype uint16" in p.expected and "float32" in p.found for p in info.value.problems)
 
 
 def test_a_missing_or_wrongly_typed_input_is_a_schema_error():
-    with pytest.raises(SchemaError, match="node 'average' input 'raw_dark': expected a "
-                                          "Dataset of schema 'raw/dark', found nothing"):
+    with pytest.raises(
+        SchemaError,
+        match="node 'average' input 'raw_dark': expected a Dataset of schema 'raw/dark', found nothing",
+    ):
         AVERAGE({})
     with pytest.raises(SchemaError, match="expected an xarray.Dataset, found DataArray"):
         AVERAGE({"raw_dark": xr.DataArray([1])})
@@ -86,17 +89,25 @@ def test_lazy_inputs_are_checked_without_computing_them():
 def test_a_group_of_a_providing_schema_is_checked_against_the_declared_one():
     CALLS.clear()
     names = [spec.name for spec in TRUTH_CAMERA.variables]
-    matrix = xr.DataArray(np.ones((3, 2), np.float32), dims=("channel", "wavelength"),
-                          attrs={"units": "1"})
+    matrix = xr.DataArray(
+        np.ones((3, 2), np.float32), dims=("channel", "wavelength"), attrs={"units": "1"}
+    )
     extra = xr.DataArray(np.zeros(2, np.float32), dims=("wavelength",))
-    data = xr.Dataset({"camera_matrix": matrix, "something_else": extra},
-                      coords={"channel": ["R", "G", "B"],
-                              "wavelength": ("wavelength", [500.0, 600.0], {"units": "nm"})})
+    data = xr.Dataset(
+        {"camera_matrix": matrix, "something_else": extra},
+        coords={
+            "channel": ["R", "G", "B"],
+            "wavelength": ("wavelength", [500.0, 600.0], {"units": "nm"}),
+        },
+    )
     assert "camera_matrix" in names
     out = CAMERA_ROWS({"calibration": data})  # extra variables of a wider schema are fine
     assert CALLS == ["camera_rows"] and "something_else" in out["rows"]
-    with pytest.raises(SchemaError, match=r"camera_rows\(calibration: camera_matrix\)"
-                                          r":camera_matrix: expected data variable"):
+    with pytest.raises(
+        SchemaError,
+        match=r"camera_rows\(calibration: camera_matrix\)"
+        r":camera_matrix: expected data variable",
+    ):
         CAMERA_ROWS({"calibration": data.drop_vars("camera_matrix")})
 
 
@@ -104,8 +115,10 @@ def test_a_two_node_cycle_is_found_by_the_graph_check():
     def step(dark: xr.Dataset) -> xr.Dataset:
         return dark
 
-    nodes = {"a": Node(name="a", function=step, inputs={"dark": "x"}, outputs=("ga",)),
-             "b": Node(name="b", function=step, inputs={"dark": "x"}, outputs=("gb",))}
+    nodes = {
+        "a": Node(name="a", function=step, inputs={"dark": "x"}, outputs=("ga",)),
+        "b": Node(name="b", function=step, inputs={"dark": "x"}, outputs=("gb",)),
+    }
     steps = [Step("a", inputs={"dark": "gb"}), Step("b", inputs={"dark": "ga"})]
     with pytest.raises(PipelineError) as info:
         check_graph(steps, nodes=nodes)
@@ -118,7 +131,8 @@ def test_independent_steps_keep_their_given_order():
     def source() -> xr.Dataset:
         return xr.Dataset()
 
-    nodes = {name: Node(name=name, function=source, inputs={}, outputs=(name,))
-             for name in ("c", "a", "b")}
+    nodes = {
+        name: Node(name=name, function=source, inputs={}, outputs=(name,)) for name in ("c", "a", "b")
+    }
     order = check_graph([Step("c"), Step("a"), Step("b")], nodes=nodes)
     assert [p.node.name for p in order] == ["c", "a", "b"]

@@ -43,8 +43,9 @@ def reconstruct(
     return bands
 
 
-RECONSTRUCT = Node(name="reconstruct", function=reconstruct, inputs={"bands": "unregistered"},
-                   outputs=("spectra",))
+RECONSTRUCT = Node(
+    name="reconstruct", function=reconstruct, inputs={"bands": "unregistered"}, outputs=("spectra",)
+)
 
 
 def test_the_model_is_derived_from_the_keyword_only_arguments():
@@ -52,8 +53,13 @@ def test_the_model_is_derived_from_the_keyword_only_arguments():
     assert list(fields) == ["method", "alpha_hat", "iterations", "baseline", "mode"]  # not bands
     assert issubclass(RECONSTRUCT.parameters, Parameters)
     params = RECONSTRUCT.parse_parameters({})
-    assert (params.method, params.alpha_hat, params.iterations, params.baseline, params.mode) \
-        == ("cg", 1.0, 50, None, "sparse")
+    assert (params.method, params.alpha_hat, params.iterations, params.baseline, params.mode) == (
+        "cg",
+        1.0,
+        50,
+        None,
+        "sparse",
+    )
     with pytest.raises(ValidationError, match="frozen"):
         params.method = "lsqr"
     rows = {row[0]: row for row in RECONSTRUCT.describe_parameters()}
@@ -65,13 +71,16 @@ def test_the_model_is_derived_from_the_keyword_only_arguments():
 
 def test_annotated_constraints_and_unknown_keys_are_all_reported():
     with pytest.raises(ParameterError) as info:
-        RECONSTRUCT.parse_parameters({"alpha_hat": 0, "iterations": 5000, "itterations": 3,
-                                      "mode": "medium"})
+        RECONSTRUCT.parse_parameters(
+            {"alpha_hat": 0, "iterations": 5000, "itterations": 3, "mode": "medium"}
+        )
     text = str(info.value)
     assert "reconstruct.alpha_hat: expected Input should be greater than 0, found 0" in text
     assert "reconstruct.iterations: expected Input should be less than or equal to 1000" in text
-    assert ("reconstruct.itterations: expected one of: method, alpha_hat, iterations, "
-            "baseline, mode, found an unknown parameter") in text
+    assert (
+        "reconstruct.itterations: expected one of: method, alpha_hat, iterations, "
+        "baseline, mode, found an unknown parameter"
+    ) in text
     assert "reconstruct.mode: expected Input should be 'sparse' or 'dense'" in text
     assert len(info.value.problems) == 4
 
@@ -80,12 +89,14 @@ def test_choices_list_the_table_keys_and_follow_the_table():
     with pytest.raises(ParameterError) as info:
         RECONSTRUCT.parse_parameters({"method": "fastest", "baseline": "nope"})
     text = str(info.value)
-    assert ("reconstruct.method: expected one of: 'cg', 'lsqr' (solver method), "
-            "found 'fastest'") in text
+    assert ("reconstruct.method: expected one of: 'cg', 'lsqr' (solver method), found 'fastest'") in text
     assert "reconstruct.baseline: expected one of: 'cg', 'lsqr', found 'nope'" in text
     assert RECONSTRUCT.parse_parameters({"baseline": "lsqr"}).baseline == "lsqr"
     assert RECONSTRUCT.parameter_choices() == {
-        "method": ("cg", "lsqr"), "baseline": ("cg", "lsqr"), "mode": ("sparse", "dense")}
+        "method": ("cg", "lsqr"),
+        "baseline": ("cg", "lsqr"),
+        "mode": ("sparse", "dense"),
+    }
     SOLVER_METHODS["fastest"] = object()  # a method registered later is accepted
     try:
         assert RECONSTRUCT.parse_parameters({"method": "fastest"}).method == "fastest"
@@ -99,8 +110,13 @@ def test_choices_work_in_an_explicit_model_too():
     class Explicit(Parameters):
         method: Annotated[str, Choices(SOLVER_METHODS)] = "cg"
 
-    node = Node(name="explicit", function=reconstruct, inputs={"bands": "unregistered"},
-                outputs=("spectra",), parameters=Explicit)
+    node = Node(
+        name="explicit",
+        function=reconstruct,
+        inputs={"bands": "unregistered"},
+        outputs=("spectra",),
+        parameters=Explicit,
+    )
     assert node.parameters is Explicit
     with pytest.raises(ParameterError, match="explicit.method: expected one of: 'cg', 'lsqr'"):
         node.parse_parameters({"method": "CG"})
@@ -120,11 +136,11 @@ def test_a_recipe_typo_of_the_registered_simulate_node_fails_in_the_graph_check(
     with pytest.raises(PipelineError) as info:
         check_graph(steps, nodes={"simulate": SIMULATE})
     text = str(info.value)
-    assert "simulate.recipe: expected one of: 'demo', 'paper', 'tiny' (recipe), found 'dmeo'" \
-        in text
+    assert "simulate.recipe: expected one of: 'demo', 'paper', 'tiny' (recipe), found 'dmeo'" in text
     assert "simulate.seed: expected Input should be greater than or equal to 0" in text
-    [planned] = check_graph([Step("simulate", parameters={"recipe": "tiny"})],
-                            nodes={"simulate": SIMULATE})
+    [planned] = check_graph(
+        [Step("simulate", parameters={"recipe": "tiny"})], nodes={"simulate": SIMULATE}
+    )
     assert planned.parameters.recipe == "tiny"
 
 
@@ -150,8 +166,9 @@ def test_a_method_typo_in_the_demo_flow_is_the_only_problem_reported():
     from spectralize.flows.pipelines import FLOWS
     from spectralize.flows.runtime import step_parameters
 
-    steps = step_parameters(FLOWS["demo"].steps, {"reconstruct_image_sets.method": "fastest",
-                                                  "simulate.recipe": "tiyn"})
+    steps = step_parameters(
+        FLOWS["demo"].steps, {"reconstruct_image_sets.method": "fastest", "simulate.recipe": "tiyn"}
+    )
     with pytest.raises(PipelineError) as info:
         check_graph(steps)  # the installed registry: the real nodes
     wheres = [p.where for p in info.value.problems]

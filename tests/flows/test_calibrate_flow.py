@@ -17,11 +17,18 @@ def test_calibrate_flow_runs_then_skips(prefect_api, tmp_path):
         store.write(group, run[group], fingerprint=f"sim-{group}")
     first = run_flow("calibrate", store.path)
     assert {s.node: s.status for s in first.steps} == {
-        "dark_average": "ran", "recover_rgb_oecf": "ran", "recover_spectral_oecf": "ran",
-        "calibrate_spectral": "ran"}
+        "dark_average": "ran",
+        "recover_rgb_oecf": "ran",
+        "recover_spectral_oecf": "ran",
+        "calibrate_spectral": "ran",
+    }
     groups = set(store.groups())
-    assert {"dark", "calibration/oecf_rgb", "calibration/oecf_spectral",
-            "calibration/spectral"} <= groups
+    assert {
+        "dark",
+        "calibration/oecf_rgb",
+        "calibration/oecf_spectral",
+        "calibration/spectral",
+    } <= groups
     assert store.validate() == []
     assert float(store.read("calibration/spectral")["relative_error"].mean()) < 0.05
     second = run_flow("calibrate", store.path)

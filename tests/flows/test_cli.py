@@ -14,13 +14,13 @@ EXE = [sys.executable, "-m", "spectralize.flows.cli"]
 
 def cli(*args, cwd):
     env = {**os.environ, "PREFECT_LOGGING_LEVEL": "WARNING"}
-    return subprocess.run([*EXE, *args], cwd=cwd, env=env, capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run([*EXE, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
 def tree(path: Path):
-    return sorted((p.relative_to(path).as_posix(), p.stat().st_mtime_ns)
-                  for p in path.rglob("*") if p.is_file())
+    return sorted(
+        (p.relative_to(path).as_posix(), p.stat().st_mtime_ns) for p in path.rglob("*") if p.is_file()
+    )
 
 
 def test_demo_runs_then_skips(tmp_path):
@@ -49,8 +49,16 @@ def test_demo_runs_then_skips(tmp_path):
     unknown = cli("run", "nope", str(store), cwd=tmp_path)
     assert unknown.returncode == 2
     assert "unknown flow or node 'nope'" in unknown.stderr and "dark_average" in unknown.stderr
-    bad = cli("run", "dark", str(store), "--set", "bogus=1", "--set",
-              "dark_average.frames_per_chunk=0", cwd=tmp_path)
+    bad = cli(
+        "run",
+        "dark",
+        str(store),
+        "--set",
+        "bogus=1",
+        "--set",
+        "dark_average.frames_per_chunk=0",
+        cwd=tmp_path,
+    )
     assert bad.returncode == 2
     assert "--set bogus" in bad.stderr and "dark_average.frames_per_chunk" in bad.stderr
     assert tree(store) == before
@@ -66,7 +74,10 @@ def test_nodes_lists_the_dark_node_from_its_entry_point(tmp_path):
     out = cli("nodes", cwd=tmp_path)
     assert out.returncode == 0
     assert "dark_average" in out.stdout
-    assert "from:    entry point spectralize.nodes: dark_average = spectralize.nodes.calibration.declarations:DARK_AVERAGE" in out.stdout
+    assert (
+        "from:    entry point spectralize.nodes: dark_average = spectralize.nodes.calibration.declarations:DARK_AVERAGE"
+        in out.stdout
+    )
     assert "--set dark_average.frames_per_chunk=16" in out.stdout
 
 
@@ -82,9 +93,14 @@ def test_validate_lists_every_problem_and_fails(tmp_path):
     broken.to_zarr(store.path, group="raw/dark", zarr_format=3, consolidated=False)
     out = cli("validate", str(store.path), cwd=tmp_path)
     assert out.returncode == 1
-    for fragment in ("raw/dark:frames: expected dims", "expected dtype uint16",
-                     "expected attrs['units'] == 'DN'", "raw/dark:exposure_time",
-                     "attr 'camera'", "attr 'bit_depth'"):
+    for fragment in (
+        "raw/dark:frames: expected dims",
+        "expected dtype uint16",
+        "expected attrs['units'] == 'DN'",
+        "raw/dark:exposure_time",
+        "attr 'camera'",
+        "attr 'bit_depth'",
+    ):
         assert fragment in out.stderr
 
 

@@ -19,14 +19,23 @@ def cube_dataset(values: np.ndarray, attrs=None) -> xr.Dataset:
     n = values.shape[0]
     deg = {"units": "degree"}
     return xr.Dataset(
-        {"radiance": (("image", "wavelength", "y", "x"), values.astype(np.float32),
-                      {"units": "1", "long_name": "relative spectral radiance"})},
-        coords={"wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
-                "camera": ("image", np.arange(n)), "rotation": ("image", np.zeros(n, int)),
-                "led": ("image", np.arange(n)), "theta_i": ("image", np.full(n, 30.0), deg),
-                "phi_i": ("image", np.zeros(n), deg),
-                "theta_o": ("image", np.array([45.0, 45.0, 60.0][:n]), deg),
-                "phi_o": ("image", np.arange(n) * 15.0, deg)},
+        {
+            "radiance": (
+                ("image", "wavelength", "y", "x"),
+                values.astype(np.float32),
+                {"units": "1", "long_name": "relative spectral radiance"},
+            )
+        },
+        coords={
+            "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
+            "camera": ("image", np.arange(n)),
+            "rotation": ("image", np.zeros(n, int)),
+            "led": ("image", np.arange(n)),
+            "theta_i": ("image", np.full(n, 30.0), deg),
+            "phi_i": ("image", np.zeros(n), deg),
+            "theta_o": ("image", np.array([45.0, 45.0, 60.0][:n]), deg),
+            "phi_o": ("image", np.arange(n) * 15.0, deg),
+        },
         attrs=attrs or {},
     )
 
@@ -40,12 +49,20 @@ def run():
     cube = np.repeat(np.repeat(grid, 3, 1), 3, 2)
     truth_values = np.stack([cube, 0.8 * cube, 0.6 * cube])
     noise = np.random.default_rng(3).standard_normal(truth_values.shape)
-    truth = cube_dataset(truth_values, {"spectralize_fingerprint": "truth-fp",
-                                        "spectralize_provenance": {"node": "simulate",
-                                                                   "version": "2"}})
-    spectra = cube_dataset(truth_values * (1 + 0.02 * noise),
-                           {"spectralize_fingerprint": "spectra-fp-123",
-                            "spectralize_provenance": {"node": "reconstruct", "version": "1"}})
+    truth = cube_dataset(
+        truth_values,
+        {
+            "spectralize_fingerprint": "truth-fp",
+            "spectralize_provenance": {"node": "simulate", "version": "2"},
+        },
+    )
+    spectra = cube_dataset(
+        truth_values * (1 + 0.02 * noise),
+        {
+            "spectralize_fingerprint": "spectra-fp-123",
+            "spectralize_provenance": {"node": "reconstruct", "version": "1"},
+        },
+    )
     shots = xr.Dataset(coords={"image": ("shot", [0, 0, 1])})
     evaluation = evaluate(spectra, truth, shots=shots)
     return spectra, truth, shots, evaluation
@@ -95,14 +112,23 @@ def parse(path) -> Page:
 def test_report_contains_every_figure_and_table_with_the_numbers(run, tmp_path):
     spectra, truth, shots, evaluation = run
     capture = capture_time(7.463, evaluation=evaluation.compute())
-    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path / "report",
-                         capture=capture, shots=shots, run="demo/run.zarr", title="demo report",
-                         baselines={"perfect": truth.radiance, "biased": truth.radiance * 1.2})
+    index = write_report(
+        evaluation,
+        spectra=spectra,
+        truth=truth,
+        directory=tmp_path / "report",
+        capture=capture,
+        shots=shots,
+        run="demo/run.zarr",
+        title="demo report",
+        baselines={"perfect": truth.radiance, "biased": truth.radiance * 1.2},
+    )
     assert index == tmp_path / "report" / "index.html"
     page = parse(index)
     assert page.title == "demo report"
     expected_images = {"histogram.png", "capture_time.png"} | {
-        f"{kind}_{i:03d}.png" for kind in ("error_map", "spectra") for i in range(3)}
+        f"{kind}_{i:03d}.png" for kind in ("error_map", "spectra") for i in range(3)
+    }
     assert set(page.images) == expected_images
     for name in page.images:  # relative links to real PNG files in the folder
         assert "/" not in name and not name.startswith("http")
@@ -126,8 +152,13 @@ def test_report_contains_every_figure_and_table_with_the_numbers(run, tmp_path):
 
 def test_optional_sections_are_left_out_and_figures_limited(run, tmp_path):
     spectra, truth, _, evaluation = run
-    index = write_report(evaluation.drop_vars("has_band_shots"), spectra=spectra, truth=truth,
-                         directory=tmp_path, max_images=1)
+    index = write_report(
+        evaluation.drop_vars("has_band_shots"),
+        spectra=spectra,
+        truth=truth,
+        directory=tmp_path,
+        max_images=1,
+    )
     page = parse(index)
     assert page.tables == ["run", "summary", "per-image"]
     assert set(page.images) == {"histogram.png", "error_map_000.png", "spectra_000.png"}
@@ -138,8 +169,9 @@ def test_optional_sections_are_left_out_and_figures_limited(run, tmp_path):
 def test_report_refuses_what_is_not_an_evaluation(run, tmp_path):
     spectra, truth, _, evaluation = run
     with pytest.raises(SchemaError, match="evaluation:nrmse_histogram"):
-        write_report(evaluation.drop_vars("nrmse_histogram"), spectra=spectra, truth=truth,
-                     directory=tmp_path)
+        write_report(
+            evaluation.drop_vars("nrmse_histogram"), spectra=spectra, truth=truth, directory=tmp_path
+        )
     assert not (tmp_path / "index.html").exists()
 
 
@@ -148,16 +180,28 @@ def test_write_run_report_reads_everything_from_the_store(run, tmp_path):
     store = RunStore.create(tmp_path / "run.zarr")
     store.write("truth/spectra", truth.drop_attrs(deep=False), fingerprint="truth-fp")
     store.write("spectra", spectra.drop_attrs(deep=False), fingerprint="spectra-fp")
-    store.write("baselines/biased", (truth * 1.2).drop_attrs(deep=False), schema="spectra",
-                fingerprint="biased-fp")
+    store.write(
+        "baselines/biased",
+        (truth * 1.2).drop_attrs(deep=False),
+        schema="spectra",
+        fingerprint="biased-fp",
+    )
     n = 32
-    store.write("raw/spectral", xr.Dataset(
-        {"counts": (("shot", "y", "x"), np.zeros((n, 12, 18), np.uint16), {"units": "DN"})},
-        coords={"wavelength": ("shot", SHAPE.wavelengths, {"units": "nm"}),
+    store.write(
+        "raw/spectral",
+        xr.Dataset(
+            {"counts": (("shot", "y", "x"), np.zeros((n, 12, 18), np.uint16), {"units": "DN"})},
+            coords={
+                "wavelength": ("shot", SHAPE.wavelengths, {"units": "nm"}),
                 "exposure_time": ("shot", np.full(n, 0.05), {"units": "s"}),
-                "image": ("shot", np.zeros(n, np.int64)), "rotation": ("shot", np.zeros(n, int)),
-                "led": ("shot", np.zeros(n, int))},
-        attrs={"bit_depth": 12}), fingerprint="raw-fp")
+                "image": ("shot", np.zeros(n, np.int64)),
+                "rotation": ("shot", np.zeros(n, int)),
+                "led": ("shot", np.zeros(n, int)),
+            },
+            attrs={"bit_depth": 12},
+        ),
+        fingerprint="raw-fp",
+    )
     index = write_run_report(store.path, max_images=1)
     assert index == store.path / "report" / "index.html"
     page = parse(index)
@@ -174,12 +218,21 @@ def test_calibration_cross_validation_is_tabulated_and_drawn(run, tmp_path):
     spectra, truth, _, evaluation = run
     measured = np.random.default_rng(0).uniform(0.1, 1.0, (24, 3))
     calibration = xr.Dataset(
-        {"measured_rgb": (("patch", "channel"), measured),
-         "predicted_rgb": (("patch", "channel"), measured * 1.02),
-         "relative_error": ("patch", np.full(24, 0.02))},
-        coords={"patch": np.arange(24), "channel": ["R", "G", "B"]})
-    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path,
-                         max_images=1, calibration=calibration)
+        {
+            "measured_rgb": (("patch", "channel"), measured),
+            "predicted_rgb": (("patch", "channel"), measured * 1.02),
+            "relative_error": ("patch", np.full(24, 0.02)),
+        },
+        coords={"patch": np.arange(24), "channel": ["R", "G", "B"]},
+    )
+    index = write_report(
+        evaluation,
+        spectra=spectra,
+        truth=truth,
+        directory=tmp_path,
+        max_images=1,
+        calibration=calibration,
+    )
     page = parse(index)
     assert "cross-validation" in page.tables
     assert "cross_validation.png" in page.images
@@ -190,9 +243,16 @@ def test_calibration_cross_validation_is_tabulated_and_drawn(run, tmp_path):
 def test_labels_are_escaped_by_the_template(run, tmp_path):
     spectra, truth, _, evaluation = run
     attack = '<script>alert("x")</script>'
-    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path,
-                         max_images=1, title=f"run {attack}", run=f"{attack}.zarr",
-                         baselines={attack: truth.radiance})
+    index = write_report(
+        evaluation,
+        spectra=spectra,
+        truth=truth,
+        directory=tmp_path,
+        max_images=1,
+        title=f"run {attack}",
+        run=f"{attack}.zarr",
+        baselines={attack: truth.radiance},
+    )
     text = index.read_text(encoding="utf-8")
     assert "<script" not in text
     assert "&lt;script&gt;" in text
@@ -204,8 +264,9 @@ def test_labels_are_escaped_by_the_template(run, tmp_path):
 def test_the_page_references_every_figure_file_it_wrote(run, tmp_path):
     spectra, truth, _, evaluation = run
     capture = capture_time(7.463, evaluation=evaluation.compute())
-    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path,
-                         capture=capture, max_images=2)
+    index = write_report(
+        evaluation, spectra=spectra, truth=truth, directory=tmp_path, capture=capture, max_images=2
+    )
     written = {path.name for path in tmp_path.iterdir() if path.name != "index.html"}
     page = parse(index)
     assert written == set(page.images)

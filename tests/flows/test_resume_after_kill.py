@@ -30,9 +30,15 @@ SETTINGS = ["--set", "tolerance=1e-6", "--set", "max_iterations=3000"]
 
 def cli(*args, **kwargs):
     env = {**os.environ, "PREFECT_LOGGING_LEVEL": "INFO"}
-    return subprocess.Popen([sys.executable, "-m", "spectralize.flows.cli", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True, **kwargs)
+    return subprocess.Popen(
+        [sys.executable, "-m", "spectralize.flows.cli", *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        **kwargs,
+    )
 
 
 def prepared_store(path: Path) -> RunStore:
@@ -42,11 +48,9 @@ def prepared_store(path: Path) -> RunStore:
     store = RunStore.create(path)
     store.write("hdr", hdr, fingerprint="hdr")
     store.write("bands", bands, fingerprint="bands")
-    store.write("camera_matrix", xr.Dataset({"camera_matrix": camera.camera_matrix}),
-                fingerprint="c")
+    store.write("camera_matrix", xr.Dataset({"camera_matrix": camera.camera_matrix}), fingerprint="c")
     store.write("image_sets", sets, fingerprint="sets")
-    store.write("spectra_seed", reconstruct_seed_set(hdr, bands, camera, sets),
-                fingerprint="seed")
+    store.write("spectra_seed", reconstruct_seed_set(hdr, bands, camera, sets), fingerprint="seed")
     return store
 
 
@@ -79,9 +83,11 @@ def test_killed_reconstruction_resumes_without_recomputing_finished_sets(tmp_pat
     finished = [int(p.name) for p in region_flags(killed)]
     assert finished and len(finished) < n_sets, finished
     staged = next(killed.glob(f"{STAGING}/spectra.*[!e]"))
-    written = {p.relative_to(staged).as_posix(): p.stat().st_mtime_ns
-               for p in (staged / "radiance" / "c").rglob("*")
-               if p.is_file() and not p.name.endswith(".partial")}
+    written = {
+        p.relative_to(staged).as_posix(): p.stat().st_mtime_ns
+        for p in (staged / "radiance" / "c").rglob("*")
+        if p.is_file() and not p.name.endswith(".partial")
+    }
     assert not RunStore.open(killed).has("spectra")  # nothing looks finished
 
     rerun = cli("run", "reconstruct_image_sets", str(killed), *SETTINGS)

@@ -26,8 +26,13 @@ def dark_level(dark: xr.Dataset, *, percentile: float = 50.0) -> xr.Dataset:
     return xr.Dataset({"level": level.astype(np.float32).assign_attrs(units="DN")})
 
 
-DARK_LEVEL = Node(name="dark_level", function=dark_level, inputs={"dark": "dark"},
-                  outputs=("dark_level",), parameters=DarkLevelParameters)
+DARK_LEVEL = Node(
+    name="dark_level",
+    function=dark_level,
+    inputs={"dark": "dark"},
+    outputs=("dark_level",),
+    parameters=DarkLevelParameters,
+)
 
 
 @pytest.fixture
@@ -55,8 +60,11 @@ def _counting(function):
 @pytest.fixture
 def store(tmp_path):
     store = RunStore.create(tmp_path / "run.zarr")
-    store.write("raw/dark", make_raw_dark(frames=6, shape=(5, 6), exposure_times=(0.1, 0.3)),
-                fingerprint="raw-v1")
+    store.write(
+        "raw/dark",
+        make_raw_dark(frames=6, shape=(5, 6), exposure_times=(0.1, 0.3)),
+        fingerprint="raw-v1",
+    )
     return store
 
 
@@ -89,8 +97,11 @@ def test_flow_runs_then_resumes_and_reruns_dependants(prefect_api, nodes, store)
     assert RUNS == {"dark_average": 2, "dark_level": 3}
 
     # a changed input (new raw data) re-runs everything
-    store.write("raw/dark", make_raw_dark(frames=6, shape=(5, 6), exposure_times=(0.1, 0.3),
-                                          seed=9), fingerprint="raw-v2")
+    store.write(
+        "raw/dark",
+        make_raw_dark(frames=6, shape=(5, 6), exposure_times=(0.1, 0.3), seed=9),
+        fingerprint="raw-v2",
+    )
     fifth = run_steps(store.path, changed)
     assert statuses(fifth) == {"dark_average": "ran", "dark_level": "ran"}
 
@@ -146,8 +157,8 @@ def test_nightly_flow_processes_every_store_and_resumes(prefect_api, nodes, tmp_
 
     for name in ("a.zarr", "b.zarr"):
         RunStore.create(tmp_path / name).write(
-            "raw/dark", make_raw_dark(frames=4, shape=(4, 4), exposure_times=(0.1,)),
-            fingerprint=name)
+            "raw/dark", make_raw_dark(frames=4, shape=(4, 4), exposure_times=(0.1,)), fingerprint=name
+        )
     (tmp_path / "notes.zarr").mkdir()  # not a run store: ignored
     assert [p.name for p in find_run_stores(tmp_path)] == ["a.zarr", "b.zarr"]
     first = process_new_runs(str(tmp_path), flow_name="dark")

@@ -18,20 +18,30 @@ SHAPE = colour.SpectralShape(410, 720, 10)
 
 def image_coords(n: int) -> dict:
     deg = {"units": "degree", "long_name": "angle"}
-    return {"camera": ("image", np.arange(n)), "rotation": ("image", np.zeros(n, int)),
-            "led": ("image", np.arange(n)), "theta_i": ("image", np.full(n, 30.0), deg),
-            "phi_i": ("image", np.zeros(n), deg),
-            "theta_o": ("image", np.array([45.0, 45.0, 60.0]), deg),
-            "phi_o": ("image", np.array([0.0, 15.0, 0.0]), deg)}
+    return {
+        "camera": ("image", np.arange(n)),
+        "rotation": ("image", np.zeros(n, int)),
+        "led": ("image", np.arange(n)),
+        "theta_i": ("image", np.full(n, 30.0), deg),
+        "phi_i": ("image", np.zeros(n), deg),
+        "theta_o": ("image", np.array([45.0, 45.0, 60.0]), deg),
+        "phi_o": ("image", np.array([0.0, 15.0, 0.0]), deg),
+    }
 
 
 def spectra_group(values: np.ndarray) -> xr.Dataset:
     return xr.Dataset(
-        {"radiance": (("image", "wavelength", "y", "x"), values.astype(np.float32),
-                      {"units": "1", "long_name": "relative spectral radiance"})},
-        coords={"wavelength": ("wavelength", SHAPE.wavelengths,
-                               {"units": "nm", "long_name": "wavelength"}),
-                **image_coords(values.shape[0])},
+        {
+            "radiance": (
+                ("image", "wavelength", "y", "x"),
+                values.astype(np.float32),
+                {"units": "1", "long_name": "relative spectral radiance"},
+            )
+        },
+        coords={
+            "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm", "long_name": "wavelength"}),
+            **image_coords(values.shape[0]),
+        },
     )
 
 
@@ -44,28 +54,55 @@ def make_run(path: Path) -> RunStore:
     truth = np.stack([cube, 0.7 * cube, 0.5 * cube])
     noise = np.random.default_rng(7).standard_normal(truth.shape)
     store = RunStore.create(path)
-    store.write("truth/spectra", spectra_group(truth),
-                fingerprint=compute_fingerprint("truth", "1", {}, {}))
-    store.write("spectra", spectra_group(truth * (1 + 0.02 * noise)).chunk({"image": 1}),
-                fingerprint=compute_fingerprint("reconstruct", "1", {}, {}))
+    store.write(
+        "truth/spectra", spectra_group(truth), fingerprint=compute_fingerprint("truth", "1", {}, {})
+    )
+    store.write(
+        "spectra",
+        spectra_group(truth * (1 + 0.02 * noise)).chunk({"image": 1}),
+        fingerprint=compute_fingerprint("reconstruct", "1", {}, {}),
+    )
     n_shots = 32
-    store.write("raw/spectral", xr.Dataset(
-        {"counts": (("shot", "y", "x"), np.full((n_shots, 12, 18), 40, np.uint16),
-                    {"units": "DN", "long_name": "raw band-filtered pixel value"})},
-        coords={"wavelength": ("shot", SHAPE.wavelengths, {"units": "nm"}),
+    store.write(
+        "raw/spectral",
+        xr.Dataset(
+            {
+                "counts": (
+                    ("shot", "y", "x"),
+                    np.full((n_shots, 12, 18), 40, np.uint16),
+                    {"units": "DN", "long_name": "raw band-filtered pixel value"},
+                )
+            },
+            coords={
+                "wavelength": ("shot", SHAPE.wavelengths, {"units": "nm"}),
                 "exposure_time": ("shot", np.full(n_shots, 0.1), {"units": "s"}),
                 "image": ("shot", np.arange(n_shots) % 2),
                 "rotation": ("shot", np.zeros(n_shots, int)),
-                "led": ("shot", np.arange(n_shots) % 2)},
-        attrs={"bit_depth": 12}), fingerprint="raw-spectral")
-    store.write("raw/rgb", xr.Dataset(
-        {"counts": (("image", "exposure", "y", "x", "channel"),
+                "led": ("shot", np.arange(n_shots) % 2),
+            },
+            attrs={"bit_depth": 12},
+        ),
+        fingerprint="raw-spectral",
+    )
+    store.write(
+        "raw/rgb",
+        xr.Dataset(
+            {
+                "counts": (
+                    ("image", "exposure", "y", "x", "channel"),
                     np.full((3, 2, 12, 18, 3), 100, np.uint16),
-                    {"units": "DN", "long_name": "raw RGB pixel value"})},
-        coords={"exposure_time": (("image", "exposure"), np.tile([0.01, 0.04], (3, 1)),
-                                  {"units": "s"}),
-                "channel": ("channel", ["R", "G", "B"]), **image_coords(3)},
-        attrs={"bit_depth": 12}), fingerprint="raw-rgb")
+                    {"units": "DN", "long_name": "raw RGB pixel value"},
+                )
+            },
+            coords={
+                "exposure_time": (("image", "exposure"), np.tile([0.01, 0.04], (3, 1)), {"units": "s"}),
+                "channel": ("channel", ["R", "G", "B"]),
+                **image_coords(3),
+            },
+            attrs={"bit_depth": 12},
+        ),
+        fingerprint="raw-rgb",
+    )
     assert store.validate() == []
     return store
 
@@ -88,16 +125,18 @@ def test_notebook_executes_against_a_run(tmp_path, monkeypatch):
     monkeypatch.setenv("SPECTRALIZE_REPORT_DIR", str(report))
     monkeypatch.delenv("MPLBACKEND", raising=False)  # the kernel's inline backend shows figures
     notebook = nbformat.read(NOTEBOOK, as_version=4)
-    client = NotebookClient(notebook, timeout=120, kernel_name="python3",
-                            resources={"metadata": {"path": str(tmp_path)}})
+    client = NotebookClient(
+        notebook, timeout=120, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    )
     client.execute()  # raises CellExecutionError if any cell fails
 
     code = [cell for cell in notebook.cells if cell.cell_type == "code"]
     assert all(cell.execution_count for cell in code)  # every code cell ran
     errors = [out for cell in code for out in cell.outputs if out.output_type == "error"]
     assert errors == []
-    text = "\n".join(out.get("text", "") for cell in code for out in cell.outputs
-                     if out.output_type == "stream")
+    text = "\n".join(
+        out.get("text", "") for cell in code for out in cell.outputs if out.output_type == "stream"
+    )
     # 32 band shots of 0.1 s + 3 RGB series of 0.05 s against the paper's 226.212 s
     assert f"{226.212 / 3.35:.1f}x faster" in text
     assert "Warning" not in text

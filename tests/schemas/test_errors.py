@@ -27,8 +27,17 @@ from spectralize.schemas import (
     StoreError,
 )
 
-ALL = [SchemaError, StoreError, NodeNotFoundError, NodeDeclarationError, ParameterError,
-       PipelineError, CalibrationError, ReconstructionError, SimulationError]
+ALL = [
+    SchemaError,
+    StoreError,
+    NodeNotFoundError,
+    NodeDeclarationError,
+    ParameterError,
+    PipelineError,
+    CalibrationError,
+    ReconstructionError,
+    SimulationError,
+]
 
 
 @pytest.mark.parametrize("cls", ALL)
@@ -36,14 +45,13 @@ def test_every_error_is_a_spectralize_error_with_a_problem_list(cls):
     assert issubclass(cls, SpectralizeError)
     error = cls.single("raw/rgb:counts", "dtype uint16", "float32", hint="cast the counts")
     assert isinstance(error, cls)
-    assert error.problems == [Problem("raw/rgb:counts", "dtype uint16", "float32",
-                                      "cast the counts")]
-    assert str(error) == ("raw/rgb:counts: expected dtype uint16, found float32 "
-                          "(cast the counts)")
+    assert error.problems == [Problem("raw/rgb:counts", "dtype uint16", "float32", "cast the counts")]
+    assert str(error) == ("raw/rgb:counts: expected dtype uint16, found float32 (cast the counts)")
 
 
-@pytest.mark.parametrize("cls", [SchemaError, ParameterError, CalibrationError,
-                                 ReconstructionError, SimulationError])
+@pytest.mark.parametrize(
+    "cls", [SchemaError, ParameterError, CalibrationError, ReconstructionError, SimulationError]
+)
 def test_value_errors_stay_value_errors(cls):
     with pytest.raises(ValueError):
         raise cls.single("x", "y", "z")
@@ -56,15 +64,21 @@ def test_a_plain_message_still_works_and_has_no_problems():
 
 
 def test_a_summary_with_problems_lists_them_all():
-    error = PipelineError("the node graph cannot run (2 problem(s)):",
-                          [Problem("a", "b", "c"), Problem("d", "e", "f")])
-    assert str(error).splitlines() == ["the node graph cannot run (2 problem(s)):",
-                                       "  - a: expected b, found c", "  - d: expected e, found f"]
+    error = PipelineError(
+        "the node graph cannot run (2 problem(s)):", [Problem("a", "b", "c"), Problem("d", "e", "f")]
+    )
+    assert str(error).splitlines() == [
+        "the node graph cannot run (2 problem(s)):",
+        "  - a: expected b, found c",
+        "  - d: expected e, found f",
+    ]
 
 
 def test_errors_keep_their_problems_through_pickling():
-    error = SchemaError("group 'dark' does not follow schema 'dark':",
-                        [Problem("dark:mean", "dtype float32", "dtype float64")])
+    error = SchemaError(
+        "group 'dark' does not follow schema 'dark':",
+        [Problem("dark:mean", "dtype float32", "dtype float64")],
+    )
     back = pickle.loads(pickle.dumps(error))
     assert type(back) is SchemaError
     assert back.problems == error.problems and str(back) == str(error)

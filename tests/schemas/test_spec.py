@@ -8,8 +8,13 @@ from spectralize.schemas.run import RAW_DARK, RAW_SPECTRAL, SPECTRA, render_tabl
 
 def raw_dark(**overrides):
     ds = xr.Dataset(
-        {"frames": (("exposure_time", "frame", "y", "x"), np.zeros((2, 3, 4, 5), np.uint16),
-                    {"units": "DN"})},
+        {
+            "frames": (
+                ("exposure_time", "frame", "y", "x"),
+                np.zeros((2, 3, 4, 5), np.uint16),
+                {"units": "DN"},
+            )
+        },
         coords={"exposure_time": ("exposure_time", [0.1, 0.2], {"units": "s"})},
         attrs={"camera": "spectral", "bit_depth": 10},
     )
@@ -28,17 +33,24 @@ def test_every_problem_is_listed_at_once():
     ds.attrs = {}
     problems = [str(p) for p in validate_dataset(ds, RAW_DARK)]
     text = "\n".join(problems)
-    assert "raw/dark:frames: expected dims ('exposure_time', 'frame', 'y', 'x'), found dims ('frame', 'exposure_time', 'y', 'x')" in text
+    assert (
+        "raw/dark:frames: expected dims ('exposure_time', 'frame', 'y', 'x'), found dims ('frame', 'exposure_time', 'y', 'x')"
+        in text
+    )
     assert "raw/dark:frames: expected dtype uint16, found dtype float64" in text
     assert "raw/dark:frames: expected attrs['units'] == 'DN', found units 'counts'" in text
-    assert "raw/dark:exposure_time: expected coordinate with dims ('exposure_time',), found nothing" in text
+    assert (
+        "raw/dark:exposure_time: expected coordinate with dims ('exposure_time',), found nothing" in text
+    )
     assert "attr 'camera'" in text and "attr 'bit_depth'" in text
     assert len(problems) == 6
 
 
 def test_check_dataset_raises_schema_error_naming_the_group():
     ds = raw_dark().rename({"frames": "frame_stack"})
-    with pytest.raises(SchemaError, match=r"group 'raw/dark'[\s\S]*raw/dark:frames: expected data variable"):
+    with pytest.raises(
+        SchemaError, match=r"group 'raw/dark'[\s\S]*raw/dark:frames: expected data variable"
+    ):
         check_dataset(ds, RAW_DARK)
 
 
@@ -48,7 +60,9 @@ def test_value_ranges_and_finiteness_of_coords_are_checked():
         coords={
             "wavelength": ("shot", [410.0, np.nan], {"units": "nm"}),
             "exposure_time": ("shot", [-1.0, 0.1], {"units": "s"}),
-            "image": ("shot", [0, 1]), "rotation": ("shot", [0, 0]), "led": ("shot", [1, 2]),
+            "image": ("shot", [0, 1]),
+            "rotation": ("shot", [0, 0]),
+            "led": ("shot", [1, 2]),
         },
         attrs={"bit_depth": 10},
     )
@@ -58,8 +72,15 @@ def test_value_ranges_and_finiteness_of_coords_are_checked():
 
 
 def test_coordinate_given_as_data_variable_is_named():
-    ds = xr.Dataset({"radiance": (("image", "wavelength", "y", "x"), np.zeros((1, 2, 2, 2), np.float32),
-                                  {"units": "1"})})
+    ds = xr.Dataset(
+        {
+            "radiance": (
+                ("image", "wavelength", "y", "x"),
+                np.zeros((1, 2, 2, 2), np.float32),
+                {"units": "1"},
+            )
+        }
+    )
     problems = validate_dataset(ds, SPECTRA)
     assert any("spectra:wavelength" in str(p) for p in problems)
     assert any("spectra:theta_i" in str(p) for p in problems)
@@ -70,4 +91,5 @@ def test_readme_table_is_rendered_from_the_contract():
 
     readme = Path(__file__).parents[2] / "schemas" / "README.md"
     assert render_table() in readme.read_text(), (
-        "schemas/README.md is out of date: regenerate it with `python -m spectralize.schemas --update-readme`")
+        "schemas/README.md is out of date: regenerate it with `python -m spectralize.schemas --update-readme`"
+    )

@@ -20,8 +20,9 @@ def store(tmp_path):
 
 
 def small_raw_dark(seed=0):
-    return make_raw_dark(frames=8, shape=(6, 7), exposure_times=(0.1, 0.2), frames_per_chunk=4,
-                         seed=seed)
+    return make_raw_dark(
+        frames=8, shape=(6, 7), exposure_times=(0.1, 0.2), frames_per_chunk=4, seed=seed
+    )
 
 
 def test_open_rejects_what_is_not_a_run_store(tmp_path):
@@ -30,8 +31,7 @@ def test_open_rejects_what_is_not_a_run_store(tmp_path):
     (tmp_path / "plain").mkdir()
     with pytest.raises(StoreError, match="not a zarr v3 store"):
         RunStore.open(tmp_path / "plain")
-    xr.Dataset({"a": ("x", [1, 2])}).to_zarr(tmp_path / "other.zarr", zarr_format=3,
-                                            consolidated=False)
+    xr.Dataset({"a": ("x", [1, 2])}).to_zarr(tmp_path / "other.zarr", zarr_format=3, consolidated=False)
     with pytest.raises(StoreError, match="not a spectralize run store"):
         RunStore.open(tmp_path / "other.zarr")
     (tmp_path / "v2").mkdir()
@@ -49,8 +49,16 @@ def test_create_refuses_an_existing_path(store):
 def test_write_read_round_trip_with_explicit_chunks_and_fingerprint(store):
     raw = small_raw_dark()
     fp = compute_fingerprint("gen", "1", {"seed": 0}, {})
-    assert store.write("raw/dark", raw, fingerprint=fp, provenance={"node": "gen"},
-                       chunks={"exposure_time": 1, "frame": 4}) == fp
+    assert (
+        store.write(
+            "raw/dark",
+            raw,
+            fingerprint=fp,
+            provenance={"node": "gen"},
+            chunks={"exposure_time": 1, "frame": 4},
+        )
+        == fp
+    )
     back = store.read("raw/dark")
     xr.testing.assert_identical(back.frames.compute(), raw.frames.compute())
     assert back.frames.data.chunksize == (1, 4, 6, 7)
@@ -159,8 +167,7 @@ def test_resumable_write_resumes_only_unfinished_regions(store):
     assert sorted(calls) == [0, 1, 2]
     calls.clear()
     messages = []
-    store.write("cube", lazy_cube(), fingerprint="fp", resumable_along="image",
-                progress=messages.append)
+    store.write("cube", lazy_cube(), fingerprint="fp", resumable_along="image", progress=messages.append)
     assert sorted(calls) == [2, 3]  # regions 0 and 1 were not recomputed
     assert "2/4 region(s) of image already written, resuming" in messages
     values = store.read("cube").v.values
@@ -188,9 +195,10 @@ def test_chunks_half_written_by_a_killed_writer_are_dropped_on_resume(store):
     store.write("cube", cube(fail=False), fingerprint="fp", resumable_along="image")
     final = store.path / "cube"
     assert not list(final.rglob("*.partial"))
-    assert not any(name.endswith(".partial")
-                   for name in json.loads((final / "zarr.json").read_text())["attributes"][
-                       MANIFEST_ATTR])
+    assert not any(
+        name.endswith(".partial")
+        for name in json.loads((final / "zarr.json").read_text())["attributes"][MANIFEST_ATTR]
+    )
     store.verify("cube")
     assert store.read("cube").v.values[:, 0, 0].tolist() == [0, 1, 2]
 
@@ -201,8 +209,7 @@ def test_imported_group_gets_a_content_fingerprint(store):
     assert first.startswith("content:")
     assert store.fingerprint("raw/dark") == first
     shutil.rmtree(store.path / "raw" / "dark")
-    small_raw_dark(seed=5).to_zarr(store.path, group="raw/dark", zarr_format=3,
-                                   consolidated=False)
+    small_raw_dark(seed=5).to_zarr(store.path, group="raw/dark", zarr_format=3, consolidated=False)
     os.utime(store.path / "raw" / "dark" / "zarr.json", ns=(1, 1))
     assert store.fingerprint("raw/dark") != first
 
@@ -215,13 +222,23 @@ def test_invalid_group_names_are_rejected(store):
 
 def test_resumable_regions_may_differ_in_size_and_run_concurrently(store):
     sizes = (3, 1, 2)
-    pieces = [da.full((n, 4, 6), float(i), dtype=np.float32, chunks=(n, 4, 6))
-              for i, n in enumerate(sizes)]
-    cube = xr.Dataset({"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})},
-                      coords={"image": np.arange(6)})
+    pieces = [
+        da.full((n, 4, 6), float(i), dtype=np.float32, chunks=(n, 4, 6)) for i, n in enumerate(sizes)
+    ]
+    cube = xr.Dataset(
+        {"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})},
+        coords={"image": np.arange(6)},
+    )
     messages = []
-    store.write("cube", cube, fingerprint="fp", resumable_along="image", chunks={"x": 3},
-                concurrent_regions=2, progress=messages.append)
+    store.write(
+        "cube",
+        cube,
+        fingerprint="fp",
+        resumable_along="image",
+        chunks={"x": 3},
+        concurrent_regions=2,
+        progress=messages.append,
+    )
     back = store.read("cube")
     assert back.v.encoding["chunks"] == (1, 4, 3)
     np.testing.assert_array_equal(back.v.values[:, 0, 0], [0, 0, 0, 1, 2, 2])
@@ -234,10 +251,11 @@ def test_region_by_region_write_keeps_memory_bounded_by_the_region_not_the_cube(
 
     regions, shape = 24, (1, 32, 256, 256)  # 8.4 MB per region, 200 MB in all
     region_bytes = int(np.prod(shape)) * 4
-    pieces = [da.from_delayed(dask.delayed(np.full)(shape, float(i), np.float32), shape,
-                              np.float32) for i in range(regions)]
-    cube = xr.Dataset({"v": (("image", "wavelength", "y", "x"), da.concatenate(pieces),
-                             {"units": "1"})})
+    pieces = [
+        da.from_delayed(dask.delayed(np.full)(shape, float(i), np.float32), shape, np.float32)
+        for i in range(regions)
+    ]
+    cube = xr.Dataset({"v": (("image", "wavelength", "y", "x"), da.concatenate(pieces), {"units": "1"})})
     tracemalloc.start()
     try:
         store.write("cube", cube, fingerprint="m", resumable_along="image", concurrent_regions=2)
@@ -250,8 +268,10 @@ def test_region_by_region_write_keeps_memory_bounded_by_the_region_not_the_cube(
 
 def test_text_is_stored_with_a_specified_zarr_type_and_read_back_equal(store):
     lazy_labels = da.from_array(np.array(["red", "green", "blue"]), chunks=2)
-    ds = xr.Dataset({"label": (("image",), lazy_labels)},
-                    coords={"camera": ("image", np.array(["cam00", "cam01", "cam02"]))})
+    ds = xr.Dataset(
+        {"label": (("image",), lazy_labels)},
+        coords={"camera": ("image", np.array(["cam00", "cam01", "cam02"]))},
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # e.g. zarr's UnstableSpecificationWarning for <U
         store.write("text", ds, fingerprint="t")

@@ -70,14 +70,16 @@ table improves (median 0.18 % -> 0.09 %); the wider kernel also crops a border t
 def _series_dim(counts: xr.DataArray, where: str) -> str:
     others = [d for d in counts.dims if d not in ("y", "x")]
     if len(others) != 1 or not {"y", "x"} <= set(counts.dims):
-        raise SchemaError(f"{where} has the wrong dims", [Problem(
-            where, "dims (exposure or shot, y, x)", f"dims {counts.dims}")])
+        raise SchemaError(
+            f"{where} has the wrong dims",
+            [Problem(where, "dims (exposure or shot, y, x)", f"dims {counts.dims}")],
+        )
     return str(others[0])
 
 
-
-def _exposure_estimates(codes: np.ndarray, times: np.ndarray, weights: np.ndarray,
-                        response: np.ndarray) -> np.ndarray:
+def _exposure_estimates(
+    codes: np.ndarray, times: np.ndarray, weights: np.ndarray, response: np.ndarray
+) -> np.ndarray:
     """Leave-one-out exposure ``X_ij = t_j x_i^(-j)`` of every sample (NaN where undefined).
 
     ``x_i^(-j)`` is Robertson's irradiance step (weights ``w``, response ``f``) from the other
@@ -94,8 +96,9 @@ def _exposure_estimates(codes: np.ndarray, times: np.ndarray, weights: np.ndarra
     return np.where(ok, t * num / np.where(ok, den, 1.0), np.nan)
 
 
-def _reverse_regression(exposure: np.ndarray, values: np.ndarray, levels: np.ndarray,
-                        grid: np.ndarray) -> np.ndarray:
+def _reverse_regression(
+    exposure: np.ndarray, values: np.ndarray, levels: np.ndarray, grid: np.ndarray
+) -> np.ndarray:
     """Response on ``grid`` from the mean pixel value per exposure bin, ``E[v | X]``.
 
     Samples are binned by exposure ``X`` at the midpoints of ``levels`` (a non-decreasing
@@ -130,15 +133,16 @@ def _reverse_regression(exposure: np.ndarray, values: np.ndarray, levels: np.nda
     return out
 
 
-def _quadratic_through_zero(exposure: np.ndarray, values: np.ndarray,
-                            top: float) -> tuple[float, float] | None:
+def _quadratic_through_zero(
+    exposure: np.ndarray, values: np.ndarray, top: float
+) -> tuple[float, float] | None:
     """Least-squares ``v = c1 X + c2 X^2`` over samples with ``0 <= X <= top``; None if unfit."""
     keep = np.isfinite(exposure)
     x, v = exposure[keep], values[keep]
     sel = (x >= 0) & (x <= top)
     if sel.sum() < 16:
         return None
-    x, v = x[sel] / top, v[sel]                     # scaled for conditioning
+    x, v = x[sel] / top, v[sel]  # scaled for conditioning
     x2 = x * x
     a = np.array([[np.dot(x, x), np.dot(x, x2)], [np.dot(x, x2), np.dot(x2, x2)]])
     rhs = np.array([np.dot(x, v), np.dot(x2, v)])
@@ -147,7 +151,7 @@ def _quadratic_through_zero(exposure: np.ndarray, values: np.ndarray,
     except np.linalg.LinAlgError:
         return None
     c1, c2 = c1 / top, c2 / top**2
-    if not c1 > 0 or not c1 + 2 * c2 * top > 0:       # not increasing over the fit range
+    if not c1 > 0 or not c1 + 2 * c2 * top > 0:  # not increasing over the fit range
         return None
     return float(c1), float(c2)
 
@@ -285,50 +289,67 @@ def recover_oecf_low_snr(
     counts = counts_array(series)
     dim = _series_dim(counts, where)
     check_integer(counts, where)
-    depth = check_bit_depth(counts.attrs.get("bit_depth") if bit_depth is None else bit_depth,
-                            where=f"{where}.attrs['bit_depth']")
+    depth = check_bit_depth(
+        counts.attrs.get("bit_depth") if bit_depth is None else bit_depth,
+        where=f"{where}.attrs['bit_depth']",
+    )
     if "exposure_time" not in counts.coords or counts["exposure_time"].dims != (dim,):
-        raise SchemaError(f"{where} needs an exposure_time coord along {dim!r}", [Problem(
-            f"{where}:exposure_time", f"a coord ({dim},) [s]",
-            f"coords {sorted(map(str, counts.coords))}")])
+        raise SchemaError(
+            f"{where} needs an exposure_time coord along {dim!r}",
+            [
+                Problem(
+                    f"{where}:exposure_time",
+                    f"a coord ({dim},) [s]",
+                    f"coords {sorted(map(str, counts.coords))}",
+                )
+            ],
+        )
     if counts.sizes[dim] < 2:
-        raise CalibrationError(f"{where}: an exposure series needs at least 2 exposures, got "
-                               f"{counts.sizes[dim]}")
+        raise CalibrationError(
+            f"{where}: an exposure series needs at least 2 exposures, got {counts.sizes[dim]}"
+        )
     check_exposure_times(counts["exposure_time"], dim, where)
     warn_if_geometric(counts["exposure_time"], dim, where)
     if not filter_size > 0 or not truncate > 0:
-        raise CalibrationError(f"{where}: filter_size and truncate must be positive, got "
-                               f"{filter_size} and {truncate}")
+        raise CalibrationError(
+            f"{where}: filter_size and truncate must be positive, got {filter_size} and {truncate}"
+        )
     levels = 2**depth if levels is None else int(levels)
     if levels < 16:
         raise CalibrationError(f"levels must be at least 16, got {levels}")
     counts = counts.transpose(dim, "y", "x")
     times = np.asarray(counts["exposure_time"].values, dtype=np.float64)
     ny, nx = counts.sizes["y"], counts.sizes["x"]
-    dark_mean = np.asarray(dark_frames_at(dark, times, used_by=where, dim=dim,
-                                          frame_shape=(ny, nx))["mean"].values,
-                           dtype=np.float64)
+    dark_mean = np.asarray(
+        dark_frames_at(dark, times, used_by=where, dim=dim, frame_shape=(ny, nx))["mean"].values,
+        dtype=np.float64,
+    )
     raw_values = np.asarray(counts.values)
     lo_code, hi_code = int(raw_values.min()), int(raw_values.max())
     if lo_code < 0 or hi_code > 2**depth - 1:
-        raise CalibrationError(f"{where}: pixel values must lie in [0, {2**depth - 1}], found "
-                               f"[{lo_code}, {hi_code}]")
+        raise CalibrationError(
+            f"{where}: pixel values must lie in [0, {2**depth - 1}], found [{lo_code}, {hi_code}]"
+        )
     saturated = saturated_frames(counts, depth)
     if saturated.any():
-        raise CalibrationError(f"{where}: saturated pixels (value {2**depth - 1}) at "
-                               f"exposure_time {times[saturated].tolist()} s in a low-SNR "
-                               "series; use shorter exposures")
+        raise CalibrationError(
+            f"{where}: saturated pixels (value {2**depth - 1}) at "
+            f"exposure_time {times[saturated].tolist()} s in a low-SNR "
+            "series; use shorter exposures"
+        )
 
     sigma = filter_sigma(filter_size)
     radius = int(math.ceil(filter_radius(filter_size, truncate=truncate)))
     if ny <= 2 * radius or nx <= 2 * radius:
-        raise CalibrationError(f"{where}: frames of {ny}x{nx} px are too small for "
-                               f"filter_size {filter_size} (kernel radius {radius} px)")
+        raise CalibrationError(
+            f"{where}: frames of {ny}x{nx} px are too small for "
+            f"filter_size {filter_size} (kernel radius {radius} px)"
+        )
     filtered = np.empty((times.size, ny - 2 * radius, nx - 2 * radius))
     for j in range(times.size):
-        signal = raw_values[j].astype(np.float64) - dark_mean[j]   # negative values kept
+        signal = raw_values[j].astype(np.float64) - dark_mean[j]  # negative values kept
         smooth = ndimage.gaussian_filter(signal, sigma, mode="nearest", truncate=truncate)
-        filtered[j] = smooth[radius:ny - radius, radius:nx - radius]
+        filtered[j] = smooth[radius : ny - radius, radius : nx - radius]
     values = filtered.reshape(times.size, -1)
     if max_pixels is not None and values.shape[1] > max_pixels:
         rng = np.random.default_rng(seed)
@@ -338,11 +359,18 @@ def recover_oecf_low_snr(
         raise CalibrationError(f"{where}: filtered values have no spread ({lo} .. {hi})")
     step = (hi - lo) / (levels - 1)
     codes = np.rint((values - lo) / step).astype(np.int64)
-    weights = weighting_function(np.arange(levels), black_level=-1.0, saturation=levels,
-                                 kind=weighting)
-    result = robertson_response(codes, times, n_codes=levels, weights=weights,
-                                tolerance=tolerance, max_iterations=max_iterations,
-                                monotone=monotone, max_bins=max_bins, solver=solver)
+    weights = weighting_function(np.arange(levels), black_level=-1.0, saturation=levels, kind=weighting)
+    result = robertson_response(
+        codes,
+        times,
+        n_codes=levels,
+        weights=weights,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        monotone=monotone,
+        max_bins=max_bins,
+        solver=solver,
+    )
     grid = lo + step * np.arange(levels)
     table = result.response
     fit = None
@@ -351,8 +379,7 @@ def recover_oecf_low_snr(
         table = _reverse_regression(exposure, values, table, grid)
         fit_top = 0.1 * hi if fit_below is None else float(fit_below)
         if fit_top > 0:
-            fit = _quadratic_through_zero(exposure, values, float(np.interp(fit_top, grid,
-                                                                            table)))
+            fit = _quadratic_through_zero(exposure, values, float(np.interp(fit_top, grid, table)))
         if fit is not None:
             alpha = np.clip((grid - 0.5 * fit_top) / (0.5 * fit_top), 0.0, 1.0)
             table = (1 - alpha) * _invert_quadratic(grid, *fit) + alpha * table
@@ -360,8 +387,10 @@ def recover_oecf_low_snr(
             table = isotonic_regression(table).x
         mid_value = float(np.interp(lo + step * (levels - 1) / 2, grid, table))
         if not mid_value > 0:
-            raise CalibrationError(f"{where}: the de-biased response is not positive at the "
-                                   "middle of the stretched interval")
+            raise CalibrationError(
+                f"{where}: the de-biased response is not positive at the "
+                "middle of the stretched interval"
+            )
         table = table / mid_value
     attrs = {
         "bit_depth": depth,
@@ -387,33 +416,41 @@ def recover_oecf_low_snr(
     return xr.Dataset({"response": response}, attrs={"bit_depth": depth})
 
 
-def _low_snr_choice(counts: xr.DataArray, dark: xr.Dataset, depth: int, band: float | None,
-                    fraction: float) -> tuple[int, np.ndarray]:
+def _low_snr_choice(
+    counts: xr.DataArray, dark: xr.Dataset, depth: int, band: float | None, fraction: float
+) -> tuple[int, np.ndarray]:
     """The band and the exposures (indices) of the low-SNR series of the white reference."""
     group = "raw/white_reference"
     times = counts["spectral_exposure_time"].values
-    level = np.asarray(dark_frames_at(dark, times, used_by=f"{group}:spectral_counts",
-                                      dim="spectral_exposure")["mean"].mean(("y", "x")).values)
+    level = np.asarray(
+        dark_frames_at(dark, times, used_by=f"{group}:spectral_counts", dim="spectral_exposure")["mean"]
+        .mean(("y", "x"))
+        .values
+    )
     mean = np.asarray(counts.mean(("y", "x")).values) - level[None, :]
     unsaturated = ~saturated_frames(counts, depth)
     low = unsaturated & (mean <= fraction * (2**depth - 1 - level.mean()))
     wavelengths = counts["wavelength"].values
     if band is None:
-        score = [(int(low[j].sum()), float(mean[j][low[j]].max()) if low[j].any() else -1.0)
-                 for j in range(low.shape[0])]
+        score = [
+            (int(low[j].sum()), float(mean[j][low[j]].max()) if low[j].any() else -1.0)
+            for j in range(low.shape[0])
+        ]
         j = max(range(len(score)), key=lambda k: score[k])
     else:
         hit = np.flatnonzero(np.isclose(wavelengths, band, atol=1e-6))
         if hit.size == 0:
-            raise CalibrationError(f"{group}:wavelength has no band at {band} nm; bands: "
-                                   f"{wavelengths.tolist()}")
+            raise CalibrationError(
+                f"{group}:wavelength has no band at {band} nm; bands: {wavelengths.tolist()}"
+            )
         j = int(hit[0])
     picks = np.flatnonzero(low[j])
     if picks.size < 2:
         raise CalibrationError(
             f"{group}:spectral_counts: band {wavelengths[j]} nm has {picks.size} unsaturated "
             f"exposure(s) with signal below {fraction:g} of the range (mean signal above dark "
-            f"{np.round(mean[j], 2).tolist()} DN); the low-SNR extension needs at least 2")
+            f"{np.round(mean[j], 2).tolist()} DN); the low-SNR extension needs at least 2"
+        )
     return j, picks
 
 
@@ -421,21 +458,42 @@ def recover_spectral_oecf(
     white_reference: xr.Dataset,
     dark: xr.Dataset,
     *,
-    band: Annotated[float | None, Field(description="wavelength [nm] of the white "
-                                        "reference's exposure series used for the low-SNR "
-                                        "extension; None: the band with the most "
-                                        "unsaturated exposures at low signal")] = None,
-    low_signal_fraction: Annotated[float, Field(gt=0, le=1, description="exposures whose "
-                                                "mean signal above dark is at most this "
-                                                "fraction of the code range form the low-SNR "
-                                                "series")] = 0.15,
-    filter_size: Annotated[float, Field(gt=0, description="Gaussian filter size of the "
-                                        "low-SNR extension [px] (sigma = size / 5)")] = 25.0,
-    full_exposures: Annotated[int, Field(ge=2, description="longest unsaturated exposures "
-                                         "per band used for the full-range Robertson "
-                                         "response")] = 4,
-    tolerance: Annotated[float, Field(gt=0, lt=1e-2, description="Robertson convergence "
-                                      "tolerance")] = 1e-6,
+    band: Annotated[
+        float | None,
+        Field(
+            description="wavelength [nm] of the white "
+            "reference's exposure series used for the low-SNR "
+            "extension; None: the band with the most "
+            "unsaturated exposures at low signal"
+        ),
+    ] = None,
+    low_signal_fraction: Annotated[
+        float,
+        Field(
+            gt=0,
+            le=1,
+            description="exposures whose "
+            "mean signal above dark is at most this "
+            "fraction of the code range form the low-SNR "
+            "series",
+        ),
+    ] = 0.15,
+    filter_size: Annotated[
+        float,
+        Field(gt=0, description="Gaussian filter size of the low-SNR extension [px] (sigma = size / 5)"),
+    ] = 25.0,
+    full_exposures: Annotated[
+        int,
+        Field(
+            ge=2,
+            description="longest unsaturated exposures "
+            "per band used for the full-range Robertson "
+            "response",
+        ),
+    ] = 4,
+    tolerance: Annotated[
+        float, Field(gt=0, lt=1e-2, description="Robertson convergence tolerance")
+    ] = 1e-6,
 ) -> xr.Dataset:
     """Spectral camera response: the paper's low-SNR extension joined to a full-range one.
 
@@ -473,17 +531,20 @@ def recover_spectral_oecf(
     group = "raw/white_reference"
     counts, depth = target_spectral_series(white_reference, group)
     j, picks = _low_snr_choice(counts, dark, depth, band, low_signal_fraction)
-    series = counts.isel(wavelength=j, spectral_exposure=picks).rename(
-        spectral_exposure="exposure").rename(spectral_exposure_time="exposure_time")
+    series = (
+        counts.isel(wavelength=j, spectral_exposure=picks)
+        .rename(spectral_exposure="exposure")
+        .rename(spectral_exposure_time="exposure_time")
+    )
     series = series.drop_vars([c for c in series.coords if c != "exposure_time"])
     series = series.assign_attrs(bit_depth=depth)
     mean_dark = dark["mean"].load()
     try:
-        low = recover_oecf_low_snr(series, mean_dark, filter_size=filter_size,
-                                   tolerance=tolerance)
+        low = recover_oecf_low_snr(series, mean_dark, filter_size=filter_size, tolerance=tolerance)
     except CalibrationError as error:
-        raise CalibrationError(f"{group}:spectral_counts (band "
-                               f"{float(counts['wavelength'][j])} nm): {error}") from None
+        raise CalibrationError(
+            f"{group}:spectral_counts (band {float(counts['wavelength'][j])} nm): {error}"
+        ) from None
 
     # full range: the longest `full_exposures` unsaturated exposures of every band
     top = ~saturated_frames(counts, depth)
@@ -498,10 +559,14 @@ def recover_spectral_oecf(
     if len(rows) == 0:
         raise CalibrationError(
             f"{group}:spectral_counts: no band has {full_exposures} unsaturated exposures "
-            "for the full-range response")
-    full_in = xr.DataArray(np.stack(rows), dims=("image", "exposure", "y", "x"),
-                           coords={"exposure_time": (("image", "exposure"), np.stack(times))},
-                           attrs={"bit_depth": depth})
+            "for the full-range response"
+        )
+    full_in = xr.DataArray(
+        np.stack(rows),
+        dims=("image", "exposure", "y", "x"),
+        coords={"exposure_time": (("image", "exposure"), np.stack(times))},
+        attrs={"bit_depth": depth},
+    )
     try:
         full = recover_oecf(full_in, tolerance=tolerance)
     except CalibrationError as error:
@@ -511,19 +576,28 @@ def recover_spectral_oecf(
     low_r = low["response"].rename(code="low_snr_code").rename("low_snr_response")
     full_r = full["response"].rename(code="raw_code").rename("full_response")
     out = xr.Dataset(
-        {"response": response.drop_vars("samples"),
-         "low_snr_response": low_r.drop_vars("samples").assign_attrs(
-             long_name="low-SNR response (paper's extension), before scaling"),
-         "full_response": full_r.drop_vars("samples").assign_attrs(
-             long_name="full-range Robertson response over raw codes")},
-        attrs={"bit_depth": depth, "band": float(counts["wavelength"][j]),
-               "low_snr_exposure_time": [float(t) for t in series["exposure_time"].values],
-               "filter_size": float(filter_size), "full_exposures": int(full_exposures),
-               "full_bands": len(rows), "dark_level": float(response.attrs["dark_level"]),
-               "overlap": [float(v) for v in response.attrs["overlap"]],
-               "scale": float(response.attrs["scale"]),
-               "converged": bool(response.attrs.get("converged", True)),
-               "source": group},
+        {
+            "response": response.drop_vars("samples"),
+            "low_snr_response": low_r.drop_vars("samples").assign_attrs(
+                long_name="low-SNR response (paper's extension), before scaling"
+            ),
+            "full_response": full_r.drop_vars("samples").assign_attrs(
+                long_name="full-range Robertson response over raw codes"
+            ),
+        },
+        attrs={
+            "bit_depth": depth,
+            "band": float(counts["wavelength"][j]),
+            "low_snr_exposure_time": [float(t) for t in series["exposure_time"].values],
+            "filter_size": float(filter_size),
+            "full_exposures": int(full_exposures),
+            "full_bands": len(rows),
+            "dark_level": float(response.attrs["dark_level"]),
+            "overlap": [float(v) for v in response.attrs["overlap"]],
+            "scale": float(response.attrs["scale"]),
+            "converged": bool(response.attrs.get("converged", True)),
+            "source": group,
+        },
     )
     out["code"].attrs.update(units="DN", long_name="pixel value above the dark frame")
     out["low_snr_code"].attrs.update(units="DN", long_name="pixel value above the dark frame")

@@ -31,8 +31,7 @@ import xarray as xr
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["apply_response", "response_at_codes", "combine_responses", "response_dataarray",
-           "lookup"]
+__all__ = ["apply_response", "response_at_codes", "combine_responses", "response_dataarray", "lookup"]
 
 
 def lookup(values: np.ndarray, table: np.ndarray, codes: np.ndarray) -> np.ndarray:
@@ -54,38 +53,57 @@ def lookup(values: np.ndarray, table: np.ndarray, codes: np.ndarray) -> np.ndarr
     return f0 + frac * (f1 - f0)
 
 
-
-def response_dataarray(values: np.ndarray, samples: np.ndarray, dims: tuple[str, ...],
-                        coords: Mapping[Hashable, object], code: np.ndarray,
-                        attrs: dict[str, object]) -> xr.DataArray:
+def response_dataarray(
+    values: np.ndarray,
+    samples: np.ndarray,
+    dims: tuple[str, ...],
+    coords: Mapping[Hashable, object],
+    code: np.ndarray,
+    attrs: dict[str, object],
+) -> xr.DataArray:
     """The response table ``values`` over ``code`` as the ``response`` DataArray."""
-    code_coord = xr.DataArray(code, dims=("code",),
-                              attrs={"units": "DN", "long_name": "pixel value"})
+    code_coord = xr.DataArray(code, dims=("code",), attrs={"units": "DN", "long_name": "pixel value"})
     out = xr.DataArray(
-        values.astype(np.float64), dims=dims + ("code",),
-        coords={**coords, "code": code_coord,
-                "samples": (dims + ("code",), samples.astype(np.int64),
-                            {"long_name": "samples per code (0: interpolated)"})},
+        values.astype(np.float64),
+        dims=dims + ("code",),
+        coords={
+            **coords,
+            "code": code_coord,
+            "samples": (
+                dims + ("code",),
+                samples.astype(np.int64),
+                {"long_name": "samples per code (0: interpolated)"},
+            ),
+        },
         name="response",
-        attrs={"units": "1",
-               "long_name": "camera response f: relative exposure x t per pixel value",
-               **attrs},
+        attrs={
+            "units": "1",
+            "long_name": "camera response f: relative exposure x t per pixel value",
+            **attrs,
+        },
     )
     return out
-
 
 
 def _as_response(response: xr.Dataset | xr.DataArray) -> xr.DataArray:
     """The ``response`` table of a Dataset or DataArray, checked: increasing codes, finite."""
     if isinstance(response, xr.Dataset):
         if "response" not in response.data_vars:
-            raise SchemaError("cannot use the response:", [Problem(
-                "response", "a data variable 'response'",
-                f"variables {sorted(map(str, response.data_vars))}")])
+            raise SchemaError(
+                "cannot use the response:",
+                [
+                    Problem(
+                        "response",
+                        "a data variable 'response'",
+                        f"variables {sorted(map(str, response.data_vars))}",
+                    )
+                ],
+            )
         response = response["response"]
     if "code" not in response.dims:
-        raise SchemaError("cannot use the response:", [Problem(
-            "response", "a 'code' dim", f"dims {response.dims}")])
+        raise SchemaError(
+            "cannot use the response:", [Problem("response", "a 'code' dim", f"dims {response.dims}")]
+        )
     code = np.asarray(response["code"].values, dtype=np.float64)
     if code.size < 2 or np.any(np.diff(code) <= 0):
         raise CalibrationError("response: its code coordinate must be strictly increasing")
@@ -94,9 +112,7 @@ def _as_response(response: xr.Dataset | xr.DataArray) -> xr.DataArray:
     return response
 
 
-def apply_response(
-    values: xr.DataArray, response: xr.Dataset | xr.DataArray
-) -> xr.DataArray:
+def apply_response(values: xr.DataArray, response: xr.Dataset | xr.DataArray) -> xr.DataArray:
     """Linearise pixel values: relative exposure ``f(values)`` by the response table.
 
     Parameters
@@ -129,9 +145,14 @@ def apply_response(
     grid = np.asarray(table["code"].values, dtype=np.float64)
     table = table.drop_vars([c for c in table.coords if c not in table.dims or c == "code"])
     out = xr.apply_ufunc(
-        lookup, values, table, kwargs={"codes": grid},
-        input_core_dims=[[], ["code"]], output_core_dims=[[]],
-        dask="parallelized", output_dtypes=[np.float64],
+        lookup,
+        values,
+        table,
+        kwargs={"codes": grid},
+        input_core_dims=[[], ["code"]],
+        output_core_dims=[[]],
+        dask="parallelized",
+        output_dtypes=[np.float64],
     )
     return out.assign_attrs(units="1", long_name="relative exposure (linearised pixel value)")
 
@@ -159,13 +180,11 @@ def response_at_codes(response: xr.Dataset | xr.DataArray, codes: np.ndarray) ->
     table = _as_response(response)
     grid = np.asarray(table["code"].values, dtype=np.float64)
     stacked = table.transpose(..., "code")
-    result = lookup(np.asarray(codes, dtype=np.float64), np.asarray(stacked.values)[..., None, :],
-                     grid)
+    result = lookup(np.asarray(codes, dtype=np.float64), np.asarray(stacked.values)[..., None, :], grid)
     dims = stacked.dims
     coords = {k: v for k, v in stacked.coords.items() if k != "code" and "code" not in v.dims}
     coords["code"] = ("code", np.asarray(codes), table["code"].attrs)
-    return xr.DataArray(result, dims=dims, coords=coords, name="response",
-                        attrs=dict(table.attrs))
+    return xr.DataArray(result, dims=dims, coords=coords, name="response", attrs=dict(table.attrs))
 
 
 def combine_responses(
@@ -236,7 +255,8 @@ def combine_responses(
     if not b > a or inside.sum() < 2:
         raise CalibrationError(
             f"combine_responses: overlap {overlap} DN holds {int(inside.sum())} codes of the "
-            "full response; it needs at least 2. Record the low-SNR series up to higher values")
+            "full response; it needs at least 2. Record the low-SNR series up to higher values"
+        )
     g = np.interp(v_high[inside], v_low, f_low)
     scale = float(np.dot(g, f_high[inside]) / np.dot(g, g))
     grid = np.concatenate([v_low[v_low <= b], v_high[v_high > b]])
@@ -244,13 +264,17 @@ def combine_responses(
     f_h = lookup(grid, f_high, v_high)
     alpha = np.clip((grid - a) / (b - a), 0.0, 1.0)
     values = (1 - alpha) * f_l + alpha * f_h
-    attrs = {**high.attrs, "method": "combined", "dark_subtracted": True,
-             "dark_level": float(dark_level), "overlap": [a, b], "scale": scale,
-             "low_snr_method": low.attrs.get("method", ""),
-             "converged": bool(low.attrs.get("converged", True))
-             and bool(high.attrs.get("converged", True))}
-    samples = np.concatenate([low["samples"].values[v_low <= b],
-                              high["samples"].values[v_high > b]])
+    attrs = {
+        **high.attrs,
+        "method": "combined",
+        "dark_subtracted": True,
+        "dark_level": float(dark_level),
+        "overlap": [a, b],
+        "scale": scale,
+        "low_snr_method": low.attrs.get("method", ""),
+        "converged": bool(low.attrs.get("converged", True)) and bool(high.attrs.get("converged", True)),
+    }
+    samples = np.concatenate([low["samples"].values[v_low <= b], high["samples"].values[v_high > b]])
     response = response_dataarray(values, samples, (), {}, grid, attrs)
     response["code"].attrs.update(long_name="dark-subtracted pixel value")
     return xr.Dataset({"response": response})

@@ -47,15 +47,20 @@ from spectralize.nodes.calibration.oecf.weighting import (
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["Operator", "Solver", "RobertsonResult", "robertson_response", "recover_oecf",
-           "recover_rgb_oecf"]
+__all__ = [
+    "Operator",
+    "Solver",
+    "RobertsonResult",
+    "robertson_response",
+    "recover_oecf",
+    "recover_rgb_oecf",
+]
 
 Operator = Literal["auto", "dense", "sparse", "samples"]
 Solver = Literal["lanczos", "power"]
 
 
-def _fill_unobserved(known: np.ndarray, values: np.ndarray, n_codes: int,
-                     tail: int = 8) -> np.ndarray:
+def _fill_unobserved(known: np.ndarray, values: np.ndarray, n_codes: int, tail: int = 8) -> np.ndarray:
     """Response at every code ``0 .. n_codes-1`` from values at the increasing codes ``known``.
 
     Linear interpolation between known codes; linear extrapolation beyond them with the
@@ -79,7 +84,6 @@ def _fill_unobserved(known: np.ndarray, values: np.ndarray, n_codes: int,
         s = slope(known[-tail:], values[-tail:])
         out[above] = values[-1] + s * (codes[above] - known[-1])
     return out
-
 
 
 @dataclass(frozen=True)
@@ -119,7 +123,8 @@ def _as_groups(codes: np.ndarray, exposure_times: np.ndarray) -> tuple[np.ndarra
     if codes.ndim != 3 or times.shape != codes.shape[:2]:
         raise CalibrationError(
             "codes must be (exposure, pixel) or (image, exposure, pixel) with exposure_times "
-            f"(exposure,) or (image, exposure); {shapes}")
+            f"(exposure,) or (image, exposure); {shapes}"
+        )
     return codes, times
 
 
@@ -270,27 +275,29 @@ def robertson_response(
         last = np.append(last, n_codes - 1)
     n_bins = first.size
     centres = (first + last) / 2.0
-    bin_weights = np.where((weights[first] > 0) & (weights[last] > 0),
-                           np.interp(centres, np.arange(n_codes), weights), 0.0)
+    bin_weights = np.where(
+        (weights[first] > 0) & (weights[last] > 0), np.interp(centres, np.arange(n_codes), weights), 0.0
+    )
     code_to_bin = np.minimum(np.arange(n_codes) // width, n_main)
     if saturation < n_codes:
         code_to_bin[saturation:] = n_main
 
     identity = width == 1 and saturation >= n_codes - 1
-    if identity:                                             # bin of every sample (G, E, P)
+    if identity:  # bin of every sample (G, E, P)
         idx = codes if codes.dtype.itemsize < 8 else codes.astype(np.intp, copy=False)
     else:
         idx = code_to_bin[codes]
     code_weights = bin_weights[code_to_bin]
-    den = np.zeros((codes.shape[0], codes.shape[2]))         # sum_j w(y_ij) t_j^2 per pixel
+    den = np.zeros((codes.shape[0], codes.shape[2]))  # sum_j w(y_ij) t_j^2 per pixel
     for g in range(codes.shape[0]):
         for j in range(codes.shape[1]):
-            den[g] += np.take(code_weights * times[g, j]**2, codes[g, j])
+            den[g] += np.take(code_weights * times[g, j] ** 2, codes[g, j])
     valid = den > 0
     if not valid.any():
         raise CalibrationError(
             "no pixel has a single sample with non-zero weight: every sample is saturated or "
-            "under-exposed; check the exposure times, black_level and saturation")
+            "under-exposed; check the exposure times, black_level and saturation"
+        )
     # Pixels without a weighted sample are left out: 1/den = 0 removes them from every sum
     # (no copy of the samples); they are subtracted from the counts below.
     inv_den = np.divide(1.0, den, out=np.zeros_like(den), where=valid)
@@ -300,8 +307,9 @@ def robertson_response(
     if g_out.size:
         left_out = idx[g_out, :, p_out].ravel()
         per_bin -= np.bincount(left_out, minlength=n_bins)
-        samples -= np.bincount(codes[g_out, :, p_out].ravel() if not identity else left_out,
-                               minlength=n_codes)
+        samples -= np.bincount(
+            codes[g_out, :, p_out].ravel() if not identity else left_out, minlength=n_codes
+        )
     observed = per_bin > 0
     obs_bins = np.flatnonzero(observed)
     obs_centres = centres[observed]
@@ -314,14 +322,16 @@ def robertson_response(
     n_active = int(active.sum())
     if n_active == 0:
         raise CalibrationError(
-            "no code with non-zero weight was observed; check black_level and saturation")
+            "no code with non-zero weight was observed; check black_level and saturation"
+        )
     act_bins = obs_bins[active]
     groups = [(idx[g], times[g], inv_den[g]) for g in range(idx.shape[0]) if valid[g].any()]
     gram = _gram_operator(groups, n_bins, operator)
     a_counts = counts[active]
     a_weights = w_obs[active]
     a_centres = obs_centres[active]
-    if callable(gram):                 # operator "samples": C v from the samples
+    if callable(gram):  # operator "samples": C v from the samples
+
         def wide(f: np.ndarray) -> np.ndarray:
             v = np.zeros(n_bins)
             v[act_bins] = a_weights * f
@@ -332,7 +342,7 @@ def robertson_response(
 
         def last_update(f: np.ndarray) -> np.ndarray:
             return gram(wide(f))[obs_bins] / counts
-    else:                              # C once: an update is one matrix-vector product
+    else:  # C once: an update is one matrix-vector product
         c_active = gram[act_bins][:, act_bins]
         c_observed = gram[obs_bins][:, act_bins]
 
@@ -346,7 +356,8 @@ def robertson_response(
         scale = np.interp(mid, centres, f)
         if not scale > 0:
             raise CalibrationError(
-                f"the response at the mid code {mid} is {scale}: no usable signal around it")
+                f"the response at the mid code {mid} is {scale}: no usable signal around it"
+            )
         return f / scale
 
     f = normalise((a_centres + 0.5) / (mid + 0.5))
@@ -380,8 +391,9 @@ def robertson_response(
     return RobertsonResult(full, samples, iterations, converged, change)
 
 
-def _gram_operator(groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]], k: int,
-                   operator: Operator) -> np.ndarray | sparse.csr_array | Callable:
+def _gram_operator(
+    groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]], k: int, operator: Operator
+) -> np.ndarray | sparse.csr_array | Callable:
     """``C[m, n] = sum_i (1/den_i) sum_{j,l} [y_ij=m][y_il=n] t_j t_l`` over bins ``0..k-1``.
 
     ``groups`` holds per image ``(bins (E, P) in 0..k-1, t (E,), 1/den (P,))``; pixels with
@@ -405,10 +417,10 @@ def _gram_operator(groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]], k: i
             for i in range(j.size):
                 np.multiply(r[j[i]], k, out=pairs[i], dtype=np.intp)
                 np.add(pairs[i], r[m[i]], out=pairs[i])
-            upper += np.bincount(pairs.ravel(), ((t[j] * t[m])[:, None] * inv_den).ravel(),
-                                 minlength=k * k)
-            diagonal += np.bincount(r.ravel(), ((t * t)[:, None] * inv_den).ravel(),
-                                    minlength=k)
+            upper += np.bincount(
+                pairs.ravel(), ((t[j] * t[m])[:, None] * inv_den).ravel(), minlength=k * k
+            )
+            diagonal += np.bincount(r.ravel(), ((t * t)[:, None] * inv_den).ravel(), minlength=k)
         nonzero = np.flatnonzero(upper)
         if nonzero.size > 0.125 * k * k:
             dense = upper.reshape(k, k)
@@ -420,9 +432,12 @@ def _gram_operator(groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]], k: i
         values = upper[nonzero]
         on = np.arange(k)
         return sparse.csr_array(
-            (np.concatenate([values, values, diagonal]),
-             (np.concatenate([rows, cols, on]), np.concatenate([cols, rows, on]))),
-            shape=(k, k))
+            (
+                np.concatenate([values, values, diagonal]),
+                (np.concatenate([rows, cols, on]), np.concatenate([cols, rows, on])),
+            ),
+            shape=(k, k),
+        )
     if operator == "sparse":
         rows, cols, vals = [], [], []
         for r, t, inv_den in groups:
@@ -432,24 +447,29 @@ def _gram_operator(groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]], k: i
                     cols.append(r[m])
                     vals.append(t[j] * t[m] * inv_den)
         return sparse.coo_array(
-            (np.concatenate(vals),
-             (np.concatenate(rows).astype(np.intp), np.concatenate(cols).astype(np.intp))),
-            shape=(k, k)).tocsr()
+            (
+                np.concatenate(vals),
+                (np.concatenate(rows).astype(np.intp), np.concatenate(cols).astype(np.intp)),
+            ),
+            shape=(k, k),
+        ).tocsr()
     if operator == "samples":
+
         def cmul(v: np.ndarray) -> np.ndarray:
             out = np.zeros(k)
             for r, t, inv_den in groups:
-                s = (t[:, None] * v[r]).sum(axis=0) * inv_den      # a_i . v / den_i
+                s = (t[:, None] * v[r]).sum(axis=0) * inv_den  # a_i . v / den_i
                 for j in range(r.shape[0]):
                     out += np.bincount(r[j], t[j] * s, minlength=k)
             return out
+
         return cmul
-    raise CalibrationError(
-        f"operator must be 'auto', 'dense', 'sparse' or 'samples', got {operator!r}")
+    raise CalibrationError(f"operator must be 'auto', 'dense', 'sparse' or 'samples', got {operator!r}")
 
 
-def _perron_vector(step: Callable[[np.ndarray], np.ndarray], similarity: np.ndarray,
-                   f0: np.ndarray) -> tuple[np.ndarray | None, int]:
+def _perron_vector(
+    step: Callable[[np.ndarray], np.ndarray], similarity: np.ndarray, f0: np.ndarray
+) -> tuple[np.ndarray | None, int]:
     """Fixed point of Robertson's update ``f <- B f``, ``B = N^-1 C W``, by symmetric Lanczos.
 
     With all weights positive, ``B`` is similar to the symmetric positive semi-definite
@@ -470,9 +490,14 @@ def _perron_vector(step: Callable[[np.ndarray], np.ndarray], similarity: np.ndar
 
     a = sparse_linalg.LinearOperator((n, n), matvec=matvec, dtype=np.float64)
     try:
-        _, vectors = sparse_linalg.eigsh(a, k=1, which="LA",
-                                         v0=similarity * np.maximum(f0, 1e-12),
-                                         tol=1e-8, maxiter=max(1000, 20 * n))
+        _, vectors = sparse_linalg.eigsh(
+            a,
+            k=1,
+            which="LA",
+            v0=similarity * np.maximum(f0, 1e-12),
+            tol=1e-8,
+            maxiter=max(1000, 20 * n),
+        )
     except (sparse_linalg.ArpackNoConvergence, sparse_linalg.ArpackError):
         return None, calls
     u = vectors[:, 0]
@@ -559,34 +584,64 @@ def recover_oecf(
     where = "recover_oecf: counts"
     counts = counts_array(raw)
     if "exposure_time" not in counts.coords:
-        raise SchemaError(f"{where} has no exposure_time coord", [Problem(
-            f"{where}:exposure_time", "a coord over exposure or (image, exposure) [s]",
-            f"coords {sorted(map(str, counts.coords))}")])
+        raise SchemaError(
+            f"{where} has no exposure_time coord",
+            [
+                Problem(
+                    f"{where}:exposure_time",
+                    "a coord over exposure or (image, exposure) [s]",
+                    f"coords {sorted(map(str, counts.coords))}",
+                )
+            ],
+        )
     allowed = {"image", "exposure", "y", "x", "channel"}
     if not {"exposure", "y", "x"} <= set(counts.dims) or not set(counts.dims) <= allowed:
-        raise SchemaError(f"{where} has the wrong dims", [Problem(
-            where, "dims exposure, y, x plus optional image and channel",
-            f"dims {counts.dims}")])
+        raise SchemaError(
+            f"{where} has the wrong dims",
+            [
+                Problem(
+                    where, "dims exposure, y, x plus optional image and channel", f"dims {counts.dims}"
+                )
+            ],
+        )
     check_integer(counts, where)
-    depth = check_bit_depth(counts.attrs.get("bit_depth") if bit_depth is None else bit_depth,
-                            where=f"{where}.attrs['bit_depth']")
+    depth = check_bit_depth(
+        counts.attrs.get("bit_depth") if bit_depth is None else bit_depth,
+        where=f"{where}.attrs['bit_depth']",
+    )
     n_codes = 2**depth
     saturation = n_codes - 1 if saturation is None else int(saturation)
     times = counts["exposure_time"]
     if not set(times.dims) <= {"image", "exposure"} or "exposure" not in times.dims:
-        raise SchemaError(f"{where}: exposure_time has the wrong dims", [Problem(
-            f"{where}:exposure_time", "dims (exposure,) or (image, exposure)",
-            f"dims {times.dims}")])
+        raise SchemaError(
+            f"{where}: exposure_time has the wrong dims",
+            [
+                Problem(
+                    f"{where}:exposure_time",
+                    "dims (exposure,) or (image, exposure)",
+                    f"dims {times.dims}",
+                )
+            ],
+        )
     if counts.sizes["exposure"] < 2:
-        raise CalibrationError(f"{where}: an exposure series needs at least 2 exposures, got "
-                               f"{counts.sizes['exposure']}")
+        raise CalibrationError(
+            f"{where}: an exposure series needs at least 2 exposures, got {counts.sizes['exposure']}"
+        )
     check_exposure_times(times, "exposure", where)
     warn_if_geometric(times, "exposure", where)
-    weights = weighting_function(np.arange(n_codes), black_level=black_level,
-                                 saturation=saturation, kind=weighting)
+    weights = weighting_function(
+        np.arange(n_codes), black_level=black_level, saturation=saturation, kind=weighting
+    )
     frame_dims = tuple(d for d in ("image", "exposure", "channel") if d in counts.dims)
-    check_frames(counts, frame_dims, black_level=black_level, saturation=saturation,
-                  max_code=n_codes - 1, where=where, times=times)
+    check_frames(
+        counts,
+        frame_dims,
+        black_level=black_level,
+        saturation=saturation,
+        max_code=n_codes - 1,
+        where=where,
+        times=times,
+    )
 
     if "image" not in counts.dims:
         counts = counts.expand_dims("image")
@@ -618,18 +673,28 @@ def recover_oecf(
         block = block.reshape(block.shape[0], block.shape[1], ny * nx, block.shape[-1])
         if pick is not None:
             block = block[:, :, pick]
-        block = np.ascontiguousarray(np.moveaxis(block, -1, 0))   # (C, G, E, P)
+        block = np.ascontiguousarray(np.moveaxis(block, -1, 0))  # (C, G, E, P)
         for c in range(block.shape[0]):
             results[(camera, c)] = robertson_response(
-                block[c], time_values[images], n_codes=n_codes, weights=weights,
-                tolerance=tolerance, max_iterations=max_iterations, monotone=monotone,
-                max_bins=max_bins, solver=solver, operator=operator)
+                block[c],
+                time_values[images],
+                n_codes=n_codes,
+                weights=weights,
+                tolerance=tolerance,
+                max_iterations=max_iterations,
+                monotone=monotone,
+                max_bins=max_bins,
+                solver=solver,
+                operator=operator,
+            )
 
     n_channels = counts.sizes["channel"]
-    values = np.stack([np.stack([results[(cam, c)].response for c in range(n_channels)])
-                       for cam in camera_list])
-    samples = np.stack([np.stack([results[(cam, c)].samples for c in range(n_channels)])
-                        for cam in camera_list])
+    values = np.stack(
+        [np.stack([results[(cam, c)].response for c in range(n_channels)]) for cam in camera_list]
+    )
+    samples = np.stack(
+        [np.stack([results[(cam, c)].samples for c in range(n_channels)]) for cam in camera_list]
+    )
     dims: tuple[str, ...] = ("camera", "channel")
     coords: dict[Hashable, object] = {}
     if cameras is not None:
@@ -653,27 +718,47 @@ def recover_oecf(
         "mid_code": (n_codes - 1) / 2.0,
         "normalisation": "response(mid_code) = 1",
     }
-    response = response_dataarray(values, samples, dims, coords,
-                                   np.arange(n_codes, dtype=np.int32), attrs)
+    response = response_dataarray(
+        values, samples, dims, coords, np.arange(n_codes, dtype=np.int32), attrs
+    )
     return xr.Dataset({"response": response}, attrs={"bit_depth": depth})
 
 
 def recover_rgb_oecf(
     raw_rgb: xr.Dataset,
     *,
-    per_camera: Annotated[bool, Field(description="one response per RGB camera (True) or one "
-                                      "response per channel pooled over all cameras "
-                                      "(False)")] = False,
-    black_level: Annotated[int | None, Field(ge=0, description="codes at or below it get "
-                                             "weight 0 [DN]; None: the 0.1 % quantile of the "
-                                             "shortest exposure plus 3")] = None,
+    per_camera: Annotated[
+        bool,
+        Field(
+            description="one response per RGB camera (True) or one "
+            "response per channel pooled over all cameras "
+            "(False)"
+        ),
+    ] = False,
+    black_level: Annotated[
+        int | None,
+        Field(
+            ge=0,
+            description="codes at or below it get "
+            "weight 0 [DN]; None: the 0.1 % quantile of the "
+            "shortest exposure plus 3",
+        ),
+    ] = None,
     weighting: Annotated[str, Choices(WEIGHTING_FUNCTIONS, "weighting function")] = "gaussian",
-    tolerance: Annotated[float, Field(gt=0, lt=1e-2, description="convergence: largest "
-                                      "relative change of the response per Robertson "
-                                      "update")] = 1e-6,
-    max_pixels: Annotated[int | None, Field(ge=100, description="pixel positions used per "
-                                            "image (reproducible random subset); None: "
-                                            "all")] = 200_000,
+    tolerance: Annotated[
+        float,
+        Field(
+            gt=0,
+            lt=1e-2,
+            description="convergence: largest relative change of the response per Robertson update",
+        ),
+    ] = 1e-6,
+    max_pixels: Annotated[
+        int | None,
+        Field(
+            ge=100, description="pixel positions used per image (reproducible random subset); None: all"
+        ),
+    ] = 200_000,
 ) -> xr.Dataset:
     """RGB camera response per channel (Robertson 2003) from the raw/rgb exposure series.
 
@@ -727,9 +812,13 @@ def recover_rgb_oecf(
     data = raw_rgb[["counts"]].assign_attrs(bit_depth=depth)
     if not per_camera:
         data = data.drop_vars("camera")
-    result = recover_oecf(data, black_level=black_level,
-                          weighting=weighting,  # type: ignore[arg-type]  # a table key
-                          tolerance=tolerance, max_pixels=max_pixels)
+    result = recover_oecf(
+        data,
+        black_level=black_level,
+        weighting=weighting,  # type: ignore[arg-type]  # a table key
+        tolerance=tolerance,
+        max_pixels=max_pixels,
+    )
     response = result["response"]
     samples = response["samples"].drop_vars("samples", errors="ignore")
     response = response.drop_vars("samples")
@@ -741,15 +830,20 @@ def recover_rgb_oecf(
     samples = samples.transpose("camera", "channel", "code")
     attrs = dict(response.attrs)
     out = xr.Dataset(
-        {"response": response.assign_attrs(attrs),
-         "samples": samples.assign_attrs(
-             units="1", long_name="samples per code (0: interpolated)")},
-        attrs={"bit_depth": depth, "black_level": int(black_level),
-               "saturation": int(attrs.get("saturation", 2**depth - 1)),
-               "weighting": weighting, "per_camera": bool(per_camera),
-               "converged": bool(attrs.get("converged", True)),
-               "iterations": int(attrs.get("iterations", 0)),
-               "source": "raw/rgb"},
+        {
+            "response": response.assign_attrs(attrs),
+            "samples": samples.assign_attrs(units="1", long_name="samples per code (0: interpolated)"),
+        },
+        attrs={
+            "bit_depth": depth,
+            "black_level": int(black_level),
+            "saturation": int(attrs.get("saturation", 2**depth - 1)),
+            "weighting": weighting,
+            "per_camera": bool(per_camera),
+            "converged": bool(attrs.get("converged", True)),
+            "iterations": int(attrs.get("iterations", 0)),
+            "source": "raw/rgb",
+        },
     )
     out["camera"].attrs.update(long_name="RGB camera index")
     return out

@@ -47,7 +47,10 @@ def _uniform(u: np.ndarray) -> np.ndarray:
 
 #: Weighting functions of the normalised position ``u`` in the valid interval, ``u in (0, 1)``.
 WEIGHTING_FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
-    "gaussian": _gaussian, "hat": _hat, "uniform": _uniform}
+    "gaussian": _gaussian,
+    "hat": _hat,
+    "uniform": _uniform,
+}
 
 
 def weighting_function(
@@ -84,14 +87,11 @@ def weighting_function(
     .. [2] Debevec, Malik 1997 (the hat function).
     """
     if kind not in WEIGHTING_FUNCTIONS:
-        raise CalibrationError(
-            f"weighting {kind!r} is unknown; known: {', '.join(WEIGHTING_FUNCTIONS)}")
+        raise CalibrationError(f"weighting {kind!r} is unknown; known: {', '.join(WEIGHTING_FUNCTIONS)}")
     if not saturation > black_level:
-        raise CalibrationError(
-            f"saturation ({saturation}) must be above black_level ({black_level})")
+        raise CalibrationError(f"saturation ({saturation}) must be above black_level ({black_level})")
     codes = np.asarray(codes, dtype=np.float64)
     u = (codes - black_level) / (saturation - black_level)
     inside = (u > 0.0) & (u < 1.0)
     w = np.where(inside, WEIGHTING_FUNCTIONS[kind](np.clip(u, 0.0, 1.0)), 0.0)
     return np.clip(w, 0.0, 1.0)
-

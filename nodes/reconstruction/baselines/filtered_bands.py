@@ -25,8 +25,9 @@ __all__ = ["filtered_bands", "filtered_bands_projected"]
 
 def _blur(plane: np.ndarray, filter_size: float) -> np.ndarray:
     """The paper's Gaussian of filter size ``s_i`` over the whole image (reflecting borders)."""
-    return ndimage.gaussian_filter(plane, sigma=filter_sigma(filter_size), mode="reflect",
-                                   truncate=FILTER_TRUNCATE)
+    return ndimage.gaussian_filter(
+        plane, sigma=filter_sigma(filter_size), mode="reflect", truncate=FILTER_TRUNCATE
+    )
 
 
 def filtered_bands(inputs: ReconstructionInputs) -> np.ndarray:
@@ -53,17 +54,19 @@ def filtered_bands(inputs: ReconstructionInputs) -> np.ndarray:
     cube = np.zeros(inputs.cube_shape)
     counts = np.zeros(inputs.cube_shape[:2])
     for i in range(len(inputs.band)):
-        cube[inputs.band[i], inputs.image[i]] += _blur(inputs.band_data[i],
-                                                       inputs.filter_size[i])
+        cube[inputs.band[i], inputs.image[i]] += _blur(inputs.band_data[i], inputs.filter_size[i])
         counts[inputs.band[i], inputs.image[i]] += 1
     have = counts > 0
     cube[have] /= counts[have][:, None, None]
     for b in np.flatnonzero(~have.all(axis=1)):
         images = np.flatnonzero(have[b])
         size = float(np.mean(inputs.filter_size[inputs.band == b]))
-        design = np.concatenate([
-            np.stack([_blur(inputs.rgb[m, ..., c], size) for c in range(3)], axis=-1)
-            .reshape(-1, 3) for m in images])
+        design = np.concatenate(
+            [
+                np.stack([_blur(inputs.rgb[m, ..., c], size) for c in range(3)], axis=-1).reshape(-1, 3)
+                for m in images
+            ]
+        )
         response = cube[b, images].reshape(-1)
         weights, *_ = np.linalg.lstsq(design, response, rcond=None)
         for m in np.flatnonzero(~have[b]):

@@ -62,9 +62,12 @@ def _gaussian_window(planes: np.ndarray, sigma: float) -> np.ndarray:
     return ndimage.gaussian_filter(planes, sigma=sigmas, mode="reflect", truncate=GUIDED_WINDOW_TRUNCATE)
 
 
-def guided_filtered_bands(inputs: ReconstructionInputs, *,
-                          window_scale: float = GUIDED_WINDOW_SCALE,
-                          epsilon: float = GUIDED_EPSILON) -> np.ndarray:
+def guided_filtered_bands(
+    inputs: ReconstructionInputs,
+    *,
+    window_scale: float = GUIDED_WINDOW_SCALE,
+    epsilon: float = GUIDED_EPSILON,
+) -> np.ndarray:
     """Every band image filtered with its RGB image as guide (guided filter).
 
     In the Gaussian window of every pixel ``q`` (``sigma = window_scale * s_i / 5``) the
@@ -116,7 +119,7 @@ def guided_filtered_bands(inputs: ReconstructionInputs, *,
             covariance = np.empty((3, 3) + guide.shape[1:], dtype=np.float64)
             for n, (c, d) in enumerate(zip(*upper, strict=True)):
                 covariance[c, d] = covariance[d, c] = second[n] - mean[c] * mean[d]
-            ridge = epsilon * np.sum(mean.astype(np.float64)**2, axis=0) / 3 + 1e-300
+            ridge = epsilon * np.sum(mean.astype(np.float64) ** 2, axis=0) / 3 + 1e-300
             covariance[[0, 1, 2], [0, 1, 2]] += ridge
             inverse = np.linalg.inv(np.moveaxis(covariance, (0, 1), (2, 3))).astype(np.float32)
             statistics = ((m, sigma), mean, inverse)
@@ -138,9 +141,12 @@ def guided_filtered_bands(inputs: ReconstructionInputs, *,
     return cube
 
 
-def guided_filtered_projected(inputs: ReconstructionInputs, *,
-                              window_scale: float = GUIDED_WINDOW_SCALE,
-                              epsilon: float = GUIDED_EPSILON) -> np.ndarray:
+def guided_filtered_projected(
+    inputs: ReconstructionInputs,
+    *,
+    window_scale: float = GUIDED_WINDOW_SCALE,
+    epsilon: float = GUIDED_EPSILON,
+) -> np.ndarray:
     """:func:`guided_filtered_bands` projected per pixel onto ``C S(p) = R(p)``.
 
     Parameters

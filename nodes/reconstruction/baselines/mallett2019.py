@@ -36,8 +36,9 @@ def mallett2019_basis(inputs: ReconstructionInputs) -> np.ndarray:
 
     basis_sds = colour.recovery.MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019
     grid = np.asarray(basis_sds.wavelengths, dtype=np.float64)
-    basis = np.stack([np.interp(inputs.wavelength, grid, basis_sds.values[:, j])
-                      for j in range(3)], axis=1)  # (n_wavelength, 3)
+    basis = np.stack(
+        [np.interp(inputs.wavelength, grid, basis_sds.values[:, j]) for j in range(3)], axis=1
+    )  # (n_wavelength, 3)
     reflectances = training_reflectances(inputs.wavelength)
     lit = estimate_illuminant(inputs, reflectances)[:, None] * basis
     coefficients = np.linalg.solve(inputs.camera_matrix @ lit, inputs.rgb_pixels())

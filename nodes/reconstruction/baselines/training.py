@@ -36,8 +36,7 @@ def training_reflectances(wavelength: np.ndarray) -> np.ndarray:
         ``(n_wavelength, 190)``, linearly interpolated.
     """
     grid, values = _rawtoaces_training()
-    return np.stack([np.interp(wavelength, grid, values[:, j]) for j in range(values.shape[1])],
-                    axis=1)
+    return np.stack([np.interp(wavelength, grid, values[:, j]) for j in range(values.shape[1])], axis=1)
 
 
 def estimate_illuminant(inputs: ReconstructionInputs, reflectances: np.ndarray) -> np.ndarray:

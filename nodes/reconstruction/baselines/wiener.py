@@ -13,8 +13,9 @@ WIENER_RELATIVE_NOISE = 1e-4
 """Noise ``s`` of the Wiener estimate relative to the mean RGB signal power ``trace(C K C^T) / 3``."""
 
 
-def wiener_estimation(inputs: ReconstructionInputs, *,
-                      relative_noise: float = WIENER_RELATIVE_NOISE) -> np.ndarray:
+def wiener_estimation(
+    inputs: ReconstructionInputs, *, relative_noise: float = WIENER_RELATIVE_NOISE
+) -> np.ndarray:
     """Wiener estimation (linear regression) from RGB with a training-set prior.
 
     ``S = K C^T (C K C^T + s I)^-1 R`` with ``K = E[t t^T]`` over the training radiances

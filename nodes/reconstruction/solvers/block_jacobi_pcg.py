@@ -61,8 +61,9 @@ class BlockJacobiPreconditioner:
         :attr:`ridge` after construction.
     """
 
-    def __init__(self, problem: ReconstructionProblem, dtype: np.dtype | type = np.float32,
-                 ridge: float = 0.0):
+    def __init__(
+        self, problem: ReconstructionProblem, dtype: np.dtype | type = np.float32, ridge: float = 0.0
+    ):
         w = problem.weights
         n_wavelength = problem.shape[0]
         diagonal = w.alpha * problem.filters.normal_diagonal().reshape(n_wavelength, -1)
@@ -81,8 +82,9 @@ class BlockJacobiPreconditioner:
         small = np.einsum("cw,wp,dw->pcd", c, 1.0 / diagonal, c, optimize=True)
         small += np.eye(3) / max(w.beta, 1e-300)
         # stored (3, 3, P) so that applying it is nine vector multiply-adds
-        self.small_inverse = np.ascontiguousarray(
-            np.linalg.inv(small).transpose(1, 2, 0)).astype(self.dtype)
+        self.small_inverse = np.ascontiguousarray(np.linalg.inv(small).transpose(1, 2, 0)).astype(
+            self.dtype
+        )
         self.camera_matrix = c.astype(self.dtype)
         self.shape = problem.shape
         # the scalar diagonal of A^T A (+ ridge), for plain Jacobi preconditioning
@@ -92,8 +94,7 @@ class BlockJacobiPreconditioner:
     def jacobi(self, residual: np.ndarray) -> np.ndarray:
         """Plain (scalar) Jacobi: ``r / diag(A^T A)``."""
         n_wavelength = self.shape[0]
-        return (residual.reshape(n_wavelength, -1) * self.inverse_scalar_diagonal).reshape(
-            self.shape)
+        return (residual.reshape(n_wavelength, -1) * self.inverse_scalar_diagonal).reshape(self.shape)
 
     def ridge_of(self, relative: float) -> float:
         """Absolute ``epsilon`` of a ridge given relative to the mean diagonal of ``A^T A``."""
@@ -106,7 +107,7 @@ class BlockJacobiPreconditioner:
         s = self.small_inverse
         w = s[:, 0] * v[0]
         w += s[:, 1] * v[1]
-        w += s[:, 2] * v[2]                                         # (3, P)
+        w += s[:, 2] * v[2]  # (3, P)
         correction = np.einsum("cw,cp->wp", self.camera_matrix, w, optimize=False)
         correction *= self.inverse_diagonal
         u -= correction
@@ -139,14 +140,18 @@ def _prior_mask(problem: ReconstructionProblem) -> np.ndarray:
     return mask
 
 
-def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | None = None,
-                     tolerance: float = DEFAULT_TOLERANCE,
-                     max_iterations: int = DEFAULT_MAX_ITERATIONS,
-                     callback: Callback | None = None,
-                     dtype: np.dtype | type = np.float32,
-                     ridge: float = DEFAULT_RIDGE,
-                     prior: float = 0.0,
-                     precondition: bool | str = True) -> SolverResult:
+def block_jacobi_pcg(
+    problem: ReconstructionProblem,
+    *,
+    initial: np.ndarray | None = None,
+    tolerance: float = DEFAULT_TOLERANCE,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
+    callback: Callback | None = None,
+    dtype: np.dtype | type = np.float32,
+    ridge: float = DEFAULT_RIDGE,
+    prior: float = 0.0,
+    precondition: bool | str = True,
+) -> SolverResult:
     """Block-Jacobi preconditioned CG on the normal equations, float32, warm-started.
 
     Minimises eq. 1 plus ``epsilon_r ||S - S_start||^2 + epsilon_p M ||S - S_0||^2``:
@@ -213,7 +218,7 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
     epsilon = preconditioner.ridge.astype(dtype)
     regularised = bool(np.any(epsilon > 0))
     rhs = work.normal_rhs()
-    if regularised:   # epsilon_r S_start + epsilon_p M S_0
+    if regularised:  # epsilon_r S_start + epsilon_p M S_0
         towards = dtype.type(preconditioner.ridge_of(ridge))
         rhs += towards * x
         if centre is not None:
@@ -229,8 +234,10 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
     elif precondition:
         apply_preconditioner = preconditioner
     else:
+
         def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
             return residual.copy()
+
     z = apply_preconditioner(r)
     p = z.copy()
     rz = vdot(r, z)
@@ -259,7 +266,12 @@ def block_jacobi_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
         p *= dtype.type(rz_new / rz)
         p += z
         rz = rz_new
-    return SolverResult(x, iterations, np.asarray(history), history[-1] <= tolerance,
-                        time.perf_counter() - started, "block-jacobi-pcg",
-                        {"ridge": float(np.min(epsilon)), "prior": float(prior),
-                         "precondition": precondition})
+    return SolverResult(
+        x,
+        iterations,
+        np.asarray(history),
+        history[-1] <= tolerance,
+        time.perf_counter() - started,
+        "block-jacobi-pcg",
+        {"ridge": float(np.min(epsilon)), "prior": float(prior), "precondition": precondition},
+    )

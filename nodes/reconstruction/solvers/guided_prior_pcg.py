@@ -42,14 +42,18 @@ DEFAULT_PRIOR = 0.1
 """Weight of the prior, relative to the mean diagonal of ``A^T A``."""
 
 
-def guided_prior_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | None = None,
-                     tolerance: float = DEFAULT_TOLERANCE,
-                     max_iterations: int = DEFAULT_MAX_ITERATIONS,
-                     callback: Callback | None = None,
-                     dtype: np.dtype | type = np.float32,
-                     ridge: float = DEFAULT_RIDGE,
-                     prior: float = DEFAULT_PRIOR,
-                     precondition: bool | str = True) -> SolverResult:
+def guided_prior_pcg(
+    problem: ReconstructionProblem,
+    *,
+    initial: np.ndarray | None = None,
+    tolerance: float = DEFAULT_TOLERANCE,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
+    callback: Callback | None = None,
+    dtype: np.dtype | type = np.float32,
+    ridge: float = DEFAULT_RIDGE,
+    prior: float = DEFAULT_PRIOR,
+    precondition: bool | str = True,
+) -> SolverResult:
     """Eq. 1 plus the prior towards the guided estimate, by block-Jacobi PCG.
 
     Parameters
@@ -75,7 +79,15 @@ def guided_prior_pcg(problem: ReconstructionProblem, *, initial: np.ndarray | No
     .. [1] Fast Capture of Spectral Image Series, section 3, eq. 1.
     .. [2] He, Sun and Tang (2013), Guided Image Filtering.
     """
-    result = block_jacobi_pcg(problem, initial=initial, tolerance=tolerance,
-                              max_iterations=max_iterations, callback=callback, dtype=dtype,
-                              ridge=ridge, prior=prior, precondition=precondition)
+    result = block_jacobi_pcg(
+        problem,
+        initial=initial,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        callback=callback,
+        dtype=dtype,
+        ridge=ridge,
+        prior=prior,
+        precondition=precondition,
+    )
     return dataclasses.replace(result, method="guided-prior-pcg")

@@ -22,10 +22,14 @@ from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, Callback, SolverR
 __all__ = ["paper_cg"]
 
 
-def paper_cg(problem: ReconstructionProblem, *, initial: np.ndarray | None = None,
-             tolerance: float = DEFAULT_TOLERANCE,
-             max_iterations: int = DEFAULT_MAX_ITERATIONS,
-             callback: Callback | None = None) -> SolverResult:
+def paper_cg(
+    problem: ReconstructionProblem,
+    *,
+    initial: np.ndarray | None = None,
+    tolerance: float = DEFAULT_TOLERANCE,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
+    callback: Callback | None = None,
+) -> SolverResult:
     """The paper's solver: CG on ``A^T A S = A^T b`` with ``A``, ``A^T`` as functions.
 
     Float64, started from ``initial`` or zero, no preconditioner (CGNR).
@@ -54,13 +58,19 @@ def paper_cg(problem: ReconstructionProblem, *, initial: np.ndarray | None = Non
     """
     started = time.perf_counter()
     problem = problem.astype(np.float64)
-    x = (np.zeros(problem.shape) if initial is None
-         else np.array(initial, dtype=np.float64, copy=True).reshape(problem.shape))
+    x = (
+        np.zeros(problem.shape)
+        if initial is None
+        else np.array(initial, dtype=np.float64, copy=True).reshape(problem.shape)
+    )
     target = problem.target()
     rhs_norm = np.sqrt(vdot(g := problem.apply_adjoint(target), g)) or 1.0
     applied = problem.apply(x)
-    residual_blocks = ([t - a for t, a in zip(target[0], applied[0], strict=True)],
-                       target[1] - applied[1], target[2] - applied[2])
+    residual_blocks = (
+        [t - a for t, a in zip(target[0], applied[0], strict=True)],
+        target[1] - applied[1],
+        target[2] - applied[2],
+    )
     r = problem.apply_adjoint(residual_blocks)
     del g, applied, residual_blocks
     p = r.copy()
@@ -83,5 +93,11 @@ def paper_cg(problem: ReconstructionProblem, *, initial: np.ndarray | None = Non
         history.append(np.sqrt(rr) / rhs_norm)
         if callback is not None:
             callback(iterations, x)
-    return SolverResult(x, iterations, np.asarray(history), history[-1] <= tolerance,
-                        time.perf_counter() - started, "paper-cg")
+    return SolverResult(
+        x,
+        iterations,
+        np.asarray(history),
+        history[-1] <= tolerance,
+        time.perf_counter() - started,
+        "paper-cg",
+    )

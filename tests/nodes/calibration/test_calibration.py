@@ -26,22 +26,31 @@ def _scale(estimate: np.ndarray, truth: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def cal():
-    run = {k: v.load() for k, v in simulate_run(get_recipe("tiny")).items()
-           if k != "truth/spectra"} | {"truth/spectra": simulate_run(get_recipe("tiny"))[
-               "truth/spectra"]}
+    run = {k: v.load() for k, v in simulate_run(get_recipe("tiny")).items() if k != "truth/spectra"} | {
+        "truth/spectra": simulate_run(get_recipe("tiny"))["truth/spectra"]
+    }
     dark = average_dark_frames(run["raw/dark"]).load()
     oecf_rgb = recover_rgb_oecf(run["raw/rgb"])
     oecf_spec = recover_spectral_oecf(run["raw/white_reference"], dark)
-    spectral = calibrate_spectral(run["raw/white_reference"], run["raw/colour_checker"], dark,
-                                  oecf_rgb, oecf_spec)
-    return {"run": run, "dark": dark, "oecf_rgb": oecf_rgb, "oecf_spectral": oecf_spec,
-            "spectral": spectral, "truth": run["truth/camera"]}
+    spectral = calibrate_spectral(
+        run["raw/white_reference"], run["raw/colour_checker"], dark, oecf_rgb, oecf_spec
+    )
+    return {
+        "run": run,
+        "dark": dark,
+        "oecf_rgb": oecf_rgb,
+        "oecf_spectral": oecf_spec,
+        "spectral": spectral,
+        "truth": run["truth/camera"],
+    }
 
 
 def test_groups_follow_their_schemas(cal):
-    for group, ds in (("calibration/oecf_rgb", cal["oecf_rgb"]),
-                      ("calibration/oecf_spectral", cal["oecf_spectral"]),
-                      ("calibration/spectral", cal["spectral"])):
+    for group, ds in (
+        ("calibration/oecf_rgb", cal["oecf_rgb"]),
+        ("calibration/oecf_spectral", cal["oecf_spectral"]),
+        ("calibration/spectral", cal["spectral"]),
+    ):
         assert validate_dataset(ds, GROUP_SCHEMAS[group], group=group) == []
 
 
@@ -95,15 +104,19 @@ def test_hdr_and_bands_are_consistent_with_truth(cal):
     assert np.median(np.abs(_scale(h[ok], t[ok]) * h[ok] / t[ok] - 1)) < 0.08
 
     registration = estimate_registration(run["raw/registration"])
-    bands = calibrate_bands(run["raw/spectral"], cal["dark"], cal["oecf_spectral"],
-                            cal["spectral"], registration)
-    assert bands["radiance"].chunks is not None              # lazy
+    bands = calibrate_bands(
+        run["raw/spectral"], cal["dark"], cal["oecf_spectral"], cal["spectral"], registration
+    )
+    assert bands["radiance"].chunks is not None  # lazy
     assert validate_dataset(bands, GROUP_SCHEMAS["bands"], group="bands") == []
     b = bands["radiance"].values.astype(float)
     assert (b < 0).sum() >= 0 and np.isfinite(b).all()
-    tb = np.stack([truth.sel(image=int(i), wavelength=float(w)).values
-                   for i, w in zip(bands["image"].values, bands["wavelength"].values,
-                                   strict=True)])
+    tb = np.stack(
+        [
+            truth.sel(image=int(i), wavelength=float(w)).values
+            for i, w in zip(bands["image"].values, bands["wavelength"].values, strict=True)
+        ]
+    )
     # same units as the truth (relative to the measured illuminant): scale close to 1
     assert _scale(b[:, 3:-3, 3:-3].ravel(), tb[:, 3:-3, 3:-3].ravel()) == pytest.approx(1, abs=0.1)
     np.testing.assert_allclose(bands["filter_size"].values, run["raw/spectral"]["filter_size"])
@@ -120,10 +133,12 @@ def test_missing_dark_frame_is_named(cal):
 def test_white_reference_darker_than_noise_is_named(cal):
     white = cal["run"]["raw/white_reference"].copy()
     counts = white["spectral_counts"]
-    white["spectral_counts"] = counts.where(counts.wavelength != 550.0,
-                                            (cal["dark"]["mean"].isel(exposure_time=0)
-                                             .round().astype("uint16")))
-    with pytest.raises(CalibrationError,
-                       match=r"raw/white_reference:spectral_counts.*darker than the noise"):
-        calibrate_spectral(white, cal["run"]["raw/colour_checker"], cal["dark"],
-                           cal["oecf_rgb"], cal["oecf_spectral"])
+    white["spectral_counts"] = counts.where(
+        counts.wavelength != 550.0, (cal["dark"]["mean"].isel(exposure_time=0).round().astype("uint16"))
+    )
+    with pytest.raises(
+        CalibrationError, match=r"raw/white_reference:spectral_counts.*darker than the noise"
+    ):
+        calibrate_spectral(
+            white, cal["run"]["raw/colour_checker"], cal["dark"], cal["oecf_rgb"], cal["oecf_spectral"]
+        )

@@ -28,16 +28,17 @@ def test_mean_and_std_match_numpy_whatever_the_chunking(raw, frames_per_chunk):
 def test_dark_mean_recovers_the_simulated_dark_level(raw):
     out = average_dark_frames(raw)
     # long exposures accumulate dark current: the mean rises with exposure time
-    assert float(out["mean"].sel(exposure_time=0.5).mean()) > float(
-        out["mean"].sel(exposure_time=0.01).mean()) + 5
+    assert (
+        float(out["mean"].sel(exposure_time=0.5).mean())
+        > float(out["mean"].sel(exposure_time=0.01).mean()) + 5
+    )
     # read noise of 3 DN (plus quantisation) is what the std sees
     assert 2.8 < float(out["std"].median()) < 3.3
 
 
 def test_population_std_is_selectable(raw):
     out = average_dark_frames(raw, ddof=0)
-    np.testing.assert_allclose(out["std"].values, raw.frames.values.astype(float).std(axis=1),
-                               rtol=1e-5)
+    np.testing.assert_allclose(out["std"].values, raw.frames.values.astype(float).std(axis=1), rtol=1e-5)
 
 
 def test_saturated_dark_frames_warn_and_are_not_clipped(raw):
@@ -61,8 +62,9 @@ def test_bad_input_names_the_array(raw):
 def test_node_declaration_runs_the_function(raw):
     out = DARK_AVERAGE({"raw_dark": raw}, {"frames_per_chunk": 4})
     assert list(out) == ["dark"]
-    np.testing.assert_allclose(out["dark"]["mean"].values,
-                               raw.frames.values.astype(float).mean(axis=1), rtol=1e-6)
+    np.testing.assert_allclose(
+        out["dark"]["mean"].values, raw.frames.values.astype(float).mean(axis=1), rtol=1e-6
+    )
 
 
 # -- the one dark-frame lookup ---------------------------------------------------------------
@@ -72,7 +74,7 @@ def dark(raw):
 
 
 def test_dark_frames_at_selects_per_exposure_time(dark):
-    times = np.array([0.5, 0.01, 0.5 * (1 + 1e-8)])          # any order, within rtol
+    times = np.array([0.5, 0.01, 0.5 * (1 + 1e-8)])  # any order, within rtol
     out = dark_frames_at(dark, times, used_by="test", dim="shot", frame_shape=(9, 11))
     assert out["mean"].dims == ("shot", "y", "x") and set(out.data_vars) == {"mean", "std"}
     np.testing.assert_array_equal(out["exposure_time"].values, [0.5, 0.01, 0.5])
@@ -80,25 +82,28 @@ def test_dark_frames_at_selects_per_exposure_time(dark):
     only_mean = dark_frames_at(dark["mean"], times[:1], used_by="test")
     assert set(only_mean.data_vars) == {"mean"}
     unsorted = dark.isel(exposure_time=[1, 0])
-    xr.testing.assert_identical(dark_frames_at(unsorted, times, used_by="test"),
-                                dark_frames_at(dark, times, used_by="test"))
+    xr.testing.assert_identical(
+        dark_frames_at(unsorted, times, used_by="test"), dark_frames_at(dark, times, used_by="test")
+    )
 
 
 def test_missing_dark_exposure_time_is_named_with_the_available_ones(dark):
-    with pytest.raises(CalibrationError,
-                       match=r"dark:mean has no frame for exposure_time 0.2 s \(shot 1\) used "
-                             r"by band_signal; dark frames exist for \[0.01, 0.5\] s"):
+    with pytest.raises(
+        CalibrationError,
+        match=r"dark:mean has no frame for exposure_time 0.2 s \(shot 1\) used "
+        r"by band_signal; dark frames exist for \[0.01, 0.5\] s",
+    ):
         dark_frames_at(dark, [0.5, 0.2], used_by="band_signal")
-    with pytest.raises(CalibrationError,
-                       match=r"exposure_times \[0.2, 0.3\] s \(exposures \[0, 2\]\)"):
+    with pytest.raises(CalibrationError, match=r"exposure_times \[0.2, 0.3\] s \(exposures \[0, 2\]\)"):
         dark_frames_at(dark, [0.2, 0.01, 0.3], used_by="x", dim="exposure")
     with pytest.raises(CalibrationError, match="no frame for exposure_time 0.5001 s"):
-        dark_frames_at(dark, [0.5001], used_by="x")          # beyond the relative tolerance
+        dark_frames_at(dark, [0.5001], used_by="x")  # beyond the relative tolerance
 
 
 def test_dark_frames_of_another_size_or_shape(dark):
-    with pytest.raises(CalibrationError, match="dark:mean frames are 9x11 px but the frames of "
-                                               "x are 8x11 px"):
+    with pytest.raises(
+        CalibrationError, match="dark:mean frames are 9x11 px but the frames of x are 8x11 px"
+    ):
         dark_frames_at(dark, [0.5], used_by="x", frame_shape=(8, 11))
     with pytest.raises(SchemaError, match=r"dark:mean: expected dims \(exposure_time, y, x\)"):
         dark_frames_at(dark["mean"].rename(y="row"), [0.5], used_by="x")

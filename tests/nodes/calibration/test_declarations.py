@@ -11,12 +11,21 @@ from spectralize.schemas import ParameterError
 # every parameter of every calibration node and its default (the former explicit models)
 DEFAULTS = {
     "DARK_AVERAGE": {"frames_per_chunk": 16, "ddof": 1},
-    "RECOVER_RGB_OECF": {"per_camera": False, "black_level": None, "weighting": "gaussian",
-                         "tolerance": 1e-6, "max_pixels": 200_000},
-    "RECOVER_SPECTRAL_OECF": {"band": None, "low_signal_fraction": 0.15, "filter_size": 25.0,
-                              "full_exposures": 4, "tolerance": 1e-6},
-    "CALIBRATE_SPECTRAL": {"smoothness": 1e-3, "nonnegative": True, "patch_margin": 2,
-                           "min_snr": 1.0},
+    "RECOVER_RGB_OECF": {
+        "per_camera": False,
+        "black_level": None,
+        "weighting": "gaussian",
+        "tolerance": 1e-6,
+        "max_pixels": 200_000,
+    },
+    "RECOVER_SPECTRAL_OECF": {
+        "band": None,
+        "low_signal_fraction": 0.15,
+        "filter_size": 25.0,
+        "full_exposures": 4,
+        "tolerance": 1e-6,
+    },
+    "CALIBRATE_SPECTRAL": {"smoothness": 1e-3, "nonnegative": True, "patch_margin": 2, "min_snr": 1.0},
     "HDR_MERGE": {"black_level": None, "saturation": None},
     "ESTIMATE_REGISTRATION": {"azimuth_offset": 15.0, "upsample_factor": 50, "max_shift": 8.0},
     "CALIBRATE_BANDS": {"filter_size": None, "order": 1},
@@ -34,19 +43,29 @@ def test_weighting_is_validated_from_its_table() -> None:
     node = declarations.RECOVER_RGB_OECF
     for kind in WEIGHTING_FUNCTIONS:
         assert node.parse_parameters({"weighting": kind}).weighting == kind
-    with pytest.raises(ParameterError, match=r"recover_rgb_oecf.weighting.*'gaussian', 'hat', "
-                                             r"'uniform'.*'box'"):
+    with pytest.raises(
+        ParameterError,
+        match=r"recover_rgb_oecf.weighting.*'gaussian', 'hat', "
+        r"'uniform'.*'box'",
+    ):
         node.parse_parameters({"weighting": "box"})
 
 
-@pytest.mark.parametrize(("name", "values"), [
-    ("RECOVER_RGB_OECF", {"tolerance": 0.5}), ("RECOVER_RGB_OECF", {"max_pixels": 10}),
-    ("RECOVER_SPECTRAL_OECF", {"low_signal_fraction": 0}),
-    ("RECOVER_SPECTRAL_OECF", {"full_exposures": 1}), ("CALIBRATE_SPECTRAL", {"min_snr": 0}),
-    ("DARK_AVERAGE", {"ddof": 2}), ("ESTIMATE_REGISTRATION", {"upsample_factor": 0}),
-    ("CALIBRATE_BANDS", {"order": 6}), ("HDR_MERGE", {"saturation": 0}),
-    ("CALIBRATE_BANDS", {"unknown": 1}),
-])
+@pytest.mark.parametrize(
+    ("name", "values"),
+    [
+        ("RECOVER_RGB_OECF", {"tolerance": 0.5}),
+        ("RECOVER_RGB_OECF", {"max_pixels": 10}),
+        ("RECOVER_SPECTRAL_OECF", {"low_signal_fraction": 0}),
+        ("RECOVER_SPECTRAL_OECF", {"full_exposures": 1}),
+        ("CALIBRATE_SPECTRAL", {"min_snr": 0}),
+        ("DARK_AVERAGE", {"ddof": 2}),
+        ("ESTIMATE_REGISTRATION", {"upsample_factor": 0}),
+        ("CALIBRATE_BANDS", {"order": 6}),
+        ("HDR_MERGE", {"saturation": 0}),
+        ("CALIBRATE_BANDS", {"unknown": 1}),
+    ],
+)
 def test_limits_and_unknown_keys_are_errors(name: str, values: dict) -> None:
     with pytest.raises(ParameterError):
         getattr(declarations, name).parse_parameters(values)

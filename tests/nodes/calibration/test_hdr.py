@@ -19,26 +19,51 @@ def noise_for(bit_depth: int) -> tuple[float, float]:
     return 16.0 * scale, 3.0 * scale
 
 
-def raw_rgb(radiance: np.ndarray, *, bit_depth: int = 10, model: str = "gamma",
-            times: np.ndarray = TIMES, cameras: list[int] | None = None,
-            seed: int = 0) -> xr.Dataset:
+def raw_rgb(
+    radiance: np.ndarray,
+    *,
+    bit_depth: int = 10,
+    model: str = "gamma",
+    times: np.ndarray = TIMES,
+    cameras: list[int] | None = None,
+    seed: int = 0,
+) -> xr.Dataset:
     """raw/rgb group simulated by eq. 5 from radiance (image, y, x, channel)."""
     rng = np.random.default_rng(seed)
     offset, sigma = noise_for(bit_depth)
     truth = response_model(model)
-    counts = np.stack([
-        capture(image[None], times[:, None, None, None], response=truth, adc_offset=offset,
-                noise_sigma=sigma, bit_depth=bit_depth, seed=rng)
-        for image in radiance])
+    counts = np.stack(
+        [
+            capture(
+                image[None],
+                times[:, None, None, None],
+                response=truth,
+                adc_offset=offset,
+                noise_sigma=sigma,
+                bit_depth=bit_depth,
+                seed=rng,
+            )
+            for image in radiance
+        ]
+    )
     n = radiance.shape[0]
     return xr.Dataset(
-        {"counts": (("image", "exposure", "y", "x", "channel"), counts,
-                    {"units": "DN", "long_name": "raw RGB pixel value"})},
-        coords={"exposure_time": (("image", "exposure"), np.tile(times, (n, 1))),
-                "channel": ["R", "G", "B"],
-                "camera": ("image", cameras or [0] * n),
-                "rotation": ("image", np.arange(n)), "led": ("image", np.arange(n))},
-        attrs={"bit_depth": bit_depth})
+        {
+            "counts": (
+                ("image", "exposure", "y", "x", "channel"),
+                counts,
+                {"units": "DN", "long_name": "raw RGB pixel value"},
+            )
+        },
+        coords={
+            "exposure_time": (("image", "exposure"), np.tile(times, (n, 1))),
+            "channel": ["R", "G", "B"],
+            "camera": ("image", cameras or [0] * n),
+            "rotation": ("image", np.arange(n)),
+            "led": ("image", np.arange(n)),
+        },
+        attrs={"bit_depth": bit_depth},
+    )
 
 
 def true_response(model: str, bit_depth: int) -> tuple[xr.DataArray, float]:
@@ -49,9 +74,11 @@ def true_response(model: str, bit_depth: int) -> tuple[xr.DataArray, float]:
     f = response_model(model).response((codes + 0.5 - offset) / full)
     norm = float(np.interp(full / 2, codes, f))
     return xr.DataArray(
-        f / norm, dims="code", coords={"code": codes},
-        attrs={"black_level": int(offset + 3 * sigma), "saturation": full,
-               "weighting": "gaussian"}), norm
+        f / norm,
+        dims="code",
+        coords={"code": codes},
+        attrs={"black_level": int(offset + 3 * sigma), "saturation": full, "weighting": "gaussian"},
+    ), norm
 
 
 def random_radiance(shape: tuple[int, ...], seed: int = 1) -> np.ndarray:
@@ -69,9 +96,9 @@ def test_merge_reproduces_the_radiance(bit_depth: int) -> None:
     ratio = estimate / radiance
     assert out["radiance"].dtype == np.float32
     assert np.all(np.isfinite(estimate))
-    assert abs(np.median(ratio) - 1) < 0.005          # unbiased
-    assert np.median(np.abs(ratio - 1)) < 0.02         # within the read noise
-    assert np.quantile(np.abs(ratio - 1), 0.99) < 0.15      # darkest pixels: ~9% noise
+    assert abs(np.median(ratio) - 1) < 0.005  # unbiased
+    assert np.median(np.abs(ratio - 1)) < 0.02  # within the read noise
+    assert np.quantile(np.abs(ratio - 1), 0.99) < 0.15  # darkest pixels: ~9% noise
 
 
 def test_merge_with_a_recovered_response() -> None:
@@ -124,9 +151,10 @@ def test_each_image_uses_its_cameras_response() -> None:
     ds = xr.concat([gamma, log], dim="image").assign_coords(camera=("image", [5, 9]))
     f_gamma, n_gamma = true_response("gamma", 10)
     f_log, n_log = true_response("log", 10)
-    per_camera = xr.concat([f_gamma.expand_dims(channel=["R", "G", "B"]),
-                            f_log.expand_dims(channel=["R", "G", "B"])],
-                           dim=xr.DataArray([5, 9], dims="camera", name="camera"))
+    per_camera = xr.concat(
+        [f_gamma.expand_dims(channel=["R", "G", "B"]), f_log.expand_dims(channel=["R", "G", "B"])],
+        dim=xr.DataArray([5, 9], dims="camera", name="camera"),
+    )
     per_camera.attrs = f_gamma.attrs
     out = hdr.merge_hdr(ds, per_camera)["radiance"].values
     for image, norm in ((0, n_gamma), (1, n_log)):
@@ -138,8 +166,8 @@ def test_each_image_uses_its_cameras_response() -> None:
 
 def test_saturated_and_dark_pixels_get_bounds_counted_and_warned() -> None:
     radiance = random_radiance((1, 20, 20, 3))
-    radiance[0, 0, 0, :] = 500.0          # saturated in every exposure
-    radiance[0, 0, 1, :] = 0.0            # dark in every exposure
+    radiance[0, 0, 0, :] = 500.0  # saturated in every exposure
+    radiance[0, 0, 1, :] = 0.0  # dark in every exposure
     ds = raw_rgb(radiance)
     response, norm = true_response("gamma", 10)
     with pytest.warns(RuntimeWarning, match=r"3 saturated in every exposure.*3 dark in every"):
@@ -149,23 +177,22 @@ def test_saturated_and_dark_pixels_get_bounds_counted_and_warned() -> None:
     assert out.attrs["n_unresolved"] == 0
     x = out["radiance"].values[0] * norm
     lower = response.values[1023] * norm / TIMES[0]
-    np.testing.assert_allclose(x[0, 0], lower, rtol=1e-5)     # f(saturation) / t_min
-    assert np.all(x[0, 0] < 500.0)                            # a lower bound
+    np.testing.assert_allclose(x[0, 0], lower, rtol=1e-5)  # f(saturation) / t_min
+    assert np.all(x[0, 0] < 500.0)  # a lower bound
     upper = response.values[25] * norm / TIMES[-1]
-    np.testing.assert_allclose(x[0, 1], upper, rtol=1e-5)     # f(black_level) / t_max
+    np.testing.assert_allclose(x[0, 1], upper, rtol=1e-5)  # f(black_level) / t_max
     assert np.all(x[0, 1] >= 0.0)
     assert np.all(np.isfinite(x))
 
 
 def test_merge_robertson_core_by_hand() -> None:
-    counts = np.array([[10, 40, 250], [5, 20, 255]])   # two pixels, three exposures
+    counts = np.array([[10, 40, 250], [5, 20, 255]])  # two pixels, three exposures
     times = np.array([1.0, 4.0, 25.0])
     f = np.arange(256, dtype=float)[None, :]
-    weights = oecf.weighting_function(np.arange(256), black_level=0, saturation=255,
-                                      kind="uniform")
+    weights = oecf.weighting_function(np.arange(256), black_level=0, saturation=255, kind="uniform")
     x = hdr.merge_robertson(counts, times, f, weights, black_level=0, saturation=255)
     expected0 = (1 * 10 + 4 * 40 + 25 * 250) / (1 + 16 + 625)
-    expected1 = (1 * 5 + 4 * 20) / (1 + 16)                 # the saturated sample is excluded
+    expected1 = (1 * 5 + 4 * 20) / (1 + 16)  # the saturated sample is excluded
     np.testing.assert_allclose(x, [expected0, expected1], rtol=1e-6)
 
 
@@ -175,11 +202,14 @@ def small() -> xr.Dataset:
     return raw_rgb(random_radiance((2, 8, 8, 3)))
 
 
-@pytest.mark.parametrize(("times", "word"), [
-    ([1.0, 3.0, 2.0, 25.0, 60.0], "unsorted"), ([1.0, 3.0, 3.0, 25.0, 60.0], "duplicate")])
+@pytest.mark.parametrize(
+    ("times", "word"),
+    [([1.0, 3.0, 2.0, 25.0, 60.0], "unsorted"), ([1.0, 3.0, 3.0, 25.0, 60.0], "duplicate")],
+)
 def test_unsorted_or_duplicate_times(small: xr.Dataset, times: list[float], word: str) -> None:
-    bad = small.assign_coords(exposure_time=(("image", "exposure"),
-                                             np.array([TIMES, np.array(times) / 60])))
+    bad = small.assign_coords(
+        exposure_time=(("image", "exposure"), np.array([TIMES, np.array(times) / 60]))
+    )
     response, _ = true_response("gamma", 10)
     with pytest.raises(CalibrationError, match=rf"exposure_time \(image 1\).*{word}"):
         hdr.merge_hdr(bad, response)
@@ -189,8 +219,7 @@ def test_all_saturated_or_dark_frames(small: xr.Dataset) -> None:
     response, _ = true_response("gamma", 10)
     counts = small["counts"].values.copy()
     counts[1, 4, :, :, 2] = 1023
-    with pytest.raises(CalibrationError,
-                       match=r"image=1, exposure=4, channel=2 .*entirely saturated"):
+    with pytest.raises(CalibrationError, match=r"image=1, exposure=4, channel=2 .*entirely saturated"):
         hdr.merge_hdr(small.copy(data={"counts": counts}), response)
     counts = small["counts"].values.copy()
     counts[0, 0] = 20

@@ -16,8 +16,9 @@ from spectralize.schemas.run import RAW_REGISTRATION
 def texture(seed=0, shape=(64, 64)):
     """Patches of materials with sharp (slightly blurred) edges plus smooth shading."""
     rng = np.random.default_rng(seed)
-    patches = rng.random((8, 8))[np.ix_(np.arange(shape[0]) * 8 // shape[0],
-                                        np.arange(shape[1]) * 8 // shape[1])]
+    patches = rng.random((8, 8))[
+        np.ix_(np.arange(shape[0]) * 8 // shape[0], np.arange(shape[1]) * 8 // shape[1])
+    ]
     shading = ndimage.gaussian_filter(rng.random(shape), 6.0)
     return ndimage.gaussian_filter(patches, 0.7) * 800 + shading * 400 + 100
 
@@ -52,10 +53,14 @@ def registration_group(shift, rotations=4):
         # the spectral camera at rotation r sees what RGB saw at r - 1
         spectral.append(shifted(texture(seed=(r - 1) % rotations), shift) * 0.2 + 30)
     return xr.Dataset(
-        {"rgb_counts": (("rotation", "y", "x", "channel"), np.asarray(rgb).astype(np.uint16)),
-         "spectral_counts": (("rotation", "y", "x"), np.asarray(spectral).astype(np.uint16))},
-        coords={"rotation": np.arange(rotations),
-                "rotation_angle": ("rotation", np.arange(rotations) * 15.0)},
+        {
+            "rgb_counts": (("rotation", "y", "x", "channel"), np.asarray(rgb).astype(np.uint16)),
+            "spectral_counts": (("rotation", "y", "x"), np.asarray(spectral).astype(np.uint16)),
+        },
+        coords={
+            "rotation": np.arange(rotations),
+            "rotation_angle": ("rotation", np.arange(rotations) * 15.0),
+        },
     )
 
 
@@ -82,9 +87,11 @@ def test_register_frames_undoes_the_shift_lazily():
     shift = (0.35, -0.6)
     truth = ndimage.gaussian_filter(texture(seed=3, shape=(48, 48)), 1.5)
     frames = xr.DataArray(np.stack([shifted(truth, shift)] * 3), dims=("shot", "y", "x")).chunk(
-        {"shot": 1})
-    out = register_frames(frames, xr.DataArray(list(shift), dims="axis",
-                                               coords={"axis": ["y", "x"]}), order=3)
+        {"shot": 1}
+    )
+    out = register_frames(
+        frames, xr.DataArray(list(shift), dims="axis", coords={"axis": ["y", "x"]}), order=3
+    )
     assert out.chunks is not None
     inner = (slice(None), slice(4, -4), slice(4, -4))
     expected = np.stack([truth] * 3)[inner]

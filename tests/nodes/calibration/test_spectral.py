@@ -20,7 +20,7 @@ from spectralize.nodes.simulation.camera_model import (
 )
 from spectralize.schemas import CalibrationError, SchemaError
 
-WAVELENGTHS = np.arange(410.0, 721.0, 10.0)          # 32 bands, as in the paper
+WAVELENGTHS = np.arange(410.0, 721.0, 10.0)  # 32 bands, as in the paper
 SHAPE = colour.SpectralShape(410, 720, 10)
 OFFSET, SIGMA, BITS, FULL = 16.0, 3.0, 10, 1023
 RGB_TIMES = np.array([1.0, 3.0, 8.0, 25.0, 60.0]) / 60.0
@@ -28,15 +28,15 @@ RGB_TIMES = np.array([1.0, 3.0, 8.0, 25.0, 60.0]) / 60.0
 
 def illuminant() -> xr.DataArray:
     values = colour.SDS_ILLUMINANTS["D65"].copy().align(SHAPE).values
-    return xr.DataArray(values / values.max(), dims="wavelength",
-                        coords={"wavelength": WAVELENGTHS})
+    return xr.DataArray(values / values.max(), dims="wavelength", coords={"wavelength": WAVELENGTHS})
 
 
 def checker_reflectance() -> xr.DataArray:
     sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
     values = np.stack([sd.copy().align(SHAPE).values for sd in sds.values()])
-    return xr.DataArray(values, dims=("patch", "wavelength"),
-                        coords={"patch": list(sds), "wavelength": WAVELENGTHS})
+    return xr.DataArray(
+        values, dims=("patch", "wavelength"), coords={"patch": list(sds), "wavelength": WAVELENGTHS}
+    )
 
 
 def checker_labels(patch: int = 8) -> np.ndarray:
@@ -44,7 +44,7 @@ def checker_labels(patch: int = 8) -> np.ndarray:
     labels = -np.ones((4 * patch, 6 * patch), dtype=int)
     for k in range(24):
         r, c = divmod(k, 6)
-        labels[r * patch + 1:(r + 1) * patch - 1, c * patch + 1:(c + 1) * patch - 1] = k
+        labels[r * patch + 1 : (r + 1) * patch - 1, c * patch + 1 : (c + 1) * patch - 1] = k
     return labels
 
 
@@ -59,29 +59,46 @@ def spectral_camera_response() -> xr.DataArray:
     """True f of the spectral camera over dark-subtracted values (eq. 5, s-curve)."""
     code = np.linspace(-20.0, FULL, 2048)
     f = response_model("s_curve").response(np.clip(code, 0, None) / FULL)
-    return xr.DataArray(f, dims="code", coords={"code": code},
-                        attrs={"dark_subtracted": True})
+    return xr.DataArray(f, dims="code", coords={"code": code}, attrs={"dark_subtracted": True})
 
 
-def spectral_shots(radiance: np.ndarray, times: np.ndarray, *, seed: int,
-                   quantum_efficiency: np.ndarray) -> xr.Dataset:
+def spectral_shots(
+    radiance: np.ndarray, times: np.ndarray, *, seed: int, quantum_efficiency: np.ndarray
+) -> xr.Dataset:
     """raw/spectral-like shots (shot, y, x), one per band, of radiance (band, y, x)."""
-    counts = capture(radiance, times[:, None, None], response=response_model("s_curve"),
-                     quantum_efficiency=quantum_efficiency[:, None, None], adc_offset=OFFSET,
-                     noise_sigma=SIGMA, bit_depth=BITS, seed=seed)
-    return xr.Dataset({"counts": (("shot", "y", "x"), counts)},
-                      coords={"wavelength": ("shot", WAVELENGTHS),
-                              "exposure_time": ("shot", times)},
-                      attrs={"bit_depth": BITS})
+    counts = capture(
+        radiance,
+        times[:, None, None],
+        response=response_model("s_curve"),
+        quantum_efficiency=quantum_efficiency[:, None, None],
+        adc_offset=OFFSET,
+        noise_sigma=SIGMA,
+        bit_depth=BITS,
+        seed=seed,
+    )
+    return xr.Dataset(
+        {"counts": (("shot", "y", "x"), counts)},
+        coords={"wavelength": ("shot", WAVELENGTHS), "exposure_time": ("shot", times)},
+        attrs={"bit_depth": BITS},
+    )
 
 
 def dark_group(times: np.ndarray, shape: tuple[int, int], seed: int) -> xr.Dataset:
-    frames = capture(np.zeros((times.size, 16) + shape), 1.0, adc_offset=OFFSET,
-                     noise_sigma=SIGMA, bit_depth=BITS, seed=seed).astype(float)
+    frames = capture(
+        np.zeros((times.size, 16) + shape),
+        1.0,
+        adc_offset=OFFSET,
+        noise_sigma=SIGMA,
+        bit_depth=BITS,
+        seed=seed,
+    ).astype(float)
     return xr.Dataset(
-        {"mean": (("exposure_time", "y", "x"), frames.mean(axis=1).astype(np.float32)),
-         "std": (("exposure_time", "y", "x"), frames.std(axis=1, ddof=1).astype(np.float32))},
-        coords={"exposure_time": times})
+        {
+            "mean": (("exposure_time", "y", "x"), frames.mean(axis=1).astype(np.float32)),
+            "std": (("exposure_time", "y", "x"), frames.std(axis=1, ddof=1).astype(np.float32)),
+        },
+        coords={"exposure_time": times},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +106,7 @@ def white_setup():
     q_true = spectral_quantum_efficiency(WAVELENGTHS).values
     light = illuminant()
     rho = 0.95
-    times = 0.5 / (rho * light.values * q_true)        # ~ half of full scale in every band
+    times = 0.5 / (rho * light.values * q_true)  # ~ half of full scale in every band
     radiance = np.broadcast_to((rho * light.values)[:, None, None], (32, 24, 24))
     shots = spectral_shots(radiance, times, seed=11, quantum_efficiency=q_true)
     dark = dark_group(times, (24, 24), seed=12)
@@ -98,8 +115,9 @@ def white_setup():
 
 def test_quantum_efficiency_from_white_reference(white_setup) -> None:
     shots, dark, light, rho, q_true = white_setup
-    result = sc.quantum_efficiency(shots, dark, light, reflectance=rho,
-                                   response=spectral_camera_response())
+    result = sc.quantum_efficiency(
+        shots, dark, light, reflectance=rho, response=spectral_camera_response()
+    )
     q = result["quantum_efficiency"]
     assert q.dims == ("wavelength",)
     np.testing.assert_allclose(q["wavelength"].values, WAVELENGTHS)
@@ -113,26 +131,43 @@ def test_quantum_efficiency_with_a_raw_code_response_and_roi(white_setup) -> Non
     code = np.arange(FULL + 1)
     f_raw = response_model("s_curve").response((code + 0.5 - OFFSET) / FULL)
     raw_response = xr.DataArray(f_raw, dims="code", coords={"code": code})
-    reflectance = xr.DataArray(np.full(32, rho), dims="wavelength",
-                               coords={"wavelength": WAVELENGTHS})
-    q = sc.quantum_efficiency(shots, dark, light, reflectance=reflectance,
-                              response=raw_response,
-                              roi={"y": slice(4, 20), "x": slice(2, 22)})["quantum_efficiency"]
+    reflectance = xr.DataArray(np.full(32, rho), dims="wavelength", coords={"wavelength": WAVELENGTHS})
+    q = sc.quantum_efficiency(
+        shots,
+        dark,
+        light,
+        reflectance=reflectance,
+        response=raw_response,
+        roi={"y": slice(4, 20), "x": slice(2, 22)},
+    )["quantum_efficiency"]
     np.testing.assert_allclose(q.values, q_true, rtol=0.02)
     linear = sc.quantum_efficiency(shots, dark, light, reflectance=rho)["quantum_efficiency"]
-    assert np.corrcoef(linear.values, q_true)[0, 1] > 0.99   # a linear guess only scales
+    assert np.corrcoef(linear.values, q_true)[0, 1] > 0.99  # a linear guess only scales
 
 
 def test_band_signal_keeps_negative_values(white_setup) -> None:
     shots, dark, _, _, _ = white_setup
-    black = shots.copy(data={"counts": np.clip(
-        capture(np.zeros((32, 24, 24)), 1.0, adc_offset=OFFSET, noise_sigma=SIGMA,
-                bit_depth=BITS, seed=5), 0, None)})
+    black = shots.copy(
+        data={
+            "counts": np.clip(
+                capture(
+                    np.zeros((32, 24, 24)),
+                    1.0,
+                    adc_offset=OFFSET,
+                    noise_sigma=SIGMA,
+                    bit_depth=BITS,
+                    seed=5,
+                ),
+                0,
+                None,
+            )
+        }
+    )
     signal = sc.band_signal(black, dark)
     assert signal.dims == ("shot", "y", "x")
-    assert (signal < 0).mean() > 0.3                 # noise below the dark level survives
+    assert (signal < 0).mean() > 0.3  # noise below the dark level survives
     per_band = signal.mean(("y", "x")) * shots["exposure_time"]
-    assert np.abs(per_band).max() < 0.6             # unbiased: no clipping at zero
+    assert np.abs(per_band).max() < 0.6  # unbiased: no clipping at zero
 
 
 @pytest.fixture(scope="module")
@@ -140,22 +175,28 @@ def checker_setup():
     """Colour checker: HDR RGB shots (gamma camera, Nikon sensitivities) and spectral shots."""
     reflectance = checker_reflectance()
     light = illuminant()
-    spectra = reflectance * light                               # (patch, wavelength)
-    c_true = camera_sensitivities(WAVELENGTHS)                  # (channel, wavelength)
-    rgb_true = (spectra @ c_true.T).values                      # (patch, channel)
+    spectra = reflectance * light  # (patch, wavelength)
+    c_true = camera_sensitivities(WAVELENGTHS)  # (channel, wavelength)
+    rgb_true = (spectra @ c_true.T).values  # (patch, channel)
     labels = checker_labels()
-    scene = paint(rgb_true / rgb_true.max(), labels)            # (y, x, channel)
-    counts = capture(scene[None], RGB_TIMES[:, None, None, None],
-                     response=response_model("gamma"), adc_offset=OFFSET, noise_sigma=SIGMA,
-                     bit_depth=BITS, seed=21)
-    raw = xr.Dataset({"counts": (("image", "exposure", "y", "x", "channel"), counts[None])},
-                     coords={"exposure_time": (("image", "exposure"), RGB_TIMES[None]),
-                             "channel": ["R", "G", "B"]},
-                     attrs={"bit_depth": BITS})
+    scene = paint(rgb_true / rgb_true.max(), labels)  # (y, x, channel)
+    counts = capture(
+        scene[None],
+        RGB_TIMES[:, None, None, None],
+        response=response_model("gamma"),
+        adc_offset=OFFSET,
+        noise_sigma=SIGMA,
+        bit_depth=BITS,
+        seed=21,
+    )
+    raw = xr.Dataset(
+        {"counts": (("image", "exposure", "y", "x", "channel"), counts[None])},
+        coords={"exposure_time": (("image", "exposure"), RGB_TIMES[None]), "channel": ["R", "G", "B"]},
+        attrs={"bit_depth": BITS},
+    )
     code = np.arange(FULL + 1)
     f = response_model("gamma").response((code + 0.5 - OFFSET) / FULL)
-    response = xr.DataArray(f / f[511], dims="code", coords={"code": code},
-                            attrs={"black_level": 25})
+    response = xr.DataArray(f / f[511], dims="code", coords={"code": code}, attrs={"black_level": 25})
     radiance = hdr.merge_hdr(raw, response)["radiance"].isel(image=0)
     measured = sc.patch_means(radiance, labels, names=list(reflectance["patch"].values))
     return spectra, measured, c_true, labels, light
@@ -172,7 +213,8 @@ def test_camera_matrix_from_colour_checker_shots(checker_setup) -> None:
     error = np.linalg.norm(c.values / scale - c_true.values) / np.linalg.norm(c_true.values)
     assert error < 0.15, error
     per_channel = np.linalg.norm(c.values / scale - c_true.values, axis=1) / np.linalg.norm(
-        c_true.values, axis=1)
+        c_true.values, axis=1
+    )
     assert per_channel.max() < 0.25, per_channel
     assert result.attrs["relative_rms_residual"] < 0.01
     assert result["residual"].dims == ("patch", "channel")
@@ -182,8 +224,9 @@ def test_smoothness_regularises_and_nonnegativity_holds(checker_setup) -> None:
     spectra, measured, c_true, _, _ = checker_setup
     rough = sc.camera_matrix(measured, spectra, smoothness=0.0, nonnegative=False)
     smooth = sc.camera_matrix(measured, spectra, smoothness=1e-2)
-    curvature = [float(np.abs(np.diff(r["camera_matrix"].values, 2, axis=1)).sum())
-                 for r in (rough, smooth)]
+    curvature = [
+        float(np.abs(np.diff(r["camera_matrix"].values, 2, axis=1)).sum()) for r in (rough, smooth)
+    ]
     assert curvature[1] < 0.2 * curvature[0]
     assert np.any(rough["camera_matrix"].values < 0)
     assert np.all(smooth["camera_matrix"].values >= 0)
@@ -196,13 +239,16 @@ def test_cross_validation_table_and_figure(checker_setup, white_setup) -> None:
     shots_w, dark_w, _, rho, q_true = white_setup
     response = spectral_camera_response()
     q = sc.quantum_efficiency(shots_w, dark_w, light, reflectance=rho, response=response)
-    cube = np.moveaxis(paint(spectra.values, labels), -1, 0)        # (band, y, x)
+    cube = np.moveaxis(paint(spectra.values, labels), -1, 0)  # (band, y, x)
     times = 0.3 / (cube.max(axis=(1, 2)) * q_true)
     shots = spectral_shots(cube, times, seed=31, quantum_efficiency=q_true)
     dark = dark_group(times, labels.shape, seed=32)
     signal = sc.band_signal(shots, dark, response=response)
-    band_radiance = (signal / q["quantum_efficiency"].values[:, None, None]).assign_coords(
-        wavelength=("shot", WAVELENGTHS)).swap_dims(shot="wavelength")
+    band_radiance = (
+        (signal / q["quantum_efficiency"].values[:, None, None])
+        .assign_coords(wavelength=("shot", WAVELENGTHS))
+        .swap_dims(shot="wavelength")
+    )
     captured = sc.patch_means(band_radiance, labels, names=list(spectra["patch"].values))
     table = sc.cross_validate(measured, captured, c)
     assert set(table.data_vars) == {"measured", "predicted", "difference", "relative_error"}
@@ -232,10 +278,14 @@ def test_patch_means_and_predict_rgb() -> None:
     assert means.dims == ("patch", "channel")
     np.testing.assert_allclose(means.sel(patch="a"), [1.0, 2.0])
     np.testing.assert_allclose(means.sel(patch="b"), [8.0, 9.0])
-    c = xr.DataArray(np.eye(3)[:2], dims=("channel", "wavelength"),
-                     coords={"channel": ["R", "G"], "wavelength": [500.0, 600.0, 700.0]})
-    spectra = xr.DataArray([[1.0, 2.0, 3.0]], dims=("patch", "wavelength"),
-                           coords={"wavelength": [500.0, 600.0, 700.0]})
+    c = xr.DataArray(
+        np.eye(3)[:2],
+        dims=("channel", "wavelength"),
+        coords={"channel": ["R", "G"], "wavelength": [500.0, 600.0, 700.0]},
+    )
+    spectra = xr.DataArray(
+        [[1.0, 2.0, 3.0]], dims=("patch", "wavelength"), coords={"wavelength": [500.0, 600.0, 700.0]}
+    )
     np.testing.assert_allclose(sc.predict_rgb(spectra, c).values, [[1.0, 2.0]])
 
 
@@ -243,10 +293,10 @@ def test_patch_means_and_predict_rgb() -> None:
 def test_white_reference_darker_than_the_noise(white_setup) -> None:
     shots, dark, light, rho, _ = white_setup
     dim = shots.copy(deep=True)
-    dim["counts"].values[7] = capture(np.zeros((24, 24)), 1.0, adc_offset=OFFSET + 1,
-                                      noise_sigma=SIGMA, bit_depth=BITS, seed=3)
-    with pytest.raises(CalibrationError,
-                       match=r"shot 7 \(480.0 nm.*darker than the noise.*SNR"):
+    dim["counts"].values[7] = capture(
+        np.zeros((24, 24)), 1.0, adc_offset=OFFSET + 1, noise_sigma=SIGMA, bit_depth=BITS, seed=3
+    )
+    with pytest.raises(CalibrationError, match=r"shot 7 \(480.0 nm.*darker than the noise.*SNR"):
         sc.quantum_efficiency(dim, dark, light, reflectance=rho)
     no_std = dark.drop_vars("std")
     with pytest.raises(CalibrationError, match="darker than the noise"):
@@ -256,17 +306,21 @@ def test_white_reference_darker_than_the_noise(white_setup) -> None:
 def test_dark_frame_missing_or_of_another_size(white_setup) -> None:
     shots, dark, light, rho, _ = white_setup
     t = float(shots["exposure_time"][4])
-    with pytest.raises(CalibrationError, match=rf"dark:mean has no frame for exposure_time {t} s \(shot 4\)"):
+    with pytest.raises(
+        CalibrationError, match=rf"dark:mean has no frame for exposure_time {t} s \(shot 4\)"
+    ):
         sc.quantum_efficiency(shots, dark.drop_sel(exposure_time=t), light, reflectance=rho)
-    with pytest.raises(CalibrationError, match="dark:mean frames are 24x20 px but the frames of band_signal are 24x24 px"):
+    with pytest.raises(
+        CalibrationError,
+        match="dark:mean frames are 24x20 px but the frames of band_signal are 24x24 px",
+    ):
         sc.band_signal(shots, dark.isel(x=slice(0, 20)))
 
 
 def test_spectra_that_do_not_cover_the_bands(white_setup) -> None:
     shots, dark, light, rho, _ = white_setup
     with pytest.raises(CalibrationError, match=r"illuminant covers 450.0..720.0 nm"):
-        sc.quantum_efficiency(shots, dark, light.sel(wavelength=slice(450, None)),
-                              reflectance=rho)
+        sc.quantum_efficiency(shots, dark, light.sel(wavelength=slice(450, None)), reflectance=rho)
     with pytest.raises(CalibrationError, match="reflectance must be positive"):
         sc.quantum_efficiency(shots, dark, light, reflectance=0.0)
     with pytest.raises(CalibrationError, match="roi may only select y and x"):
@@ -277,16 +331,18 @@ def test_spectra_that_do_not_cover_the_bands(white_setup) -> None:
 
 def test_camera_matrix_and_cross_validation_mismatches() -> None:
     rgb = xr.DataArray(np.ones((24, 3)), dims=("patch", "channel"))
-    spectra = xr.DataArray(np.ones((23, 32)), dims=("patch", "wavelength"),
-                           coords={"wavelength": WAVELENGTHS})
+    spectra = xr.DataArray(
+        np.ones((23, 32)), dims=("patch", "wavelength"), coords={"wavelength": WAVELENGTHS}
+    )
     with pytest.raises(CalibrationError, match="rgb has 24 patches, spectra 23"):
         sc.camera_matrix(rgb, spectra)
     with pytest.raises(SchemaError, match=r"rgb must be \(patch, channel\)"):
         sc.camera_matrix(rgb.rename(channel="band"), spectra)
     with pytest.raises(CalibrationError, match="finite"):
         sc.camera_matrix(rgb.isel(patch=slice(0, 23)) * np.nan, spectra)
-    c = xr.DataArray(np.ones((3, 32)), dims=("channel", "wavelength"),
-                     coords={"wavelength": WAVELENGTHS + 5})
+    c = xr.DataArray(
+        np.ones((3, 32)), dims=("channel", "wavelength"), coords={"wavelength": WAVELENGTHS + 5}
+    )
     with pytest.raises(CalibrationError, match="spectra are at .* nm, C at"):
         sc.predict_rgb(spectra, c)
     with pytest.raises(CalibrationError, match="measured_rgb has 24 patches, spectra 23"):

@@ -18,8 +18,10 @@ WAVELENGTH = np.arange(410.0, 721.0, 10.0)
 
 def plan(times, *, sets=1, rgb=(), rgb_images=0) -> xr.Dataset:
     return xr.Dataset(
-        {"exposure_time": ("wavelength", np.asarray(times, dtype=float), {"units": "s"}),
-         "rgb_exposure_time": ("rgb_exposure", np.asarray(rgb, dtype=float), {"units": "s"})},
+        {
+            "exposure_time": ("wavelength", np.asarray(times, dtype=float), {"units": "s"}),
+            "rgb_exposure_time": ("rgb_exposure", np.asarray(rgb, dtype=float), {"units": "s"}),
+        },
         coords={"wavelength": WAVELENGTH[: len(times)]},
         attrs={"spectral_sets": sets, "rgb_images": rgb_images},
     )
@@ -46,30 +48,41 @@ def test_plans_are_summed_per_band_set_and_rgb_series():
     assert float(result.speedup) == pytest.approx(15.0 / 1.7)
     assert result.total_time.attrs["units"] == "s"
     # RGB exposure given explicitly overrides the plan's; a reference that also shoots RGB
-    explicit = capture_time(fast, reference, rgb_exposure_times=[1.0], rgb_images=2,
-                            reference_includes_rgb=True)
+    explicit = capture_time(
+        fast, reference, rgb_exposure_times=[1.0], rgb_images=2, reference_includes_rgb=True
+    )
     np.testing.assert_allclose(explicit.total_time, [17.0, 3.2])
 
 
 def test_exposure_plans_of_the_simulator_are_accounted_like_their_own_totals():
     q = np.linspace(0.2, 1.0, WAVELENGTH.size)
     light = np.linspace(1.0, 0.3, WAVELENGTH.size)
-    fast = exposure_plan(q, light, wavelength=WAVELENGTH, t0=0.01, s0=3.0,
-                         rgb_exposure_times=[0.01, 0.04, 0.16, 0.64], rgb_images=10)
+    fast = exposure_plan(
+        q,
+        light,
+        wavelength=WAVELENGTH,
+        t0=0.01,
+        s0=3.0,
+        rgb_exposure_times=[0.01, 0.04, 0.16, 0.64],
+        rgb_images=10,
+    )
     reference = reference_exposure_plan(q, light, wavelength=WAVELENGTH)
     result = capture_time(fast, reference)
-    assert result.total_time.sel(capture="fast").item() == pytest.approx(
-        float(fast.total_capture_time))
+    assert result.total_time.sel(capture="fast").item() == pytest.approx(float(fast.total_capture_time))
     assert result.total_time.sel(capture="reference").item() == pytest.approx(
-        float(reference.spectral_capture_time))
+        float(reference.spectral_capture_time)
+    )
     assert float(result.speedup) > 1.0
 
 
 def test_accuracy_is_shown_next_to_the_speed_up():
     evaluation = xr.Dataset(
-        {"nrmse_subset_statistics": (("subset", "statistic"), [[0.01, 0.008, 0.03, 0.05]]),
-         "nrmse_subset_fraction_below": ("subset", [0.96])},
-        coords={"subset": ["all"], "statistic": ["mean", "median", "p95", "p99"]})
+        {
+            "nrmse_subset_statistics": (("subset", "statistic"), [[0.01, 0.008, 0.03, 0.05]]),
+            "nrmse_subset_fraction_below": ("subset", [0.96]),
+        },
+        coords={"subset": ["all"], "statistic": ["mean", "median", "p95", "p99"]},
+    )
     result = capture_time(PAPER_FAST_TIME, evaluation=evaluation)
     assert float(result.nrmse_median) == 0.008 and float(result.nrmse_p95) == 0.03
     assert float(result.nrmse_fraction_below) == 0.96
@@ -79,10 +92,13 @@ def test_accuracy_is_shown_next_to_the_speed_up():
 
 
 def test_capture_time_from_run_sums_band_shots_and_rgb_series():
-    raw_spectral = xr.Dataset(coords={"exposure_time": ("shot", [0.1, 0.2, 0.3]),
-                                      "wavelength": ("shot", [500.0, 410.0, 500.0])})
-    raw_rgb = xr.Dataset(coords={"exposure_time": (("image", "exposure"),
-                                                   [[0.01, 0.02], [0.03, 0.04]])})
+    raw_spectral = xr.Dataset(
+        coords={
+            "exposure_time": ("shot", [0.1, 0.2, 0.3]),
+            "wavelength": ("shot", [500.0, 410.0, 500.0]),
+        }
+    )
+    raw_rgb = xr.Dataset(coords={"exposure_time": (("image", "exposure"), [[0.01, 0.02], [0.03, 0.04]])})
     measured = capture_time_from_run(raw_spectral, raw_rgb)
     assert measured.wavelength.values.tolist() == [410.0, 500.0]
     np.testing.assert_allclose(measured.exposure_time, [0.2, 0.4])
@@ -98,8 +114,9 @@ def test_capture_time_from_run_sums_band_shots_and_rgb_series():
 
 
 def test_run_capture_time_takes_one_reference_set_per_image_from_the_plan():
-    raw_spectral = xr.Dataset(coords={"exposure_time": ("shot", [0.5, 0.5]),
-                                      "wavelength": ("shot", [410.0, 420.0])})
+    raw_spectral = xr.Dataset(
+        coords={"exposure_time": ("shot", [0.5, 0.5]), "wavelength": ("shot", [410.0, 420.0])}
+    )
     raw_rgb = xr.Dataset(coords={"exposure_time": (("image", "exposure"), np.full((4, 2), 0.25))})
     exposure_plan = xr.Dataset({"reference_capture_time": ((), 30.0, {"units": "s"})})
     result = run_capture_time(raw_spectral, raw_rgb, exposure_plan)

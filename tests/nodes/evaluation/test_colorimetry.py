@@ -24,8 +24,9 @@ def checker_cube(values: np.ndarray, block: int = 2) -> xr.DataArray:
     """(1, wavelength, 4 * block, 6 * block) cube of 24 patch spectra ``values`` (24, 32)."""
     grid = values.reshape(4, 6, -1).transpose(2, 0, 1)
     cube = np.repeat(np.repeat(grid, block, 1), block, 2)[None].astype(np.float32)
-    return xr.DataArray(cube, dims=("image", "wavelength", "y", "x"),
-                        coords={"wavelength": WAVELENGTH}, name="radiance")
+    return xr.DataArray(
+        cube, dims=("image", "wavelength", "y", "x"), coords={"wavelength": WAVELENGTH}, name="radiance"
+    )
 
 
 def patch_pixels(rgb: xr.DataArray, block: int = 2) -> np.ndarray:
@@ -33,8 +34,7 @@ def patch_pixels(rgb: xr.DataArray, block: int = 2) -> np.ndarray:
     return rgb.values[0, ::block, ::block].reshape(24, 3)
 
 
-def colour_science_srgb(xyz: np.ndarray, white=colour.CCS_ILLUMINANTS[OBSERVER]["D65"]
-                        ) -> np.ndarray:
+def colour_science_srgb(xyz: np.ndarray, white=colour.CCS_ILLUMINANTS[OBSERVER]["D65"]) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         rgb = colour.XYZ_to_sRGB(xyz, illuminant=white)
     return np.round(255 * np.clip(rgb, 0, 1)).astype(np.uint8)
@@ -48,19 +48,28 @@ def test_colourchecker_srgb_matches_colour_science():
     assert rgb["channel"].values.tolist() == ["R", "G", "B"]
     cmfs = colour.MSDS_CMFS[OBSERVER]
     d65 = colour.SDS_ILLUMINANTS["D65"]
+
     # colour-science's own computation on the same 10 nm samples, the white (perfect
     # reflector) integrated with the same weights as in ASTM E308
     def to_xyz(values):
-        return colour.msds_to_XYZ(values, cmfs=cmfs, illuminant=d65, method="Integration",
-                                  shape=SHAPE) / 100
+        return (
+            colour.msds_to_XYZ(values, cmfs=cmfs, illuminant=d65, method="Integration", shape=SHAPE)
+            / 100
+        )
 
     white = colour.XYZ_to_xy(to_xyz(np.ones(32)))
     assert rgb.attrs["white_xy"] == pytest.approx(white.tolist())
-    np.testing.assert_array_equal(patch_pixels(rgb),
-                                  colour_science_srgb(to_xyz(reflectance), white))
+    np.testing.assert_array_equal(patch_pixels(rgb), colour_science_srgb(to_xyz(reflectance), white))
     # and on colour-science's spectral distributions (interpolated to 1 nm): within 2 levels
-    xyz_sd = np.array([colour.sd_to_XYZ(CHECKER[name], cmfs=cmfs, illuminant=d65,
-                                        method="Integration") for name in CHECKER]) / 100
+    xyz_sd = (
+        np.array(
+            [
+                colour.sd_to_XYZ(CHECKER[name], cmfs=cmfs, illuminant=d65, method="Integration")
+                for name in CHECKER
+            ]
+        )
+        / 100
+    )
     difference = patch_pixels(rgb).astype(int) - colour_science_srgb(xyz_sd).astype(int)
     assert np.abs(difference).max() <= 2
     # sanity: white 9.5 is light grey, black 2 is dark, and red is red
@@ -69,8 +78,9 @@ def test_colourchecker_srgb_matches_colour_science():
 
 
 def test_perfect_reflector_is_srgb_white_and_exposure_scales_luminance():
-    white = xr.DataArray(np.ones((1, 32, 2, 2)), dims=("image", "wavelength", "y", "x"),
-                         coords={"wavelength": WAVELENGTH})
+    white = xr.DataArray(
+        np.ones((1, 32, 2, 2)), dims=("image", "wavelength", "y", "x"), coords={"wavelength": WAVELENGTH}
+    )
     assert (render_srgb(white, illuminant="D65", exposure=1.0).values == 255).all()
     # equal energy white is adapted to D65 white (CAT02)
     assert render_srgb(white, illuminant=None, exposure=1.0).values.min() >= 254
@@ -114,8 +124,9 @@ def test_rendering_is_lazy_and_equals_the_eager_result():
 def test_nan_renders_black_and_bad_inputs_are_rejected():
     values = np.ones((1, 32, 1, 2))
     values[0, 3, 0, 1] = np.nan
-    cube = xr.DataArray(values, dims=("image", "wavelength", "y", "x"),
-                        coords={"wavelength": WAVELENGTH})
+    cube = xr.DataArray(
+        values, dims=("image", "wavelength", "y", "x"), coords={"wavelength": WAVELENGTH}
+    )
     rgb = render_srgb(cube, illuminant="D65", exposure=1.0).values
     assert rgb[0, 0, 1].tolist() == [0, 0, 0] and rgb[0, 0, 0].tolist() == [255, 255, 255]
     uneven = cube.assign_coords(wavelength=np.r_[WAVELENGTH[:-1], 725.0])

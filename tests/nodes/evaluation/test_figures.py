@@ -25,14 +25,23 @@ def cube_dataset(values: np.ndarray) -> xr.Dataset:
     n = values.shape[0]
     deg = {"units": "degree"}
     return xr.Dataset(
-        {"radiance": (("image", "wavelength", "y", "x"), values.astype(np.float32),
-                      {"units": "1", "long_name": "relative spectral radiance"})},
-        coords={"wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
-                "camera": ("image", np.arange(n)), "rotation": ("image", np.zeros(n, int)),
-                "led": ("image", np.arange(n)), "theta_i": ("image", np.full(n, 30.0), deg),
-                "phi_i": ("image", np.zeros(n), deg),
-                "theta_o": ("image", np.array([45.0, 45.0, 60.0][:n]), deg),
-                "phi_o": ("image", np.arange(n) * 15.0, deg)},
+        {
+            "radiance": (
+                ("image", "wavelength", "y", "x"),
+                values.astype(np.float32),
+                {"units": "1", "long_name": "relative spectral radiance"},
+            )
+        },
+        coords={
+            "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
+            "camera": ("image", np.arange(n)),
+            "rotation": ("image", np.zeros(n, int)),
+            "led": ("image", np.arange(n)),
+            "theta_i": ("image", np.full(n, 30.0), deg),
+            "phi_i": ("image", np.zeros(n), deg),
+            "theta_o": ("image", np.array([45.0, 45.0, 60.0][:n]), deg),
+            "phi_o": ("image", np.arange(n) * 15.0, deg),
+        },
     )
 
 
@@ -83,8 +92,12 @@ def test_figures_are_pure_agg_figures_not_registered_with_pyplot(run):
     _, truth, _, evaluation = run
     ev = evaluation.compute()
     before = plt.get_fignums()
-    figures = [plot_error_map(ev, 0, truth_srgb=render_srgb(truth)), plot_spectra(ev, 0),
-               plot_histograms(ev), plot_capture_time(capture_time(7.463, evaluation=ev))]
+    figures = [
+        plot_error_map(ev, 0, truth_srgb=render_srgb(truth)),
+        plot_spectra(ev, 0),
+        plot_histograms(ev),
+        plot_capture_time(capture_time(7.463, evaluation=ev)),
+    ]
     assert all(isinstance(figure, Figure) for figure in figures)
     assert plt.get_fignums() == before
     assert ERROR_COLORMAP == "cubehelix"

@@ -36,14 +36,23 @@ def cube_dataset(values: np.ndarray) -> xr.Dataset:
     n = values.shape[0]
     deg = {"units": "degree"}
     return xr.Dataset(
-        {"radiance": (("image", "wavelength", "y", "x"), values.astype(np.float32),
-                      {"units": "1", "long_name": "relative spectral radiance"})},
-        coords={"wavelength": ("wavelength", WAVELENGTH, {"units": "nm"}),
-                "camera": ("image", np.arange(n)), "rotation": ("image", np.zeros(n, int)),
-                "led": ("image", np.arange(n) + 10),
-                "theta_i": ("image", np.full(n, 30.0), deg), "phi_i": ("image", np.zeros(n), deg),
-                "theta_o": ("image", np.full(n, 45.0), deg),
-                "phi_o": ("image", np.arange(n) * 15.0, deg)},
+        {
+            "radiance": (
+                ("image", "wavelength", "y", "x"),
+                values.astype(np.float32),
+                {"units": "1", "long_name": "relative spectral radiance"},
+            )
+        },
+        coords={
+            "wavelength": ("wavelength", WAVELENGTH, {"units": "nm"}),
+            "camera": ("image", np.arange(n)),
+            "rotation": ("image", np.zeros(n, int)),
+            "led": ("image", np.arange(n) + 10),
+            "theta_i": ("image", np.full(n, 30.0), deg),
+            "phi_i": ("image", np.zeros(n), deg),
+            "theta_o": ("image", np.full(n, 45.0), deg),
+            "phi_o": ("image", np.arange(n) * 15.0, deg),
+        },
     )
 
 
@@ -57,8 +66,12 @@ def checker_truth(n_image: int = 3, block: int = 3) -> xr.Dataset:
 
 def shots_for(images) -> xr.Dataset:
     n = len(images)
-    return xr.Dataset(coords={"image": ("shot", np.asarray(images, dtype=np.int64)),
-                              "wavelength": ("shot", np.full(n, 550.0))})
+    return xr.Dataset(
+        coords={
+            "image": ("shot", np.asarray(images, dtype=np.int64)),
+            "wavelength": ("shot", np.full(n, 550.0)),
+        }
+    )
 
 
 def raw_spectral_for(images) -> xr.Dataset:
@@ -66,11 +79,15 @@ def raw_spectral_for(images) -> xr.Dataset:
     n = len(images)
     return xr.Dataset(
         {"counts": (("shot", "y", "x"), np.zeros((n, 2, 2), np.uint16), {"units": "DN"})},
-        coords={"wavelength": ("shot", np.full(n, 550.0), {"units": "nm"}),
-                "exposure_time": ("shot", np.full(n, 0.05), {"units": "s"}),
-                "image": ("shot", np.asarray(images, dtype=np.int64)),
-                "rotation": ("shot", np.zeros(n, int)), "led": ("shot", np.zeros(n, int))},
-        attrs={"bit_depth": 12})
+        coords={
+            "wavelength": ("shot", np.full(n, 550.0), {"units": "nm"}),
+            "exposure_time": ("shot", np.full(n, 0.05), {"units": "s"}),
+            "image": ("shot", np.asarray(images, dtype=np.int64)),
+            "rotation": ("shot", np.zeros(n, int)),
+            "led": ("shot", np.zeros(n, int)),
+        },
+        attrs={"bit_depth": 12},
+    )
 
 
 # -- nRMSE ---------------------------------------------------------------------------------
@@ -114,9 +131,9 @@ def test_spectral_angle_known_answers():
     truth = np.zeros((1, 32, 1, 4))
     spectra = np.zeros((1, 32, 1, 4))
     truth[0, 0, 0, :] = 1.0
-    spectra[0, 0, 0, 0] = 3.0                              # same direction: 0 degree
-    spectra[0, :2, 0, 1] = 1.0                             # (1, 1) vs (1, 0): 45 degree
-    spectra[0, 1, 0, 2] = 2.0                              # orthogonal: 90 degree
+    spectra[0, 0, 0, 0] = 3.0  # same direction: 0 degree
+    spectra[0, :2, 0, 1] = 1.0  # (1, 1) vs (1, 0): 45 degree
+    spectra[0, 1, 0, 2] = 2.0  # orthogonal: 90 degree
     # pixel 3: zero spectrum -> undefined
     angle = spectral_angle(cube_dataset(spectra), cube_dataset(truth))
     assert angle.attrs["units"] == "degree"
@@ -151,8 +168,10 @@ def test_colour_difference_matches_colour_science_for_two_patches():
     d65 = colour.SDS_ILLUMINANTS["D65"]
 
     def xyz(values):
-        return colour.msds_to_XYZ(values, cmfs=cmfs, illuminant=d65, method="Integration",
-                                  shape=SHAPE) / 100
+        return (
+            colour.msds_to_XYZ(values, cmfs=cmfs, illuminant=d65, method="Integration", shape=SHAPE)
+            / 100
+        )
 
     white = colour.XYZ_to_xy(xyz(np.ones(32)))  # the perfect reflector on the same bands
 
@@ -164,12 +183,16 @@ def test_colour_difference_matches_colour_science_for_two_patches():
     assert 10 < expected < 40  # a big, visible difference
     # and close to colour-science's spectral-distribution path (1 nm interpolation)
     sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
-    lab_sd = [colour.XYZ_to_Lab(colour.sd_to_XYZ(sds[n], cmfs=cmfs, illuminant=d65,
-                                                 method="Integration") / 100,
-                                colour.CCS_ILLUMINANTS[OBSERVER]["D65"])
-              for n in ("light skin", "dark skin")]
+    lab_sd = [
+        colour.XYZ_to_Lab(
+            colour.sd_to_XYZ(sds[n], cmfs=cmfs, illuminant=d65, method="Integration") / 100,
+            colour.CCS_ILLUMINANTS[OBSERVER]["D65"],
+        )
+        for n in ("light skin", "dark skin")
+    ]
     assert float(delta.values[0, 0, 0]) == pytest.approx(
-        float(colour.delta_E(*lab_sd, method="CIE 2000")), abs=0.5)
+        float(colour.delta_E(*lab_sd, method="CIE 2000")), abs=0.5
+    )
 
 
 def test_colour_difference_is_zero_for_identical_spectra_and_depends_on_illuminant():
@@ -188,13 +211,13 @@ def test_colour_difference_is_zero_for_identical_spectra_and_depends_on_illumina
 def test_map_statistics_known_values_ignore_nan():
     values = np.arange(1.0, 101.0).reshape(1, 10, 10)
     values[0, 0, 0] = np.nan  # 2..100 remain
-    stats = map_statistics(xr.DataArray(values, dims=("image", "y", "x"),
-                                        attrs={"units": "1"}))
+    stats = map_statistics(xr.DataArray(values, dims=("image", "y", "x"), attrs={"units": "1"}))
     assert list(stats["statistic"].values) == list(STATISTICS)
     finite = np.arange(2.0, 101.0)
-    np.testing.assert_allclose(stats.values[0], [finite.mean(), np.median(finite),
-                                                 np.quantile(finite, 0.95),
-                                                 np.quantile(finite, 0.99)])
+    np.testing.assert_allclose(
+        stats.values[0],
+        [finite.mean(), np.median(finite), np.quantile(finite, 0.95), np.quantile(finite, 0.99)],
+    )
     all_nan = map_statistics(xr.DataArray(np.full((1, 2, 2), np.nan), dims=("image", "y", "x")))
     assert np.isnan(all_nan.values).all()
 
@@ -211,20 +234,22 @@ def test_evaluate_known_answers_per_image_and_per_subset():
     means = truth.radiance.astype(np.float64).mean(("wavelength", "y", "x")).values
     offsets = np.array([0.015, 0.055, 0.015]) * means  # nRMSE 0.015, 0.055, 0.015 everywhere
     spectra = truth.copy(deep=True)
-    spectra["radiance"] = truth.radiance + xr.DataArray(offsets.astype(np.float32),
-                                                        dims="image")
-    ev = evaluate(spectra, truth, shots=shots_for([0, 2, 2]), histogram_bins=10,
-                  histogram_max=0.1).compute()
+    spectra["radiance"] = truth.radiance + xr.DataArray(offsets.astype(np.float32), dims="image")
+    ev = evaluate(
+        spectra, truth, shots=shots_for([0, 2, 2]), histogram_bins=10, histogram_max=0.1
+    ).compute()
 
-    np.testing.assert_allclose(ev.nrmse_statistics.sel(statistic="median"),
-                               [0.015, 0.055, 0.015], rtol=1e-3)
+    np.testing.assert_allclose(
+        ev.nrmse_statistics.sel(statistic="median"), [0.015, 0.055, 0.015], rtol=1e-3
+    )
     np.testing.assert_allclose(ev.nrmse_fraction_below, [1.0, 0.0, 1.0])
     np.testing.assert_allclose(ev.truth_mean, means)
     assert ev.has_band_shots.values.tolist() == [True, False, True]
     assert list(ev.subset.values) == ["all", "with_band_shots", "without_band_shots"]
     subset = ev.nrmse_subset_statistics.sel(statistic="median")
-    np.testing.assert_allclose(subset.sel(subset=["with_band_shots", "without_band_shots"]),
-                               [0.015, 0.055], rtol=1e-3)
+    np.testing.assert_allclose(
+        subset.sel(subset=["with_band_shots", "without_band_shots"]), [0.015, 0.055], rtol=1e-3
+    )
     pixels = truth.sizes["y"] * truth.sizes["x"]
     assert ev.subset_pixel_count.values.tolist() == [3 * pixels, 2 * pixels, pixels]
     np.testing.assert_allclose(ev.nrmse_subset_fraction_below, [2 / 3, 1.0, 0.0])
@@ -258,15 +283,16 @@ def test_representative_spectra_are_picked_at_low_and_high_error():
     for image in range(2):
         errors = nrmse[image].values
         y, x = int(picks.sample_y[image, 2]), int(picks.sample_x[image, 2])
-        assert errors[y, x] == errors.max()                                   # worst pixel
+        assert errors[y, x] == errors.max()  # worst pixel
         y0, x0 = int(picks.sample_y[image, 0]), int(picks.sample_x[image, 0])
-        assert errors[y0, x0] == errors.min()                                 # best pixel
-        np.testing.assert_array_equal(picks.sample_truth[image, 2],
-                                      truth.radiance[image, :, y, x])
-        np.testing.assert_array_equal(picks.sample_reconstruction[image, 2],
-                                      spectra.radiance[image, :, y, x])
+        assert errors[y0, x0] == errors.min()  # best pixel
+        np.testing.assert_array_equal(picks.sample_truth[image, 2], truth.radiance[image, :, y, x])
+        np.testing.assert_array_equal(
+            picks.sample_reconstruction[image, 2], spectra.radiance[image, :, y, x]
+        )
         assert float(picks.sample_nrmse[image, 1]) == pytest.approx(
-            float(np.quantile(errors, 0.5)), abs=float(np.ptp(errors)) / 20)
+            float(np.quantile(errors, 0.5)), abs=float(np.ptp(errors)) / 20
+        )
     assert picks.sample_quantile.values.tolist() == [0.0, 0.5, 1.0]
     with pytest.raises(ValueError, match="ascending"):
         representative_spectra(nrmse, spectra, truth, quantiles=(0.9, 0.1))
@@ -277,8 +303,11 @@ def test_evaluate_is_lazy_over_images_and_equals_the_eager_result():
     spectra = truth.copy(deep=True)
     spectra["radiance"] = truth.radiance * np.float32(1.02) + np.float32(0.001)
     eager = evaluate(spectra, truth, shots=shots_for([1])).compute()
-    lazy = evaluate(spectra.chunk({"image": 1, "y": 4, "x": 9}),
-                    truth.chunk({"image": 1, "y": 4, "x": 9}), shots=shots_for([1]))
+    lazy = evaluate(
+        spectra.chunk({"image": 1, "y": 4, "x": 9}),
+        truth.chunk({"image": 1, "y": 4, "x": 9}),
+        shots=shots_for([1]),
+    )
     assert lazy.nrmse.chunks is not None and lazy.nrmse_statistics.chunks is not None
     assert lazy.sample_truth.chunks[0] == (1, 1, 1)  # one image per task
     xr.testing.assert_allclose(lazy.compute(), eager)
@@ -309,8 +338,13 @@ def test_evaluate_reports_every_mismatch_at_once():
     assert any("spectra:radiance" in m and "dims" in m for m in messages)
     assert any("truth:radiance" in m and "counts" in m for m in messages)
     with pytest.raises(SchemaError) as error:
-        EVALUATE({"spectra": wrong_dims, "truth": xr.Dataset({"counts": truth.radiance}),
-                  "shots": raw_spectral_for([0])})
+        EVALUATE(
+            {
+                "spectra": wrong_dims,
+                "truth": xr.Dataset({"counts": truth.radiance}),
+                "shots": raw_spectral_for([0]),
+            }
+        )
     messages = [str(p) for p in error.value.problems]
     assert any("spectra" in m and "radiance" in m and "dims" in m for m in messages)
     assert any("truth" in m and "radiance" in m for m in messages)
@@ -352,8 +386,9 @@ def test_evaluation_group_round_trips_through_a_run_store(tmp_path):
 
 def test_compare_methods_ranks_a_perfect_and_a_biased_method():
     truth = checker_truth(n_image=2)
-    table = compare_methods({"perfect": truth.radiance, "biased": truth.radiance * 1.1},
-                            truth, shots=shots_for([1])).compute()
+    table = compare_methods(
+        {"perfect": truth.radiance, "biased": truth.radiance * 1.1}, truth, shots=shots_for([1])
+    ).compute()
     assert table[METHOD_DIM].values.tolist() == ["perfect", "biased"]
     median = table.nrmse_subset_statistics.sel(subset="all", statistic="median")
     assert float(median.sel({METHOD_DIM: "perfect"})) == 0.0
@@ -365,13 +400,14 @@ def test_compare_methods_ranks_a_perfect_and_a_biased_method():
 
 def test_node_declaration_runs_and_validates_parameters():
     truth = checker_truth(n_image=2)
-    result = EVALUATE({"spectra": truth, "truth": truth, "shots": raw_spectral_for([0])},
-                      {"threshold": 0.02, "sample_quantiles": [0.5, 1.0]})
+    result = EVALUATE(
+        {"spectra": truth, "truth": truth, "shots": raw_spectral_for([0])},
+        {"threshold": 0.02, "sample_quantiles": [0.5, 1.0]},
+    )
     assert set(result) == {"evaluation"}
     assert result["evaluation"].sizes["sample"] == 2
     assert result["evaluation"].attrs["threshold"] == 0.02
-    assert EVALUATE.inputs == {"spectra": "spectra", "truth": "truth/spectra",
-                               "shots": "raw/spectral"}
+    assert EVALUATE.inputs == {"spectra": "spectra", "truth": "truth/spectra", "shots": "raw/spectral"}
     with pytest.raises(ParameterError, match="illuminant"):
         EVALUATE.parse_parameters({"illuminant": "D-nonsense"})
     with pytest.raises(ParameterError, match="unknown parameter"):
@@ -381,7 +417,19 @@ def test_node_declaration_runs_and_validates_parameters():
     assert "D65" in EVALUATE.parameter_choices()["illuminant"]
     assert "E" in EVALUATE.parameter_choices()["illuminant"]
     assert set(EVALUATE.parameters.model_fields) == {
-        "illuminant", "threshold", "histogram_bins", "histogram_max", "sample_quantiles"}
-    planned = check_graph([Step("evaluate")], nodes={"evaluate": EVALUATE}, available={
-        "spectra": "spectra", "truth/spectra": "truth/spectra", "raw/spectral": "raw/spectral"})
+        "illuminant",
+        "threshold",
+        "histogram_bins",
+        "histogram_max",
+        "sample_quantiles",
+    }
+    planned = check_graph(
+        [Step("evaluate")],
+        nodes={"evaluate": EVALUATE},
+        available={
+            "spectra": "spectra",
+            "truth/spectra": "truth/spectra",
+            "raw/spectral": "raw/spectral",
+        },
+    )
     assert [p.outputs for p in planned] == [{"evaluation": "evaluation"}]

@@ -29,18 +29,30 @@ def smooth_spectra(rng: np.random.Generator, wavelength: np.ndarray, count: int)
     t = (wavelength - wavelength.min()) / max(np.ptp(wavelength), 1.0)
     out = []
     for _ in range(count):
-        c = rng.uniform(0.2, 0.6) + rng.uniform(-0.3, 0.3) * np.cos(np.pi * t * rng.uniform(
-            0.5, 2.0) + rng.uniform(0, np.pi))
+        c = rng.uniform(0.2, 0.6) + rng.uniform(-0.3, 0.3) * np.cos(
+            np.pi * t * rng.uniform(0.5, 2.0) + rng.uniform(0, np.pi)
+        )
         out.append(np.clip(c, 0.05, None))
     return np.asarray(out)
 
 
-def make_scene(*, size: int = 24, n_wavelength: int = 8, n_images: int = 1,
-               n_materials: int = 3, shading: bool = False, noise: float = 0.0,
-               filter_size: float = 3.0, shots: dict[int, list[int]] | None = None,
-               brightness: list[float] | None = None, rgb_noise: float = 0.0,
-               blend: bool = False, shading_shift: float = 1.0, mirror_odd: bool = False,
-               seed: int = 0) -> Scene:
+def make_scene(
+    *,
+    size: int = 24,
+    n_wavelength: int = 8,
+    n_images: int = 1,
+    n_materials: int = 3,
+    shading: bool = False,
+    noise: float = 0.0,
+    filter_size: float = 3.0,
+    shots: dict[int, list[int]] | None = None,
+    brightness: list[float] | None = None,
+    rgb_noise: float = 0.0,
+    blend: bool = False,
+    shading_shift: float = 1.0,
+    mirror_odd: bool = False,
+    seed: int = 0,
+) -> Scene:
     """Vertical stripes of materials; optional smooth shading, band noise and relative RGB
     noise. ``blend=True`` blends the materials continuously from left to right instead
     (every pixel then has its own spectrum and the RGB neighbour graph is connected).
@@ -78,14 +90,22 @@ def make_scene(*, size: int = 24, n_wavelength: int = 8, n_images: int = 1,
             shot_band.append(b)
             data.append(truth[m, b] + noise * rng.normal(size=(size, size)))
     bands = xr.DataArray(
-        np.asarray(data), dims=("shot", "y", "x"),
-        coords={"wavelength": ("shot", wavelength[shot_band]),
-                "image": ("shot", np.asarray(shot_image)),
-                "filter_size": ("shot", np.full(len(data), float(filter_size)))})
-    rgb_da = xr.DataArray(rgb, dims=("image", "y", "x", "channel"),
-                          coords={"image": np.arange(n_images), "channel": ["R", "G", "B"]})
-    c_da = xr.DataArray(c, dims=("channel", "wavelength"),
-                        coords={"channel": ["R", "G", "B"], "wavelength": wavelength})
+        np.asarray(data),
+        dims=("shot", "y", "x"),
+        coords={
+            "wavelength": ("shot", wavelength[shot_band]),
+            "image": ("shot", np.asarray(shot_image)),
+            "filter_size": ("shot", np.full(len(data), float(filter_size))),
+        },
+    )
+    rgb_da = xr.DataArray(
+        rgb,
+        dims=("image", "y", "x", "channel"),
+        coords={"image": np.arange(n_images), "channel": ["R", "G", "B"]},
+    )
+    c_da = xr.DataArray(
+        c, dims=("channel", "wavelength"), coords={"channel": ["R", "G", "B"], "wavelength": wavelength}
+    )
     return Scene(rgb_da, bands, c_da, truth, labels)
 
 

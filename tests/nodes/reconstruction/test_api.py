@@ -12,8 +12,15 @@ from spectralize.schemas.errors import ReconstructionError, SpectralizeError
 
 @pytest.fixture
 def scene(scene_factory):
-    return scene_factory(size=20, n_wavelength=6, n_images=2, shading=True, noise=0.02,
-                         rgb_noise=1e-3, shots={0: [0, 1, 2, 3, 4, 5], 1: [2]})
+    return scene_factory(
+        size=20,
+        n_wavelength=6,
+        n_images=2,
+        shading=True,
+        noise=0.02,
+        rgb_noise=1e-3,
+        shots={0: [0, 1, 2, 3, 4, 5], 1: [2]},
+    )
 
 
 def test_output_dims_dtype_coords_and_attrs(scene):
@@ -37,8 +44,15 @@ def test_output_dims_dtype_coords_and_attrs(scene):
 
 
 def test_result_object_records_the_solve(scene):
-    result = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method="paper-cg",
-                         max_iterations=5, tolerance=1e-12, full_output=True)
+    result = reconstruct(
+        scene.rgb,
+        scene.bands,
+        scene.camera_matrix,
+        method="paper-cg",
+        max_iterations=5,
+        tolerance=1e-12,
+        full_output=True,
+    )
     assert result.iterations == 5 and not result.converged
     assert len(result.residual_history) == 6
     assert result.wall_time >= result.setup_time > 0
@@ -53,32 +67,34 @@ def test_single_image_uses_gamma_hat_one(scene_factory):
 
 def test_inputs_in_any_dim_order_and_channel_order(scene):
     reference = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, tolerance=1e-6)
-    shuffled = reconstruct(scene.rgb.transpose("channel", "x", "image", "y"),
-                           scene.bands.transpose("y", "shot", "x"),
-                           scene.camera_matrix.isel(channel=[2, 0, 1]).transpose(),
-                           tolerance=1e-6)
-    np.testing.assert_allclose(shuffled.values, reference.values, rtol=1e-4,
-                               atol=1e-5 * float(np.abs(reference).max()))
+    shuffled = reconstruct(
+        scene.rgb.transpose("channel", "x", "image", "y"),
+        scene.bands.transpose("y", "shot", "x"),
+        scene.camera_matrix.isel(channel=[2, 0, 1]).transpose(),
+        tolerance=1e-6,
+    )
+    np.testing.assert_allclose(
+        shuffled.values, reference.values, rtol=1e-4, atol=1e-5 * float(np.abs(reference).max())
+    )
 
 
 def test_result_scales_with_radiance_and_ignores_the_gain_of_c(scene):
     reference = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, tolerance=1e-6)
-    dim = reconstruct(scene.rgb * 0.01, scene.bands * 0.01, scene.camera_matrix,
-                      tolerance=1e-6)
-    np.testing.assert_allclose(dim.values, 0.01 * reference.values, rtol=1e-3,
-                               atol=1e-6 * float(np.abs(reference).max()))
-    gain = reconstruct(scene.rgb * 7.0, scene.bands, scene.camera_matrix * 7.0,
-                       tolerance=1e-6)
-    np.testing.assert_allclose(gain.values, reference.values, rtol=1e-3,
-                               atol=1e-5 * float(np.abs(reference).max()))
+    dim = reconstruct(scene.rgb * 0.01, scene.bands * 0.01, scene.camera_matrix, tolerance=1e-6)
+    np.testing.assert_allclose(
+        dim.values, 0.01 * reference.values, rtol=1e-3, atol=1e-6 * float(np.abs(reference).max())
+    )
+    gain = reconstruct(scene.rgb * 7.0, scene.bands, scene.camera_matrix * 7.0, tolerance=1e-6)
+    np.testing.assert_allclose(
+        gain.values, reference.values, rtol=1e-3, atol=1e-5 * float(np.abs(reference).max())
+    )
 
 
 @pytest.mark.parametrize("method", sorted(RECONSTRUCTION_METHODS))
 def test_every_method_of_the_table_runs_through_reconstruct(scene, method):
     record = RECONSTRUCTION_METHODS[method]
     assert record.name == method and record.kind in ("solver", "baseline")
-    result = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method=method,
-                         full_output=True)
+    result = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method=method, full_output=True)
     out = result.spectra
     assert out.dims == ("image", "wavelength", "y", "x")
     assert out.shape == (2, 6, 20, 20)
@@ -101,11 +117,19 @@ def test_option_defaults_are_the_functions_defaults():
     record = RECONSTRUCTION_METHODS["guided-prior-pcg"]
     assert record.defaults()["prior"] == 0.1
     assert RECONSTRUCTION_METHODS["block-jacobi-pcg"].defaults()["prior"] == 0.0
-    assert {"alpha_hat", "beta_hat", "gamma_hat", "k", "centre_spacing",
-            "normalize_camera_matrix", "tolerance", "max_iterations", "initial",
-            "callback"} <= set(RECONSTRUCTION_METHODS["paper-cg"].options)
-    assert set(RECONSTRUCTION_METHODS["guided-projected"].options) == {"window_scale",
-                                                                       "epsilon"}
+    assert {
+        "alpha_hat",
+        "beta_hat",
+        "gamma_hat",
+        "k",
+        "centre_spacing",
+        "normalize_camera_matrix",
+        "tolerance",
+        "max_iterations",
+        "initial",
+        "callback",
+    } <= set(RECONSTRUCTION_METHODS["paper-cg"].options)
+    assert set(RECONSTRUCTION_METHODS["guided-projected"].options) == {"window_scale", "epsilon"}
     assert set(RECONSTRUCTION_METHODS["wiener"].options) == {"relative_noise"}
     assert RECONSTRUCTION_METHODS["pseudo-inverse"].options == {}
 
@@ -119,55 +143,91 @@ def _raises(match, *args, **kwargs):
 
 
 def test_unknown_method_lists_the_known_ones(scene):
-    message = _raises("unknown method 'multigrid'", scene.rgb, scene.bands,
-                      scene.camera_matrix, method="multigrid")
+    message = _raises(
+        "unknown method 'multigrid'", scene.rgb, scene.bands, scene.camera_matrix, method="multigrid"
+    )
     for name in RECONSTRUCTION_METHODS:  # solvers and baselines
         assert name in message
 
 
 def test_unknown_option_lists_the_methods_options(scene):
-    message = _raises(r"method 'paper-cg': unknown option\(s\) \['prior'\]", scene.rgb,
-                      scene.bands, scene.camera_matrix, method="paper-cg", prior=0.1)
+    message = _raises(
+        r"method 'paper-cg': unknown option\(s\) \['prior'\]",
+        scene.rgb,
+        scene.bands,
+        scene.camera_matrix,
+        method="paper-cg",
+        prior=0.1,
+    )
     for name in RECONSTRUCTION_METHODS["paper-cg"].options:
         assert name in message
     assert "'prior' is an option of" in message and "guided-prior-pcg" in message
-    message = _raises(r"unknown option\(s\) \['gamma_hat', 'tolerance'\]", scene.rgb,
-                      scene.bands, scene.camera_matrix, method="wiener", tolerance=1e-3,
-                      gamma_hat=1.0)
+    message = _raises(
+        r"unknown option\(s\) \['gamma_hat', 'tolerance'\]",
+        scene.rgb,
+        scene.bands,
+        scene.camera_matrix,
+        method="wiener",
+        tolerance=1e-3,
+        gamma_hat=1.0,
+    )
     assert "its options are: relative_noise" in message
     _raises("unknown option", scene.rgb, scene.bands, scene.camera_matrix, smoothness=3)
 
 
 def test_image_size_mismatch(scene):
-    message = _raises("bands: expected the rgb image size", scene.rgb,
-                      scene.bands.isel(x=slice(0, 18)), scene.camera_matrix)
+    message = _raises(
+        "bands: expected the rgb image size",
+        scene.rgb,
+        scene.bands.isel(x=slice(0, 18)),
+        scene.camera_matrix,
+    )
     assert "x: 18" in message
 
 
 def test_wrong_dims_and_channel_count(scene):
-    _raises(r"rgb: expected dims \('image', 'y', 'x', 'channel'\)",
-            scene.rgb.isel(image=0).rename(x="column"), scene.bands, scene.camera_matrix)
+    _raises(
+        r"rgb: expected dims \('image', 'y', 'x', 'channel'\)",
+        scene.rgb.isel(image=0).rename(x="column"),
+        scene.bands,
+        scene.camera_matrix,
+    )
     # one (y, x, channel) image is a valid form, but these bands pair with two images
-    _raises(r"names images \[1\] that rgb does not have", scene.rgb.isel(image=0),
-            scene.bands, scene.camera_matrix)
-    _raises("rgb: expected 3 channels, found 2", scene.rgb.isel(channel=[0, 1]),
-            scene.bands, scene.camera_matrix.isel(channel=[0, 1]))
-    _raises("camera_matrix: expected dims", scene.rgb, scene.bands,
-            scene.camera_matrix.rename(wavelength="band"))
-    _raises("rgb: expected an xarray.DataArray", scene.rgb.values, scene.bands,
-            scene.camera_matrix)
+    _raises(
+        r"names images \[1\] that rgb does not have",
+        scene.rgb.isel(image=0),
+        scene.bands,
+        scene.camera_matrix,
+    )
+    _raises(
+        "rgb: expected 3 channels, found 2",
+        scene.rgb.isel(channel=[0, 1]),
+        scene.bands,
+        scene.camera_matrix.isel(channel=[0, 1]),
+    )
+    _raises(
+        "camera_matrix: expected dims",
+        scene.rgb,
+        scene.bands,
+        scene.camera_matrix.rename(wavelength="band"),
+    )
+    _raises("rgb: expected an xarray.DataArray", scene.rgb.values, scene.bands, scene.camera_matrix)
 
 
 def test_wavelength_mismatch_names_both_grids(scene):
     shifted = scene.bands.assign_coords(
-        wavelength=("shot", scene.bands["wavelength"].values + np.r_[0, 0, 0, 0, 0, 5.0, 0]))
-    message = _raises("not on camera_matrix's wavelength grid", scene.rgb, shifted,
-                      scene.camera_matrix)
+        wavelength=("shot", scene.bands["wavelength"].values + np.r_[0, 0, 0, 0, 0, 5.0, 0])
+    )
+    message = _raises("not on camera_matrix's wavelength grid", scene.rgb, shifted, scene.camera_matrix)
     grid = scene.camera_matrix["wavelength"].values
     assert str(grid.tolist()) in message  # the camera matrix's grid
     assert str(np.unique(shifted["wavelength"].values).tolist()) in message  # the bands'
-    _raises("expected a coordinate 'filter_size'", scene.rgb,
-            scene.bands.drop_vars("filter_size"), scene.camera_matrix)
+    _raises(
+        "expected a coordinate 'filter_size'",
+        scene.rgb,
+        scene.bands.drop_vars("filter_size"),
+        scene.camera_matrix,
+    )
 
 
 def test_a_wider_camera_matrix_grid_is_restricted_to_the_bands(scene):
@@ -176,20 +236,19 @@ def test_a_wider_camera_matrix_grid_is_restricted_to_the_bands(scene):
     exact = scene.camera_matrix
     step = float(np.diff(exact["wavelength"].values)[0])
     below = exact.isel(wavelength=[0, 0]).assign_coords(
-        wavelength=exact["wavelength"].values[0] - step * np.array([2.0, 1.0]))
-    above = exact.isel(wavelength=[-1]).assign_coords(
-        wavelength=[exact["wavelength"].values[-1] + step])
+        wavelength=exact["wavelength"].values[0] - step * np.array([2.0, 1.0])
+    )
+    above = exact.isel(wavelength=[-1]).assign_coords(wavelength=[exact["wavelength"].values[-1] + step])
     wider = xr.concat([above, exact, below], dim="wavelength")  # unsorted, too
     reference = reconstruct(scene.rgb, scene.bands, exact)
     restricted = reconstruct(scene.rgb, scene.bands, wider)
-    np.testing.assert_array_equal(restricted["wavelength"].values,
-                                  exact["wavelength"].values)
-    np.testing.assert_allclose(restricted.values, reference.values, rtol=1e-6,
-                               atol=1e-6 * float(np.abs(reference).max()))
+    np.testing.assert_array_equal(restricted["wavelength"].values, exact["wavelength"].values)
+    np.testing.assert_allclose(
+        restricted.values, reference.values, rtol=1e-6, atol=1e-6 * float(np.abs(reference).max())
+    )
     # a grid that does not cover the bands is still an error, naming both grids
     narrow = exact.isel(wavelength=slice(0, -1))
-    message = _raises("not on camera_matrix's wavelength grid", scene.rgb, scene.bands,
-                      narrow)
+    message = _raises("not on camera_matrix's wavelength grid", scene.rgb, scene.bands, narrow)
     assert str(narrow["wavelength"].values.tolist()) in message
     assert str(exact["wavelength"].values.tolist()) in message
 
@@ -197,11 +256,15 @@ def test_a_wider_camera_matrix_grid_is_restricted_to_the_bands(scene):
 @pytest.mark.parametrize("array", ["rgb", "bands", "camera_matrix"])
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
 def test_nan_and_inf(scene, array, bad):
-    arrays = {"rgb": scene.rgb.copy(), "bands": scene.bands.copy(),
-              "camera_matrix": scene.camera_matrix.copy()}
+    arrays = {
+        "rgb": scene.rgb.copy(),
+        "bands": scene.bands.copy(),
+        "camera_matrix": scene.camera_matrix.copy(),
+    }
     arrays[array][(0,) * arrays[array].ndim] = bad
-    message = _raises(f"{array}: expected finite values", arrays["rgb"], arrays["bands"],
-                      arrays["camera_matrix"])
+    message = _raises(
+        f"{array}: expected finite values", arrays["rgb"], arrays["bands"], arrays["camera_matrix"]
+    )
     assert ("1 NaN" if np.isnan(bad) else "1 inf") in message
 
 
@@ -209,31 +272,41 @@ def test_filter_larger_than_the_image(scene):
     big = scene.bands.assign_coords(filter_size=("shot", np.r_[3.0, 3, 3, 3, 3, 10.0, 3]))
     message = _raises("larger than the image allows", scene.rgb, big, scene.camera_matrix)
     assert "10.0" in message and "s_i <= 9.5 px" in message
-    _raises("filter_size must be finite and > 0", scene.rgb,
-            scene.bands.assign_coords(filter_size=("shot", np.r_[3.0, 3, 3, 3, 3, 0, 3])),
-            scene.camera_matrix)
+    _raises(
+        "filter_size must be finite and > 0",
+        scene.rgb,
+        scene.bands.assign_coords(filter_size=("shot", np.r_[3.0, 3, 3, 3, 3, 0, 3])),
+        scene.camera_matrix,
+    )
 
 
 def test_empty_set(scene):
-    _raises("rgb: is empty", scene.rgb.isel(image=slice(0, 0)), scene.bands,
-            scene.camera_matrix)
-    _raises("bands: is empty", scene.rgb, scene.bands.isel(shot=slice(0, 0)),
-            scene.camera_matrix)
+    _raises("rgb: is empty", scene.rgb.isel(image=slice(0, 0)), scene.bands, scene.camera_matrix)
+    _raises("bands: is empty", scene.rgb, scene.bands.isel(shot=slice(0, 0)), scene.camera_matrix)
 
 
 def test_shot_of_an_unknown_image(scene):
     bands = scene.bands.assign_coords(image=("shot", np.r_[0, 0, 0, 0, 0, 0, 5]))
-    _raises(r"names images \[5\] that rgb does not have", scene.rgb, bands,
-            scene.camera_matrix)
+    _raises(r"names images \[5\] that rgb does not have", scene.rgb, bands, scene.camera_matrix)
 
 
 def test_bad_options_and_initial(scene):
-    _raises("alpha_hat: expected a finite number > 0", scene.rgb, scene.bands,
-            scene.camera_matrix, alpha_hat=-1.0)
+    _raises(
+        "alpha_hat: expected a finite number > 0",
+        scene.rgb,
+        scene.bands,
+        scene.camera_matrix,
+        alpha_hat=-1.0,
+    )
     _raises("k: expected an integer >= 1", scene.rgb, scene.bands, scene.camera_matrix, k=0)
     wrong = xr.zeros_like(scene.rgb.isel(channel=0)).expand_dims(wavelength=3)
-    _raises("initial: expected shape", scene.rgb, scene.bands, scene.camera_matrix,
-            initial=wrong.transpose("image", "wavelength", "y", "x"))
+    _raises(
+        "initial: expected shape",
+        scene.rgb,
+        scene.bands,
+        scene.camera_matrix,
+        initial=wrong.transpose("image", "wavelength", "y", "x"),
+    )
 
 
 # -- single-image forms ----------------------------------------------------------------------
@@ -245,8 +318,11 @@ def single(scene_factory):
 def _band_cube(scene):
     """The one image's shots as a (y, x, wavelength) band cube."""
     shots = scene.bands
-    return xr.DataArray(shots.transpose("y", "x", "shot").values, dims=("y", "x", "wavelength"),
-                        coords={"wavelength": shots["wavelength"].values})
+    return xr.DataArray(
+        shots.transpose("y", "x", "shot").values,
+        dims=("y", "x", "wavelength"),
+        coords={"wavelength": shots["wavelength"].values},
+    )
 
 
 @pytest.mark.parametrize("method", ["block-jacobi-pcg", "paper-cg", "guided-projected"])
@@ -259,8 +335,9 @@ def test_one_image_as_band_cube_and_rgb_image_gives_the_shot_form_result(single,
     np.testing.assert_array_equal(out.values, reference.isel(image=0).values)
     # filter sizes as a coordinate along wavelength, with the set-form rgb
     sized = cube.assign_coords(filter_size=("wavelength", np.full(6, 3.0)))
-    as_set = reconstruct(single.rgb, sized.transpose("wavelength", "x", "y"),
-                         single.camera_matrix, method=method)
+    as_set = reconstruct(
+        single.rgb, sized.transpose("wavelength", "x", "y"), single.camera_matrix, method=method
+    )
     assert as_set.dims == ("image", "wavelength", "y", "x")
     np.testing.assert_array_equal(as_set.values, reference.values)
     # a (y, x, channel) image with the shot form of the bands
@@ -272,12 +349,31 @@ def test_band_cube_errors(single, scene):
     cube = _band_cube(single)
     rgb_image = single.rgb.isel(image=0)
     _raises("needs the filter size", rgb_image, cube, single.camera_matrix)
-    _raises("given both as an option and as a coordinate", rgb_image,
-            cube.assign_coords(filter_size=("wavelength", np.full(6, 3.0))),
-            single.camera_matrix, filter_size=3.0)
-    _raises(r"expected one number or 6 \(one per wavelength\)", rgb_image, cube,
-            single.camera_matrix, filter_size=[3.0, 3.0])
-    _raises("a \\(y, x, wavelength\\) band cube is one image's bands, but rgb has 2 images",
-            scene.rgb, cube, scene.camera_matrix, filter_size=3.0)
-    _raises("filter_size: only for bands given as a \\(y, x, wavelength\\) band cube",
-            single.rgb, single.bands, single.camera_matrix, filter_size=3.0)
+    _raises(
+        "given both as an option and as a coordinate",
+        rgb_image,
+        cube.assign_coords(filter_size=("wavelength", np.full(6, 3.0))),
+        single.camera_matrix,
+        filter_size=3.0,
+    )
+    _raises(
+        r"expected one number or 6 \(one per wavelength\)",
+        rgb_image,
+        cube,
+        single.camera_matrix,
+        filter_size=[3.0, 3.0],
+    )
+    _raises(
+        "a \\(y, x, wavelength\\) band cube is one image's bands, but rgb has 2 images",
+        scene.rgb,
+        cube,
+        scene.camera_matrix,
+        filter_size=3.0,
+    )
+    _raises(
+        "filter_size: only for bands given as a \\(y, x, wavelength\\) band cube",
+        single.rgb,
+        single.bands,
+        single.camera_matrix,
+        filter_size=3.0,
+    )

@@ -16,8 +16,14 @@ from spectralize.nodes.reconstruction.baselines import (
 
 @pytest.fixture
 def inputs(scene_factory):
-    scene = scene_factory(size=20, n_wavelength=8, n_images=2, shading=True, noise=0.05,
-                          shots={0: list(range(8)), 1: [0, 3]})
+    scene = scene_factory(
+        size=20,
+        n_wavelength=8,
+        n_images=2,
+        shading=True,
+        noise=0.05,
+        shots={0: list(range(8)), 1: [0, 3]},
+    )
     return inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix)
 
 
@@ -25,8 +31,9 @@ def _rgb_of(cube, inputs):
     return np.einsum("cw,wmyx->myxc", inputs.camera_matrix, cube)
 
 
-@pytest.mark.parametrize("method", ["pseudo-inverse", "mallett2019", "filtered-projected",
-                                    "guided-projected"])
+@pytest.mark.parametrize(
+    "method", ["pseudo-inverse", "mallett2019", "filtered-projected", "guided-projected"]
+)
 def test_rgb_consistent_baselines_reproduce_the_rgb(inputs, method):
     cube = RECONSTRUCTION_METHODS[method].function(inputs)
     assert cube.shape == inputs.cube_shape
@@ -35,8 +42,9 @@ def test_rgb_consistent_baselines_reproduce_the_rgb(inputs, method):
 
 def test_wiener_nearly_reproduces_the_rgb_and_is_linear_in_it(inputs):
     cube = RECONSTRUCTION_METHODS["wiener"].function(inputs)
-    np.testing.assert_allclose(_rgb_of(cube, inputs), inputs.rgb, rtol=1e-2,
-                               atol=1e-3 * np.abs(inputs.rgb).max())
+    np.testing.assert_allclose(
+        _rgb_of(cube, inputs), inputs.rgb, rtol=1e-2, atol=1e-3 * np.abs(inputs.rgb).max()
+    )
     # linear: the estimate of R1 + R2 at two pixels is the sum of the estimates
     flat = cube.reshape(cube.shape[0], -1)
     rgb = inputs.rgb_pixels()
@@ -54,14 +62,19 @@ def test_pseudo_inverse_is_the_minimum_norm_rgb_solution(inputs):
 def test_filtered_bands_of_a_constant_image_are_that_constant(scene_factory):
     scene = scene_factory(size=20, n_wavelength=4, n_materials=1, filter_size=5.0)
     inputs = inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix)
-    np.testing.assert_allclose(filtered_bands(inputs), np.moveaxis(scene.truth, 1, 0),
-                               rtol=1e-12)
+    np.testing.assert_allclose(filtered_bands(inputs), np.moveaxis(scene.truth, 1, 0), rtol=1e-12)
 
 
 def test_missing_bands_are_predicted_from_rgb(scene_factory):
     # flat materials: every band is a linear function of RGB, so the fit is exact
-    scene = scene_factory(size=20, n_wavelength=6, n_images=2, n_materials=3,
-                          filter_size=2.0, shots={0: list(range(6)), 1: [1]})
+    scene = scene_factory(
+        size=20,
+        n_wavelength=6,
+        n_images=2,
+        n_materials=3,
+        filter_size=2.0,
+        shots={0: list(range(6)), 1: [1]},
+    )
     inputs = inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix)
     cube = filtered_bands(inputs)
     truth = np.moveaxis(scene.truth, 1, 0)
@@ -93,18 +106,19 @@ def test_guided_filter_keeps_detail_that_is_linear_in_rgb(scene_factory):
     """One shaded material: every band is a linear function of RGB, so the guided filter
     reproduces the noise-free bands (up to its small ridge) where a Gaussian filter blurs
     the shading; with band noise it still beats the Gaussian filter."""
-    scene = scene_factory(size=24, n_wavelength=6, n_materials=1, shading=True,
-                          filter_size=10.0)
+    scene = scene_factory(size=24, n_wavelength=6, n_materials=1, shading=True, filter_size=10.0)
     inputs = inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix)
     truth = np.moveaxis(scene.truth, 1, 0)
     guided = guided_filtered_bands(inputs)
     assert np.abs(guided - truth).max() < 1e-3 * np.abs(truth).max()
     assert np.abs(filtered_bands(inputs) - truth).max() > 1e-2 * np.abs(truth).max()
-    noisy = scene_factory(size=24, n_wavelength=6, n_materials=1, shading=True,
-                          filter_size=10.0, noise=0.1)
+    noisy = scene_factory(
+        size=24, n_wavelength=6, n_materials=1, shading=True, filter_size=10.0, noise=0.1
+    )
     inputs = inputs_from_xarray(noisy.rgb, noisy.bands, noisy.camera_matrix)
-    assert (np.linalg.norm(guided_filtered_bands(inputs) - truth)
-            < 0.5 * np.linalg.norm(filtered_bands(inputs) - truth))
+    assert np.linalg.norm(guided_filtered_bands(inputs) - truth) < 0.5 * np.linalg.norm(
+        filtered_bands(inputs) - truth
+    )
 
 
 def test_guided_filter_fills_bands_without_a_shot_like_the_filtered_bands(inputs):

@@ -12,14 +12,19 @@ def gantry_images(rotations=2, leds_per_ring=24, thetas=(15.0, 45.0, 75.0)):
     for rotation in range(rotations):
         for camera, theta_o in enumerate(thetas):
             for led in range(leds_per_ring):
-                rows.append((camera, rotation, led, 50.0, (led * 15.0 + rotation * 15.0) % 360,
-                             theta_o))
+                rows.append((camera, rotation, led, 50.0, (led * 15.0 + rotation * 15.0) % 360, theta_o))
     rows = np.array(rows)
-    images = xr.Dataset(coords={
-        "image": ("image", np.arange(len(rows))),
-        "camera": ("image", rows[:, 0].astype(int)), "rotation": ("image", rows[:, 1].astype(int)),
-        "led": ("image", rows[:, 2].astype(int)), "theta_i": ("image", rows[:, 3]),
-        "phi_i": ("image", rows[:, 4]), "theta_o": ("image", rows[:, 5])})
+    images = xr.Dataset(
+        coords={
+            "image": ("image", np.arange(len(rows))),
+            "camera": ("image", rows[:, 0].astype(int)),
+            "rotation": ("image", rows[:, 1].astype(int)),
+            "led": ("image", rows[:, 2].astype(int)),
+            "theta_i": ("image", rows[:, 3]),
+            "phi_i": ("image", rows[:, 4]),
+            "theta_o": ("image", rows[:, 5]),
+        }
+    )
     anchors = np.flatnonzero((images.camera.values == 1) & (images.led.values < 20))
     # each sweep of the filter spreads the 32 bands round-robin over 10 anchor images
     shot_image = [anchors[g * 10 + b % 10] for g in range(len(anchors) // 10) for b in range(32)]

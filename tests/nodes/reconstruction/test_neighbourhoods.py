@@ -35,8 +35,14 @@ def test_k_is_clipped_to_the_number_of_other_pixels():
 def test_neighbour_graph_spans_all_images_of_a_set(scene_factory):
     # image 1 shows the same materials twice as bright: its nearest RGB neighbours are in
     # image 1 itself, except where a brighter/darker copy matches across images
-    scene = scene_factory(size=12, n_wavelength=4, n_images=3, shading=True,
-                          brightness=[1.0, 1.02, 0.98], shots={0: [0, 1, 2, 3]})
+    scene = scene_factory(
+        size=12,
+        n_wavelength=4,
+        n_images=3,
+        shading=True,
+        brightness=[1.0, 1.02, 0.98],
+        shots={0: [0, 1, 2, 3]},
+    )
     inputs = inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix)
     problem = build_problem(inputs, k=3)
     neighbours = problem.neighbours.neighbours
@@ -56,8 +62,9 @@ def test_neighbour_graph_spans_all_images_of_a_set(scene_factory):
 
 def test_neighbour_pixel_order_matches_the_cube_layout(scene_factory):
     """Pixel q of the graph is image q // (h w), row (q % (h w)) // w, column q % w."""
-    scene = scene_factory(size=6, n_wavelength=4, n_images=2, shading=True, filter_size=2.0,
-                          shots={0: [0, 1, 2, 3]})
+    scene = scene_factory(
+        size=6, n_wavelength=4, n_images=2, shading=True, filter_size=2.0, shots={0: [0, 1, 2, 3]}
+    )
     inputs = inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix)
     rgb = inputs.rgb_pixels()
     q = 36 + 2 * 6 + 5

@@ -22,8 +22,9 @@ def _inner(a, b) -> float:
 
 
 # -- filter placement ---------------------------------------------------------------------
-@pytest.mark.parametrize(("length", "size", "spacing"),
-                         [(64, 10.0, 2.5), (100, 25.0, 2.5), (31, 5.0, 2.5), (50, 7.3, 1.0)])
+@pytest.mark.parametrize(
+    ("length", "size", "spacing"), [(64, 10.0, 2.5), (100, 25.0, 2.5), (31, 5.0, 2.5), (50, 7.3, 1.0)]
+)
 def test_filter_centres_keep_border_distance_and_spacing(length, size, spacing):
     centres = filter_centres(length, size, centre_spacing=spacing)
     assert centres[0] == pytest.approx(size)
@@ -87,8 +88,9 @@ def test_filter_operator_adjoint_and_count():
 def test_filter_normal_and_diagonal_match_the_dense_operator():
     rng = np.random.default_rng(2)
     shape = (2, 1, 11, 9)
-    filters = FilterConstraints(shape, np.array([0, 1, 1]), np.array([0, 0, 0]),
-                                np.array([2.0, 3.0, 2.5]))
+    filters = FilterConstraints(
+        shape, np.array([0, 1, 1]), np.array([0, 0, 0]), np.array([2.0, 3.0, 2.5])
+    )
     n = int(np.prod(shape))
     dense = np.zeros((filters.count, n))
     for j in range(n):
@@ -96,10 +98,8 @@ def test_filter_normal_and_diagonal_match_the_dense_operator():
         unit[j] = 1.0
         dense[:, j] = np.concatenate([r.ravel() for r in filters.forward(unit.reshape(shape))])
     x = rng.normal(size=shape)
-    np.testing.assert_allclose(filters.normal(x).ravel(), dense.T @ dense @ x.ravel(),
-                               atol=1e-12)
-    np.testing.assert_allclose(filters.normal_diagonal().ravel(),
-                               np.diag(dense.T @ dense), atol=1e-12)
+    np.testing.assert_allclose(filters.normal(x).ravel(), dense.T @ dense @ x.ravel(), atol=1e-12)
+    np.testing.assert_allclose(filters.normal_diagonal().ravel(), np.diag(dense.T @ dense), atol=1e-12)
 
 
 def test_rgb_operator_adjoint():
@@ -107,8 +107,9 @@ def test_rgb_operator_adjoint():
     c = rng.normal(size=(3, 6))
     x = rng.normal(size=(6, 2, 5, 4))
     y = rng.normal(size=(3, 40))
-    assert _inner(rgb_forward(x, c), y) == pytest.approx(_inner(x, rgb_adjoint(y, c, x.shape)),
-                                                         rel=1e-12)
+    assert _inner(rgb_forward(x, c), y) == pytest.approx(
+        _inner(x, rgb_adjoint(y, c, x.shape)), rel=1e-12
+    )
 
 
 def test_neighbour_operator_adjoint_and_laplacian():
@@ -118,10 +119,13 @@ def test_neighbour_operator_adjoint_and_laplacian():
     x = rng.normal(size=(5, 50))
     y = rng.normal(size=(5, graph.n_pairs))
     assert _inner(graph.differences(x), y) == pytest.approx(
-        _inner(x, graph.differences_adjoint(y)), rel=1e-12)
-    np.testing.assert_allclose(graph.laplacian_apply(x, scale=2.5),
-                               2.5 * graph.differences_adjoint(graph.differences(x)),
-                               atol=1e-12)
+        _inner(x, graph.differences_adjoint(y)), rel=1e-12
+    )
+    np.testing.assert_allclose(
+        graph.laplacian_apply(x, scale=2.5),
+        2.5 * graph.differences_adjoint(graph.differences(x)),
+        atol=1e-12,
+    )
     # degree = out-degree (k) + in-degree
     in_degree = np.bincount(graph.neighbours.ravel(), minlength=50)
     np.testing.assert_allclose(graph.degree, 3 + in_degree)
@@ -130,8 +134,9 @@ def test_neighbour_operator_adjoint_and_laplacian():
 
 @pytest.fixture
 def problem(scene_factory):
-    scene = scene_factory(size=20, n_wavelength=5, n_images=2, shading=True, noise=0.05,
-                          shots={0: [0, 1, 2, 3, 4], 1: [2]})
+    scene = scene_factory(
+        size=20, n_wavelength=5, n_images=2, shading=True, noise=0.05, shots={0: [0, 1, 2, 3, 4], 1: [2]}
+    )
     return build_problem(inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix))
 
 
@@ -139,24 +144,31 @@ def test_stacked_operator_adjoint(problem):
     rng = np.random.default_rng(5)
     x = rng.normal(size=problem.shape)
     applied = problem.apply(x)
-    y = ([rng.normal(size=r.shape) for r in applied[0]], rng.normal(size=applied[1].shape),
-         rng.normal(size=applied[2].shape))
-    lhs = (sum(_inner(a, b) for a, b in zip(applied[0], y[0], strict=True))
-           + _inner(applied[1], y[1]) + _inner(applied[2], y[2]))
+    y = (
+        [rng.normal(size=r.shape) for r in applied[0]],
+        rng.normal(size=applied[1].shape),
+        rng.normal(size=applied[2].shape),
+    )
+    lhs = (
+        sum(_inner(a, b) for a, b in zip(applied[0], y[0], strict=True))
+        + _inner(applied[1], y[1])
+        + _inner(applied[2], y[2])
+    )
     assert lhs == pytest.approx(_inner(x, problem.apply_adjoint(y)), rel=1e-11)
 
 
 def test_normal_operator_is_a_transpose_a(problem):
     rng = np.random.default_rng(6)
     x = rng.normal(size=problem.shape)
-    np.testing.assert_allclose(problem.normal(x), problem.apply_adjoint(problem.apply(x)),
-                               rtol=1e-10, atol=1e-10)
-    np.testing.assert_allclose(problem.normal_rhs(), problem.apply_adjoint(problem.target()),
-                               rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(
+        problem.normal(x), problem.apply_adjoint(problem.apply(x)), rtol=1e-10, atol=1e-10
+    )
+    np.testing.assert_allclose(
+        problem.normal_rhs(), problem.apply_adjoint(problem.target()), rtol=1e-10, atol=1e-12
+    )
     # symmetric positive semi-definite
     z = rng.normal(size=problem.shape)
-    assert _inner(problem.normal(x), z) == pytest.approx(_inner(x, problem.normal(z)),
-                                                         rel=1e-10)
+    assert _inner(problem.normal(x), z) == pytest.approx(_inner(x, problem.normal(z)), rel=1e-10)
     assert _inner(problem.normal(x), x) > 0
 
 
@@ -164,8 +176,10 @@ def test_energy_is_the_sum_of_the_three_terms(problem):
     rng = np.random.default_rng(7)
     x = rng.normal(size=problem.shape)
     w = problem.weights
-    filt = sum(float(np.sum((a - t) ** 2)) for a, t in
-               zip(problem.filters.forward(x), problem.filter_targets, strict=True))
+    filt = sum(
+        float(np.sum((a - t) ** 2))
+        for a, t in zip(problem.filters.forward(x), problem.filter_targets, strict=True)
+    )
     rgb = float(np.sum((rgb_forward(x, problem.camera_matrix) - problem.rgb) ** 2))
     nbr = float(np.sum(problem.neighbours.differences(x.reshape(x.shape[0], -1)) ** 2))
     expected = w.alpha * filt + w.beta * rgb + w.gamma * nbr
@@ -185,5 +199,6 @@ def test_float32_problem_matches_float64(problem):
     assert single.dtype == np.float32
     result = single.normal(x.astype(np.float32))
     assert result.dtype == np.float32
-    np.testing.assert_allclose(result, problem.normal(x), rtol=1e-3,
-                               atol=1e-4 * np.abs(problem.normal(x)).max())
+    np.testing.assert_allclose(
+        result, problem.normal(x), rtol=1e-3, atol=1e-4 * np.abs(problem.normal(x)).max()
+    )

@@ -22,16 +22,29 @@ def reconstruction_inputs(relative_noise=0.2, seed=0):
     raw = run["raw/spectral"].load()
     rgb = xr.dot(camera.camera_matrix, truth.radiance, dim="wavelength")
     per_image = {c: truth[c] for c in truth.coords if truth[c].dims == ("image",)}
-    hdr = xr.Dataset({"radiance": rgb.transpose("image", "y", "x", "channel").astype("float32")
-                      .assign_attrs(units="1", long_name="relative RGB radiance")},
-                     coords=per_image)
-    planes = np.stack([truth.radiance.sel(image=i, wavelength=w).values
-                       for i, w in zip(raw.image.values, raw.wavelength.values, strict=True)])
+    hdr = xr.Dataset(
+        {
+            "radiance": rgb.transpose("image", "y", "x", "channel")
+            .astype("float32")
+            .assign_attrs(units="1", long_name="relative RGB radiance")
+        },
+        coords=per_image,
+    )
+    planes = np.stack(
+        [
+            truth.radiance.sel(image=i, wavelength=w).values
+            for i, w in zip(raw.image.values, raw.wavelength.values, strict=True)
+        ]
+    )
     noise = np.random.default_rng(seed).normal(0, 1, planes.shape)
     noisy = planes + noise * planes.mean(axis=(1, 2), keepdims=True) * relative_noise
-    bands = xr.Dataset({"radiance": (("shot", "y", "x"), noisy.astype("float32"), {"units": "1"})},
-                       coords={name: raw[name] for name in ("wavelength", "image", "filter_size",
-                                                            "exposure_time", "rotation", "led")})
+    bands = xr.Dataset(
+        {"radiance": (("shot", "y", "x"), noisy.astype("float32"), {"units": "1"})},
+        coords={
+            name: raw[name]
+            for name in ("wavelength", "image", "filter_size", "exposure_time", "rotation", "led")
+        },
+    )
     sets = select_image_sets(run["raw/rgb"], raw, others_per_set=3)
     return hdr, bands, camera, sets, truth
 
@@ -86,11 +99,17 @@ def test_method_takes_exactly_the_table_and_fails_at_graph_check():
         for method in RECONSTRUCTION_METHODS:
             assert node.parse_parameters({"method": method}).method == method
         assert node.parse_parameters({"prior": 0.3}).prior == 0.3
-    available = {"hdr": "hdr", "bands": "bands", "camera_matrix": "camera_matrix",
-                 "image_sets": "image_sets", "spectra_seed": "spectra_seed"}
+    available = {
+        "hdr": "hdr",
+        "bands": "bands",
+        "camera_matrix": "camera_matrix",
+        "image_sets": "image_sets",
+        "spectra_seed": "spectra_seed",
+    }
     with pytest.raises(PipelineError) as info:
-        check_graph([Step("reconstruct_image_sets", parameters={"method": "fastest"})],
-                    available=available)
+        check_graph(
+            [Step("reconstruct_image_sets", parameters={"method": "fastest"})], available=available
+        )
     message = str(info.value)
     assert "reconstruct_image_sets.method" in message and "'fastest'" in message
     for method in RECONSTRUCTION_METHODS:
@@ -118,7 +137,6 @@ def test_a_baseline_reconstructs_the_sets_too():
     hdr, bands, camera, sets, truth = reconstruction_inputs()
     seed = reconstruct_seed_set(hdr, bands, camera, sets, method="filtered-projected")
     assert seed.attrs["iterations"] == 0 and seed.radiance.attrs["method"] == "filtered-projected"
-    cube = reconstruct_image_sets(hdr, bands, camera, sets, seed,
-                                  method="filtered-projected").compute()
+    cube = reconstruct_image_sets(hdr, bands, camera, sets, seed, method="filtered-projected").compute()
     assert np.isfinite(cube.radiance.values).all()
     assert (cube.iterations == 0).all()

@@ -16,19 +16,25 @@ def test_spectra_follow_appearance_and_intensity():
     source_spectra = materials_spectra[labels] * shade[:, None]
     target_labels = rng.integers(0, 3, 50)
     target_shade = rng.uniform(0.6, 1.4, 50)
-    moved = transport_spectra(source_rgb, source_spectra,
-                              materials_rgb[target_labels] * target_shade[:, None])
-    np.testing.assert_allclose(moved, materials_spectra[target_labels] * target_shade[:, None],
-                               rtol=0.05)
+    moved = transport_spectra(
+        source_rgb, source_spectra, materials_rgb[target_labels] * target_shade[:, None]
+    )
+    np.testing.assert_allclose(
+        moved, materials_spectra[target_labels] * target_shade[:, None], rtol=0.05
+    )
 
 
 def test_xarray_interface_keeps_target_coords():
-    rgb = xr.DataArray(np.random.default_rng(1).random((2, 4, 5, 3)),
-                       dims=("image", "y", "x", "channel"),
-                       coords={"image": [0, 1], "led": ("image", [3, 4])})
-    spectra = xr.DataArray(np.random.default_rng(2).random((2, 32, 4, 5)),
-                           dims=("image", "wavelength", "y", "x"),
-                           coords={"wavelength": np.arange(410, 730, 10.0)})
+    rgb = xr.DataArray(
+        np.random.default_rng(1).random((2, 4, 5, 3)),
+        dims=("image", "y", "x", "channel"),
+        coords={"image": [0, 1], "led": ("image", [3, 4])},
+    )
+    spectra = xr.DataArray(
+        np.random.default_rng(2).random((2, 32, 4, 5)),
+        dims=("image", "wavelength", "y", "x"),
+        coords={"wavelength": np.arange(410, 730, 10.0)},
+    )
     target = rgb.assign_coords(image=[7, 8], led=("image", [9, 10]))
     out = warm_start(rgb, spectra, target, k=1)
     assert out.dims == ("image", "wavelength", "y", "x")

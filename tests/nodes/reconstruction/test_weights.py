@@ -39,10 +39,12 @@ def test_paper_gamma_hat_defaults():
 
 
 def test_problem_weights_follow_eq4_counts(scene_factory):
-    scene = scene_factory(size=16, n_wavelength=4, n_images=2, filter_size=3.0,
-                          shots={0: [0, 1], 1: [2, 3]})
-    problem = build_problem(inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix),
-                            k=3, beta_hat=2.0)
+    scene = scene_factory(
+        size=16, n_wavelength=4, n_images=2, filter_size=3.0, shots={0: [0, 1], 1: [2, 3]}
+    )
+    problem = build_problem(
+        inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix), k=3, beta_hat=2.0
+    )
     w = problem.weights
     p = 2 * 16 * 16
     # 16 px, s = 3: centres 3..12, every <= 2.5 px -> 5 per axis; 4 shots

@@ -65,8 +65,15 @@ def test_response_model_dispatch():
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: m.name)
 def test_mean_of_many_frames_converges_to_the_noiseless_value(model):
     x = np.linspace(0.02, 0.6, 12)  # away from the clamps (noiseless codes 20..~990)
-    frames = capture(np.broadcast_to(x, (20000, x.size)), 1.0, response=model,
-                     adc_offset=20.0, noise_sigma=3.0, bit_depth=10, seed=7)
+    frames = capture(
+        np.broadcast_to(x, (20000, x.size)),
+        1.0,
+        response=model,
+        adc_offset=20.0,
+        noise_sigma=3.0,
+        bit_depth=10,
+        seed=7,
+    )
     expected = noiseless_signal(x, 1.0, response=model, adc_offset=20.0, bit_depth=10)
     # the floor of eq. 5 lowers the mean by 1/2 DN; the standard error is 3 / sqrt(20000)
     np.testing.assert_allclose(frames.mean(axis=0) + 0.5, expected, atol=5 * 3 / np.sqrt(2e4))
@@ -74,18 +81,20 @@ def test_mean_of_many_frames_converges_to_the_noiseless_value(model):
 
 @pytest.mark.parametrize("bit_depth", [8, 10, 12, 16])
 def test_clamping_at_the_bit_depth(bit_depth):
-    high = capture(np.full(1000, 5.0), 1.0, adc_offset=10, noise_sigma=2.0,
-                   bit_depth=bit_depth, seed=1)
+    high = capture(np.full(1000, 5.0), 1.0, adc_offset=10, noise_sigma=2.0, bit_depth=bit_depth, seed=1)
     assert high.dtype == np.uint16
     assert np.all(high == 2**bit_depth - 1)
-    low = capture(np.zeros(1000), 1.0, adc_offset=0.0, noise_sigma=5.0, bit_depth=bit_depth,
-                  seed=1)
+    low = capture(np.zeros(1000), 1.0, adc_offset=0.0, noise_sigma=5.0, bit_depth=bit_depth, seed=1)
     assert low.min() == 0 and low.max() < 30  # clamped at 0, never wrapped around
 
 
 @settings(max_examples=25, deadline=None)
-@given(t1=st.floats(1e-3, 1.0), factor=st.floats(1.0, 50.0), seed=st.integers(0, 2**31),
-       model=st.sampled_from(MODELS))
+@given(
+    t1=st.floats(1e-3, 1.0),
+    factor=st.floats(1.0, 50.0),
+    seed=st.integers(0, 2**31),
+    model=st.sampled_from(MODELS),
+)
 def test_counts_are_monotone_in_exposure_time(t1, factor, seed, model):
     x = np.linspace(0.0, 1.0, 200)
     a = capture(x, t1, response=model, adc_offset=8, noise_sigma=2.0, seed=seed)
@@ -107,8 +116,9 @@ def test_gaussian_noise_variance_as_specified(sigma, seed):
 @given(e=st.floats(0.05, 0.8), full_well=st.floats(500.0, 20000.0), seed=st.integers(0, 999))
 def test_shot_noise_variance_as_specified(e, full_well, seed):
     n = 40000
-    frames = capture(np.full(n, e), 1.0, adc_offset=32, noise_sigma=2.0, noise="shot",
-                     full_well=full_well, seed=seed)
+    frames = capture(
+        np.full(n, e), 1.0, adc_offset=32, noise_sigma=2.0, noise="shot", full_well=full_well, seed=seed
+    )
     scale = 2**10 - 1
     expected = scale**2 * e / full_well + 2.0**2 + 1 / 12
     assert frames.mean() + 0.5 == pytest.approx(scale * e + 32, abs=0.02 * scale * e + 0.3)
@@ -124,13 +134,11 @@ def test_seeded_and_deterministic():
     assert np.any(a != c)
     g = np.random.default_rng(5)
     d = capture(x, 0.5, noise_sigma=3.0, seed=g)
-    np.testing.assert_array_equal(d, capture(x, 0.5, noise_sigma=3.0,
-                                             seed=np.random.default_rng(5)))
+    np.testing.assert_array_equal(d, capture(x, 0.5, noise_sigma=3.0, seed=np.random.default_rng(5)))
 
 
 def test_capture_keeps_xarray_dims_and_coords():
-    x = xr.DataArray(np.full((2, 3, 4), 0.2), dims=("shot", "y", "x"),
-                     coords={"shot": [10, 11]})
+    x = xr.DataArray(np.full((2, 3, 4), 0.2), dims=("shot", "y", "x"), coords={"shot": [10, 11]})
     out = capture(x, 0.5, quantum_efficiency=2.0, adc_offset=4, bit_depth=12)
     assert isinstance(out, xr.DataArray) and out.dims == ("shot", "y", "x")
     assert out.attrs["units"] == "DN" and out.attrs["bit_depth"] == 12
@@ -185,8 +193,7 @@ def test_wavelengths_must_increase():
 
 def _rgb_camera(**kwargs) -> RGBCamera:
     c = camera_sensitivities(WAVELENGTHS)
-    return RGBCamera(camera_matrix=c, responses={ch: LinearResponse() for ch in "RGB"},
-                     **kwargs)
+    return RGBCamera(camera_matrix=c, responses={ch: LinearResponse() for ch in "RGB"}, **kwargs)
 
 
 def test_colour_checker_rgb_through_C_agrees_with_colour_science():
@@ -201,11 +208,14 @@ def test_colour_checker_rgb_through_C_agrees_with_colour_science():
     cmfs = colour.MSDS_CAMERA_SENSITIVITIES["Nikon 5100 (NPL)"].copy().align(shape)
     ill = colour.SDS_ILLUMINANTS["LED-B3"].copy().align(shape)
     chart = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
-    theirs = np.array([
-        colour.sd_to_XYZ(chart[name].copy().align(shape), cmfs=cmfs, illuminant=ill, k=1,
-                         method="Integration")
-        for name in refl.patch_name.values
-    ])
+    theirs = np.array(
+        [
+            colour.sd_to_XYZ(
+                chart[name].copy().align(shape), cmfs=cmfs, illuminant=ill, k=1, method="Integration"
+            )
+            for name in refl.patch_name.values
+        ]
+    )
     # colour-science normalises (k, range scale, peak of our C and L): one common constant
     ratio = theirs / ours
     np.testing.assert_allclose(ratio, ratio.flat[0], rtol=1e-9)
@@ -213,8 +223,11 @@ def test_colour_checker_rgb_through_C_agrees_with_colour_science():
 
 def test_rgb_camera_exposure_series():
     cam = _rgb_camera(adc_offset=16, noise_sigma=0.0)
-    radiance = xr.DataArray(np.full((WAVELENGTHS.size, 4, 5), 0.01),
-                            dims=("wavelength", "y", "x"), coords={"wavelength": WAVELENGTHS})
+    radiance = xr.DataArray(
+        np.full((WAVELENGTHS.size, 4, 5), 0.01),
+        dims=("wavelength", "y", "x"),
+        coords={"wavelength": WAVELENGTHS},
+    )
     counts = cam.capture(radiance, [0.1, 0.4, 1.6], seed=0)
     assert counts.dims == ("exposure", "y", "x", "channel")
     assert counts.sizes == {"exposure": 3, "y": 4, "x": 5, "channel": 3}
@@ -224,8 +237,7 @@ def test_rgb_camera_exposure_series():
     with pytest.raises(ShapeMismatchError, match="wavelength"):
         cam.channel_irradiance(radiance.isel(wavelength=slice(0, 10)))
     with pytest.raises(SimulationParameterError, match="responses"):
-        RGBCamera(camera_matrix=camera_sensitivities(WAVELENGTHS),
-                  responses={"R": LinearResponse()})
+        RGBCamera(camera_matrix=camera_sensitivities(WAVELENGTHS), responses={"R": LinearResponse()})
     with pytest.raises(SimulationParameterError, match="bit_depth"):
         _rgb_camera(bit_depth=20)
 
@@ -234,16 +246,19 @@ def test_spectral_camera_bandpass_and_band_shot():
     bp = gaussian_bandpass(WAVELENGTHS, fwhm=10.0)
     np.testing.assert_allclose(bp.sum("wavelength"), 1.0)
     assert bp.values[5, 5] > 0.8 and bp.values[5, 6] < 0.1
-    np.testing.assert_array_equal(gaussian_bandpass(WAVELENGTHS, fwhm=0).values,
-                                  np.eye(WAVELENGTHS.size))
+    np.testing.assert_array_equal(
+        gaussian_bandpass(WAVELENGTHS, fwhm=0).values, np.eye(WAVELENGTHS.size)
+    )
     q = spectral_quantum_efficiency(WAVELENGTHS)
     assert q.values.max() == pytest.approx(1.0)
     assert q.values[0] < 0.3 * q.values.max()  # weak blue, as in the paper's Figure 3
-    cam = SpectralCamera(quantum_efficiency=q, bandpass_fwhm=0.0, adc_offset=10,
-                         noise_sigma=0.0)
+    cam = SpectralCamera(quantum_efficiency=q, bandpass_fwhm=0.0, adc_offset=10, noise_sigma=0.0)
     spectrum = np.linspace(0.1, 0.5, WAVELENGTHS.size)
-    radiance = xr.DataArray(np.broadcast_to(spectrum[:, None, None], (32, 3, 3)),
-                            dims=("wavelength", "y", "x"), coords={"wavelength": WAVELENGTHS})
+    radiance = xr.DataArray(
+        np.broadcast_to(spectrum[:, None, None], (32, 3, 3)),
+        dims=("wavelength", "y", "x"),
+        coords={"wavelength": WAVELENGTHS},
+    )
     shot = cam.capture(radiance, wavelength=550.0, exposure_time=0.5, seed=0)
     j = int(np.flatnonzero(WAVELENGTHS == 550)[0])
     assert int(shot[0, 0]) == int(np.floor(spectrum[j] * 0.5 * q.values[j] * 1023 + 10))

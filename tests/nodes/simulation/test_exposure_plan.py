@@ -19,8 +19,7 @@ WL = np.array([450.0, 550.0, 650.0])
 
 
 def _da(values, wl=WL):
-    return xr.DataArray(np.asarray(values, float), dims=("wavelength",),
-                        coords={"wavelength": wl})
+    return xr.DataArray(np.asarray(values, float), dims=("wavelength",), coords={"wavelength": wl})
 
 
 def test_eq2_eq3_against_hand_computed_values():
@@ -31,8 +30,7 @@ def test_eq2_eq3_against_hand_computed_values():
     # s = 2 / (0.5 * 0.275946) = 14.4956, 2 / (0.25 * 0.480450) = 16.6510
     np.testing.assert_allclose(plan.filter_size, [14.49560, 14.49560, 16.65106], rtol=1e-5)
     np.testing.assert_allclose(plan.filter_sigma, plan.filter_size / 5)
-    np.testing.assert_allclose(plan.relative_exposure, [0.137973, 0.137973, 0.120112],
-                               rtol=1e-5)
+    np.testing.assert_allclose(plan.relative_exposure, [0.137973, 0.137973, 0.120112], rtol=1e-5)
     assert plan.exposure_time.attrs["units"] == "s"
     assert plan.filter_size.attrs["units"] == "px"
     assert plan.wavelength.attrs["units"] == "nm"
@@ -40,9 +38,15 @@ def test_eq2_eq3_against_hand_computed_values():
 
 
 def test_capture_time_summary():
-    plan = exposure_plan(_da([0.5, 1.0, 0.25]), _da([1.0, 0.5, 1.0]), t0=0.1, s0=2.0,
-                         rgb_exposure_times=[0.001, 0.004, 0.016, 0.064], rgb_images=10,
-                         spectral_sets=2)
+    plan = exposure_plan(
+        _da([0.5, 1.0, 0.25]),
+        _da([1.0, 0.5, 1.0]),
+        t0=0.1,
+        s0=2.0,
+        rgb_exposure_times=[0.001, 0.004, 0.016, 0.064],
+        rgb_images=10,
+        spectral_sets=2,
+    )
     spectral = 2 * (2 * 0.275946 + 0.480450)
     assert float(plan.spectral_capture_time) == pytest.approx(spectral, rel=1e-5)
     assert float(plan.rgb_capture_time) == pytest.approx(10 * 0.085)
@@ -86,8 +90,7 @@ def test_weaker_bands_get_longer_exposures_and_larger_filters(ql, omega, t0):
     assert np.all(np.diff(t) <= 1e-12 * t[:-1])  # non-increasing in Q L
     assert np.all(np.diff(s) <= 1e-9 * s[:-1])
     # eq. 3 with eq. 2: Q L t = t0 ** omega (Q L) ** (1 - omega)
-    np.testing.assert_allclose(plan.relative_exposure, t0 ** omega * ql ** (1 - omega),
-                               rtol=1e-9)
+    np.testing.assert_allclose(plan.relative_exposure, t0**omega * ql ** (1 - omega), rtol=1e-9)
 
 
 @pytest.mark.parametrize("bad", [[0.5, 0.0, 1.0], [0.5, -1.0, 1.0], [0.5, np.nan, 1.0]])

@@ -83,13 +83,14 @@ def test_sparse_mode_spreads_32_bands_over_the_led_set(tiny):
     plan = g["raw/exposure_plan"]
     t = plan.exposure_time_quantised.sel(wavelength=sp.wavelength).values
     np.testing.assert_allclose(sp.exposure_time.values, t)
-    np.testing.assert_allclose(sp.filter_size.values,
-                               plan.filter_size.sel(wavelength=sp.wavelength).values)
+    np.testing.assert_allclose(
+        sp.filter_size.values, plan.filter_size.sel(wavelength=sp.wavelength).values
+    )
     # the plan's cost is what the shots took (up to the 0.1 ms shutter step)
     assert float(plan.spectral_capture_time) == pytest.approx(
-        float(sp.exposure_time.sum()), abs=sp.sizes["shot"] * 0.5e-4)
-    assert float(plan.rgb_capture_time) == pytest.approx(
-        float(g["raw/rgb"].exposure_time.sum()))
+        float(sp.exposure_time.sum()), abs=sp.sizes["shot"] * 0.5e-4
+    )
+    assert float(plan.rgb_capture_time) == pytest.approx(float(g["raw/rgb"].exposure_time.sum()))
     # every exposure time the spectral camera uses has a dark stack
     dark_times = set(g["raw/dark"].exposure_time.values.tolist())
     used = set(sp.exposure_time.values.tolist())
@@ -122,8 +123,7 @@ def test_spectral_shot_at_rotation_r_plus_1_sees_rgb_image_of_rotation_r(tiny):
 
     # noise-free spectral camera and an integer shift: counts are eq. 5 of the shifted truth
     dy, dx = 2, -1
-    recipe = get_recipe("tiny", misregistration=(float(dy), float(dx)),
-                        spectral_noise_sigma=0.0)
+    recipe = get_recipe("tiny", misregistration=(float(dy), float(dx)), spectral_noise_sigma=0.0)
     run = simulate_run(recipe)
     shots = run["raw/spectral"].isel(shot=slice(0, 6)).load()
     cam = run["truth/camera"].load()
@@ -161,9 +161,14 @@ def test_deterministic_and_independent_of_chunking():
     base = {"noise_tile": 16}
     a = simulate_run(get_recipe("tiny", chunk_size=16, frames_per_chunk=3, **base))
     b = simulate_run(get_recipe("tiny", chunk_size=32, frames_per_chunk=7, **base))
-    for group, var in (("raw/rgb", "counts"), ("raw/spectral", "counts"),
-                       ("raw/dark", "frames"), ("raw/white_reference", "spectral_counts"),
-                       ("truth/camera", "spectral_adc_offset"), ("truth/spectra", "radiance")):
+    for group, var in (
+        ("raw/rgb", "counts"),
+        ("raw/spectral", "counts"),
+        ("raw/dark", "frames"),
+        ("raw/white_reference", "spectral_counts"),
+        ("truth/camera", "spectral_adc_offset"),
+        ("truth/spectra", "radiance"),
+    ):
         assert a[group][var].data.chunks != b[group][var].data.chunks
         np.testing.assert_array_equal(a[group][var].values, b[group][var].values)
     c = simulate_run(get_recipe("tiny", seed=1, **base))

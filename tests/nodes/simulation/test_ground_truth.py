@@ -76,25 +76,27 @@ def test_sharp_and_smooth_boundaries(texture):
 def test_tiles_and_shifts_are_exact(texture):
     full = texture.evaluate(slice(0, 48), slice(0, 48))
     tile = texture.evaluate(slice(16, 32), slice(8, 40))
-    np.testing.assert_allclose(tile.weights, full.weights[:, 16:32, 8:40], rtol=1e-5,
-                               atol=1e-6)
+    np.testing.assert_allclose(tile.weights, full.weights[:, 16:32, 8:40], rtol=1e-5, atol=1e-6)
     # content shifted by (2, -3) px: pixel (y, x) shows texture point (y - 2, x + 3)
     shifted = texture.evaluate(slice(10, 30), slice(5, 25), shift=(2.0, -3.0))
-    np.testing.assert_allclose(shifted.weights, full.weights[:, 8:28, 8:28], rtol=1e-5,
-                               atol=1e-6)
+    np.testing.assert_allclose(shifted.weights, full.weights[:, 8:28, 8:28], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(shifted.normal, full.normal[:, 8:28, 8:28], atol=1e-6)
 
 
 def test_highlights_have_the_illuminants_spectrum(texture):
     ell = illuminant_spd()
     light, view = (40.0, 180.0), (40.0, 0.0)  # mirror configuration
-    rad = render(texture, ell, theta_i=light[0], phi_i=light[1], theta_o=view[0],
-                 phi_o=view[1])
+    rad = render(texture, ell, theta_i=light[0], phi_i=light[1], theta_o=view[0], phi_o=view[1])
     assert rad.dims == ("wavelength", "y", "x") and rad.dtype == np.float32
     assert np.all(np.isfinite(rad)) and np.all(rad >= 0)
     tile = texture.evaluate(slice(0, 48), slice(0, 48))
-    d, s = shading(tile.normal, direction(*light), direction(*view),
-                   specular_albedo=tile.specular_albedo, shininess=tile.shininess)
+    d, s = shading(
+        tile.normal,
+        direction(*light),
+        direction(*view),
+        specular_albedo=tile.specular_albedo,
+        shininess=tile.shininess,
+    )
     assert s.max() > 1.0  # a real highlight, brighter than a white diffuser
     y, x = np.unravel_index(np.argmax(s), s.shape)
     diffuse = ell.values * texture.diffuse_reflectance(tile)[:, y, x] * d[y, x]

@@ -38,8 +38,10 @@ def test_overrides_are_validated():
     r = get_recipe("tiny", seed=5, size=40)
     assert (r.seed, r.size, r.name) == (5, 40, "tiny")
     assert get_recipe("tiny") is RECIPES["tiny"]
-    with pytest.raises(SimulationParameterError,
-                       match=r"recipe: expected one of \['demo', 'paper', 'tiny'\], found 'huge'"):
+    with pytest.raises(
+        SimulationParameterError,
+        match=r"recipe: expected one of \['demo', 'paper', 'tiny'\], found 'huge'",
+    ):
         get_recipe("huge")
     with pytest.raises(SimulationParameterError, match="sizee"):
         get_recipe("tiny", sizee=3)
@@ -66,15 +68,19 @@ def test_simulate_node_is_seeded_and_deterministic():
     assert loaded["raw/rgb"].attrs["seed"] == 2
     assert loaded["raw/dark"].sizes["frame"] == 2
     again = SIMULATE({}, {"recipe": "tiny", "seed": 2, "overrides": {"n_dark_frames": 2}})
-    np.testing.assert_array_equal(again["raw/spectral"].counts.values,
-                                  loaded["raw/spectral"].counts.values)
+    np.testing.assert_array_equal(
+        again["raw/spectral"].counts.values, loaded["raw/spectral"].counts.values
+    )
 
 
 def test_simulate_parameters_reject_unknown_keys():
     with pytest.raises(ParameterError, match="frames"):
         SIMULATE.parse_parameters({"frames": 3})
-    with pytest.raises(ParameterError, match=r"simulate.recipe: expected one of: 'demo', "
-                                             r"'paper', 'tiny' \(recipe\), found 'huge'"):
+    with pytest.raises(
+        ParameterError,
+        match=r"simulate.recipe: expected one of: 'demo', "
+        r"'paper', 'tiny' \(recipe\), found 'huge'",
+    ):
         SIMULATE.parse_parameters({"recipe": "huge"})
     assert SIMULATE.parse_parameters({}).recipe == "demo"
     assert SIMULATE.parameter_choices()["recipe"] == tuple(sorted(RECIPES))
@@ -90,7 +96,8 @@ def test_recipe_overrides_report_each_problem_and_response_models_come_from_the_
     problems = {p.where: p for p in info.value.problems}
     assert set(problems) == {"size", "spectral_response.model"}
     assert problems["spectral_response.model"].expected == (
-        "one of: 'gamma', 'linear', 'log', 's_curve' (response model)")
+        "one of: 'gamma', 'linear', 'log', 's_curve' (response model)"
+    )
     assert problems["spectral_response.model"].found == "'lgo'"
     with pytest.raises(SimulationParameterError) as info:
         get_recipe("tiny", rgb_exposure_times=(0.01, 0.001))

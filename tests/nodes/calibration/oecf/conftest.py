@@ -19,17 +19,31 @@ def _noise_for(bit_depth: int) -> tuple[float, float]:
     return 16.0 * scale, 3.0 * scale
 
 
-def _exposure_series(model: str, *, bit_depth: int, pixels: int, times: np.ndarray = _TIMES,
-                    seed: int = 0, radiance: np.ndarray | None = None,
-                    **params: float) -> tuple[np.ndarray, object]:
+def _exposure_series(
+    model: str,
+    *,
+    bit_depth: int,
+    pixels: int,
+    times: np.ndarray = _TIMES,
+    seed: int = 0,
+    radiance: np.ndarray | None = None,
+    **params: float,
+) -> tuple[np.ndarray, object]:
     """Eq. 5 exposure series (exposure, pixel) of log-uniformly distributed radiances."""
     rng = np.random.default_rng(seed)
     if radiance is None:
         radiance = np.exp(rng.uniform(np.log(3e-3), np.log(2.0), pixels))
     offset, sigma = _noise_for(bit_depth)
     truth = response_model(model, **params)
-    counts = capture(radiance[None, :], times[:, None], response=truth, adc_offset=offset,
-                     noise_sigma=sigma, bit_depth=bit_depth, seed=rng)
+    counts = capture(
+        radiance[None, :],
+        times[:, None],
+        response=truth,
+        adc_offset=offset,
+        noise_sigma=sigma,
+        bit_depth=bit_depth,
+        seed=rng,
+    )
     return counts, truth
 
 
@@ -52,13 +66,16 @@ def _relative_errors(response: np.ndarray, truth, bit_depth: int) -> np.ndarray:
     return np.abs(response[keep] / f_true[keep] - 1)
 
 
-def _as_dataarray(counts: np.ndarray, bit_depth: int, times: np.ndarray = _TIMES,
-                 side: int | None = None) -> xr.DataArray:
+def _as_dataarray(
+    counts: np.ndarray, bit_depth: int, times: np.ndarray = _TIMES, side: int | None = None
+) -> xr.DataArray:
     side = side or int(np.sqrt(counts.shape[1]))
-    return xr.DataArray(counts[:, : side * side].reshape(len(times), side, side),
-                        dims=("exposure", "y", "x"),
-                        coords={"exposure_time": ("exposure", times)},
-                        attrs={"bit_depth": bit_depth})
+    return xr.DataArray(
+        counts[:, : side * side].reshape(len(times), side, side),
+        dims=("exposure", "y", "x"),
+        coords={"exposure_time": ("exposure", times)},
+        attrs={"bit_depth": bit_depth},
+    )
 
 
 def _low_snr_series(side: int = 192, model: str = "s_curve", seed: int = 5):
@@ -71,18 +88,34 @@ def _low_snr_series(side: int = 192, model: str = "s_curve", seed: int = 5):
     top = np.interp(50.0, truth.oecf(grid) * 1023, grid)
     ratios = np.array([1, 1.4, 2, 2.7, 3.8, 5.3, 7.2, 10, 14, 19, 27, 37, 52, 72, 100.0])
     times = top / radiance.max() * ratios / ratios.max()
-    counts = capture(radiance[None] * np.ones((times.size, 1, 1)), times[:, None, None],
-                     response=truth, adc_offset=16, noise_sigma=3, bit_depth=10, seed=rng)
-    dark_frames = capture(np.zeros((64, side, side)), 1.0, adc_offset=16, noise_sigma=3,
-                          bit_depth=10, seed=rng)
+    counts = capture(
+        radiance[None] * np.ones((times.size, 1, 1)),
+        times[:, None, None],
+        response=truth,
+        adc_offset=16,
+        noise_sigma=3,
+        bit_depth=10,
+        seed=rng,
+    )
+    dark_frames = capture(
+        np.zeros((64, side, side)), 1.0, adc_offset=16, noise_sigma=3, bit_depth=10, seed=rng
+    )
     dark_mean = dark_frames.mean(axis=0, dtype=np.float64)  # no dark current: same per time
-    series = xr.DataArray(counts, dims=("exposure", "y", "x"),
-                          coords={"exposure_time": ("exposure", times)},
-                          attrs={"bit_depth": 10})
+    series = xr.DataArray(
+        counts,
+        dims=("exposure", "y", "x"),
+        coords={"exposure_time": ("exposure", times)},
+        attrs={"bit_depth": 10},
+    )
     dark = xr.Dataset(
-        {"mean": (("exposure_time", "y", "x"),
-                  np.repeat(dark_mean[None], times.size, 0).astype(np.float32))},
-        coords={"exposure_time": times})
+        {
+            "mean": (
+                ("exposure_time", "y", "x"),
+                np.repeat(dark_mean[None], times.size, 0).astype(np.float32),
+            )
+        },
+        coords={"exposure_time": times},
+    )
     return series, dark, truth
 
 

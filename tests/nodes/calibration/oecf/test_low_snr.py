@@ -52,9 +52,12 @@ def test_low_snr_debiasing_removes_regression_to_the_mean(low_snr_series) -> Non
     assert fixed.attrs["fit_below"] == pytest.approx(0.1 * fixed.attrs["stretch_high"])
     np.testing.assert_array_equal(fixed["samples"].values, plain["samples"].values)
     assert np.all(np.diff(fixed.values) >= 0)
-    assert np.interp(0.5 * (fixed.attrs["stretch_low"] + fixed.attrs["stretch_high"]),
-                     fixed["code"].values, fixed.values) == pytest.approx(1.0)
-    at = np.array([1.0, 1.5, 2.0, 3.0])            # SNR 0.33 .. 1 per pixel
+    assert np.interp(
+        0.5 * (fixed.attrs["stretch_low"] + fixed.attrs["stretch_high"]),
+        fixed["code"].values,
+        fixed.values,
+    ) == pytest.approx(1.0)
+    at = np.array([1.0, 1.5, 2.0, 3.0])  # SNR 0.33 .. 1 per pixel
     before = _scaled_errors(plain["code"].values, plain.values, truth, at)
     after = _scaled_errors(fixed["code"].values, fixed.values, truth, at)
     assert after.max() < 0.015, after
@@ -72,22 +75,20 @@ def test_reverse_regression_is_unbiased_where_the_forward_mean_is_not() -> None:
     values = 100.0 * exposure + rng.normal(0.0, 2.0, exposure.size)
     grid = np.linspace(-5.0, 105.0, 221)
     k = np.clip(np.rint((values - grid[0]) / (grid[1] - grid[0])).astype(int), 0, grid.size - 1)
-    forward = np.bincount(k, exposure, grid.size) / np.maximum(np.bincount(k, None, grid.size),
-                                                               1)
-    levels = grid / 100.0 * (1.0 + 0.02 * np.sin(grid / 7.0))     # any monotone start
+    forward = np.bincount(k, exposure, grid.size) / np.maximum(np.bincount(k, None, grid.size), 1)
+    levels = grid / 100.0 * (1.0 + 0.02 * np.sin(grid / 7.0))  # any monotone start
     levels = np.maximum.accumulate(levels)
     reverse = low_snr._reverse_regression(exposure, values, levels, grid)
     check = (grid >= 4.0) & (grid <= 95.0)
     truth = grid[check] / 100.0
     assert np.max(np.abs(reverse[check] / truth - 1)) < 0.01
-    assert np.abs(forward[check][:4] / truth[:4] - 1).min() > 0.03     # biased at 4-5.5 DN
+    assert np.abs(forward[check][:4] / truth[:4] - 1).min() > 0.03  # biased at 4-5.5 DN
     coefficients = low_snr._quadratic_through_zero(exposure, values, 0.2)
     assert coefficients is not None
     c1, c2 = coefficients
     assert c1 == pytest.approx(100.0, rel=0.01) and abs(c2) < 5.0
     x = np.array([-0.01, 0.0, 0.05, 0.2])
-    np.testing.assert_allclose(low_snr._invert_quadratic(c1 * x + c2 * x * x, c1, c2), x,
-                               atol=1e-12)
+    np.testing.assert_allclose(low_snr._invert_quadratic(c1 * x + c2 * x * x, c1, c2), x, atol=1e-12)
 
 
 def test_low_snr_keeps_negative_values_and_maps_back_to_pixel_values(low_snr_series) -> None:
@@ -97,7 +98,7 @@ def test_low_snr_keeps_negative_values_and_maps_back_to_pixel_values(low_snr_ser
     assert code[0] == pytest.approx(response.attrs["stretch_low"])
     assert code[-1] == pytest.approx(response.attrs["stretch_high"])
     assert code.size == 1024 and np.all(np.diff(code) > 0)
-    assert code[0] < 0          # noise below the dark level survives the filtering
+    assert code[0] < 0  # noise below the dark level survives the filtering
     assert response.attrs["dark_level"] == pytest.approx(15.5, abs=0.1)
     assert response["code"].attrs["long_name"] == "dark-subtracted pixel value"
     linear = oecf.apply_response(xr.DataArray([-1.0, 0.0, 5.0], dims="v"), response)
@@ -105,16 +106,23 @@ def test_low_snr_keeps_negative_values_and_maps_back_to_pixel_values(low_snr_ser
 
 
 # -- bad input ------------------------------------------------------------------------------------
-@pytest.mark.parametrize(("times", "word"), [
-    (np.array([1.0, 3.0, 2.0, 25.0, 60.0]) / 60, "unsorted"),
-    (np.array([1.0, 3.0, 3.0, 25.0, 60.0]) / 60, "duplicate"),
-])
+@pytest.mark.parametrize(
+    ("times", "word"),
+    [
+        (np.array([1.0, 3.0, 2.0, 25.0, 60.0]) / 60, "unsorted"),
+        (np.array([1.0, 3.0, 3.0, 25.0, 60.0]) / 60, "duplicate"),
+    ],
+)
 def test_unsorted_or_duplicate_exposure_times(times: np.ndarray, word: str, small_series) -> None:
     series = small_series().assign_coords(exposure_time=("exposure", times))
     with pytest.raises(CalibrationError, match=word):
-        oecf.recover_oecf_low_snr(series, xr.DataArray(
-            np.zeros((5, 20, 20)), dims=("exposure_time", "y", "x"),
-            coords={"exposure_time": times}), filter_size=5)
+        oecf.recover_oecf_low_snr(
+            series,
+            xr.DataArray(
+                np.zeros((5, 20, 20)), dims=("exposure_time", "y", "x"), coords={"exposure_time": times}
+            ),
+            filter_size=5,
+        )
 
 
 def test_dark_frames_of_another_size(low_snr_series) -> None:
@@ -126,8 +134,9 @@ def test_dark_frames_of_another_size(low_snr_series) -> None:
 def test_dark_frame_missing_for_an_exposure_time(low_snr_series) -> None:
     series, dark, _ = low_snr_series(side=48)
     missing = float(series["exposure_time"][3])
-    with pytest.raises(CalibrationError,
-                       match=rf"dark:mean has no frame for exposure_time {missing} s \(exposure 3\)"):
+    with pytest.raises(
+        CalibrationError, match=rf"dark:mean has no frame for exposure_time {missing} s \(exposure 3\)"
+    ):
         oecf.recover_oecf_low_snr(series, dark.drop_sel(exposure_time=missing), filter_size=5)
 
 
@@ -136,10 +145,18 @@ def test_other_bad_input(TIMES, small_series) -> None:
     with pytest.raises(CalibrationError, match="saturated pixels"):
         sat = series.copy(data=series.values.copy())
         sat.values[1, 0, 0] = 255
-        oecf.recover_oecf_low_snr(sat, xr.DataArray(
-            np.zeros((5, 20, 20)), dims=("exposure_time", "y", "x"),
-            coords={"exposure_time": TIMES}), filter_size=5)
+        oecf.recover_oecf_low_snr(
+            sat,
+            xr.DataArray(
+                np.zeros((5, 20, 20)), dims=("exposure_time", "y", "x"), coords={"exposure_time": TIMES}
+            ),
+            filter_size=5,
+        )
     with pytest.raises(CalibrationError, match="too small for filter_size"):
-        oecf.recover_oecf_low_snr(series.clip(max=200), xr.DataArray(
-            np.zeros((5, 20, 20)), dims=("exposure_time", "y", "x"),
-            coords={"exposure_time": TIMES}), filter_size=40)
+        oecf.recover_oecf_low_snr(
+            series.clip(max=200),
+            xr.DataArray(
+                np.zeros((5, 20, 20)), dims=("exposure_time", "y", "x"), coords={"exposure_time": TIMES}
+            ),
+            filter_size=40,
+        )

@@ -29,11 +29,16 @@ def test_combined_response_covers_the_whole_range(exposure_series, as_dataarray,
 
 # -- apply_response ---------------------------------------------------------------------------------
 def test_apply_response_interpolates_matches_channels_and_stays_lazy() -> None:
-    table = xr.DataArray(np.stack([np.arange(4.0), 2 * np.arange(4.0)]),
-                         dims=("channel", "code"),
-                         coords={"channel": ["R", "G"], "code": np.arange(4)})
-    values = xr.DataArray(np.array([[0.5, 3.5, -1.0], [1.0, 2.0, 5.0]]).T,
-                          dims=("pixel", "channel"), coords={"channel": ["R", "G"]})
+    table = xr.DataArray(
+        np.stack([np.arange(4.0), 2 * np.arange(4.0)]),
+        dims=("channel", "code"),
+        coords={"channel": ["R", "G"], "code": np.arange(4)},
+    )
+    values = xr.DataArray(
+        np.array([[0.5, 3.5, -1.0], [1.0, 2.0, 5.0]]).T,
+        dims=("pixel", "channel"),
+        coords={"channel": ["R", "G"]},
+    )
     out = oecf.apply_response(values, table)
     np.testing.assert_allclose(out.sel(channel="R").values, [0.5, 3.5, -1.0])
     np.testing.assert_allclose(out.sel(channel="G").values, [2.0, 4.0, 10.0])

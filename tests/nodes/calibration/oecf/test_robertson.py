@@ -18,13 +18,15 @@ from spectralize.schemas import CalibrationError, SchemaError
 
 # -- recovery of known responses ----------------------------------------------------------------
 @pytest.mark.parametrize("model", ["gamma", "log", "s_curve"])
-@pytest.mark.parametrize(("bit_depth", "pixels"), [(8, 20_000), (10, 60_000), (12, 60_000),
-                                                   (16, 40_000)])
-def test_recovers_known_responses(model: str, bit_depth: int, pixels: int, noise_for, exposure_series, relative_errors, as_dataarray) -> None:
+@pytest.mark.parametrize(
+    ("bit_depth", "pixels"), [(8, 20_000), (10, 60_000), (12, 60_000), (16, 40_000)]
+)
+def test_recovers_known_responses(
+    model: str, bit_depth: int, pixels: int, noise_for, exposure_series, relative_errors, as_dataarray
+) -> None:
     counts, truth = exposure_series(model, bit_depth=bit_depth, pixels=pixels)
     offset, sigma = noise_for(bit_depth)
-    result = oecf.recover_oecf(as_dataarray(counts, bit_depth),
-                               black_level=int(offset + 3 * sigma))
+    result = oecf.recover_oecf(as_dataarray(counts, bit_depth), black_level=int(offset + 3 * sigma))
     response = result["response"]
     assert response.dims == ("code",)
     assert response.sizes["code"] == 2**bit_depth
@@ -54,12 +56,15 @@ def test_response_contract_and_normalisation(exposure_series, as_dataarray) -> N
 def test_convergence_is_checked_not_a_fixed_count(TIMES, exposure_series) -> None:
     counts, _ = exposure_series("log", bit_depth=8, pixels=4_000)
     weights = oecf.weighting_function(np.arange(256), black_level=4, saturation=255)
-    loose = oecf.robertson_response(counts, TIMES, n_codes=256, weights=weights,
-                                    tolerance=1e-3, solver="power")
-    tight = oecf.robertson_response(counts, TIMES, n_codes=256, weights=weights,
-                                    tolerance=1e-9, solver="power")
-    capped = oecf.robertson_response(counts, TIMES, n_codes=256, weights=weights,
-                                     tolerance=1e-12, max_iterations=3, solver="power")
+    loose = oecf.robertson_response(
+        counts, TIMES, n_codes=256, weights=weights, tolerance=1e-3, solver="power"
+    )
+    tight = oecf.robertson_response(
+        counts, TIMES, n_codes=256, weights=weights, tolerance=1e-9, solver="power"
+    )
+    capped = oecf.robertson_response(
+        counts, TIMES, n_codes=256, weights=weights, tolerance=1e-12, max_iterations=3, solver="power"
+    )
     assert loose.converged and tight.converged and not capped.converged
     assert loose.iterations < tight.iterations
     assert tight.change < 1e-9 <= loose.change or loose.change < 1e-3
@@ -69,32 +74,53 @@ def test_convergence_is_checked_not_a_fixed_count(TIMES, exposure_series) -> Non
 def test_solvers_and_operators_reach_the_same_fixed_point(TIMES, exposure_series) -> None:
     counts, _ = exposure_series("s_curve", bit_depth=10, pixels=8_000)
     weights = oecf.weighting_function(np.arange(1024), black_level=25, saturation=1023)
-    reference = oecf.robertson_response(counts, TIMES, n_codes=1024, weights=weights,
-                                        tolerance=1e-10, solver="power", operator="samples",
-                                        max_iterations=50_000)
-    for solver, operator in [("lanczos", "dense"), ("lanczos", "sparse"),
-                             ("power", "dense"), ("lanczos", "samples")]:
-        other = oecf.robertson_response(counts, TIMES, n_codes=1024, weights=weights,
-                                        tolerance=1e-10, solver=solver, operator=operator,
-                                        max_iterations=50_000)
+    reference = oecf.robertson_response(
+        counts,
+        TIMES,
+        n_codes=1024,
+        weights=weights,
+        tolerance=1e-10,
+        solver="power",
+        operator="samples",
+        max_iterations=50_000,
+    )
+    for solver, operator in [
+        ("lanczos", "dense"),
+        ("lanczos", "sparse"),
+        ("power", "dense"),
+        ("lanczos", "samples"),
+    ]:
+        other = oecf.robertson_response(
+            counts,
+            TIMES,
+            n_codes=1024,
+            weights=weights,
+            tolerance=1e-10,
+            solver=solver,
+            operator=operator,
+            max_iterations=50_000,
+        )
         assert other.converged
         np.testing.assert_allclose(other.response, reference.response, rtol=1e-5, atol=1e-9)
-    fast = oecf.robertson_response(counts, TIMES, n_codes=1024, weights=weights,
-                                   tolerance=1e-10, max_iterations=50_000)
+    fast = oecf.robertson_response(
+        counts, TIMES, n_codes=1024, weights=weights, tolerance=1e-10, max_iterations=50_000
+    )
     assert fast.iterations < reference.iterations
 
 
 def test_pixels_without_a_weighted_sample_are_left_out(TIMES, exposure_series) -> None:
     counts, _ = exposure_series("gamma", bit_depth=8, pixels=3_000)
     weights = oecf.weighting_function(np.arange(256), black_level=4, saturation=255)
-    base = oecf.robertson_response(counts, TIMES, n_codes=256, weights=weights,
-                                   tolerance=1e-10)
-    useless = np.concatenate([np.full((5, 40), 255), np.full((5, 30), 2),
-                              np.tile([[1], [3], [255], [255], [255]], 20)], axis=1)
+    base = oecf.robertson_response(counts, TIMES, n_codes=256, weights=weights, tolerance=1e-10)
+    useless = np.concatenate(
+        [np.full((5, 40), 255), np.full((5, 30), 2), np.tile([[1], [3], [255], [255], [255]], 20)],
+        axis=1,
+    )
     padded = np.concatenate([counts, useless.astype(counts.dtype)], axis=1)
     for operator in ("dense", "samples"):
-        other = oecf.robertson_response(padded, TIMES, n_codes=256, weights=weights,
-                                        tolerance=1e-10, operator=operator)
+        other = oecf.robertson_response(
+            padded, TIMES, n_codes=256, weights=weights, tolerance=1e-10, operator=operator
+        )
         np.testing.assert_array_equal(other.samples, base.samples)
         np.testing.assert_allclose(other.response, base.response, rtol=1e-9)
 
@@ -102,12 +128,14 @@ def test_pixels_without_a_weighted_sample_are_left_out(TIMES, exposure_series) -
 def test_frame_checks_with_channels_last(TIMES, exposure_series) -> None:
     counts, _ = exposure_series("gamma", bit_depth=8, pixels=2_500)
     rgb = np.stack([counts, counts, counts], axis=-1).reshape(5, 50, 50, 3).copy()
-    rgb[2, ..., 1] = 1                              # one channel of one exposure all dark
-    data = xr.DataArray(rgb, dims=("exposure", "y", "x", "channel"),
-                        coords={"exposure_time": ("exposure", TIMES)},
-                        attrs={"bit_depth": 8})
-    with pytest.raises(CalibrationError,
-                       match=r"frame exposure=2, channel=1 .*entirely dark"):
+    rgb[2, ..., 1] = 1  # one channel of one exposure all dark
+    data = xr.DataArray(
+        rgb,
+        dims=("exposure", "y", "x", "channel"),
+        coords={"exposure_time": ("exposure", TIMES)},
+        attrs={"bit_depth": 8},
+    )
+    with pytest.raises(CalibrationError, match=r"frame exposure=2, channel=1 .*entirely dark"):
         oecf.recover_oecf(data, black_level=4)
     rgb[2, ..., 1] = 255
     with pytest.raises(CalibrationError, match=r"channel=1 .*entirely saturated"):
@@ -116,7 +144,7 @@ def test_frame_checks_with_channels_last(TIMES, exposure_series) -> None:
 
 def test_unobserved_codes_are_interpolated_never_nan(TIMES, exposure_series) -> None:
     counts, _ = exposure_series("gamma", bit_depth=8, pixels=5_000)
-    sparse_codes = (counts.astype(np.int64) // 4) * 4 + 8          # only every 4th code
+    sparse_codes = (counts.astype(np.int64) // 4) * 4 + 8  # only every 4th code
     sparse_codes = np.clip(sparse_codes, 0, 255).astype(np.uint16)
     weights = oecf.weighting_function(np.arange(256), black_level=10, saturation=255)
     result = oecf.robertson_response(sparse_codes, TIMES, n_codes=256, weights=weights)
@@ -126,8 +154,7 @@ def test_unobserved_codes_are_interpolated_never_nan(TIMES, exposure_series) -> 
     assert np.all(np.diff(result.response) >= 0)
     seen = np.flatnonzero((result.samples > 0) & (np.arange(256) < 255))  # not saturated
     inner = unseen[(unseen > seen[0]) & (unseen < seen[-1])]
-    np.testing.assert_allclose(result.response[inner],
-                               np.interp(inner, seen, result.response[seen]))
+    np.testing.assert_allclose(result.response[inner], np.interp(inner, seen, result.response[seen]))
     assert result.response[0] <= result.response[seen[0]]
 
 
@@ -139,26 +166,41 @@ def test_per_camera_and_channel_responses(TIMES, relative_errors) -> None:
     for camera in range(2):
         radiance = np.exp(rng.uniform(np.log(3e-3), np.log(2.0), (side, side, 3)))
         channel_scale = np.array([1.0, 0.8, 0.6])
-        images.append(capture(radiance[None] * channel_scale, TIMES[:, None, None, None],
-                              response=models[camera], adc_offset=16, noise_sigma=3,
-                              bit_depth=10, seed=rng))
+        images.append(
+            capture(
+                radiance[None] * channel_scale,
+                TIMES[:, None, None, None],
+                response=models[camera],
+                adc_offset=16,
+                noise_sigma=3,
+                bit_depth=10,
+                seed=rng,
+            )
+        )
     raw = xr.Dataset(
         {"counts": (("image", "exposure", "y", "x", "channel"), np.stack(images))},
-        coords={"exposure_time": (("image", "exposure"), np.stack([TIMES, TIMES * 1.3])),
-                "channel": ["R", "G", "B"], "camera": ("image", [3, 7])},
-        attrs={"bit_depth": 10})
+        coords={
+            "exposure_time": (("image", "exposure"), np.stack([TIMES, TIMES * 1.3])),
+            "channel": ["R", "G", "B"],
+            "camera": ("image", [3, 7]),
+        },
+        attrs={"bit_depth": 10},
+    )
     response = oecf.recover_oecf(raw, black_level=25)["response"]
     assert response.dims == ("camera", "channel", "code")
     assert response["camera"].values.tolist() == [3, 7]
     assert response["channel"].values.tolist() == ["R", "G", "B"]
     for index, camera in enumerate([3, 7]):
         for channel in "RGB":
-            errors = relative_errors(response.sel(camera=camera, channel=channel).values,
-                                     models[index], 10)
+            errors = relative_errors(
+                response.sel(camera=camera, channel=channel).values, models[index], 10
+            )
             assert np.median(errors) < 0.01
 
 
-def test_max_pixels_subsample_is_reproducible(TIMES, exposure_series, relative_errors, as_dataarray) -> None:
+def test_max_pixels_subsample_is_reproducible(
+    TIMES, exposure_series, relative_errors, as_dataarray
+) -> None:
     counts, truth = exposure_series("gamma", bit_depth=10, pixels=40_000)
     series = as_dataarray(counts, 10)
     a = oecf.recover_oecf(series, black_level=25, max_pixels=10_000, seed=1)["response"]
@@ -174,10 +216,12 @@ def test_lazy_input_and_a_shot_dim(TIMES, exposure_series, as_dataarray) -> None
     eager = oecf.recover_oecf(series, black_level=25)["response"]
     lazy = oecf.recover_oecf(series.chunk({"y": 50}), black_level=25)["response"]
     xr.testing.assert_allclose(lazy, eager)
-    raw_spectral = xr.Dataset({"counts": series.clip(max=1000).rename(exposure="shot")},
-                              attrs={"bit_depth": 10})
-    dark = xr.DataArray(np.full((5, 100, 100), 15.5), dims=("exposure_time", "y", "x"),
-                        coords={"exposure_time": TIMES})
+    raw_spectral = xr.Dataset(
+        {"counts": series.clip(max=1000).rename(exposure="shot")}, attrs={"bit_depth": 10}
+    )
+    dark = xr.DataArray(
+        np.full((5, 100, 100), 15.5), dims=("exposure_time", "y", "x"), coords={"exposure_time": TIMES}
+    )
     low = oecf.recover_oecf_low_snr(raw_spectral, dark, filter_size=5)["response"]
     assert low.dims == ("code",) and low.attrs["converged"] is True
 
@@ -211,15 +255,26 @@ class _TabulatedResponse:
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(increments=st.lists(st.floats(0.3, 3.0), min_size=4, max_size=8),
-       seed=st.integers(0, 1000), time_scale=st.floats(1e-3, 1e3))
-def test_monotone_responses_are_recovered_monotone(increments: list[float], seed: int,
-                                                   time_scale: float, TIMES) -> None:
+@given(
+    increments=st.lists(st.floats(0.3, 3.0), min_size=4, max_size=8),
+    seed=st.integers(0, 1000),
+    time_scale=st.floats(1e-3, 1e3),
+)
+def test_monotone_responses_are_recovered_monotone(
+    increments: list[float], seed: int, time_scale: float, TIMES
+) -> None:
     truth = _TabulatedResponse(increments)
     rng = np.random.default_rng(seed)
     radiance = np.exp(rng.uniform(np.log(2e-3), np.log(2.0), 6_000))
-    counts = capture(radiance[None, :], TIMES[:, None], response=truth, adc_offset=4,
-                     noise_sigma=0.75, bit_depth=8, seed=rng)
+    counts = capture(
+        radiance[None, :],
+        TIMES[:, None],
+        response=truth,
+        adc_offset=4,
+        noise_sigma=0.75,
+        bit_depth=8,
+        seed=rng,
+    )
     weights = oecf.weighting_function(np.arange(256), black_level=6, saturation=255)
     result = oecf.robertson_response(counts, TIMES, n_codes=256, weights=weights)
     assert result.converged
@@ -267,38 +322,48 @@ def test_isotonic_regression_is_monotone_and_mean_preserving(values: list[float]
 
 
 @settings(max_examples=50, deadline=None)
-@given(values=st.lists(st.floats(-10, 10), min_size=1, max_size=60),
-       seed=st.integers(0, 2**31 - 1))
-def test_scipy_isotonic_regression_equals_the_former_pava(values: list[float],
-                                                         seed: int) -> None:
+@given(values=st.lists(st.floats(-10, 10), min_size=1, max_size=60), seed=st.integers(0, 2**31 - 1))
+def test_scipy_isotonic_regression_equals_the_former_pava(values: list[float], seed: int) -> None:
     # scipy's `weights` are the same case weights (samples per code) the hand-written
     # pool-adjacent-violators took: a weighted mean per pooled block
     y = np.array(values)
     weights = np.random.default_rng(seed).integers(1, 500, y.size).astype(float)
-    np.testing.assert_allclose(isotonic_regression(y).x, _pool_adjacent_violators(y),
-                               rtol=0, atol=1e-12)
-    np.testing.assert_allclose(isotonic_regression(y, weights=weights).x,
-                               _pool_adjacent_violators(y, weights), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(isotonic_regression(y).x, _pool_adjacent_violators(y), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        isotonic_regression(y, weights=weights).x,
+        _pool_adjacent_violators(y, weights),
+        rtol=1e-12,
+        atol=1e-12,
+    )
 
 
 def test_scipy_isotonic_regression_on_a_recovered_response(exposure_series) -> None:
     # the projection robertson_response makes: a noisy response, weighted by samples per code
     counts, _ = exposure_series("s_curve", bit_depth=10, pixels=8_000)
     weights = oecf.weighting_function(np.arange(1024), black_level=25, saturation=1023)
-    raw = oecf.robertson_response(counts, np.array([1.0, 3.0, 8.0, 25.0, 60.0]) / 60.0,
-                                  n_codes=1024, weights=weights, monotone=False)
+    raw = oecf.robertson_response(
+        counts,
+        np.array([1.0, 3.0, 8.0, 25.0, 60.0]) / 60.0,
+        n_codes=1024,
+        weights=weights,
+        monotone=False,
+    )
     seen = raw.samples > 0
     f, n = raw.response[seen], raw.samples[seen].astype(float)
-    assert np.any(np.diff(f) < 0)                       # something to project
-    np.testing.assert_allclose(isotonic_regression(f, weights=n).x,
-                               _pool_adjacent_violators(f, n), rtol=1e-12, atol=1e-12)
+    assert np.any(np.diff(f) < 0)  # something to project
+    np.testing.assert_allclose(
+        isotonic_regression(f, weights=n).x, _pool_adjacent_violators(f, n), rtol=1e-12, atol=1e-12
+    )
 
 
 # -- bad input ------------------------------------------------------------------------------------
-@pytest.mark.parametrize(("times", "word"), [
-    (np.array([1.0, 3.0, 2.0, 25.0, 60.0]) / 60, "unsorted"),
-    (np.array([1.0, 3.0, 3.0, 25.0, 60.0]) / 60, "duplicate"),
-])
+@pytest.mark.parametrize(
+    ("times", "word"),
+    [
+        (np.array([1.0, 3.0, 2.0, 25.0, 60.0]) / 60, "unsorted"),
+        (np.array([1.0, 3.0, 3.0, 25.0, 60.0]) / 60, "duplicate"),
+    ],
+)
 def test_unsorted_or_duplicate_exposure_times(times: np.ndarray, word: str, small_series) -> None:
     series = small_series().assign_coords(exposure_time=("exposure", times))
     with pytest.raises(CalibrationError, match=f"exposure_time.*{word}"):
@@ -318,15 +383,13 @@ def test_all_saturated_or_all_dark_frame(TIMES, small_series) -> None:
     everything = series.copy(data=np.full(series.shape, 255, dtype=np.uint16))
     weights = oecf.weighting_function(np.arange(256), black_level=0, saturation=255)
     with pytest.raises(CalibrationError, match="every sample is saturated or under-exposed"):
-        oecf.robertson_response(everything.values.reshape(5, -1), TIMES, n_codes=256,
-                                weights=weights)
+        oecf.robertson_response(everything.values.reshape(5, -1), TIMES, n_codes=256, weights=weights)
 
 
 def test_mismatched_shapes(TIMES, low_snr_series) -> None:
     weights = oecf.weighting_function(np.arange(256), black_level=0, saturation=255)
     with pytest.raises(CalibrationError, match=r"got codes \(5, 10\), exposure_times \(4,\)"):
-        oecf.robertson_response(np.zeros((5, 10), np.uint8), TIMES[:4], n_codes=256,
-                                weights=weights)
+        oecf.robertson_response(np.zeros((5, 10), np.uint8), TIMES[:4], n_codes=256, weights=weights)
     series, dark, _ = low_snr_series(side=48)
     with pytest.raises(SchemaError, match="wrong dims"):
         oecf.recover_oecf(series.expand_dims(band=2))
