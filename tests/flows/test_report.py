@@ -5,6 +5,7 @@ import colour
 import numpy as np
 import pytest
 import xarray as xr
+from support.cubes import cube_dataset
 
 from spectralize.flows.report import write_report, write_run_report
 from spectralize.nodes.evaluation.capture_time import capture_time
@@ -12,32 +13,13 @@ from spectralize.nodes.evaluation.metrics import evaluate
 from spectralize.schemas import RunStore, SchemaError
 
 SHAPE = colour.SpectralShape(410, 720, 10)
+
+
+def _cube(values, attrs=None):
+    return cube_dataset(values, theta_o=[45.0, 45.0, 60.0], attrs=attrs)
+
+
 PNG = b"\x89PNG\r\n\x1a\n"
-
-
-def cube_dataset(values: np.ndarray, attrs=None) -> xr.Dataset:
-    n = values.shape[0]
-    deg = {"units": "degree"}
-    return xr.Dataset(
-        {
-            "radiance": (
-                ("image", "wavelength", "y", "x"),
-                values.astype(np.float32),
-                {"units": "1", "long_name": "relative spectral radiance"},
-            )
-        },
-        coords={
-            "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
-            "camera": ("image", np.arange(n)),
-            "rotation": ("image", np.zeros(n, int)),
-            "led": ("image", np.arange(n)),
-            "theta_i": ("image", np.full(n, 30.0), deg),
-            "phi_i": ("image", np.zeros(n), deg),
-            "theta_o": ("image", np.array([45.0, 45.0, 60.0][:n]), deg),
-            "phi_o": ("image", np.arange(n) * 15.0, deg),
-        },
-        attrs=attrs or {},
-    )
 
 
 @pytest.fixture(scope="module")
@@ -49,14 +31,14 @@ def run():
     cube = np.repeat(np.repeat(grid, 3, 1), 3, 2)
     truth_values = np.stack([cube, 0.8 * cube, 0.6 * cube])
     noise = np.random.default_rng(3).standard_normal(truth_values.shape)
-    truth = cube_dataset(
+    truth = _cube(
         truth_values,
         {
             "spectralize_fingerprint": "truth-fp",
             "spectralize_provenance": {"node": "simulate", "version": "2"},
         },
     )
-    spectra = cube_dataset(
+    spectra = _cube(
         truth_values * (1 + 0.02 * noise),
         {
             "spectralize_fingerprint": "spectra-fp-123",

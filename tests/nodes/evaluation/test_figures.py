@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import xarray as xr
 from matplotlib.figure import Figure
+from support.cubes import cube_dataset
 
 from spectralize.nodes.evaluation.capture_time import capture_time
 from spectralize.nodes.evaluation.colorimetry import render_srgb
@@ -18,31 +19,12 @@ from spectralize.nodes.evaluation.figures import (
 )
 from spectralize.nodes.evaluation.metrics import evaluate
 
+
+def _cube(values):
+    return cube_dataset(values, theta_o=[45.0, 45.0, 60.0])
+
+
 SHAPE = colour.SpectralShape(410, 720, 10)
-
-
-def cube_dataset(values: np.ndarray) -> xr.Dataset:
-    n = values.shape[0]
-    deg = {"units": "degree"}
-    return xr.Dataset(
-        {
-            "radiance": (
-                ("image", "wavelength", "y", "x"),
-                values.astype(np.float32),
-                {"units": "1", "long_name": "relative spectral radiance"},
-            )
-        },
-        coords={
-            "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
-            "camera": ("image", np.arange(n)),
-            "rotation": ("image", np.zeros(n, int)),
-            "led": ("image", np.arange(n)),
-            "theta_i": ("image", np.full(n, 30.0), deg),
-            "phi_i": ("image", np.zeros(n), deg),
-            "theta_o": ("image", np.array([45.0, 45.0, 60.0][:n]), deg),
-            "phi_o": ("image", np.arange(n) * 15.0, deg),
-        },
-    )
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +36,8 @@ def run():
     cube = np.repeat(np.repeat(grid, 3, 1), 3, 2)
     truth_values = np.stack([cube, 0.8 * cube, 0.6 * cube])
     noise = np.random.default_rng(3).standard_normal(truth_values.shape)
-    truth = cube_dataset(truth_values)
-    spectra = cube_dataset(truth_values * (1 + 0.02 * noise))
+    truth = _cube(truth_values)
+    spectra = _cube(truth_values * (1 + 0.02 * noise))
     shots = xr.Dataset(coords={"image": ("shot", [0, 0, 1])})
     evaluation = evaluate(spectra, truth, shots=shots)
     return spectra, truth, shots, evaluation

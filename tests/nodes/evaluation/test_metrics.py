@@ -2,6 +2,7 @@ import colour
 import numpy as np
 import pytest
 import xarray as xr
+from support.cubes import cube_dataset
 
 from spectralize.engine import Step, check_graph
 from spectralize.nodes.evaluation.declarations import EVALUATE
@@ -25,35 +26,14 @@ WAVELENGTH = SHAPE.wavelengths
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
 
 
+def _cube(values):
+    return cube_dataset(values, first_led=10)
+
+
 def checker_reflectance() -> np.ndarray:
     """(24, 32) reflectances of the ColorChecker (N Ohta) on the paper's bands."""
     sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
     return np.array([sds[name].copy().align(SHAPE).values for name in sds])
-
-
-def cube_dataset(values: np.ndarray) -> xr.Dataset:
-    """A spectra-group Dataset around ``values`` (image, wavelength, y, x)."""
-    n = values.shape[0]
-    deg = {"units": "degree"}
-    return xr.Dataset(
-        {
-            "radiance": (
-                ("image", "wavelength", "y", "x"),
-                values.astype(np.float32),
-                {"units": "1", "long_name": "relative spectral radiance"},
-            )
-        },
-        coords={
-            "wavelength": ("wavelength", WAVELENGTH, {"units": "nm"}),
-            "camera": ("image", np.arange(n)),
-            "rotation": ("image", np.zeros(n, int)),
-            "led": ("image", np.arange(n) + 10),
-            "theta_i": ("image", np.full(n, 30.0), deg),
-            "phi_i": ("image", np.zeros(n), deg),
-            "theta_o": ("image", np.full(n, 45.0), deg),
-            "phi_o": ("image", np.arange(n) * 15.0, deg),
-        },
-    )
 
 
 def checker_truth(n_image: int = 3, block: int = 3) -> xr.Dataset:
@@ -61,7 +41,7 @@ def checker_truth(n_image: int = 3, block: int = 3) -> xr.Dataset:
     light = colour.SDS_ILLUMINANTS["D65"].copy().align(SHAPE).values
     grid = (checker_reflectance() * light / light.max()).reshape(4, 6, -1).transpose(2, 0, 1)
     cube = np.repeat(np.repeat(grid, block, 1), block, 2)
-    return cube_dataset(np.stack([cube * (1.0 + 0.5 * i) for i in range(n_image)]))
+    return _cube(np.stack([cube * (1.0 + 0.5 * i) for i in range(n_image)]))
 
 
 def shots_for(images) -> xr.Dataset:
@@ -106,11 +86,11 @@ def test_nrmse_of_a_constant_offset_is_offset_over_the_image_mean():
 
 
 def test_nrmse_is_rms_over_wavelength_of_a_relative_error():
-    truth = cube_dataset(np.ones((1, 32, 2, 2)))
+    truth = _cube(np.ones((1, 32, 2, 2)))
     error = np.zeros((1, 32, 2, 2))
     error[0, :16, 0, 0] = 0.2  # half the bands off by 0.2 -> rmse sqrt(0.02) = 0.1414
     error[0, ::2, 1, 1] = -0.4  # every second band off by -0.4 -> rmse sqrt(0.08)
-    spectra = cube_dataset(1.0 + error)
+    spectra = _cube(1.0 + error)
     nrmse = normalised_rmse(spectra, truth).values[0]
     np.testing.assert_allclose(nrmse, [[np.sqrt(0.02), 0.0], [0.0, np.sqrt(0.08)]], rtol=1e-5)
 
@@ -118,10 +98,10 @@ def test_nrmse_is_rms_over_wavelength_of_a_relative_error():
 def test_nrmse_is_nan_for_nan_pixels_and_for_a_black_truth_image():
     values = np.ones((2, 32, 2, 2))
     values[1] = 0.0
-    truth = cube_dataset(values)
+    truth = _cube(values)
     spectra_values = values.copy()
     spectra_values[0, 5, 1, 0] = np.nan
-    nrmse = normalised_rmse(cube_dataset(spectra_values), truth).values
+    nrmse = normalised_rmse(_cube(spectra_values), truth).values
     assert np.isnan(nrmse[0, 1, 0]) and np.isfinite(nrmse[0, 0, 0])
     assert np.isnan(nrmse[1]).all()
 
@@ -135,7 +115,7 @@ def test_spectral_angle_known_answers():
     spectra[0, :2, 0, 1] = 1.0  # (1, 1) vs (1, 0): 45 degree
     spectra[0, 1, 0, 2] = 2.0  # orthogonal: 90 degree
     # pixel 3: zero spectrum -> undefined
-    angle = spectral_angle(cube_dataset(spectra), cube_dataset(truth))
+    angle = spectral_angle(_cube(spectra), _cube(truth))
     assert angle.attrs["units"] == "degree"
     values = angle.values[0, 0]
     np.testing.assert_allclose(values[:3], [0.0, 45.0, 90.0], atol=1e-4)
@@ -150,7 +130,7 @@ def test_spectral_angle_is_accurate_for_tiny_angles_and_scale_invariant():
     s = np.zeros((1, 32, 1, 1))
     t[0, 0] = 1.0
     s[0, 0], s[0, 1] = 1.0, 1e-3  # atan(1e-3) = 0.0573 degree
-    small = spectral_angle(cube_dataset(s), cube_dataset(t)).values.item()
+    small = spectral_angle(_cube(s), _cube(t)).values.item()
     assert small == pytest.approx(np.degrees(np.arctan(1e-3)), rel=1e-3)
 
 
@@ -159,8 +139,8 @@ def test_spectral_angle_is_accurate_for_tiny_angles_and_scale_invariant():
 def test_colour_difference_matches_colour_science_for_two_patches():
     reflectance = checker_reflectance()
     dark_skin, light_skin = reflectance[0], reflectance[1]
-    truth = cube_dataset(np.broadcast_to(dark_skin[None, :, None, None], (1, 32, 2, 2)))
-    spectra = cube_dataset(np.broadcast_to(light_skin[None, :, None, None], (1, 32, 2, 2)))
+    truth = _cube(np.broadcast_to(dark_skin[None, :, None, None], (1, 32, 2, 2)))
+    spectra = _cube(np.broadcast_to(light_skin[None, :, None, None], (1, 32, 2, 2)))
     delta = colour_difference(spectra, truth, illuminant="D65")
     assert delta.dims == ("image", "y", "x") and delta.attrs["illuminant"] == "D65"
 
@@ -317,7 +297,7 @@ def test_evaluate_counts_nan_pixels_and_ignores_them_in_statistics():
     truth = checker_truth(n_image=1)
     values = truth.radiance.values.copy()
     values[0, 3, 2, 2] = np.nan
-    ev = evaluate(cube_dataset(values * 1.01), truth).compute()
+    ev = evaluate(_cube(values * 1.01), truth).compute()
     assert int(ev.invalid_count[0]) == 1
     assert np.isfinite(ev.nrmse_statistics.values).all()
     assert int(ev.subset_pixel_count[0]) == truth.sizes["y"] * truth.sizes["x"] - 1
@@ -325,7 +305,7 @@ def test_evaluate_counts_nan_pixels_and_ignores_them_in_statistics():
 
 def test_evaluate_reports_every_mismatch_at_once():
     truth = checker_truth(n_image=2)
-    other = cube_dataset(np.ones((3, 32, 2, 2)))
+    other = _cube(np.ones((3, 32, 2, 2)))
     with pytest.raises(SchemaError, match="spectra:radiance") as error:
         evaluate(other, truth)
     assert "image" in str(error.value)
