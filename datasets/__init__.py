@@ -4,4 +4,7 @@
   ``paper``); generate one with ``spectralize run simulate STORE --set simulate.recipe=demo``
   or ``spectralize.nodes.simulation.gantry.simulate_run(get_recipe("demo"))``. See ``README.md`` here.
 - :mod:`spectralize.datasets.dark_stack`: a small raw dark stack.
+- :mod:`spectralize.datasets.capture_folder`: a simulated run written as a capture folder (the
+  format a gantry's software writes; ``README.md`` here, "Capture folders"), for
+  ``spectralize ingest``: ``python -m spectralize.datasets.capture_folder OUT``.
 """

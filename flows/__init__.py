@@ -7,6 +7,7 @@ embedded server's analytics cause 'database is locked' errors.
 """
 
 import os
+from typing import TYPE_CHECKING
 
 for _key, _value in {
     "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "90",
@@ -16,7 +17,22 @@ for _key, _value in {
     os.environ.setdefault(_key, _value)
 
 from .pipelines import FLOWS, FlowDefinition, get_flow  # noqa: E402
-from .runtime import RunReport, StepReport, run_steps  # noqa: E402
+
+if TYPE_CHECKING:
+    from .runtime import RunReport
+
+# Prefect is imported on first use of the runtime, so `spectralize validate`, `clean` and
+# `--version` answer without paying for its import.
+_RUNTIME = ("RunReport", "StepReport", "run_steps")
+
+
+def __getattr__(name: str):
+    if name in _RUNTIME:
+        from . import runtime
+
+        return getattr(runtime, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["FLOWS", "FlowDefinition", "get_flow", "run_flow", "run_steps", "RunReport", "StepReport"]
 
@@ -28,7 +44,7 @@ def run_flow(
     parameters=None,
     retries: int = 0,
     dask_address: str | None = None,
-) -> RunReport:
+) -> "RunReport":
     """Run the named flow (see ``spectralize flows``) against ``store``.
 
     Parameters
@@ -44,7 +60,7 @@ def run_flow(
     dask_address
         Address of an existing ``dask.distributed`` scheduler; local threads by default.
     """
-    from .runtime import step_parameters
+    from .runtime import run_steps, step_parameters
 
     definition = get_flow(name)
     problems: list = []

@@ -2,10 +2,14 @@
 
 spectralize nodes                       registered nodes, their groups and parameters
 spectralize flows                       named flows
-spectralize validate STORE              check a run store against the contract
+spectralize validate STORE [--deep]     check a run store: files, checksums, contract, values
+spectralize clean STORE                 remove unfinished writes a killed run left behind
 spectralize run FLOW STORE [--set k=v]  run a flow (resumes: finished nodes are skipped)
 spectralize serve ROOT [--cron ...]     nightly processing of new runs (needs a Prefect server)
-spectralize demo                        make the sample run and process it
+spectralize demo [--capture DIR]        make the sample run (or capture folder) and process it
+spectralize ingest CAPTURE_DIR STORE    a gantry's capture folder into a run store (incremental)
+spectralize report STORE [--out DIR]    the HTML report of a run (with or without ground truth)
+spectralize export STORE OUT --format envi|netcdf [--image LABEL ...]   cubes for other software
 """
 
 from __future__ import annotations
@@ -78,14 +82,34 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
     store = RunStore.open(args.store)
     groups = store.groups()
-    problems = store.validate()
+    required: list[str] = []
+    if args.flow:
+        from spectralize.flows.runtime import flow_inputs
+
+        required = flow_inputs(args.flow)
+    problems = store.validate(deep=args.deep, required=required)
+    leftovers = store.staging_leftovers()
     print(f"{store.path}: {len(groups)} group(s): {', '.join(groups) or 'none'}")
+    for warning in leftovers:
+        print(f"warning: {warning}", file=sys.stderr)
     if problems:
         print(f"{len(problems)} problem(s):", file=sys.stderr)
         for problem in problems:
             print(f"  - {problem}", file=sys.stderr)
         return 1
-    print("valid: every group follows the run-store contract")
+    checked = "files, checksums" if args.deep else "files"
+    print(f"valid: every group follows the run-store contract ({checked}, values checked)")
+    return 0
+
+
+def _cmd_clean(args: argparse.Namespace) -> int:
+    from spectralize.schemas import RunStore
+
+    store = RunStore.open(args.store)
+    removed = store.clean()
+    for name in removed:
+        print(f"removed unfinished write .staging/{name}")
+    print(f"{store.path}: {len(removed)} unfinished write(s) removed")
     return 0
 
 
@@ -94,6 +118,8 @@ def _print_report(report) -> None:
     for step in report.steps:
         timing = f"{step.seconds:.1f} s" if step.status == "ran" else "up to date"
         print(f"  {step.node:<24} {step.status:<8} {timing:<12} -> {', '.join(step.outputs)}")
+        if getattr(step, "reason", ""):
+            print(f"      ran again: {step.reason}")
     if report.report:
         print(f"report: {report.report}")
 
@@ -113,9 +139,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from spectralize.flows.demo import DEMO_STORE, run_demo
+    from spectralize.flows.demo import DEMO_STORE, run_capture_demo, run_demo
 
-    store, report = run_demo(args.store or DEMO_STORE, parameters=_parse_assignments(args.set))
+    if args.capture:
+        store, report, _ = run_capture_demo(
+            args.capture,
+            args.store or DEMO_STORE,
+            recipe=args.recipe,
+            parameters=_parse_assignments(args.set),
+        )
+    else:
+        store, report = run_demo(args.store or DEMO_STORE, parameters=_parse_assignments(args.set))
     _print_report(report)
     print(f"results: {store.path}")
     print(f"  groups: {', '.join(store.groups())}")
@@ -147,7 +181,53 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         cron=args.cron,
         pattern=args.pattern,
         dask_address=args.dask_address,
+        output_root=args.output_root,
+        settle_seconds=60.0 * args.settle_minutes,
     )
+    return 0
+
+
+def _cmd_ingest(args: argparse.Namespace) -> int:
+    from spectralize.flows.ingest import ingest
+
+    report = ingest(args.capture_dir, args.store, progress=print)
+    read, kept = report.frames_read, report.frames_copied
+    print(f"ingested {report.capture} into {report.store} in {report.seconds:.1f} s")
+    for group, status in report.groups.items():
+        print(f"  {group:<22} {status}")
+    print(f"  {read} frame(s) read from files, {kept} kept from the store")
+    print(f"next: spectralize run btf {report.store}")
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from spectralize.flows.report import write_run_report
+    from spectralize.flows.runtime import report_directory
+
+    pixels = [tuple(int(v) for v in p.split(",")) for p in args.pixel] or None
+    path = write_run_report(
+        args.store,
+        directory=args.out or report_directory(args.store),
+        max_images=args.max_images,
+        pixels=pixels,
+    )
+    print(f"report: {path}")
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from spectralize.flows.export import export
+
+    files = export(
+        args.store,
+        args.out,
+        format=args.format,
+        group=args.group,
+        images=args.image or None,
+        per_image=args.per_image,
+        progress=print,
+    )
+    print(f"{len(files)} file(s) written under {args.out}")
     return 0
 
 
@@ -155,12 +235,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="spectralize", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     commands = parser.add_subparsers(dest="command", required=True)
     commands.add_parser("nodes", help="list registered nodes").set_defaults(handler=_cmd_nodes)
     commands.add_parser("flows", help="list named flows").set_defaults(handler=_cmd_flows)
     validate = commands.add_parser("validate", help="check a run store against the contract")
     validate.add_argument("store")
+    validate.add_argument(
+        "--deep", action="store_true", help="recompute every chunk's checksum (reads all data)"
+    )
+    validate.add_argument(
+        "--flow", default=None, help="also require the groups this flow reads (e.g. btf)"
+    )
     validate.set_defaults(handler=_cmd_validate)
+    clean = commands.add_parser("clean", help="remove unfinished writes of killed runs")
+    clean.add_argument("store")
+    clean.set_defaults(handler=_cmd_clean)
     run = commands.add_parser("run", help="run a flow against a store")
     run.add_argument("flow")
     run.add_argument("store")
@@ -184,9 +275,49 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--cron", default="0 2 * * *", help="schedule (cron syntax)")
     serve.add_argument("--pattern", default="*.zarr", help="which entries of ROOT are runs")
     serve.add_argument("--dask-address", default=None, help="existing dask scheduler")
+    serve.add_argument(
+        "--output-root",
+        default=None,
+        help="ROOT holds capture folders: ingest each complete one into OUTPUT_ROOT/<name>.zarr",
+    )
+    serve.add_argument(
+        "--settle-minutes",
+        type=float,
+        default=5.0,
+        help="a capture folder changed more recently than this is left for the next run",
+    )
     serve.set_defaults(handler=_cmd_serve)
+    ingest = commands.add_parser("ingest", help="ingest a capture folder into a run store")
+    ingest.add_argument("capture_dir", help="folder with manifest.csv, capture.toml, calibration/")
+    ingest.add_argument("store", help="run store to create or extend")
+    ingest.set_defaults(handler=_cmd_ingest)
+    report = commands.add_parser("report", help="write the HTML report of a run store")
+    report.add_argument("store")
+    report.add_argument("--out", default=None, help="folder of index.html (default: STORE-report)")
+    report.add_argument("--max-images", type=int, default=24, help="images with figures")
+    report.add_argument(
+        "--pixel", action="append", default=[], metavar="Y,X", help="pixel whose spectra are drawn"
+    )
+    report.set_defaults(handler=_cmd_report)
+    export = commands.add_parser("export", help="export spectral cubes as ENVI or netCDF")
+    export.add_argument("store")
+    export.add_argument("out", help="ENVI: a folder; netCDF: a .nc file (or a folder)")
+    export.add_argument("--format", choices=("envi", "netcdf"), required=True)
+    export.add_argument("--group", default="spectra", help="cube group (default: spectra)")
+    export.add_argument(
+        "--image", type=int, action="append", default=[], metavar="LABEL", help="image label"
+    )
+    export.add_argument("--per-image", action="store_true", help="netCDF: one file per image")
+    export.set_defaults(handler=_cmd_export)
     demo = commands.add_parser("demo", help="make the sample run and process it")
     demo.add_argument("--store", default=None, help="where to put the demo run store")
+    demo.add_argument(
+        "--capture",
+        default=None,
+        metavar="DIR",
+        help="the real path: write a sample capture folder here, ingest it, run btf",
+    )
+    demo.add_argument("--recipe", default="demo", help="recipe of the sample capture folder")
     demo.add_argument(
         "--set",
         action="append",
@@ -198,12 +329,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("spectralize")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"spectralize: warning: {message}", file=file or sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run the command line; errors exit 2 with a message (``--debug``: with the traceback)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv  # accepted anywhere: `spectralize run btf run.zarr --debug`
+    args = build_parser().parse_args([a for a in argv if a != "--debug"])
+    args.debug = debug
+    if not args.debug:
+        import warnings
+
+        warnings.showwarning = _show_warning
     try:
         return args.handler(args)
-    except SpectralizeError as error:
-        print(f"spectralize {args.command}: error: {error}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"spectralize {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as error:
+        if args.debug:
+            import traceback
+
+            traceback.print_exc()
+        kind = "" if isinstance(error, SpectralizeError) else f"{type(error).__name__}: "
+        print(f"spectralize {args.command}: error: {kind}{error}", file=sys.stderr)
+        for note in getattr(error, "__notes__", ()):
+            print(f"  ({note})", file=sys.stderr)
+        if not args.debug and not isinstance(error, SpectralizeError):
+            print("  (run again with --debug for the traceback)", file=sys.stderr)
         return 2
 
 

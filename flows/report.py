@@ -1,26 +1,35 @@
-"""The HTML report of an evaluation: composition and file I/O (paper sec. 5, Figures 4-8).
+"""The HTML report of a run: composition and file I/O (paper sec. 4 and 5, Figures 2-8).
 
-:func:`write_report` writes a self-contained folder: ``index.html``, rendered from the Jinja2
-template ``templates/report.html.j2`` (autoescaped), with relative links to PNG figures:
+One self-contained HTML file (``index.html``; every figure is an embedded PNG), rendered from
+the Jinja2 template ``templates/report.html.j2`` (autoescaped). Headline numbers come first,
+then one section per part of the run that exists:
 
-- ``error_map_NNN.png`` and ``spectra_NNN.png`` per image (Figures 5 and 6),
-- ``histogram.png`` (Figure 7),
-- ``capture_time.png`` (sec. 5 "Real Data", Figure 8) when a capture time is given,
-- ``cross_validation.png`` (Figure 4) when the spectral calibration is given,
+- **Calibration** (no ground truth needed): response histograms of the spectral camera's
+  low-SNR series after increasing Gaussian filters (Fig. 2), the exposure plan and filter
+  sizes with Q and L (Fig. 3), the colour-checker cross-validation (Fig. 4), the OECFs, the
+  quantum efficiency and camera matrix, and the registration residuals;
+- **Reconstruction** (no ground truth needed): sRGB renders of the cube, spectra at chosen
+  pixels, and the ``confidence`` map when the ``spectra`` group has one;
+- **Accuracy** (simulated runs with ``truth/spectra``): statistics per subset and per image,
+  nRMSE histograms over all pixels (Fig. 7, normalised, with an overflow bin), capture time
+  (Fig. 8), baselines, and per image the ground truth, reconstruction and error map with the
+  representative spectra (Figs. 5 and 6).
 
-and tables of the numbers: what run it describes, a summary per subset of images, per image,
-capture time and, when baselines were run, the comparison of methods. The figures are drawn
-by :mod:`spectralize.nodes.evaluation.figures` and
-:mod:`spectralize.nodes.evaluation.figures_calibration`; this module only composes and
-writes. :func:`write_run_report` reads all of it from a run store.
+Images are selected and named by their *label* (the ``image`` coordinate), never by position:
+``spectra`` and ``evaluation`` may be ordered by image set while ``truth/spectra`` is in label
+order. The figures are drawn by :mod:`spectralize.nodes.evaluation.figures` and
+:mod:`spectralize.nodes.evaluation.figures_calibration`; this module composes and writes.
+:func:`write_run_report` reads everything from a run store (``spectralize report STORE``).
 
 References
 ----------
-Fast Capture of Spectral Image Series, sec. 5, Figures 4, 5, 6, 7 and 8.
+Fast Capture of Spectral Image Series, sec. 4 and 5, Figures 2-8.
 """
 
 from __future__ import annotations
 
+import base64
+import io
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -42,11 +51,22 @@ from spectralize.nodes.evaluation.colorimetry import render_srgb
 from spectralize.nodes.evaluation.figures import (
     image_label,
     plot_capture_time,
+    plot_confidence,
     plot_error_map,
     plot_histograms,
+    plot_pixel_spectra,
+    plot_renders,
     plot_spectra,
 )
-from spectralize.nodes.evaluation.figures_calibration import plot_cross_validation
+from spectralize.nodes.evaluation.figures_calibration import (
+    plot_cross_validation,
+    plot_exposure_plan,
+    plot_oecf,
+    plot_quantum_efficiency,
+    plot_registration,
+    plot_response_histograms,
+    response_histograms,
+)
 from spectralize.nodes.evaluation.metrics import (
     DEFAULT_THRESHOLD,
     METHOD_DIM,
@@ -54,12 +74,13 @@ from spectralize.nodes.evaluation.metrics import (
     compare_methods,
     evaluate,
 )
-from spectralize.schemas import ParameterError, Problem, RunStore, SchemaError
+from spectralize.schemas import ParameterError, Problem, RunStore, SchemaError, SpectralizeError
 from spectralize.schemas.run import EVALUATION
 
 __all__ = [
     "BASELINES_GROUP",
     "TEMPLATE",
+    "default_pixels",
     "write_report",
     "write_run_report",
 ]
@@ -69,7 +90,7 @@ __all__ = [
 BASELINES_GROUP: str = "baselines"
 #: The page's Jinja2 template, in this package's ``templates`` folder.
 TEMPLATE: str = "report.html.j2"
-_DPI = 100
+_DPI = 90
 _METRIC_LABELS = (("nrmse", "nRMSE"), ("spectral_angle", "spectral angle [°]"), ("delta_e", "CIEDE2000"))
 
 
@@ -104,7 +125,7 @@ def _check_evaluation(evaluation: xr.Dataset) -> None:
         )
 
 
-# -- tables --------------------------------------------------------------------------------
+# -- page pieces -----------------------------------------------------------------------------
 def _fmt(value: Any, digits: int = 4) -> str:
     value = float(value)
     return "—" if not np.isfinite(value) else f"{value:.{digits}g}"
@@ -114,6 +135,7 @@ def _table(
     table_id: str, caption: str, header: Sequence[str], rows: Sequence[Sequence[str]]
 ) -> dict[str, Any]:
     return {
+        "kind": "table",
         "id": table_id,
         "caption": caption,
         "header": list(header),
@@ -121,6 +143,41 @@ def _table(
     }
 
 
+def _figure(figure: Figure, figure_id: str, caption: str) -> dict[str, str]:
+    """The figure as an embedded PNG (a data URI): the page needs no other file."""
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=_DPI)
+    data = base64.b64encode(buffer.getvalue()).decode("ascii")
+    return {
+        "kind": "figure",
+        "id": figure_id,
+        "src": f"data:image/png;base64,{data}",
+        "caption": caption,
+    }
+
+
+def _text(text: str) -> dict[str, str]:
+    return {"kind": "text", "text": text}
+
+
+def _section(section_id: str, title: str, blocks: list[dict[str, Any]]) -> dict[str, Any]:
+    return {"id": section_id, "title": title, "blocks": [b for b in blocks if b]}
+
+
+def _labels(ds: xr.Dataset) -> np.ndarray:
+    if "image" in ds.coords and ds["image"].dims == ("image",):
+        return np.asarray(ds["image"].values)
+    return np.arange(ds.sizes["image"])
+
+
+def _by_label(ds: xr.Dataset | xr.DataArray, labels: Sequence[int]) -> xr.Dataset | xr.DataArray:
+    """The images with these labels, in this order (position-free: ``sel`` on the label)."""
+    if "image" in ds.coords and ds["image"].dims == ("image",):
+        return ds.sel(image=list(labels))
+    return ds.isel(image=list(labels))
+
+
+# -- accuracy (runs with ground truth) -------------------------------------------------------
 def _summary_rows(table: xr.Dataset, subsets: Sequence[str]) -> list[list[str]]:
     rows = []
     for subset in subsets:
@@ -141,6 +198,7 @@ def _summary_header(threshold: float) -> list[str]:
 
 
 def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
+    """One row per image, named by its label, in label order."""
     coords = [
         c
         for c in ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
@@ -151,9 +209,10 @@ def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
         header.append("band shots")
     header += [f"nRMSE {s}" for s in STATISTICS]
     header += ["fraction below", "angle median [°]", "ΔE00 median", "ΔE00 p95", "NaN px"]
+    labels = _labels(evaluation)
     rows = []
-    for image in range(evaluation.sizes["image"]):
-        row = [str(image)] + [_fmt(evaluation.coords[c][image], 5) for c in coords]
+    for image in np.argsort(labels, kind="stable"):
+        row = [str(int(labels[image]))] + [_fmt(evaluation.coords[c][image], 5) for c in coords]
         if "has_band_shots" in evaluation:
             row.append("yes" if bool(evaluation["has_band_shots"][image]) else "no")
         row += [_fmt(evaluation["nrmse_statistics"][image].sel(statistic=s)) for s in STATISTICS]
@@ -162,18 +221,18 @@ def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
             row.append(_fmt(evaluation[f"{name}_statistics"][image].sel(statistic=stat)))
         row.append(str(int(evaluation["invalid_count"][image])))
         rows.append(row)
-    return _table("per-image", "Statistics per image", header, rows)
+    return _table("per-image", "Statistics per image (by image label)", header, rows)
 
 
 def _run_table(
-    evaluation: xr.Dataset, spectra: xr.Dataset, truth: xr.Dataset, run: str | os.PathLike[str] | None
+    run: str | os.PathLike[str] | None, groups: Mapping[str, xr.Dataset], spectra: xr.Dataset | None
 ) -> dict[str, Any]:
     rows = [["run store", str(run) if run is not None else "(not given)"]]
-    for role, ds in (("spectra", spectra), ("truth/spectra", truth), ("evaluation", evaluation)):
-        fingerprint = ds.attrs.get("spectralize_fingerprint") or evaluation.attrs.get(
-            f"{role.split('/')[0]}_fingerprint"
-        )
+    for role, ds in groups.items():
+        fingerprint = ds.attrs.get("spectralize_fingerprint")
         provenance = ds.attrs.get("spectralize_provenance") or {}
+        if isinstance(provenance, str):
+            provenance = {}
         made_by = (
             f"{provenance.get('node', '?')} v{provenance.get('version', '?')}"
             if provenance
@@ -181,18 +240,15 @@ def _run_table(
         )
         rows.append([f"{role} fingerprint", str(fingerprint) if fingerprint else "(none)"])
         rows.append([f"{role} made by", made_by])
-    sizes = spectra["radiance"].sizes
-    wavelength = np.asarray(truth["wavelength"].values, dtype=np.float64)
-    rows += [
-        ["images", str(sizes["image"])],
-        ["image size", f"{sizes['y']} x {sizes['x']} px"],
-        ["wavelengths", f"{wavelength.size} bands, {wavelength[0]:g}..{wavelength[-1]:g} nm"],
-        [
-            "colour difference",
-            f"CIEDE2000 under {evaluation.attrs.get('illuminant', '?')}, "
-            f"{evaluation.attrs.get('observer', 'CIE 1931 2°')}",
-        ],
-    ]
+    if spectra is not None:
+        sizes = spectra["radiance"].sizes
+        wavelength = np.asarray(spectra["wavelength"].values, dtype=np.float64)
+        rows += [
+            ["images", str(sizes["image"])],
+            ["image size", f"{sizes['y']} x {sizes['x']} px"],
+            ["wavelengths", f"{wavelength.size} bands, {wavelength[0]:g}..{wavelength[-1]:g} nm"],
+            ["radiance", "relative (units 1): band radiance relative to the measured illuminant"],
+        ]
     return _table("run", "What this report describes", ["item", "value"], rows)
 
 
@@ -224,14 +280,177 @@ def _baselines_table(evaluation: xr.Dataset, table: xr.Dataset, threshold: float
     return _table("baselines", "Comparison of methods on all images of the run", header, rows)
 
 
-# -- figures -------------------------------------------------------------------------------
-def _save(figure: Figure, directory: Path, name: str, caption: str) -> dict[str, str]:
-    """Write ``figure`` as ``directory / name``; what the template needs to show it."""
-    figure.savefig(directory / name, dpi=_DPI)
-    return {"id": Path(name).stem, "src": name, "caption": caption}
+def accuracy_renders(
+    evaluation: xr.Dataset,
+    spectra: xr.Dataset,
+    truth: xr.Dataset,
+    labels: Sequence[int],
+    *,
+    exposure_percentile: float = 99.0,
+) -> tuple[xr.DataArray, xr.DataArray]:
+    """sRGB renders of the truth and the reconstruction of the images ``labels``, both
+    selected by label (one exposure: the truth's), in the order of ``labels``."""
+    truth_srgb = render_srgb(
+        _by_label(truth["radiance"], labels), percentile=exposure_percentile
+    ).compute()
+    scale = float(truth_srgb.attrs["exposure_scale"])
+    recon_srgb = render_srgb(_by_label(spectra["radiance"], labels), exposure=scale).compute()
+    recon_srgb.attrs.update(exposure_normalisation=truth_srgb.attrs["exposure_normalisation"])
+    return truth_srgb, recon_srgb
 
 
-def _cross_validation(calibration: xr.Dataset, directory: Path) -> dict[str, Any]:
+def error_map_figures(
+    evaluation: xr.Dataset,
+    spectra: xr.Dataset,
+    truth: xr.Dataset,
+    labels: Sequence[int],
+    *,
+    exposure_percentile: float = 99.0,
+) -> list[tuple[int, Figure, Figure]]:
+    """Per image label: the error-map figure (truth, reconstruction, nRMSE) and the spectra figure.
+
+    Everything is selected by label, so the three panels show the same image whatever the
+    order of each group.
+    """
+    evaluation = _by_label(evaluation, labels)
+    truth_srgb, recon_srgb = accuracy_renders(
+        evaluation, spectra, truth, labels, exposure_percentile=exposure_percentile
+    )
+    finite = np.asarray(evaluation["nrmse"].values, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
+    vmax = vmax if vmax > 0 else 1.0
+    out = []
+    for position, label in enumerate(labels):
+        error_map = plot_error_map(
+            evaluation, position, truth_srgb=truth_srgb, reconstruction_srgb=recon_srgb, vmax=vmax
+        )
+        out.append((int(label), error_map, plot_spectra(evaluation, position)))
+    return out
+
+
+def _accuracy(
+    evaluation: xr.Dataset,
+    *,
+    spectra: xr.Dataset,
+    truth: xr.Dataset,
+    baselines: xr.Dataset | Mapping[str, xr.DataArray | xr.Dataset] | None,
+    capture: xr.Dataset | None,
+    shots: xr.Dataset | None,
+    max_images: int,
+    exposure_percentile: float,
+) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
+    threshold = float(evaluation.attrs.get("threshold", DEFAULT_THRESHOLD))
+    all_px = evaluation["nrmse_subset_statistics"].sel(subset="all")
+    headline = [
+        ("nRMSE median (all pixels)", _fmt(all_px.sel(statistic="median"))),
+        ("nRMSE p95", _fmt(all_px.sel(statistic="p95"))),
+        (
+            f"pixels with nRMSE < {threshold:g}",
+            f"{100 * float(evaluation['nrmse_subset_fraction_below'].sel(subset='all')):.1f} %",
+        ),
+        (
+            "CIEDE2000 median",
+            _fmt(evaluation["delta_e_subset_statistics"].sel(subset="all", statistic="median")),
+        ),
+    ]
+    sections = [
+        _section(
+            "accuracy",
+            "Accuracy against the ground truth",
+            [
+                _table(
+                    "summary",
+                    "Statistics over all pixels of each subset of images",
+                    _summary_header(threshold),
+                    _summary_rows(evaluation, [str(s) for s in evaluation["subset"].values]),
+                ),
+                _per_image_table(evaluation),
+                _figure(
+                    plot_histograms(evaluation),
+                    "histogram",
+                    "Figure 7: per-pixel normalised RMSE over all pixels of the images with and "
+                    "without band shots, as fractions of their pixels (logarithmic axis); the "
+                    "range covers every pixel, the hatched bars are the pixels above it.",
+                ),
+            ],
+        )
+    ]
+    if capture is not None:
+        headline.append(("speed-up of the capture", f"{float(capture['speedup']):.1f}x"))
+        sections.append(
+            _section(
+                "capture-time",
+                "Capture time",
+                [
+                    _capture_table(capture),
+                    _figure(
+                        plot_capture_time(capture),
+                        "capture_time",
+                        "Figure 8: total exposure of the reference and the fast capture.",
+                    ),
+                ],
+            )
+        )
+    if baselines is not None:
+        table = baselines
+        if not (isinstance(table, xr.Dataset) and "nrmse_subset_statistics" in table):
+            table = compare_methods(
+                baselines,
+                truth,
+                shots=shots,
+                illuminant=str(evaluation.attrs.get("illuminant", "D65")),
+                threshold=threshold,
+            )
+        sections.append(
+            _section(
+                "baselines", "Baselines", [_baselines_table(evaluation, table.compute(), threshold)]
+            )
+        )
+    labels = sorted(int(v) for v in _labels(evaluation))
+    shown = labels[: int(max_images)]
+    blocks: list[dict[str, Any]] = [
+        _text(
+            "sRGB renders with one exposure for truth and reconstruction; error maps on a common "
+            "scale (99.5th percentile of the nRMSE of the images shown). Images are named by "
+            "their label in the run store."
+        )
+    ]
+    if len(shown) < len(labels):
+        blocks.append(_text(f"Figures for the first {len(shown)} of {len(labels)} images."))
+    for label, error_map, spectra_figure in error_map_figures(
+        evaluation, spectra, truth, shown, exposure_percentile=exposure_percentile
+    ):
+        position = int(np.flatnonzero(_labels(evaluation) == label)[0])
+        name = image_label(evaluation, position)
+        blocks.append({"kind": "heading", "text": name})
+        blocks.append(
+            _figure(
+                error_map,
+                f"error_map_{label:03d}",
+                f"Image {label}: ground truth and reconstruction (sRGB) and the normalised RMSE "
+                "map; numbered pixels are the representative spectra.",
+            )
+        )
+        blocks.append(
+            _figure(
+                spectra_figure,
+                f"spectra_{label:03d}",
+                f"Image {label}: representative spectra, ground truth solid, reconstruction dotted.",
+            )
+        )
+    sections.append(
+        _section("error-maps", "Error maps and representative spectra (Figures 5, 6)", blocks)
+    )
+    return headline, sections
+
+
+# -- calibration (no ground truth needed) ----------------------------------------------------
+def _read(store: RunStore, group: str) -> xr.Dataset | None:
+    return store.read(group) if store.has(group) else None
+
+
+def _cross_validation(calibration: xr.Dataset) -> list[dict[str, Any]]:
     checked = calibration[["measured_rgb", "predicted_rgb", "relative_error"]].compute()
     error = np.asarray(checked["relative_error"].values, dtype=float)
     rows = [
@@ -245,17 +464,224 @@ def _cross_validation(calibration: xr.Dataset, directory: Path) -> dict[str, Any
         ["patch", "relative error"],
         rows,
     )
-    figure = _save(
-        plot_cross_validation(checked.rename(measured_rgb="measured", predicted_rgb="predicted")),
-        directory,
-        "cross_validation.png",
-        "(a) measured RGB, (b) RGB predicted "
-        "through C from the spectral capture, (c) their difference scaled 10x.",
+    figure = _figure(
+        plot_cross_validation(
+            checked.rename(measured_rgb="measured", predicted_rgb="predicted").assign_attrs(
+                mean_relative_error=float(np.nanmean(error)), max_relative_error=float(np.nanmax(error))
+            )
+        ),
+        "cross_validation",
+        "Figure 4: (a) measured RGB, (b) RGB predicted through C from the spectral capture, "
+        "(c) their difference scaled 10x, (d) relative error per patch.",
     )
-    return {"table": table, "figure": figure}
+    return [table, figure]
 
 
-# -- the report ----------------------------------------------------------------------------
+def _response_histograms(store: RunStore) -> dict[str, Any] | None:
+    white, dark = _read(store, "raw/white_reference"), _read(store, "dark")
+    if white is None or dark is None:
+        return None
+    oecf = _read(store, "calibration/oecf_spectral")
+    wavelength = np.asarray(white["wavelength"].values, dtype=float)
+    band = float(oecf.attrs.get("band", wavelength[0])) if oecf is not None else float(wavelength[0])
+    band = float(wavelength[np.argmin(np.abs(wavelength - band))])
+    times = np.asarray(white["spectral_exposure_time"].values, dtype=float)
+    pick = np.argsort(times)[: min(4, times.size)]
+    frames = (
+        white["spectral_counts"].sel(wavelength=band).isel(spectral_exposure=pick).astype(np.float64)
+    )
+    dark_times = np.asarray(dark["exposure_time"].values, dtype=float)
+    means = [
+        dark["mean"].isel(exposure_time=int(np.argmin(np.abs(dark_times - t)))).values
+        for t in times[pick]
+    ]
+    subtracted = (frames - np.stack(means)).rename(spectral_exposure="exposure_time")
+    subtracted = subtracted.assign_coords(exposure_time=times[pick])
+    return _figure(
+        plot_response_histograms(
+            response_histograms(subtracted.compute()),
+            title=f"white reference at {band:g} nm, shortest exposures of the series",
+        ),
+        "response_histograms",
+        "Figure 2: histograms of the spectral camera's dark-subtracted values (offset by 30) of "
+        "its shortest exposures, unfiltered and after Gaussian filters of increasing size "
+        "(sigma = size / 5): values stay statistically stable far below one DN of signal.",
+    )
+
+
+def _calibration(store: RunStore) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
+    headline: list[tuple[str, str]] = []
+    blocks: list[dict[str, Any]] = []
+    blocks.append(_response_histograms(store))
+    plan = _read(store, "raw/exposure_plan")
+    spectral = _read(store, "calibration/spectral")
+    white = _read(store, "raw/white_reference")
+    if plan is not None:
+        blocks.append(
+            _figure(
+                plot_exposure_plan(
+                    plan,
+                    quantum_efficiency=spectral["quantum_efficiency"] if spectral is not None else None,
+                    illuminant=white["illuminant"] if white is not None else None,
+                ),
+                "exposure_plan",
+                "Figure 3: relative quantum efficiency Q and illuminant L, exposure time per band "
+                "(eq. 2) and filter size (eq. 3) of the band shots.",
+            )
+        )
+    if spectral is not None and "measured_rgb" in spectral:
+        error = np.asarray(spectral["relative_error"].values, dtype=float)
+        headline.append(
+            ("colour-checker cross-validation, mean error", f"{100 * np.nanmean(error):.2f} %")
+        )
+        blocks += _cross_validation(spectral)
+    oecf_rgb, oecf_spectral = (
+        _read(store, "calibration/oecf_rgb"),
+        _read(store, "calibration/oecf_spectral"),
+    )
+    if oecf_rgb is not None or oecf_spectral is not None:
+        blocks.append(
+            _figure(
+                plot_oecf(oecf_rgb, oecf_spectral),
+                "oecf",
+                "Recovered camera responses (OECF): relative exposure per code of each RGB camera "
+                "and channel (Robertson 2003) and of the spectral camera (low-SNR extension).",
+            )
+        )
+    if spectral is not None:
+        blocks.append(
+            _figure(
+                plot_quantum_efficiency(spectral),
+                "quantum_efficiency",
+                "Relative quantum efficiency of the spectral camera per band and the rows of the "
+                "RGB camera matrix C.",
+            )
+        )
+    registration = _read(store, "registration")
+    if registration is not None:
+        shift = np.asarray(registration["shift"].values, dtype=float)
+        residual = np.asarray(registration["residual"].values, dtype=float)
+        headline.append(
+            (
+                "misregistration (dy, dx)",
+                f"({shift[0]:+.2f}, {shift[1]:+.2f}) px, residual max "
+                f"{(np.nanmax(residual) if residual.size else 0.0):.2f} px",
+            )
+        )
+        blocks.append(
+            _figure(
+                plot_registration(registration),
+                "registration",
+                "Misregistration of the spectral camera to its RGB camera per rotation pair "
+                "(phase correlation) and the residuals from the run's shift.",
+            )
+        )
+    blocks = [b for b in blocks if b]
+    return headline, [_section("calibration", "Calibration", blocks)] if blocks else []
+
+
+# -- reconstruction (no ground truth needed) -------------------------------------------------
+def default_pixels(height: int, width: int) -> list[tuple[int, int]]:
+    """The centre and the centres of the four quadrants."""
+    return [
+        (height // 2, width // 2),
+        (height // 4, width // 4),
+        (height // 4, 3 * width // 4),
+        (3 * height // 4, width // 4),
+        (3 * height // 4, 3 * width // 4),
+    ]
+
+
+def _reconstruction(
+    spectra: xr.Dataset,
+    *,
+    max_images: int,
+    pixels: Sequence[tuple[int, int]] | None,
+    exposure_percentile: float,
+) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
+    labels = sorted(int(v) for v in _labels(spectra))
+    shown = labels[: int(max_images)]
+    cube = _by_label(spectra, shown)
+    srgb = render_srgb(cube["radiance"], percentile=exposure_percentile, dtype="float").compute()
+    titles = [image_label(cube, k) for k in range(len(shown))]
+    height, width = spectra.sizes["y"], spectra.sizes["x"]
+    points = list(pixels) if pixels else default_pixels(height, width)
+    bad = [p for p in points if not (0 <= p[0] < height and 0 <= p[1] < width)]
+    if bad:
+        raise ParameterError.single("pixels", f"(y, x) inside {height} x {width} px", f"{bad}")
+    headline = [("images reconstructed", str(len(labels)))]
+    blocks: list[dict[str, Any]] = [
+        _text(f"sRGB renders: {srgb.attrs.get('exposure_normalisation', '')}."),
+    ]
+    if len(shown) < len(labels):
+        blocks.append(_text(f"Figures for the first {len(shown)} of {len(labels)} images."))
+    blocks.append(
+        _figure(
+            plot_renders(srgb, titles=[f"image {label}" for label in shown]),
+            "renders",
+            "sRGB renders of the reconstructed spectral images (CIE 1931 2°, one exposure).",
+        )
+    )
+    ys = xr.DataArray([p[0] for p in points], dims="pixel")
+    xs = xr.DataArray([p[1] for p in points], dims="pixel")
+    picked = cube["radiance"].isel(y=ys, x=xs).transpose("image", "pixel", "wavelength").compute()
+    wavelength = np.asarray(cube["wavelength"].values, dtype=float)
+    for k, label in enumerate(shown[:4]):
+        blocks.append({"kind": "heading", "text": titles[k]})
+        blocks.append(
+            _figure(
+                plot_pixel_spectra(
+                    np.asarray(srgb.isel(image=k).values),
+                    np.asarray(picked.isel(image=k).values),
+                    points,
+                    wavelength,
+                    title=titles[k],
+                ),
+                f"pixel_spectra_{label:03d}",
+                f"Image {label}: reconstructed spectra at the numbered pixels.",
+            )
+        )
+    if "confidence" in spectra:
+        blocks.append(
+            _figure(
+                plot_confidence(_by_label(spectra["confidence"], shown)),
+                "confidence",
+                "Confidence of the reconstruction (variable confidence of the spectra group: "
+                f"{spectra['confidence'].attrs.get('long_name', 'confidence')}).",
+            )
+        )
+    return headline, [_section("reconstruction", "Reconstruction", blocks)]
+
+
+# -- writing ---------------------------------------------------------------------------------
+def _write_page(
+    directory: str | os.PathLike[str],
+    *,
+    title: str,
+    run_table: dict[str, Any],
+    headline: list[tuple[str, str]],
+    sections: list[dict[str, Any]],
+) -> Path:
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    index = directory / "index.html"
+    page = (
+        _environment()
+        .get_template(TEMPLATE)
+        .render(
+            title=title,
+            written=time.strftime("%Y-%m-%d %H:%M:%S"),
+            headline=headline,
+            run=run_table,
+            sections=sections,
+        )
+    )
+    partial = index.with_name(index.name + ".partial")
+    partial.write_text(page, encoding="utf-8")
+    os.replace(partial, index)
+    return index
+
+
 def write_report(
     evaluation: xr.Dataset,
     *,
@@ -271,7 +697,7 @@ def write_report(
     exposure_percentile: float = 99.0,
     calibration: xr.Dataset | None = None,
 ) -> Path:
-    """Write an HTML report with PNG figures of an evaluation into ``directory``.
+    """Write the report of an evaluation against ground truth: one self-contained HTML file.
 
     Parameters
     ----------
@@ -279,16 +705,15 @@ def write_report(
         Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (the ``evaluation``
         group); it is computed here.
     spectra, truth
-        Groups ``spectra`` and ``truth/spectra`` the evaluation was made from (for the sRGB
-        renders and the description of the run).
+        Groups ``spectra`` and ``truth/spectra`` the evaluation was made from. Images are
+        matched by label (``image`` coordinate), whatever the order of each group.
     directory
-        Folder to write ``index.html`` and the figures into (created; files are replaced).
+        Folder to write ``index.html`` into (created; the file is replaced atomically).
     baselines
         Comparison of methods: the output of
         :func:`~spectralize.nodes.evaluation.metrics.compare_methods` (dim
-        ``reconstruction``), or what it accepts (method name -> cube, or ``radiance`` with a
-        ``reconstruction`` dim), which is then evaluated here against ``truth`` (with
-        ``shots``). Table left out when ``None``.
+        ``reconstruction``), or what it accepts, which is then evaluated here against
+        ``truth`` (with ``shots``). Left out when ``None``.
     capture
         Output of :func:`~spectralize.nodes.evaluation.capture_time.capture_time`; the
         capture-time figure and table are left out when ``None``.
@@ -299,7 +724,8 @@ def write_report(
     shots
         Group ``raw/spectral``, only used when ``baselines`` are cubes.
     max_images
-        At most this many images get an error-map and a spectra figure (all are tabulated).
+        At most this many images (the lowest labels) get an error-map and a spectra figure
+        (all are tabulated).
     exposure_percentile
         Percentile of the truth's luminance mapped to sRGB white (one exposure for truth and
         reconstruction, over the images shown).
@@ -330,98 +756,28 @@ def write_report(
             "cannot write the report:",
             [Problem("max_images", "at least 1 image with figures", repr(max_images))],
         )
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
     evaluation = evaluation.compute()
-    n_images = evaluation.sizes["image"]
-    shown = list(range(min(n_images, int(max_images))))
-    threshold = float(evaluation.attrs.get("threshold", DEFAULT_THRESHOLD))
-
-    truth_srgb = render_srgb(
-        truth["radiance"].isel(image=shown), percentile=exposure_percentile
-    ).compute()
-    scale = float(truth_srgb.attrs["exposure_scale"])
-    recon_srgb = render_srgb(spectra["radiance"].isel(image=shown), exposure=scale).compute()
-    finite = np.asarray(evaluation["nrmse"].isel(image=shown).values, dtype=np.float64)
-    finite = finite[np.isfinite(finite)]
-    vmax = float(np.percentile(finite, 99.5)) if finite.size else 1.0
-    vmax = vmax if vmax > 0 else 1.0
-
-    context: dict[str, Any] = {
-        "title": title,
-        "written": time.strftime("%Y-%m-%d %H:%M:%S"),
-        "run": _run_table(evaluation, spectra, truth, run),
-        "summary": _table(
-            "summary",
-            "Statistics over all pixels of each subset of images",
-            _summary_header(threshold),
-            _summary_rows(evaluation, [str(s) for s in evaluation["subset"].values]),
-        ),
-        "per_image": _per_image_table(evaluation),
-        "histogram": _save(
-            plot_histograms(evaluation),
-            directory,
-            "histogram.png",
-            "Histogram of the per-pixel normalised RMSE over all pixels of the "
-            "images with and without band shots; logarithmic count axis.",
-        ),
-        "capture": None,
-        "cross_validation": None,
-        "baselines": None,
-        "exposure_normalisation": truth_srgb.attrs["exposure_normalisation"],
-        "vmax": _fmt(vmax),
-        "images_shown": len(shown),
-        "images_total": n_images,
-    }
-    if capture is not None:
-        context["capture"] = {
-            "table": _capture_table(capture),
-            "figure": _save(
-                plot_capture_time(capture),
-                directory,
-                "capture_time.png",
-                "Total exposure of the reference and the fast capture.",
-            ),
-        }
+    headline, sections = _accuracy(
+        evaluation,
+        spectra=spectra,
+        truth=truth,
+        baselines=baselines,
+        capture=capture,
+        shots=shots,
+        max_images=max_images,
+        exposure_percentile=exposure_percentile,
+    )
     if calibration is not None and "measured_rgb" in calibration:
-        context["cross_validation"] = _cross_validation(calibration, directory)
-    if baselines is not None:
-        table = baselines
-        if not (isinstance(table, xr.Dataset) and "nrmse_subset_statistics" in table):
-            table = compare_methods(
-                baselines,
-                truth,
-                shots=shots,
-                illuminant=str(evaluation.attrs.get("illuminant", "D65")),
-                threshold=threshold,
-            )
-        context["baselines"] = _baselines_table(evaluation, table.compute(), threshold)
-    context["images"] = [
-        {
-            "label": image_label(evaluation, image),
-            "error_map": _save(
-                plot_error_map(
-                    evaluation, image, truth_srgb=truth_srgb, reconstruction_srgb=recon_srgb, vmax=vmax
-                ),
-                directory,
-                f"error_map_{image:03d}.png",
-                f"Image {image}: ground truth and reconstruction (sRGB) and the "
-                "normalised RMSE map; numbered pixels are the representative "
-                "spectra.",
-            ),
-            "spectra": _save(
-                plot_spectra(evaluation, image),
-                directory,
-                f"spectra_{image:03d}.png",
-                f"Image {image}: representative spectra, ground truth solid, reconstruction dotted.",
-            ),
-        }
-        for image in shown
-    ]
-
-    index = directory / "index.html"
-    index.write_text(_environment().get_template(TEMPLATE).render(context), encoding="utf-8")
-    return index
+        sections.insert(1, _section("calibration", "Calibration", _cross_validation(calibration)))
+    return _write_page(
+        directory,
+        title=title,
+        run_table=_run_table(
+            run, {"spectra": spectra, "truth/spectra": truth, "evaluation": evaluation}, spectra
+        ),
+        headline=headline,
+        sections=sections,
+    )
 
 
 def write_run_report(
@@ -431,72 +787,122 @@ def write_run_report(
     reference: xr.Dataset | float | None = None,
     title: str | None = None,
     max_images: int = 24,
+    pixels: Sequence[tuple[int, int]] | None = None,
+    exposure_percentile: float = 99.0,
 ) -> Path:
-    """Write the report of a run store: what :func:`write_report` needs, read from the run.
+    """Write the report of a run store, with or without ground truth: one HTML file.
 
-    Reads ``spectra`` and ``truth/spectra``; ``raw/spectral`` (which images have band shots)
-    if present; the stored ``evaluation`` group if present, else evaluates now with the
-    defaults of :func:`~spectralize.nodes.evaluation.metrics.evaluate`; the capture time from
-    ``raw/spectral``, ``raw/rgb`` and ``raw/exposure_plan`` if present
-    (:func:`~spectralize.nodes.evaluation.capture_time.run_capture_time`); the
-    ``calibration/spectral`` group if present; and every ``baselines/<method>`` group (the
-    spectra layout) as the baseline table.
+    Sections, each when its groups exist: calibration (``raw/white_reference``, ``dark``,
+    ``raw/exposure_plan``, ``calibration/*``, ``registration``), reconstruction
+    (``spectra``), accuracy (``truth/spectra``: the stored ``evaluation`` group, else an
+    evaluation made now), capture time (``raw/spectral``, ``raw/rgb``, ``raw/exposure_plan``)
+    and baselines (``baselines/<method>``).
 
     Parameters
     ----------
     store
         The run store or its path.
     directory
-        Where to write (default: the folder ``report`` inside the run store).
+        Where to write ``index.html`` (default: the folder ``report`` inside the run store).
     reference
         The long-exposure reference capture: a plan or its total [s] (default: one
         reference set of bands per image from ``raw/exposure_plan``, else the paper's
-        226.212 s; the report says which).
-    title, max_images
-        As for :func:`write_report` (default title: the store's name).
+        226.212 s; the report says which). Runs with ground truth only.
+    title
+        Title of the page (default: the store's name).
+    max_images
+        At most this many images (the lowest labels) get figures.
+    pixels
+        (y, x) of the spectra drawn per image (default: centre and quadrant centres).
+    exposure_percentile
+        Percentile of the luminance mapped to sRGB white.
 
     Returns
     -------
     pathlib.Path
         The path of ``index.html``.
 
+    Raises
+    ------
+    SpectralizeError
+        When the store has neither calibration groups nor ``spectra``: nothing to report.
+
     References
     ----------
-    Fast Capture of Spectral Image Series, sec. 5, Figures 4-8.
+    Fast Capture of Spectral Image Series, sec. 4 and 5, Figures 2-8.
     """
     run = store if isinstance(store, RunStore) else RunStore.open(store)
-    spectra = run.read("spectra")
-    truth = run.read("truth/spectra")
-    shots = run.read("raw/spectral") if run.has("raw/spectral") else None
-    if run.has("evaluation"):
-        evaluation = run.read("evaluation")
-    else:
-        evaluation = evaluate(spectra, truth, shots=shots)
-    evaluation = evaluation.compute()
-    capture = None
-    if shots is not None:
-        raw_rgb = run.read("raw/rgb") if run.has("raw/rgb") else None
-        if reference is None:
-            plan = run.read("raw/exposure_plan") if run.has("raw/exposure_plan") else None
-            capture = run_capture_time(shots, raw_rgb, plan, evaluation=evaluation)
-        else:
-            capture = capture_time(
-                capture_time_from_run(shots, raw_rgb), reference, evaluation=evaluation
+    if int(max_images) < 1:
+        raise ParameterError.single("max_images", "at least 1 image with figures", repr(max_images))
+    spectra = _read(run, "spectra")
+    headline: list[tuple[str, str]] = []
+    sections: list[dict[str, Any]] = []
+    found, calibration_sections = _calibration(run)
+    headline += found
+    groups: dict[str, xr.Dataset] = {}
+    if spectra is not None:
+        groups["spectra"] = spectra
+        found, recon = _reconstruction(
+            spectra, max_images=max_images, pixels=pixels, exposure_percentile=exposure_percentile
+        )
+        headline = found + headline
+        sections += recon
+    if spectra is not None and run.has("truth/spectra"):
+        truth = run.read("truth/spectra")
+        shots = _read(run, "raw/spectral")
+        evaluation = _read(run, "evaluation")
+        if evaluation is None:
+            evaluation = evaluate(spectra, truth, shots=shots)
+        evaluation = evaluation.compute()
+        _check_evaluation(evaluation)
+        capture = None
+        if shots is not None:
+            raw_rgb = _read(run, "raw/rgb")
+            if reference is None:
+                capture = run_capture_time(
+                    shots, raw_rgb, _read(run, "raw/exposure_plan"), evaluation=evaluation
+                )
+            else:
+                capture = capture_time(
+                    capture_time_from_run(shots, raw_rgb), reference, evaluation=evaluation
+                )
+        prefix = BASELINES_GROUP + "/"
+        baselines = {g[len(prefix) :]: run.read(g) for g in run.groups() if g.startswith(prefix)}
+        found, accuracy = _accuracy(
+            evaluation,
+            spectra=spectra,
+            truth=truth,
+            baselines=baselines or None,
+            capture=capture,
+            shots=shots,
+            max_images=max_images,
+            exposure_percentile=exposure_percentile,
+        )
+        headline = found + headline
+        sections = accuracy + sections
+        groups |= {"truth/spectra": truth, "evaluation": evaluation}
+    elif run.has("raw/spectral"):
+        raw_rgb = _read(run, "raw/rgb")
+        fast = capture_time_from_run(run.read("raw/spectral"), raw_rgb)
+        band = float(fast["exposure_time"].sum())
+        rgb = float(fast["rgb_exposure_time"].sum())
+        headline.append(
+            (
+                "total exposure of the capture",
+                f"{band + rgb:.3g} s ({band:.3g} s band shots, {rgb:.3g} s RGB)",
             )
-    prefix = BASELINES_GROUP + "/"
-    baselines = {
-        group[len(prefix) :]: run.read(group) for group in run.groups() if group.startswith(prefix)
-    }
-    return write_report(
-        evaluation,
-        spectra=spectra,
-        truth=truth,
-        directory=run.path / "report" if directory is None else directory,
-        baselines=baselines or None,
-        capture=capture,
-        shots=shots,
-        run=str(run.path),
-        calibration=run.read("calibration/spectral") if run.has("calibration/spectral") else None,
+        )
+    sections += calibration_sections
+    if not sections:
+        raise SpectralizeError.single(
+            str(run.path),
+            "calibration groups or a spectra group to report on (run `spectralize run btf` first)",
+            f"groups {run.groups()}",
+        )
+    return _write_page(
+        run.path / "report" if directory is None else directory,
         title=title or f"spectralize: {run.path.name}",
-        max_images=max_images,
+        run_table=_run_table(str(run.path), groups, spectra),
+        headline=headline,
+        sections=sections,
     )

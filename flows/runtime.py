@@ -6,6 +6,17 @@ carry the fingerprint it would write is skipped, and a changed parameter or inpu
 that fingerprint, so the node and everything downstream run again. This survives hard kills
 (the fingerprints live in the store) and node code changes (the node version is part of the
 fingerprint).
+
+Nothing damaged or stale is trusted: "up to date" also needs the step's input and output
+groups to pass the store's cheap check (sizes, times, checksums of changed files). A damaged
+output is recomputed with a warning, and the steps that read it run again; a damaged input
+that no step of the flow makes (raw data) is an error naming the file. Input values are
+checked against the contract (NaN/inf, ranges) before a node's numerics start.
+
+One flow writes a store at a time (the store's lock, held for the whole run). A run whose
+steps are all up to date answers before Prefect's API is started. The embedded Prefect
+server dies with the flow process, even when that is killed with SIGKILL, and a flow run
+left RUNNING by a killed process is marked crashed when the next run takes over its lock.
 """
 
 from __future__ import annotations
@@ -14,6 +25,9 @@ import contextlib
 import dataclasses
 import hashlib
 import os
+import subprocess
+import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -24,10 +38,19 @@ from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
 
 from spectralize.engine import PlannedStep, Step, check_graph, registry
-from spectralize.schemas import PipelineError, RunStore, StoreError, compute_fingerprint
+from spectralize.schemas import (
+    GROUP_SCHEMAS,
+    PipelineError,
+    Problem,
+    RunStore,
+    StoreError,
+    compute_fingerprint,
+    validate_values,
+)
+from spectralize.schemas.lock import LockHolder, StoreLock
 from spectralize.schemas.store import SCHEMA_ATTR
 
-__all__ = ["StepReport", "RunReport", "run_steps", "output_fingerprint"]
+__all__ = ["StepReport", "RunReport", "run_steps", "output_fingerprint", "flow_inputs"]
 
 
 def output_fingerprint(run_fingerprint: str, group: str) -> str:
@@ -43,6 +66,7 @@ class StepReport:
     status: str  # "ran" or "skipped"
     seconds: float
     outputs: dict[str, str]  # group -> fingerprint
+    reason: str = ""  # why a step with a known result ran again (damaged output, repaired input)
 
 
 @dataclass
@@ -59,11 +83,14 @@ class RunReport:
 
 
 @contextlib.contextmanager
-def dask_scheduler(address: str | None) -> Iterator[int]:
+def dask_scheduler(address: str | None, log: Callable[[str], None] = print) -> Iterator[int]:
     """Local threads by default; an existing ``dask.distributed`` cluster when given its address.
 
     Yields how many regions (image sets) to compute at the same time: the number of worker
-    threads of the cluster, or of this machine's cores.
+    threads of the cluster, or of this machine's cores. On a cluster a watchdog reports a
+    lost worker within seconds; when no worker is left for ``LOST_WORKERS_SECONDS`` it
+    cancels the computation, which then fails with a :class:`StoreError` instead of waiting
+    forever for workers that will not come back.
     """
     if not address:
         yield max(1, os.cpu_count() or 1)
@@ -71,7 +98,82 @@ def dask_scheduler(address: str | None) -> Iterator[int]:
     from distributed import Client
 
     with Client(address, set_as_default=True) as client:
-        yield max(1, sum(client.nthreads().values()))
+        watchdog = _WorkerWatchdog(client, address, log)
+        watchdog.start()
+        try:
+            yield max(1, sum(client.nthreads().values()))
+        except Exception as error:
+            if watchdog.gave_up:
+                raise StoreError(watchdog.gave_up) from error
+            raise
+        finally:
+            watchdog.stop()
+
+
+LOST_WORKERS_SECONDS = 30.0
+
+
+class _WorkerWatchdog(threading.Thread):
+    """Polls a dask cluster's workers; reports losses; cancels the work when none is left."""
+
+    def __init__(self, client: Any, address: str, log: Callable[[str], None], interval: float = 2.0):
+        super().__init__(name="spectralize-dask-watchdog", daemon=True)
+        self.client, self.address, self.log, self.interval = client, address, log, interval
+        self.gave_up: str | None = None
+        self._stop_event = threading.Event()
+
+    def _workers(self) -> set[str]:
+        return set(self.client.scheduler_info(n_workers=-1).get("workers", {}))
+
+    def run(self) -> None:
+        try:
+            known = self._workers()
+        except Exception:
+            return
+        empty_since: float | None = None
+        while not self._stop_event.wait(self.interval):
+            try:
+                now = self._workers()
+            except Exception:
+                continue
+            lost = known - now
+            if lost:
+                self.log(
+                    f"dask cluster {self.address}: lost {len(lost)} worker(s) "
+                    f"({', '.join(sorted(lost))}); {len(now)} left"
+                )
+            known = now
+            if now:
+                empty_since = None
+                continue
+            empty_since = empty_since or time.monotonic()
+            if time.monotonic() - empty_since >= LOST_WORKERS_SECONDS:
+                self.gave_up = (
+                    f"dask cluster {self.address} has had no workers for "
+                    f"{LOST_WORKERS_SECONDS:.0f} s (they died or were stopped): the computation "
+                    "was cancelled; restart the workers and run again (finished regions are kept)"
+                )
+                self.log(self.gave_up)
+                self._cancel_everything()
+                return
+
+    def _cancel_everything(self) -> None:
+        client, reason = self.client, "no dask workers left"
+
+        async def cancel() -> None:
+            keys = list(client.futures)
+            if keys:
+                client._send_to_scheduler(
+                    {"op": "cancel-keys", "keys": keys, "force": True, "reason": reason, "msg": reason}
+                )
+            for state in list(client.futures.values()):
+                state.cancel(reason=reason, msg=self.gave_up)
+
+        with contextlib.suppress(Exception):
+            client.sync(cancel)
+
+    def stop(self) -> None:
+        self._stop_event.set()
 
 
 def _log() -> Callable[[str], None]:
@@ -80,6 +182,69 @@ def _log() -> Callable[[str], None]:
     except Exception:  # called outside a Prefect run (plain .fn() call)
         return print
     return logger.info
+
+
+def _expected_outputs(
+    node_name: str,
+    parameters: dict[str, Any],
+    outputs: dict[str, str],
+    input_fingerprints: dict[str, str],
+) -> dict[str, str]:
+    node = registry()[node_name].node
+    params = node.parse_parameters(parameters)
+    run_fp = compute_fingerprint(
+        node.name, node.version, params.model_dump(mode="json"), input_fingerprints
+    )
+    return {group: output_fingerprint(run_fp, group) for group in outputs.values()}
+
+
+def _damage(store: RunStore, groups: Sequence[str]) -> dict[str, list[Problem]]:
+    """The groups (of those that exist) that fail the store's cheap check, with why."""
+    found = {group: store.verify(group) for group in groups if store.has(group)}
+    return {group: problems for group, problems in found.items() if problems}
+
+
+def _damaged_input_error(store: RunStore, node: str, damaged: dict[str, list[Problem]]) -> StoreError:
+    problems = []
+    for group, found in damaged.items():
+        made_by = store.provenance(group).get("node")
+        hint = (
+            f"made by node {made_by!r}: run a flow that includes it to recompute it"
+            if made_by and not group.startswith("raw/")
+            else "raw data: restore the file from the capture, or import the run again"
+        )
+        problems += [dataclasses.replace(p, hint=hint) for p in found]
+    return StoreError(
+        f"node {node!r} cannot run on run store {str(store.path)!r}: input group(s) "
+        f"{', '.join(damaged)} are damaged (nothing was read or written)",
+        problems,
+    )
+
+
+_VALUES_CHECKED: dict[tuple[str, str, str], None] = {}  # (store, group, fingerprint) checked
+
+
+def _check_input_values(store: RunStore, node: str, groups: Sequence[str]) -> None:
+    """NaN/inf and range rules of each input group's contract, before any numerics run."""
+    problems: list[Problem] = []
+    for group in groups:
+        name = store.group_attrs(group).get(SCHEMA_ATTR, group)
+        key = (str(store.path), group, str(store.fingerprint(group)))
+        if name not in GROUP_SCHEMAS or key in _VALUES_CHECKED:
+            continue
+        found = validate_values(store.read(group, friendly=False), GROUP_SCHEMAS[name], group=group)
+        if found:
+            problems += found
+        else:
+            _VALUES_CHECKED[key] = None
+    if problems:
+        from spectralize.schemas import SchemaError
+
+        raise SchemaError(
+            f"node {node!r} cannot run on run store {str(store.path)!r}: its input values break "
+            "the run-store contract (nothing was computed)",
+            problems,
+        )
 
 
 @task(name="node", cache_policy=NO_CACHE, persist_result=False)
@@ -91,6 +256,7 @@ def run_node(
     outputs: dict[str, str],
     input_fingerprints: dict[str, str],
     dask_address: str | None = None,
+    rerun_because: str = "",
 ) -> StepReport:
     """Run one node against the store, or skip it when its outputs are up to date.
 
@@ -98,53 +264,81 @@ def run_node(
     parameters were validated by the graph check (``plan``) before the flow started; calling
     the node checks each input group against the schema the node declares for it (structure
     only, nothing is computed) before the node's function runs.
+
+    Up to date means: every output carries the fingerprint this run would write, and the
+    inputs and outputs pass the store's cheap check. A damaged output is recomputed (with a
+    warning); a damaged input is an error naming its files. ``rerun_because`` forces a run
+    (an input was recomputed because it was damaged).
     """
     log = _log()
     node = registry()[node_name].node
     params = node.parse_parameters(parameters)
-    run_fp = compute_fingerprint(
-        node.name, node.version, params.model_dump(mode="json"), input_fingerprints
-    )
-    expected = {group: output_fingerprint(run_fp, group) for group in outputs.values()}
+    expected = _expected_outputs(node_name, parameters, outputs, input_fingerprints)
     store = RunStore.open(store_path)
+    damaged_inputs = _damage(store, list(inputs.values()))
+    if damaged_inputs:
+        raise _damaged_input_error(store, node.name, damaged_inputs)
+    reason = rerun_because
     if all(store.fingerprint(group) == fp for group, fp in expected.items()):
-        log(f"{node.name}: skipped, {', '.join(expected)} already up to date")
-        return StepReport(node.name, "skipped", 0.0, expected)
+        damaged = _damage(store, list(expected))
+        if damaged:
+            reason = "damaged output " + ", ".join(
+                f"{group} ({problems[0]}{f' and {len(problems) - 1} more' if len(problems) > 1 else ''})"
+                for group, problems in damaged.items()
+            )
+            _warn(f"{node.name}: recomputing: {reason}")
+        elif not reason:
+            log(f"{node.name}: skipped, {', '.join(expected)} already up to date")
+            return StepReport(node.name, "skipped", 0.0, expected)
+        else:
+            log(f"{node.name}: running again: {reason}")
 
     start = time.perf_counter()
-    log(f"{node.name}: reading {', '.join(sorted(inputs.values())) or 'no inputs'}")
-    with dask_scheduler(dask_address) as parallel:
-        data = {argument: store.read(group) for argument, group in inputs.items()}
-        results = node(data, params)
-        for schema, ds in results.items():
-            group = outputs[schema]
-            log(f"{node.name}: writing {group}")
-            provenance = {
-                "node": node.name,
-                "version": node.version,
-                "parameters": params.model_dump(mode="json"),
-                "inputs": dict(input_fingerprints),
-            }
-            store.write(
-                group,
-                ds,
-                schema=schema if _known(schema) else None,
-                fingerprint=expected[group],
-                provenance=provenance,
-                chunks=node.chunks.get(schema),
-                resumable_along=node.resumable_along.get(schema),
-                concurrent_regions=parallel,
-                progress=lambda message, g=group: log(f"{node.name}: {g}: {message}"),
-            )
+    stage = "checking its inputs"
+    try:
+        _check_input_values(store, node.name, list(inputs.values()))
+        # a re-run needs at least the room its previous result took
+        store.check_free_space(sum(store.size_on_disk(g) for g in expected), group=", ".join(expected))
+        stage = f"reading {', '.join(sorted(inputs.values())) or 'no inputs'}"
+        log(f"{node.name}: {stage}")
+        with dask_scheduler(dask_address, log) as parallel:
+            data = {argument: store.read(group, friendly=False) for argument, group in inputs.items()}
+            stage = "computing"
+            results = node(data, params)
+            for schema, ds in results.items():
+                group = outputs[schema]
+                stage = f"writing group {group!r}"
+                log(f"{node.name}: writing {group}")
+                provenance = {
+                    "node": node.name,
+                    "version": node.version,
+                    "parameters": params.model_dump(mode="json"),
+                    "inputs": dict(input_fingerprints),
+                }
+                store.write(
+                    group,
+                    ds,
+                    schema=schema if schema in GROUP_SCHEMAS else None,
+                    fingerprint=expected[group],
+                    provenance=provenance,
+                    chunks=node.chunks.get(schema),
+                    resumable_along=node.resumable_along.get(schema),
+                    concurrent_regions=parallel,
+                    progress=lambda message, g=group: log(f"{node.name}: {g}: {message}"),
+                )
+    except Exception as error:
+        error.add_note(f"in node {node.name!r} ({stage}) on run store {store_path}")
+        raise
     seconds = time.perf_counter() - start
     log(f"{node.name}: done in {seconds:.1f} s")
-    return StepReport(node.name, "ran", seconds, expected)
+    return StepReport(node.name, "ran", seconds, expected, reason)
 
 
-def _known(schema: str) -> bool:
-    from spectralize.schemas import GROUP_SCHEMAS
-
-    return schema in GROUP_SCHEMAS
+def _warn(message: str) -> None:
+    try:
+        get_run_logger().warning(message)
+    except Exception:
+        print(f"warning: {message}", file=sys.stderr)
 
 
 def plan(store_path: str | Path, steps: Sequence[Step], *, create: bool = False) -> list[PlannedStep]:
@@ -173,10 +367,16 @@ def run_steps(
 
     The graph is checked first; every problem (plus ``problems`` found earlier, such as
     unknown ``--set`` keys) is raised at once in a :class:`~spectralize.schemas.PipelineError`
-    and nothing is written. A store that does not
-    exist yet is created only when the graph's first steps need no input groups.
+    and nothing is written. A store that does not exist yet is created only when the graph's
+    first steps need no input groups; otherwise the missing store is the error.
+
+    The store's lock is held for the whole run (a second writer gets
+    :class:`~spectralize.schemas.StoreBusyError`). When every step is up to date the answer
+    comes without starting Prefect.
     """
     path = Path(store_path).absolute()
+    if not path.exists():
+        _require_store_or_first_steps_without_inputs(path, steps, flow_name)
     try:
         planned = plan(path, steps, create=True)
     except PipelineError as error:
@@ -185,17 +385,169 @@ def run_steps(
     if problems:
         raise PipelineError(f"the node graph cannot run ({len(problems)} problem(s)):", problems)
     if not path.exists():
-        if any(item.inputs for item in planned[:1]):
-            raise StoreError(f"{str(path)!r} is not a run store: no such directory")
         RunStore.create(path)
-    return _graph_flow(
-        str(path),
-        flow_name,
-        [_as_dict(item.step) for item in planned],
-        retries,
-        retry_delay_seconds,
-        dask_address,
-        report,
+    store = RunStore.open(path)
+    with store.lock(f"spectralize run {flow_name}") as lock:
+        if lock.previous is not None:
+            _mark_crashed(lock.previous, path)
+        up_to_date = _up_to_date_report(store, flow_name, planned, report)
+        if up_to_date is not None:
+            return up_to_date
+        _embedded_server_dies_with_us()
+        return _graph_flow(
+            str(path),
+            flow_name,
+            [_as_dict(item.step) for item in planned],
+            retries,
+            retry_delay_seconds,
+            dask_address,
+            report,
+        )
+
+
+def flow_inputs(flow: str) -> list[str]:
+    """The groups the named flow reads but none of its steps makes (its raw inputs)."""
+    from spectralize.flows.pipelines import get_flow
+
+    return _external_inputs(get_flow(flow).steps)
+
+
+def _external_inputs(steps: Sequence[Step]) -> list[str]:
+    nodes = registry()
+    return sorted(
+        {
+            group
+            for step in steps
+            if step.node in nodes and not step.optional
+            for group in step.input_groups(nodes[step.node].node).values()
+        }
+        - {
+            group
+            for step in steps
+            if step.node in nodes
+            for group in step.output_groups(nodes[step.node].node).values()
+        }
+    )
+
+
+def _require_store_or_first_steps_without_inputs(path: Path, steps: Sequence[Step], flow: str) -> None:
+    needs = _external_inputs(steps)
+    if needs:
+        raise StoreError(
+            f"run store {str(path)!r} does not exist (the {flow!r} flow reads "
+            f"{', '.join(needs)} from it); check the path, or make the store first"
+        )
+
+
+def _up_to_date_report(
+    store: RunStore, flow_name: str, planned: Sequence[PlannedStep], report: bool
+) -> RunReport | None:
+    """The run's report if every step is up to date and passes the cheap check, else ``None``."""
+    fingerprints: dict[str, str] = {}
+    run_report = RunReport(str(store.path), flow_name)
+    for item in planned:
+        input_fps = {}
+        for group in item.inputs.values():
+            fp = fingerprints.get(group) or store.fingerprint(group)
+            if fp is None:
+                return None
+            input_fps[group] = fp
+        expected = _expected_outputs(
+            item.node.name, item.parameters.model_dump(mode="json"), item.outputs, input_fps
+        )
+        if any(store.fingerprint(group) != fp for group, fp in expected.items()):
+            return None
+        if _damage(store, [*item.inputs.values(), *expected]):
+            return None
+        fingerprints.update(expected)
+        run_report.steps.append(StepReport(item.node.name, "skipped", 0.0, expected))
+    if report:
+        run_report.report = write_report_task.fn(str(store.path))
+    return run_report
+
+
+_REAPER = """
+import sys, time, psutil
+pid, started = int(sys.argv[1]), float(sys.argv[2])
+sys.stdin.read()  # returns when the flow process exits, however it exits
+try:
+    server = psutil.Process(pid)
+    if abs(server.create_time() - started) < 1e-3:
+        try:
+            server.wait(5)  # a normal exit stops it itself
+        except psutil.TimeoutExpired:
+            server.terminate()
+            try:
+                server.wait(5)
+            except psutil.TimeoutExpired:
+                server.kill()
+except psutil.Error:
+    pass
+"""
+_REAPERS: dict[int, subprocess.Popen] = {}
+
+
+def _embedded_server_dies_with_us() -> None:
+    """Start Prefect's embedded API now and make sure it ends with this process.
+
+    Prefect starts it as a child process and stops it at exit, but a SIGKILL of the flow
+    process would leave it running (reparented, listening). A tiny watcher process holds
+    the read end of a pipe from this process: when this process is gone, however it died,
+    the pipe closes and the watcher stops the server. Nothing happens with a configured
+    Prefect server (``PREFECT_API_URL``).
+    """
+    from prefect.settings import PREFECT_API_URL, PREFECT_SERVER_EPHEMERAL_ENABLED
+
+    if PREFECT_API_URL.value() or not PREFECT_SERVER_EPHEMERAL_ENABLED.value():
+        return
+    import psutil
+    from prefect.server.api.server import SubprocessASGIServer
+
+    server = SubprocessASGIServer()
+    server.start()
+    process = server.server_process
+    if process is None or process.pid in _REAPERS:
+        return
+    started = psutil.Process(process.pid).create_time()
+    _REAPERS[process.pid] = subprocess.Popen(
+        [sys.executable, "-c", _REAPER, str(process.pid), repr(started)],
+        stdin=subprocess.PIPE,
+        start_new_session=True,  # not stopped by a Ctrl-C meant for the flow
+    )
+
+
+def _mark_crashed(previous: LockHolder, path: Path) -> None:
+    """Mark the flow run of a killed writer crashed (it would stay RUNNING in Prefect)."""
+    if not previous.flow_run_id:
+        return
+    try:
+        from prefect import get_client
+        from prefect.states import Crashed
+
+        _embedded_server_dies_with_us()
+        with get_client(sync_client=True) as client:
+            flow_run = client.read_flow_run(previous.flow_run_id)
+            if flow_run.state is not None and flow_run.state.is_final():
+                return
+            client.set_flow_run_state(
+                flow_run.id,
+                Crashed(
+                    message=f"its process ({previous.describe()}) died without finishing; "
+                    f"found when the next run took over {path.name}"
+                ),
+                force=True,
+            )
+    except Exception as error:  # a different Prefect API, or the run was deleted
+        print(
+            f"spectralize: could not mark flow run {previous.flow_run_id} of {previous.describe()} "
+            f"as crashed: {type(error).__name__}: {error}",
+            file=sys.stderr,
+        )
+        return
+    print(
+        f"spectralize: flow run {previous.flow_run_id} of {previous.describe()} was left "
+        "RUNNING by a process that is gone; marked it crashed",
+        file=sys.stderr,
     )
 
 
@@ -207,24 +559,30 @@ def report_directory(store_path: str | Path) -> Path:
 
 @task(name="report", cache_policy=NO_CACHE, persist_result=False)
 def write_report_task(store_path: str) -> str | None:
-    """Write the HTML report of a run whose ``evaluation`` is finished (skip if current)."""
+    """Write the HTML report of a processed run (skip if current).
+
+    A run with ground truth is reported once its ``evaluation`` is finished; a real run
+    (no truth) once its ``spectra`` or at least its calibration is. The report is rewritten
+    when the fingerprint of the group it depends on changes.
+    """
     from spectralize.flows.report import write_run_report
 
     log = _log()
     store = RunStore.open(store_path)
-    if not store.has("evaluation"):
-        log("report: no evaluation group (no ground truth?), no report written")
+    basis = next((g for g in ("evaluation", "spectra", "calibration/spectral") if store.has(g)), None)
+    if basis is None:
+        log("report: neither evaluation, spectra nor calibration/spectral yet, no report written")
         return None
     directory = report_directory(store_path)
-    stamp = directory / ".evaluation-fingerprint"
+    stamp = directory / ".report-fingerprint"
     index = directory / "index.html"
-    fingerprint = store.fingerprint("evaluation")
+    fingerprint = f"{basis}:{store.fingerprint(basis)}"
     if index.exists() and stamp.exists() and stamp.read_text() == fingerprint:
         log(f"report: up to date at {index}")
         return str(index)
     start = time.perf_counter()
     path = write_run_report(store, directory=directory)
-    stamp.write_text(str(fingerprint))
+    stamp.write_text(fingerprint)
     log(f"report: written to {path} in {time.perf_counter() - start:.1f} s")
     return str(path)
 
@@ -249,11 +607,15 @@ def _graph_flow(
     dask_address: str | None = None,
     report: bool = False,
 ) -> RunReport:
+    from prefect.runtime import flow_run
+
     log = get_run_logger()
+    StoreLock(store_path).note(flow_run_id=str(flow_run.id))
     planned = plan(store_path, [Step(**s) for s in steps], create=False)
     store = RunStore.open(store_path)
     run_report = RunReport(store_path, flow_name)
     fingerprints: dict[str, str] = {}
+    repaired: set[str] = set()  # groups recomputed because they were damaged, or made from such
     for index, item in enumerate(planned, start=1):
         log.info(f"[{index}/{len(planned)}] {item.node.name}")
         input_fps = {}
@@ -276,7 +638,10 @@ def _graph_flow(
             item.outputs,
             input_fps,
             dask_address,
+            ", ".join(f"input {g} was recomputed" for g in item.inputs.values() if g in repaired),
         )
+        if step_report.reason:
+            repaired.update(step_report.outputs)
         fingerprints.update(step_report.outputs)
         run_report.steps.append(step_report)
     ran = sum(s.status == "ran" for s in run_report.steps)

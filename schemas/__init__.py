@@ -16,9 +16,10 @@ from .errors import (
     SpectralizeError,
     StoreError,
 )
+from .lock import StoreBusyError
 from .run import GROUP_SCHEMAS, register_schema, render_table, schema_for
-from .spec import ArraySpec, GroupSchema, check_dataset, validate_dataset
-from .store import RunStore, compute_fingerprint
+from .spec import ArraySpec, GroupSchema, check_dataset, validate_dataset, validate_values
+from .store import ChecksumError, RunStore, compute_fingerprint
 
 __all__ = [
     "ArraySpec",
@@ -29,12 +30,15 @@ __all__ = [
     "render_table",
     "schema_for",
     "validate_dataset",
+    "validate_values",
     "check_dataset",
     "compute_fingerprint",
     "open_run",
     "SpectralizeError",
     "SchemaError",
     "StoreError",
+    "StoreBusyError",
+    "ChecksumError",
     "NodeNotFoundError",
     "NodeDeclarationError",
     "ParameterError",

@@ -145,7 +145,14 @@ HDR = GroupSchema(
     name="hdr",
     description="HDR RGB radiance merged from the exposure series",
     variables=(
-        ArraySpec("radiance", ("image", "y", "x", "channel"), "float32", "1", "relative RGB radiance"),
+        ArraySpec(
+            "radiance",
+            ("image", "y", "x", "channel"),
+            "float32",
+            "1",
+            "relative RGB radiance",
+            finite=True,
+        ),
     ),
     coords=(ArraySpec("channel", ("channel",), "kind:UOT", None, "colour channel"), *image_coords()),
 )
@@ -183,6 +190,15 @@ SPECTRA = GroupSchema(
     description="reconstructed spectral cube (eq. 1), chunked per image and tile",
     variables=_SPECTRA_VARIABLES,
     coords=_SPECTRA_COORDS,
+    optional_variables=(
+        ArraySpec(
+            "confidence",
+            ("image", "y", "x"),
+            "float32",
+            "1",
+            "estimated per-pixel nRMSE of the spectra (higher: trust less)",
+        ),
+    ),
 )
 
 CAMERA_MATRIX = GroupSchema(

@@ -10,12 +10,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+import dask
+import dask.array as da
 import numpy as np
 import xarray as xr
 
 from .errors import Problem, SchemaError
 
-__all__ = ["ArraySpec", "GroupSchema", "validate_dataset", "check_dataset"]
+__all__ = ["ArraySpec", "GroupSchema", "validate_dataset", "validate_values", "check_dataset"]
 
 
 @dataclass(frozen=True)
@@ -37,8 +39,8 @@ class ArraySpec:
     long_name
         Human-readable description, written by producers into ``attrs["long_name"]``.
     valid_range
-        Inclusive ``(low, high)`` every finite value must lie in; checked on coordinates and
-        on small in-memory arrays, never on large lazy ones.
+        Inclusive ``(low, high)`` every finite value must lie in; checked on in-memory arrays
+        always, on lazy (on-disk) ones when asked (``validate_dataset(..., values=True)``).
     finite
         Whether NaN/inf are forbidden (checked where values are checked).
     """
@@ -125,10 +127,84 @@ class GroupSchema:
         return tuple(seen)
 
 
-_VALUE_CHECK_LIMIT = 1_000_000  # elements; larger (or lazy) arrays get no value check
+_VALUE_CHECK_LIMIT = 1_000_000  # elements; larger arrays are checked lazily, and only on request
 
 
-def _check_array(where: str, array: xr.DataArray, spec: ArraySpec) -> list[Problem]:
+def _first_bad(array: xr.DataArray, bad: np.ndarray) -> str:
+    """``"first at image=2, exposure=0: -0.1"`` for the first flagged element."""
+    index = tuple(int(i) for i in np.argwhere(bad)[0])
+    value = float(np.asarray(array.values)[index])
+    where = ", ".join(f"{dim}={i}" for dim, i in zip(array.dims, index, strict=True))
+    return f"first at {where}: {value:g}" if where else f"value {value:g}"
+
+
+def _check_values(where: str, array: xr.DataArray, spec: ArraySpec, *, lazy_ok: bool) -> list[Problem]:
+    """NaN/inf and range checks; eager for small or in-memory arrays, with dask otherwise."""
+    if not (spec.valid_range or spec.finite) or array.dtype.kind not in "fiu":
+        return []
+    lazy = getattr(array.variable, "chunks", None) is not None
+    if lazy and array.size <= _VALUE_CHECK_LIMIT and lazy_ok:
+        array = array.load()
+        lazy = False
+    problems: list[Problem] = []
+    if not lazy and array.size <= _VALUE_CHECK_LIMIT:
+        values = np.asarray(array.values, dtype=float)
+        nonfinite = ~np.isfinite(values)
+        if spec.finite and nonfinite.any():
+            problems.append(
+                Problem(
+                    where,
+                    "finite values",
+                    f"{int(nonfinite.sum())} NaN/inf value(s) ({_first_bad(array, nonfinite)})",
+                )
+            )
+        if spec.valid_range is not None:
+            low, high = spec.valid_range
+            with np.errstate(invalid="ignore"):
+                outside = ~nonfinite & ((values < low) | (values > high))
+            if outside.any():
+                finite = values[~nonfinite]
+                problems.append(
+                    Problem(
+                        where,
+                        f"values in [{low:g}, {high:g}]",
+                        f"range [{finite.min():g}, {finite.max():g}] ({int(outside.sum())} value(s) "
+                        f"outside, {_first_bad(array, outside)})",
+                    )
+                )
+        return problems
+    if not lazy_ok:
+        return []
+    data = array.data.astype(float) if lazy else array.variable.chunk().data.astype(float)
+    finite_mask = da.isfinite(data)
+    nonfinite_count = (~finite_mask).sum()
+    low_seen = da.where(finite_mask, data, np.inf).min()
+    high_seen = da.where(finite_mask, data, -np.inf).max()
+    outside_count = (
+        (finite_mask & ((data < spec.valid_range[0]) | (data > spec.valid_range[1]))).sum()
+        if spec.valid_range is not None
+        else da.zeros((), dtype=int)
+    )
+    nonfinite_count, low_seen, high_seen, outside_count = dask.compute(
+        nonfinite_count, low_seen, high_seen, outside_count
+    )
+    if spec.finite and nonfinite_count:
+        problems.append(Problem(where, "finite values", f"{int(nonfinite_count)} NaN/inf value(s)"))
+    if spec.valid_range is not None and outside_count:
+        low, high = spec.valid_range
+        problems.append(
+            Problem(
+                where,
+                f"values in [{low:g}, {high:g}]",
+                f"range [{low_seen:g}, {high_seen:g}] ({int(outside_count)} value(s) outside)",
+            )
+        )
+    return problems
+
+
+def _check_array(
+    where: str, array: xr.DataArray, spec: ArraySpec, *, values: bool = False
+) -> list[Problem]:
     problems: list[Problem] = []
     if tuple(array.dims) != spec.dims:
         problems.append(Problem(where, f"dims {spec.dims}", f"dims {tuple(array.dims)}"))
@@ -143,32 +219,12 @@ def _check_array(where: str, array: xr.DataArray, spec: ArraySpec) -> list[Probl
                 "no units attr" if found is None else f"units {found!r}",
             )
         )
-    lazy = getattr(array.variable, "chunks", None) is not None
-    if (
-        (spec.valid_range or spec.finite)
-        and not lazy
-        and array.size <= _VALUE_CHECK_LIMIT
-        and array.dtype.kind in "fiu"
-    ):
-        values = np.asarray(array.values, dtype=float)
-        if spec.finite and not np.isfinite(values).all():
-            bad = int((~np.isfinite(values)).sum())
-            problems.append(Problem(where, "finite values", f"{bad} NaN/inf value(s)"))
-        if spec.valid_range is not None:
-            low, high = spec.valid_range
-            finite = values[np.isfinite(values)]
-            if finite.size and (finite.min() < low or finite.max() > high):
-                problems.append(
-                    Problem(
-                        where,
-                        f"values in [{low:g}, {high:g}]",
-                        f"range [{finite.min():g}, {finite.max():g}]",
-                    )
-                )
-    return problems
+    return problems + _check_values(where, array, spec, lazy_ok=values)
 
 
-def validate_dataset(ds: xr.Dataset, schema: GroupSchema, *, group: str | None = None) -> list[Problem]:
+def validate_dataset(
+    ds: xr.Dataset, schema: GroupSchema, *, group: str | None = None, values: bool = False
+) -> list[Problem]:
     """Check ``ds`` against ``schema`` and return every problem found.
 
     Parameters
@@ -179,6 +235,11 @@ def validate_dataset(ds: xr.Dataset, schema: GroupSchema, *, group: str | None =
         Its contract.
     group
         Group path used in the messages (default: the schema name).
+    values
+        Also check the values of lazy (dask-backed, e.g. on-disk) arrays against the ranges
+        and NaN/inf rules of the contract: small ones are loaded, large ones are reduced
+        with dask chunk by chunk. Without it only in-memory arrays are value-checked (what
+        a writer can afford before writing).
 
     Returns
     -------
@@ -195,16 +256,16 @@ def validate_dataset(ds: xr.Dataset, schema: GroupSchema, *, group: str | None =
             else:
                 problems.append(Problem(where, f"data variable with dims {spec.dims}", "nothing"))
             continue
-        problems += _check_array(f"{label}:{spec.name}", ds[spec.name], spec)
+        problems += _check_array(f"{label}:{spec.name}", ds[spec.name], spec, values=values)
     for spec in schema.optional_variables:
         if spec.name in ds.data_vars:
-            problems += _check_array(f"{label}:{spec.name}", ds[spec.name], spec)
+            problems += _check_array(f"{label}:{spec.name}", ds[spec.name], spec, values=values)
     for spec in schema.coords:
         where = f"{label}:{spec.name}"
         if spec.name not in ds.coords:
             problems.append(Problem(where, f"coordinate with dims {spec.dims}", "nothing"))
             continue
-        problems += _check_array(where, ds.coords[spec.name], spec)
+        problems += _check_array(where, ds.coords[spec.name], spec, values=values)
     for key, meaning in schema.attrs.items():
         if key not in ds.attrs:
             problems.append(Problem(f"{label}.attrs", f"attr {key!r} ({meaning})", "nothing"))
@@ -213,6 +274,20 @@ def validate_dataset(ds: xr.Dataset, schema: GroupSchema, *, group: str | None =
     for dim in schema.dims:
         if dim in ds.sizes and ds.sizes[dim] == 0:
             problems.append(Problem(f"{label}:{dim}", "a non-empty dimension", "size 0"))
+    return problems
+
+
+def validate_values(ds: xr.Dataset, schema: GroupSchema, *, group: str | None = None) -> list[Problem]:
+    """Only the value rules of ``schema`` (NaN/inf, ranges), for every array ``ds`` has.
+
+    Lazy arrays are checked too: small ones loaded, large ones reduced with dask. This is
+    what a flow checks of its inputs before a node's numerics run.
+    """
+    label = group or schema.name
+    problems: list[Problem] = []
+    for spec in schema.variables + schema.optional_variables + schema.coords:
+        if spec.name in ds.variables and tuple(ds[spec.name].dims) == spec.dims:
+            problems += _check_values(f"{label}:{spec.name}", ds[spec.name], spec, lazy_ok=True)
     return problems
 
 

@@ -35,8 +35,12 @@ __all__ = [
     "image_label",
     "plot_error_map",
     "plot_spectra",
+    "nrmse_histograms",
     "plot_histograms",
     "plot_capture_time",
+    "plot_renders",
+    "plot_pixel_spectra",
+    "plot_confidence",
 ]
 
 #: Colour map of the error maps: cubehelix (Green, 2011), the paper's choice.
@@ -44,24 +48,26 @@ ERROR_COLORMAP: str = "cubehelix"
 
 
 def image_label(evaluation: xr.Dataset, image: int) -> str:
-    """One line naming an image: its position, view and light angles, band shots or not.
+    """One line naming an image: its label, view and light angles, band shots or not.
 
     Parameters
     ----------
     evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate`; its per-image
-        coords ``theta_o, phi_o, theta_i, phi_i`` and variable ``has_band_shots`` are used
-        where present.
+        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (or any group with
+        an ``image`` dim); its ``image`` coordinate (the image's label in the run store),
+        per-image coords ``theta_o, phi_o, theta_i, phi_i`` and variable ``has_band_shots``
+        are used where present.
     image
-        Position of the image along ``image``.
+        Position of the image along ``image`` (the label shown is the coordinate's value).
 
     Returns
     -------
     str
-        E.g. ``"image 1, view (45°, 15°), light (30°, 0°), with band shots"``.
+        E.g. ``"image 7, view (45°, 15°), light (30°, 0°), with band shots"``.
     """
-    parts = [f"image {image}"]
     coords = evaluation.coords
+    label = int(coords["image"].values[image]) if "image" in coords else image
+    parts = [f"image {label}"]
     if "theta_o" in coords and "phi_o" in coords:
         parts.append(
             f"view ({float(coords['theta_o'][image]):.0f}°, {float(coords['phi_o'][image]):.0f}°)"
@@ -220,27 +226,53 @@ def _subsets(evaluation: xr.Dataset) -> dict[str, np.ndarray]:
     return {"all images": np.ones(n_images, dtype=bool)}
 
 
-def plot_histograms(evaluation: xr.Dataset) -> Figure:
-    """nRMSE histograms of the images with and without band shots, log count axis.
+def nrmse_histograms(evaluation: xr.Dataset, *, bins: int = 60) -> dict[str, dict[str, np.ndarray]]:
+    """Normalised nRMSE histograms per subset of images, over *all* their pixels.
+
+    The range is ``0`` to the 99th percentile of the finite nRMSE (at least the evaluation's
+    own histogram range); every pixel above it is counted in a last, overflow bin, so the
+    fractions of each subset add up to 1.
 
     Parameters
     ----------
     evaluation
         Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (computed): the
-        per-image ``nrmse_histogram`` is summed over each subset of images; pixels above the
-        histogram range (``nrmse_above_range``) are stated in the legend.
+        ``nrmse`` maps when present, else the stored ``nrmse_histogram`` and
+        ``nrmse_above_range`` (the overflow).
+    bins
+        Number of regular bins below the overflow bin (maps only).
 
     Returns
     -------
-    matplotlib.figure.Figure
-        An Agg figure with one step curve per subset and the ``threshold`` level (attr,
-        default 0.03) marked.
-
-    References
-    ----------
-    Fast Capture of Spectral Image Series, sec. 5 and Figure 7 (RMSE histograms of the
-    images with and without band shots).
+    dict
+        Subset label -> ``{"edges": (bins + 1,), "fraction": (bins,), "overflow": float,
+        "pixels": int}``; fractions of the pixels with a finite nRMSE.
     """
+    out: dict[str, dict[str, np.ndarray]] = {}
+    subsets = _subsets(evaluation)
+    if "nrmse" in evaluation:
+        maps = np.asarray(evaluation["nrmse"].values, dtype=np.float64)
+        finite = maps[np.isfinite(maps)]
+        stored = (
+            float(evaluation["nrmse_bin_upper"].values[-1]) if "nrmse_bin_upper" in evaluation else 0.0
+        )
+        top = float(np.percentile(finite, 99.0)) if finite.size else 1.0
+        top = max(top, stored, 1e-6)
+        edges = np.linspace(0.0, top, bins + 1)
+        for label, mask in subsets.items():
+            values = maps[mask].ravel()
+            values = values[np.isfinite(values)]
+            counts, _ = np.histogram(np.clip(values, 0.0, None), bins=edges)
+            counts[-1] -= int(np.sum(values == top))  # the right edge belongs to the overflow
+            over = int(np.sum(values >= top))
+            total = max(values.size, 1)
+            out[label] = {
+                "edges": edges,
+                "fraction": counts / total,
+                "overflow": over / total,
+                "pixels": int(values.size),
+            }
+        return out
     lower = np.asarray(evaluation["nrmse_bin_lower"].values, dtype=np.float64)
     upper = np.asarray(evaluation["nrmse_bin_upper"].values, dtype=np.float64)
     edges = np.append(lower, upper[-1])
@@ -250,24 +282,82 @@ def plot_histograms(evaluation: xr.Dataset) -> Figure:
         if "nrmse_above_range" in evaluation
         else np.zeros(evaluation.sizes["image"], dtype=np.int64)
     )
+    for label, mask in subsets.items():
+        inside, over = counts[mask].sum(axis=0), int(above[mask].sum())
+        total = max(int(inside.sum()) + over, 1)
+        out[label] = {
+            "edges": edges,
+            "fraction": inside / total,
+            "overflow": over / total,
+            "pixels": int(inside.sum()) + over,
+        }
+    return out
+
+
+def plot_histograms(evaluation: xr.Dataset) -> Figure:
+    """nRMSE histograms of the images with and without band shots, normalised, log axis.
+
+    Parameters
+    ----------
+    evaluation
+        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (computed); see
+        :func:`nrmse_histograms`: the range covers every pixel, the last bar (hatched) is the
+        overflow bin of the pixels above the range.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        An Agg figure with one step curve per subset (fraction of its pixels per bin), the
+        overflow bin as a hatched bar per subset and the ``threshold`` level (attr, default
+        0.03) marked.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, sec. 5 and Figure 7 (RMSE histograms of the
+    images with and without band shots).
+    """
+    tables = nrmse_histograms(evaluation)
     figure = Figure(figsize=(7.5, 4.2), layout="constrained")
     ax = figure.subplots()
-    for index, (label, mask) in enumerate(_subsets(evaluation).items()):
-        total = counts[mask].sum(axis=0)
+    top = 0.0
+    for index, (label, table) in enumerate(tables.items()):
+        edges, fraction = table["edges"], table["fraction"]
+        width = edges[1] - edges[0]
+        top = edges[-1]
         ax.stairs(
-            np.where(total > 0, total, np.nan),
+            np.where(fraction > 0, fraction, np.nan),
             edges,
             color=f"C{index}",
             linewidth=1.8,
-            label=f"{label} ({int(total.sum())} px, {int(above[mask].sum())} above range)",
+            label=f"{label} ({table['pixels']} px, {100 * table['overflow']:.2g} % above "
+            f"{edges[-1]:.3g})",
         )
+        if table["overflow"] > 0:
+            ax.bar(
+                edges[-1] + (1.5 + index) * width * 2,
+                table["overflow"],
+                width=width * 2,
+                color=f"C{index}",
+                alpha=0.5,
+                hatch="//",
+            )
     threshold = float(evaluation.attrs.get("threshold", DEFAULT_THRESHOLD))
     ax.axvline(threshold, color="0.4", linestyle="--", linewidth=1.0, label=f"nRMSE = {threshold:g}")
+    ax.axvline(top, color="0.7", linewidth=0.8)
+    ax.annotate(
+        "overflow",
+        (top, 1.0),
+        xycoords=("data", "axes fraction"),
+        xytext=(4, -12),
+        textcoords="offset points",
+        fontsize=8,
+        color="0.4",
+    )
     ax.set_yscale("log")
-    ax.set_xlim(edges[0], edges[-1])
+    ax.set_xlim(0.0, top * 1.18 if top > 0 else 1.0)
     ax.set_xlabel("normalised RMSE")
-    ax.set_ylabel("pixel count (log)")
-    ax.set_title("nRMSE histogram over all pixels")
+    ax.set_ylabel("fraction of pixels (log)")
+    ax.set_title("nRMSE histogram over all pixels (last bars: above the range)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which="both")
     return figure
@@ -328,4 +418,117 @@ def plot_capture_time(capture: xr.Dataset) -> Figure:
         )
     ax.set_title(title)
     ax.legend()
+    return figure
+
+
+# -- figures of a reconstruction without ground truth ------------------------------------
+def plot_renders(srgb: xr.DataArray, *, titles: list[str] | None = None, columns: int = 4) -> Figure:
+    """sRGB renders of several images on a grid (no ground truth needed).
+
+    Parameters
+    ----------
+    srgb
+        (image, y, x, channel) in 0..1 from
+        :func:`~spectralize.nodes.evaluation.colorimetry.render_srgb`.
+    titles
+        One title per image (default: ``image <label>``).
+    columns
+        Images per row.
+    """
+    n = srgb.sizes["image"]
+    columns = max(1, min(columns, n))
+    rows = -(-n // columns)
+    figure = Figure(figsize=(3.0 * columns, 3.1 * rows), layout="constrained")
+    axes = np.atleast_1d(figure.subplots(rows, columns)).ravel()
+    labels = srgb["image"].values if "image" in srgb.coords else np.arange(n)
+    for k, ax in enumerate(axes):
+        ax.set_xticks([])
+        ax.set_yticks([])
+        if k >= n:
+            ax.set_axis_off()
+            continue
+        ax.imshow(np.asarray(srgb.isel(image=k).values), interpolation="nearest")
+        ax.set_title(titles[k] if titles else f"image {int(labels[k])}", fontsize=8)
+    return figure
+
+
+def plot_pixel_spectra(
+    srgb: np.ndarray,
+    spectra: np.ndarray,
+    pixels: list[tuple[int, int]],
+    wavelength: np.ndarray,
+    *,
+    title: str = "",
+) -> Figure:
+    """One image (sRGB) with numbered pixels, and the reconstructed spectra at those pixels.
+
+    Parameters
+    ----------
+    srgb
+        (y, x, 3) render in 0..1.
+    spectra
+        (pixel, wavelength) relative radiance at ``pixels``.
+    pixels
+        (y, x) of each spectrum.
+    wavelength
+        [nm].
+    title
+        Figure title (e.g. :func:`image_label`).
+    """
+    figure = Figure(figsize=(11.0, 3.8), layout="constrained")
+    ax_img, ax_sp = figure.subplots(1, 2, width_ratios=(1, 1.8))
+    ax_img.imshow(srgb, interpolation="nearest")
+    ax_img.set_xticks([])
+    ax_img.set_yticks([])
+    for number, ((y, x), spectrum) in enumerate(zip(pixels, spectra, strict=True), start=1):
+        colour = f"C{(number - 1) % 10}"
+        ax_img.plot([x], [y], marker="o", markersize=7, markerfacecolor="none", markeredgecolor="white")
+        ax_img.annotate(
+            str(number),
+            (x, y),
+            xytext=(4, 4),
+            textcoords="offset points",
+            color="white",
+            fontsize=9,
+            fontweight="bold",
+        )
+        ax_sp.plot(wavelength, spectrum, color=colour, label=f"{number}: (y={y}, x={x})")
+    ax_sp.set_xlabel("wavelength [nm]")
+    ax_sp.set_ylabel("relative radiance")
+    ax_sp.legend(fontsize=7)
+    ax_sp.grid(alpha=0.3)
+    if title:
+        figure.suptitle(title, fontsize=10)
+    return figure
+
+
+def plot_confidence(
+    confidence: xr.DataArray, *, titles: list[str] | None = None, columns: int = 4
+) -> Figure:
+    """Maps of the reconstruction's ``confidence`` variable (image, y, x), one colour scale."""
+    conf = confidence
+    if "wavelength" in conf.dims:
+        conf = conf.mean("wavelength")
+    n = conf.sizes["image"]
+    columns = max(1, min(columns, n))
+    rows = -(-n // columns)
+    figure = Figure(figsize=(3.0 * columns + 0.8, 3.0 * rows), layout="constrained")
+    axes = np.atleast_1d(figure.subplots(rows, columns)).ravel()
+    values = np.asarray(conf.transpose("image", "y", "x").values, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    labels = conf["image"].values if "image" in conf.coords else np.arange(n)
+    shown = None
+    for k, ax in enumerate(axes):
+        ax.set_xticks([])
+        ax.set_yticks([])
+        if k >= n:
+            ax.set_axis_off()
+            continue
+        shown = ax.imshow(values[k], cmap="viridis", vmin=lo, vmax=hi if hi > lo else lo + 1)
+        ax.set_title(titles[k] if titles else f"image {int(labels[k])}", fontsize=8)
+    if shown is not None:
+        figure.colorbar(
+            shown, ax=list(axes), shrink=0.8, label=str(confidence.attrs.get("long_name", "confidence"))
+        )
     return figure

@@ -1,4 +1,4 @@
-"""Figures of the calibration (paper Fig. 4): drawing only, no calibration science.
+"""Figures of the calibration (paper Fig. 2, 3, 4): drawing only, no calibration science.
 
 The numbers come from :func:`spectralize.nodes.calibration.spectral.cross_validate` (or the
 ``calibration/spectral`` group); this module turns them into a matplotlib figure built without
@@ -19,7 +19,16 @@ import xarray as xr
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-__all__ = ["plot_cross_validation"]
+__all__ = [
+    "RESPONSE_FILTER_SIZES",
+    "plot_cross_validation",
+    "response_histograms",
+    "plot_response_histograms",
+    "plot_exposure_plan",
+    "plot_oecf",
+    "plot_quantum_efficiency",
+    "plot_registration",
+]
 
 
 def plot_cross_validation(
@@ -94,4 +103,272 @@ def plot_cross_validation(
         f"(d) per patch: mean {100 * table.attrs.get('mean_relative_error', np.nan):.2f}"
         f" %, max {100 * table.attrs.get('max_relative_error', np.nan):.2f} %"
     )
+    return fig
+
+
+# -- figures of a run without ground truth: calibration (paper Fig. 2, 3), OECF, QE, registration
+#: Filter sizes [px] of the response histograms (paper Fig. 2): unfiltered, then increasing.
+RESPONSE_FILTER_SIZES: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0)
+
+
+def response_histograms(
+    frames: xr.DataArray,
+    *,
+    filter_sizes: tuple[float, ...] = RESPONSE_FILTER_SIZES,
+    offset: float = 30.0,
+    bins: int = 80,
+) -> xr.Dataset:
+    """Histograms of dark-subtracted frames after Gaussian filters of increasing size (Fig. 2).
+
+    Parameters
+    ----------
+    frames
+        Dark-subtracted frames (exposure_time, y, x) [DN] of a low-signal exposure series.
+    filter_sizes
+        Filter sizes ``s`` [px]; ``sigma = s / 5`` (``0``: unfiltered). Only pixels whose
+        kernel lies inside the frame are counted.
+    offset
+        Added to the values (the paper shows values offset by 30, so that negative values
+        after dark subtraction stay visible).
+    bins
+        Number of bins, over the range of the unfiltered values.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``density`` (filter_size, exposure_time, bin) [1/DN], coords ``bin_lower``,
+        ``bin_upper`` (bin) [DN] and ``mean`` (filter_size, exposure_time) [DN].
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and Fig. 2.
+    """
+    from scipy.ndimage import gaussian_filter
+
+    from spectralize.nodes.filter_size import filter_radius, filter_sigma
+
+    values = np.asarray(frames.transpose("exposure_time", "y", "x").values, dtype=np.float64) + offset
+    finite = values[np.isfinite(values)]
+    lo, hi = np.percentile(finite, [0.1, 99.9]) if finite.size else (0.0, 1.0)
+    edges = np.linspace(lo, hi if hi > lo else lo + 1.0, bins + 1)
+    density = np.zeros((len(filter_sizes), values.shape[0], bins))
+    means = np.zeros((len(filter_sizes), values.shape[0]))
+    for i, size in enumerate(filter_sizes):
+        radius = int(np.ceil(filter_radius(size))) if size > 0 else 0
+        for j, frame in enumerate(values):
+            out = gaussian_filter(frame, filter_sigma(size), mode="nearest") if size > 0 else frame
+            if radius and min(out.shape) > 2 * radius:
+                out = out[radius:-radius, radius:-radius]
+            density[i, j], _ = np.histogram(out, bins=edges, density=True)
+            means[i, j] = float(np.nanmean(out))
+    return xr.Dataset(
+        {
+            "density": (("filter_size", "exposure_time", "bin"), density, {"units": "1/DN"}),
+            "mean": (("filter_size", "exposure_time"), means, {"units": "DN"}),
+        },
+        coords={
+            "filter_size": ("filter_size", np.asarray(filter_sizes, dtype=float), {"units": "px"}),
+            "exposure_time": frames["exposure_time"].values,
+            "bin_lower": ("bin", edges[:-1], {"units": "DN"}),
+            "bin_upper": ("bin", edges[1:], {"units": "DN"}),
+        },
+        attrs={"offset": float(offset)},
+    )
+
+
+def plot_response_histograms(histograms: xr.Dataset, *, title: str = "") -> Figure:
+    """Fig. 2: one panel per filter size, one histogram per exposure time.
+
+    Parameters
+    ----------
+    histograms
+        Output of :func:`response_histograms`.
+    title
+        Figure title (e.g. which band and camera).
+    """
+    from matplotlib.figure import Figure
+
+    sizes = histograms["filter_size"].values
+    fig = Figure(figsize=(3.2 * len(sizes), 3.4), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(sizes), sharex=True))
+    lower = histograms["bin_lower"].values
+    upper = histograms["bin_upper"].values
+    edges = np.append(lower, upper[-1])
+    offset = float(histograms.attrs.get("offset", 0.0))
+    for ax, size in zip(axes, sizes, strict=True):
+        for k, t in enumerate(histograms["exposure_time"].values):
+            ax.stairs(
+                histograms["density"].sel(filter_size=size).isel(exposure_time=k).values,
+                edges,
+                color=f"C{k % 10}",
+                label=f"{float(t) * 1e3:.3g} ms",
+            )
+        ax.axvline(offset, color="0.5", linestyle=":", linewidth=1)
+        ax.set_title("unfiltered" if size == 0 else f"filter size {size:g} px")
+        ax.set_xlabel(f"dark-subtracted value + {offset:g} [DN]")
+    axes[0].set_ylabel("density")
+    axes[0].legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def plot_exposure_plan(
+    plan: xr.Dataset,
+    *,
+    quantum_efficiency: xr.DataArray | None = None,
+    illuminant: xr.DataArray | None = None,
+) -> Figure:
+    """Fig. 3: exposure time and filter size per band, with Q and L when given.
+
+    Parameters
+    ----------
+    plan
+        Group ``raw/exposure_plan``: ``exposure_time`` and ``filter_size`` (wavelength).
+    quantum_efficiency, illuminant
+        Relative quantum efficiency and illuminant (wavelength), drawn above the bars
+        (normalised to their maxima).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, eq. 2, 3 and Fig. 3.
+    """
+    from matplotlib.figure import Figure
+
+    curves = [
+        (n, c)
+        for n, c in (("quantum efficiency Q", quantum_efficiency), ("illuminant L", illuminant))
+        if c is not None
+    ]
+    rows = 2 + bool(curves)
+    fig = Figure(figsize=(8.0, 2.4 * rows), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, 1, sharex=True))
+    wl = np.asarray(plan["wavelength"].values, dtype=float)
+    width = 0.8 * (np.min(np.diff(wl)) if wl.size > 1 else 10.0)
+    if curves:
+        for k, (name, curve) in enumerate(curves):
+            values = np.asarray(curve.values, dtype=float)
+            top = np.nanmax(values) if np.isfinite(values).any() and np.nanmax(values) > 0 else 1.0
+            axes[0].plot(curve["wavelength"].values, values / top, color=f"C{k + 2}", label=name)
+        axes[0].set_ylabel("relative")
+        axes[0].legend(fontsize=8)
+        axes[0].set_title("calibration: Q and L (normalised)")
+    axes[-2].bar(wl, plan["exposure_time"].values, width=width, color="C0")
+    axes[-2].set_ylabel("exposure time [s]")
+    axes[-2].set_title(
+        f"exposure times (eq. 2), total {float(np.sum(plan['exposure_time'].values)):.3g} s"
+    )
+    axes[-1].bar(wl, plan["filter_size"].values, width=width, color="C1")
+    axes[-1].set_ylabel("filter size [px]")
+    axes[-1].set_title("filter sizes s_i (eq. 3), sigma = s_i / 5")
+    axes[-1].set_xlabel("wavelength [nm]")
+    return fig
+
+
+def plot_oecf(oecf_rgb: xr.Dataset | None, oecf_spectral: xr.Dataset | None) -> Figure:
+    """Recovered camera responses: relative exposure per code, RGB per camera and channel, and
+    the spectral camera's (low-SNR extension joined to Robertson)."""
+    from matplotlib.figure import Figure
+
+    panels = [p for p in (oecf_rgb, oecf_spectral) if p is not None]
+    fig = Figure(figsize=(5.2 * max(1, len(panels)), 3.8), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, max(1, len(panels))))
+    k = 0
+    if oecf_rgb is not None:
+        ax = axes[k]
+        k += 1
+        response = oecf_rgb["response"]
+        colours = {"R": "tab:red", "G": "tab:green", "B": "tab:blue"}
+        for c, camera in enumerate(response["camera"].values):
+            for channel in response["channel"].values:
+                curve = response.sel(camera=camera, channel=channel)
+                ax.plot(
+                    curve["code"].values,
+                    curve.values,
+                    color=colours.get(str(channel), "0.3"),
+                    linestyle=("-", "--", ":", "-.")[c % 4],
+                    linewidth=1.2,
+                    label=f"camera {camera} {channel}",
+                )
+        ax.set_yscale("log")
+        ax.set_xlabel("code [DN]")
+        ax.set_ylabel("relative exposure")
+        ax.set_title(
+            f"RGB OECF (black level {oecf_rgb.attrs.get('black_level', '?')}, "
+            f"saturation {oecf_rgb.attrs.get('saturation', '?')})"
+        )
+        ax.legend(fontsize=6, ncol=2)
+    if oecf_spectral is not None:
+        ax = axes[k]
+        response = oecf_spectral["response"]
+        positive = response.values > 0
+        ax.plot(response["code"].values[positive], response.values[positive], color="0.2")
+        ax.set_yscale("log")
+        ax.set_xlabel("code above dark [DN]")
+        ax.set_ylabel("relative exposure")
+        ax.set_title(
+            f"spectral camera OECF (low-SNR series at {oecf_spectral.attrs.get('band', '?')} nm)"
+        )
+    for ax in axes:
+        ax.grid(alpha=0.3, which="both")
+    return fig
+
+
+def plot_quantum_efficiency(calibration: xr.Dataset) -> Figure:
+    """Relative quantum efficiency per band and the rows of the RGB camera matrix ``C``."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10.0, 3.6), layout="constrained")
+    ax_q, ax_c = fig.subplots(1, 2)
+    q = calibration["quantum_efficiency"]
+    ax_q.plot(q["wavelength"].values, q.values, "o-", color="0.2", markersize=3)
+    ax_q.set_xlabel("wavelength [nm]")
+    ax_q.set_ylabel("relative QE")
+    ax_q.set_title("spectral camera: quantum efficiency Q")
+    colours = {"R": "tab:red", "G": "tab:green", "B": "tab:blue"}
+    matrix = calibration["camera_matrix"]
+    for channel in matrix["channel"].values:
+        row = matrix.sel(channel=channel)
+        ax_c.plot(
+            row["wavelength"].values,
+            row.values,
+            color=colours.get(str(channel), "0.3"),
+            label=str(channel),
+        )
+    ax_c.set_xlabel("wavelength [nm]")
+    ax_c.set_title("RGB camera matrix C (rows)")
+    ax_c.legend(fontsize=8)
+    for ax in (ax_q, ax_c):
+        ax.grid(alpha=0.3)
+    return fig
+
+
+def plot_registration(registration: xr.Dataset) -> Figure:
+    """Shift per rotation pair (phase correlation) around the run's shift, and residuals."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10.0, 3.6), layout="constrained")
+    ax_s, ax_r = fig.subplots(1, 2)
+    axis = [str(a) for a in registration["axis"].values]
+    pairs = np.asarray(registration["pair_shift"].transpose("pair", "axis").values, dtype=float)
+    shift = np.asarray(registration["shift"].values, dtype=float)
+    iy, ix = axis.index("y"), axis.index("x")
+    ax_s.scatter(pairs[:, ix], pairs[:, iy], color="C0", label="rotation pairs")
+    ax_s.scatter([shift[ix]], [shift[iy]], color="C3", marker="x", s=80, label="run shift (median)")
+    ax_s.set_xlabel("x shift [px]")
+    ax_s.set_ylabel("y shift [px]")
+    ax_s.set_title(f"misregistration: dy {shift[iy]:+.3f} px, dx {shift[ix]:+.3f} px")
+    ax_s.legend(fontsize=8)
+    ax_s.grid(alpha=0.3)
+    residual = np.asarray(registration["residual"].values, dtype=float)
+    labels = [
+        f"{a}->{b}"
+        for a, b in zip(
+            registration["rgb_rotation"].values, registration["spectral_rotation"].values, strict=True
+        )
+    ]
+    ax_r.bar(np.arange(residual.size), residual, color="0.4")
+    ax_r.set_xticks(np.arange(residual.size), labels, rotation=60, fontsize=7)
+    ax_r.set_ylabel("residual [px]")
+    ax_r.set_title(f"residual per pair (max {np.nanmax(residual) if residual.size else 0:.3f} px)")
     return fig

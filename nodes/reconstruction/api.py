@@ -22,6 +22,7 @@ import xarray as xr
 
 from spectralize.schemas.errors import ReconstructionError
 
+from .confidence import neighbourhood_spread
 from .inputs import ReconstructionInputs, inputs_from_xarray
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, SETUP_OPTIONS, get_method
 from .operators import ReconstructionProblem, build_problem
@@ -55,6 +56,9 @@ class ReconstructionResult:
     problem
         The :class:`~.operators.ReconstructionProblem` solved (operators, weights, neighbour
         graph); ``None`` for a baseline.
+    confidence
+        Per-pixel error estimate, dims like ``spectra`` without ``wavelength``
+        (:func:`~.confidence.neighbourhood_spread`: higher means trust less).
     """
 
     spectra: xr.DataArray
@@ -65,6 +69,7 @@ class ReconstructionResult:
     setup_time: float
     method: str
     problem: ReconstructionProblem | None = field(default=None, repr=False)
+    confidence: xr.DataArray | None = field(default=None, repr=False)
 
 
 # -- input forms ---------------------------------------------------------------------------
@@ -291,8 +296,10 @@ def reconstruct(
     method
         A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`:
         the solvers ``"block-jacobi-pcg"`` (default: eq. 1, fast), ``"guided-prior-pcg"``
-        (eq. 1 plus a prior towards the RGB-guided filtered bands, weight ``prior``) and
-        ``"paper-cg"`` (the paper's CG); the baselines ``"pseudo-inverse"``, ``"wiener"``,
+        (eq. 1 plus a prior towards the RGB-guided filtered bands, weight ``prior``),
+        ``"material-prior-pcg"`` (that prior plus neighbourhoods in chromaticity and
+        position, scale-invariant coupling and ``S >= 0``) and ``"paper-cg"`` (the paper's
+        CG); the baselines ``"pseudo-inverse"``, ``"wiener"``,
         ``"mallett2019"``, ``"filtered-bands"``, ``"filtered-projected"``,
         ``"guided-projected"``.
     filter_size
@@ -315,6 +322,10 @@ def reconstruct(
         ``normalize_camera_matrix``
             measure the RGB term in band units (divide ``C`` and ``R`` by the mean row sum
             of ``|C|``), so the result does not depend on the gain of ``C``;
+        ``appearance``
+            the neighbour search's space, ``"rgb"`` (paper) or ``"chromaticity-spatial"``;
+        ``scale_invariant``
+            couple neighbours as ``S(p) - (b_p / b_n) S(n)`` (``b``: RGB brightness);
 
         and its own: ``tolerance`` (stop when ``||A^T b - A^T A S|| / ||A^T b||`` is below
         it, default 1e-3), ``max_iterations`` (default 2000), ``initial`` (a warm start,
@@ -360,6 +371,7 @@ def reconstruct(
     problem = None
     if record.kind == "solver":
         setup = {name: options.pop(name) for name in SETUP_OPTIONS if name in options}
+        setup = {**record.setup_defaults, **setup}
         if "k" in setup:
             setup["k"] = int(setup["k"])
         if "max_iterations" in options:
@@ -401,6 +413,23 @@ def reconstruct(
         spectra = spectra.isel(image=0)
     if not full_output:
         return spectra
+    spread = neighbourhood_spread(np.asarray(cube), inputs.rgb)
+    confidence = xr.DataArray(
+        spread,
+        dims=("image", "y", "x"),
+        coords={name: c for name, c in spectra.coords.items() if set(c.dims) <= {"image"}},
+        attrs={"units": "1", "long_name": "estimated per-pixel nRMSE (higher: trust less)"},
+    )
+    if single:
+        confidence = confidence.isel(image=0)
     return ReconstructionResult(
-        spectra, iterations, np.asarray(history), bool(converged), wall_time, setup_time, method, problem
+        spectra,
+        iterations,
+        np.asarray(history),
+        bool(converged),
+        wall_time,
+        setup_time,
+        method,
+        problem,
+        confidence,
     )

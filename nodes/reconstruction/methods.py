@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -35,7 +35,8 @@ from .baselines import (
     wiener_estimation,
 )
 from .operators import build_problem
-from .solvers import block_jacobi_pcg, guided_prior_pcg, paper_cg
+from .solvers import block_jacobi_pcg, guided_prior_pcg, material_prior_pcg, paper_cg
+from .solvers.material_prior_pcg import SETUP_DEFAULTS as MATERIAL_SETUP_DEFAULTS
 
 __all__ = [
     "ReconstructionMethod",
@@ -83,6 +84,9 @@ class ReconstructionMethod:
         unless the ``dtype`` option says otherwise).
     description
         One line for tables and messages.
+    setup_defaults
+        A solver's own defaults for set-up options of :data:`SETUP_OPTIONS` (e.g. its
+        appearance space); empty for eq. 1 as the paper sets it up.
     """
 
     name: str
@@ -90,6 +94,7 @@ class ReconstructionMethod:
     function: Callable[..., Any]
     dtype: np.dtype
     description: str
+    setup_defaults: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def options(self) -> dict[str, inspect.Parameter]:
@@ -100,7 +105,8 @@ class ReconstructionMethod:
 
     def defaults(self) -> dict[str, Any]:
         """Option name -> default value."""
-        return {name: parameter.default for name, parameter in self.options.items()}
+        defaults = {name: parameter.default for name, parameter in self.options.items()}
+        return {**defaults, **self.setup_defaults}
 
 
 def _method(
@@ -109,8 +115,11 @@ def _method(
     function: Callable[..., Any],
     dtype: type,
     description: str,
+    setup_defaults: Mapping[str, Any] | None = None,
 ) -> ReconstructionMethod:
-    return ReconstructionMethod(name, kind, function, np.dtype(dtype), description)
+    return ReconstructionMethod(
+        name, kind, function, np.dtype(dtype), description, MappingProxyType(dict(setup_defaults or {}))
+    )
 
 
 RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
@@ -129,6 +138,14 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             guided_prior_pcg,
             np.float32,
             "eq. 1 plus a prior towards the RGB-guided filtered bands (weight: prior)",
+        ),
+        _method(
+            "material-prior-pcg",
+            "solver",
+            material_prior_pcg,
+            np.float32,
+            "eq. 1, chromaticity+position neighbours, scale-invariant coupling, guided prior, S >= 0",
+            MATERIAL_SETUP_DEFAULTS,
         ),
         _method(
             "paper-cg",

@@ -20,7 +20,19 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-__all__ = ["appearance_neighbours", "NeighbourGraph"]
+from spectralize.schemas.errors import ReconstructionError
+
+__all__ = [
+    "appearance_neighbours",
+    "appearance_features",
+    "brightness_ratios",
+    "NeighbourGraph",
+    "APPEARANCE_SPACES",
+]
+
+APPEARANCE_SPACES = ("rgb", "chromaticity-spatial")
+"""Appearance spaces of :func:`appearance_features`: the paper's RGB, and chromaticity with
+spatial proximity (the paper's own fix for metamers, section 6)."""
 
 
 def appearance_neighbours(appearance: np.ndarray, *, k: int = 3, workers: int = -1) -> np.ndarray:
@@ -60,6 +72,58 @@ def appearance_neighbours(appearance: np.ndarray, *, k: int = 3, workers: int = 
     return np.take_along_axis(found, order, axis=1)[:, :k]
 
 
+def appearance_features(
+    rgb: np.ndarray,
+    shape: tuple[int, int, int],
+    *,
+    space: str = "rgb",
+    spatial_scale: float = 0.002,
+    brightness_scale: float = 0.05,
+) -> np.ndarray:
+    """Per-pixel features ``(n_pixels, n_features)`` in which neighbours are searched.
+
+    ``"rgb"``: the RGB itself (paper section 3). ``"chromaticity-spatial"``: the chromaticity
+    ``(r, g) = (R, G) / (R + G + B)``, ``brightness_scale * log(R + G + B)`` and the pixel
+    position ``spatial_scale * (y, x)`` [per px]. Chromaticity does not change with shading,
+    so the same texel in the other images of a rectified set (same position, same
+    chromaticity, other brightness) is a near neighbour; position separates metamers that
+    are not adjacent (paper section 6).
+
+    Parameters
+    ----------
+    rgb
+        ``(3, n_pixels)``, pixels of all images in (image, y, x) order.
+    shape
+        ``(n_image, height, width)``.
+    space
+        One of :data:`APPEARANCE_SPACES`.
+    spatial_scale, brightness_scale
+        Weights of position [per px] and log brightness against chromaticity.
+    """
+    if space == "rgb":
+        return np.asarray(rgb, dtype=np.float64).T
+    if space != "chromaticity-spatial":
+        raise ReconstructionError(f"appearance: expected one of {APPEARANCE_SPACES}, found {space!r}")
+    rgb = np.asarray(rgb, dtype=np.float64)
+    total = rgb.sum(axis=0)
+    floor = 1e-3 * max(float(np.median(np.abs(total))), 1e-30)
+    safe = np.maximum(total, floor)
+    n_image, height, width = shape
+    y, x = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+    position = np.tile(np.stack([y.ravel(), x.ravel()], axis=1), (n_image, 1)) * spatial_scale
+    chroma = (rgb[:2] / safe).T
+    return np.hstack([chroma, brightness_scale * np.log(safe)[:, None], position])
+
+
+def brightness_ratios(rgb: np.ndarray, neighbours: np.ndarray, *, limit: float = 20.0) -> np.ndarray:
+    """``b_p / b_n`` for every pair (``b = R + G + B``), clipped to ``[1 / limit, limit]``:
+    the scale-invariant coupling ``S(p) - (b_p / b_n) S(n)``."""
+    total = np.asarray(rgb, dtype=np.float64).sum(axis=0)
+    floor = 1e-3 * max(float(np.median(np.abs(total))), 1e-30)
+    total = np.maximum(total, floor)
+    return np.clip(total[:, None] / total[neighbours], 1 / limit, limit)
+
+
 @dataclass
 class NeighbourGraph:
     """The neighbour-difference operator ``D`` and its Laplacian ``L = D^T D``.
@@ -73,10 +137,15 @@ class NeighbourGraph:
         ``(n_pixels, k)`` indices from :func:`appearance_neighbours`.
     dtype
         Floating dtype of the operator.
+    ratios
+        Optional ``(n_pixels, k)`` factors ``r``: row ``p * k + j`` is then
+        ``e_p - r e_{N_p[j]}`` (scale-invariant coupling, :func:`brightness_ratios`);
+        ``None``: all 1 (eq. 1).
     """
 
     neighbours: np.ndarray
     dtype: np.dtype = field(default_factory=lambda: np.dtype(np.float64))
+    ratios: np.ndarray | None = None
     _difference: sp.csr_array | None = field(init=False, repr=False, default=None)
     _laplacian: sp.csr_array = field(init=False, repr=False)
     _scaled: dict = field(init=False, repr=False, default_factory=dict)
@@ -91,7 +160,11 @@ class NeighbourGraph:
         rows = np.concatenate([here, there, here, there])
         cols = np.concatenate([here, there, there, here])
         ones = np.ones(here.size, dtype=self.dtype)
-        data = np.concatenate([ones, ones, -ones, -ones])
+        if self.ratios is None:
+            data = np.concatenate([ones, ones, -ones, -ones])
+        else:
+            r = np.asarray(self.ratios, dtype=np.float64).ravel()
+            data = np.concatenate([ones, r**2, -r, -r]).astype(self.dtype)
         laplacian = sp.coo_array((data, (rows, cols)), shape=(n_pixels, n_pixels)).tocsr()
         laplacian.sum_duplicates()
         laplacian.sort_indices()
@@ -105,7 +178,8 @@ class NeighbourGraph:
             pairs = n_pixels * k
             rows = np.arange(pairs)
             here = np.repeat(np.arange(n_pixels), k)
-            data = np.concatenate([np.ones(pairs), -np.ones(pairs)]).astype(self.dtype)
+            other = -np.ones(pairs) if self.ratios is None else -np.asarray(self.ratios).ravel()
+            data = np.concatenate([np.ones(pairs), other]).astype(self.dtype)
             self._difference = sp.csr_array(
                 (data, (np.concatenate([rows, rows]), np.concatenate([here, self.neighbours.ravel()]))),
                 shape=(pairs, n_pixels),
@@ -136,7 +210,10 @@ class NeighbourGraph:
         """``D S``: ``S(p) - S(n)`` for every pair, ``(n_channels, n_pairs)`` from
         ``(n_channels, n_pixels)``."""
         k = self.neighbours.shape[1]
-        return np.repeat(flat, k, axis=1) - flat[:, self.neighbours.ravel()]
+        there = flat[:, self.neighbours.ravel()]
+        if self.ratios is not None:
+            there = there * self.ratios.ravel().astype(flat.dtype)
+        return np.repeat(flat, k, axis=1) - there
 
     def differences_adjoint(self, pairs: np.ndarray) -> np.ndarray:
         """``D^T y``: ``(n_channels, n_pixels)`` from ``(n_channels, n_pairs)``."""

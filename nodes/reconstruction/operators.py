@@ -36,7 +36,7 @@ from spectralize.nodes.filter_size import filter_radius, filter_sigma
 from spectralize.schemas.errors import ReconstructionError
 
 from .inputs import ReconstructionInputs
-from .neighbourhoods import NeighbourGraph, appearance_neighbours
+from .neighbourhoods import NeighbourGraph, appearance_features, appearance_neighbours, brightness_ratios
 from .weights import TermWeights, default_gamma_hat, term_weights
 
 __all__ = [
@@ -449,6 +449,8 @@ def build_problem(
     centre_spacing: float = 2.5,
     normalize_camera_matrix: bool = True,
     neighbours: np.ndarray | None = None,
+    appearance: str = "rgb",
+    scale_invariant: bool = False,
     dtype: np.dtype | type = np.float64,
 ) -> ReconstructionProblem:
     """Set up eq. 1 for a set of images: filters, neighbour graph and eq. 4 weights.
@@ -468,6 +470,13 @@ def build_problem(
         Divide ``C`` and ``R`` by :func:`camera_scale` (recommended; see there).
     neighbours
         Precomputed ``(n_pixels, k)`` neighbour indices (else computed from the RGB).
+    appearance
+        Appearance space of the neighbour search
+        (:func:`~.neighbourhoods.appearance_features`): ``"rgb"`` (paper) or
+        ``"chromaticity-spatial"``.
+    scale_invariant
+        Couple neighbours as ``S(p) - (b_p / b_n) S(n)`` (``b``: RGB brightness), so that a
+        texel seen at another brightness keeps its spectral shape (paper: ``False``).
     dtype
         Floating dtype of the operators.
 
@@ -485,8 +494,10 @@ def build_problem(
     rgb = inputs.rgb_pixels() / scale
     started = time.perf_counter()
     if neighbours is None:
-        neighbours = appearance_neighbours(rgb.T, k=k)
-    graph = NeighbourGraph(neighbours, dtype)
+        features = appearance_features(rgb, inputs.cube_shape[1:], space=appearance)
+        neighbours = appearance_neighbours(features, k=k)
+    ratios = brightness_ratios(rgb, neighbours) if scale_invariant else None
+    graph = NeighbourGraph(neighbours, dtype, ratios)
     neighbour_seconds = time.perf_counter() - started
     filters = FilterConstraints(
         inputs.cube_shape, inputs.band, inputs.image, inputs.filter_size, centre_spacing, dtype

@@ -33,6 +33,7 @@ from spectralize.engine import Choices
 from spectralize.schemas import ReconstructionError
 
 from .api import reconstruct
+from .confidence import neighbourhood_spread
 from .image_sets import set_members
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
 from .warm_start import transport_spectra
@@ -256,8 +257,9 @@ def _solve_region(
     warm: tuple[np.ndarray, np.ndarray] | None,
     settings: dict,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Solve one set: the owned images' cube (image, wavelength, y, x) float32 and, per owned
-    image, the set's iterations."""
+    """Solve one set: the owned images' cube (image, wavelength, y, x) float32, per owned
+    image the set's iterations, and the owned images' confidence (image, y, x)
+    (:func:`~.confidence.neighbourhood_spread` over the whole set)."""
     initial = None
     if warm is not None and "initial" in get_method(settings["method"]).options:
         source_rgb, source_spectra = warm
@@ -270,10 +272,20 @@ def _solve_region(
             coords={"wavelength": camera_matrix["wavelength"].values},
         )
     spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, initial=initial, **settings)
-    return (
-        np.asarray(spectra.values[owned], dtype=np.float32),
-        np.full(int(owned.sum()), iterations, dtype=np.int32),
+    cube = spectra.transpose("image", "wavelength", "y", "x").values
+    spread = neighbourhood_spread(
+        np.moveaxis(cube, 1, 0), rgb.transpose("image", "y", "x", "channel").values
     )
+    return (
+        np.asarray(cube[owned], dtype=np.float32),
+        np.full(int(owned.sum()), iterations, dtype=np.int32),
+        spread[owned],
+    )
+
+
+def _seed_confidence(cube: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+    """Confidence (image, y, x) of the seed set's owned images from their spectra and RGB."""
+    return neighbourhood_spread(np.moveaxis(np.asarray(cube, dtype=np.float64), 1, 0), np.asarray(rgb))
 
 
 def reconstruct_image_sets(
@@ -312,7 +324,9 @@ def reconstruct_image_sets(
     Returns
     -------
     xarray.Dataset
-        Group ``spectra``: ``radiance`` (image, wavelength, y, x) float32 units ``"1"``, plus
+        Group ``spectra``: ``radiance`` (image, wavelength, y, x) float32 units ``"1"``,
+        ``confidence`` (image, y, x) float32 (:func:`~.confidence.neighbourhood_spread`: an
+        estimated per-pixel nRMSE, higher where the result deserves less trust), plus
         ``image_set`` and ``iterations`` (image), lazy.
     """
     seed = int(spectra_seed.attrs["seed_set"])
@@ -338,7 +352,7 @@ def reconstruct_image_sets(
         method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
     )  # fail before any solve
 
-    pieces, counts, labels, set_of = [], [], [], []
+    pieces, counts, labels, set_of, confidences = [], [], [], [], []
     seed_iterations = int(spectra_seed.attrs.get("iterations", -1))
     for index in range(image_sets.sizes["set"]):
         members, owned = set_members(image_sets, index)
@@ -354,6 +368,12 @@ def reconstruct_image_sets(
             )
             block = da.asarray(block).astype(np.float32).rechunk((shape[0], -1, -1, -1))
             count = da.full(shape[0], seed_iterations, dtype=np.int32, chunks=shape[0])
+            owned_rgb = hdr["radiance"].sel(image=members[owned]).transpose("image", "y", "x", "channel")
+            confidence = da.from_delayed(
+                dask.delayed(_seed_confidence, pure=True)(block, owned_rgb.data),
+                shape=(shape[0], ny, nx),
+                dtype=np.float32,
+            )
         else:
             rgb, shots = _set_inputs(hdr, bands, members)
             task = dask.delayed(_solve_region, pure=True)(
@@ -367,8 +387,10 @@ def reconstruct_image_sets(
             )
             block = da.from_delayed(task[0], shape=shape, dtype=np.float32)
             count = da.from_delayed(task[1], shape=shape[:1], dtype=np.int32)
+            confidence = da.from_delayed(task[2], shape=(shape[0], ny, nx), dtype=np.float32)
         pieces.append(block)
         counts.append(count)
+        confidences.append(confidence)
         labels.extend(members[owned].tolist())
         set_of.extend([index] * shape[0])
     cube = da.concatenate(pieces, axis=0)
@@ -381,6 +403,14 @@ def reconstruct_image_sets(
                 ("image", "wavelength", "y", "x"),
                 cube,
                 {"units": "1", "long_name": "relative spectral radiance"},
+            ),
+            "confidence": (
+                ("image", "y", "x"),
+                da.concatenate(confidences, axis=0),
+                {
+                    "units": "1",
+                    "long_name": "estimated per-pixel nRMSE of the spectra (higher: trust less)",
+                },
             ),
             "image_set": ("image", np.asarray(set_of), {"long_name": "set the image was solved in"}),
             "iterations": (

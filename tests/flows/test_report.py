@@ -1,3 +1,4 @@
+import base64
 import html
 from html.parser import HTMLParser
 
@@ -5,10 +6,12 @@ import colour
 import numpy as np
 import pytest
 import xarray as xr
+from support.browser import screenshot
 from support.cubes import cube_dataset
 
-from spectralize.flows.report import write_report, write_run_report
+from spectralize.flows.report import error_map_figures, write_report, write_run_report
 from spectralize.nodes.evaluation.capture_time import capture_time
+from spectralize.nodes.evaluation.figures import nrmse_histograms
 from spectralize.nodes.evaluation.metrics import evaluate
 from spectralize.schemas import RunStore, SchemaError
 
@@ -54,12 +57,14 @@ class Page(HTMLParser):
     def __init__(self):
         super().__init__()
         self.images, self.tables, self.figures, self.links = [], [], [], []
+        self.figure_ids, self.headings = [], []
         self.cells, self.title, self._in_cell, self._in_title = [], "", False, False
 
     def handle_starttag(self, tag, attrs):
         attrs = dict(attrs)
         if tag == "img":
             self.images.append(attrs["src"])
+            self.figure_ids.append(self.figures[-1] if self.figures else None)
         elif tag == "table":
             self.tables.append(attrs.get("id"))
         elif tag == "figure":
@@ -71,18 +76,25 @@ class Page(HTMLParser):
             self.cells.append("")
         elif tag == "title":
             self._in_title = True
+        elif tag == "h3":
+            self.headings.append("")
+            self._in_heading = True
 
     def handle_endtag(self, tag):
         if tag in ("td", "th"):
             self._in_cell = False
         elif tag == "title":
             self._in_title = False
+        elif tag == "h3":
+            self._in_heading = False
 
     def handle_data(self, data):
         if self._in_cell:
             self.cells[-1] += data
         if self._in_title:
             self.title += data
+        if getattr(self, "_in_heading", False):
+            self.headings[-1] += data
 
 
 def parse(path) -> Page:
@@ -91,7 +103,17 @@ def parse(path) -> Page:
     return page
 
 
-def test_report_contains_every_figure_and_table_with_the_numbers(run, tmp_path):
+def embedded(page: Page) -> dict[str, bytes]:
+    """Figure id -> PNG bytes of every figure embedded in the page (all must be data URIs)."""
+    out = {}
+    for figure_id, src in zip(page.figure_ids, page.images, strict=True):
+        prefix = "data:image/png;base64,"
+        assert src.startswith(prefix), src[:40]
+        out[figure_id] = base64.b64decode(src[len(prefix) :])
+    return out
+
+
+def test_report_is_one_file_with_every_figure_and_table_and_the_numbers(run, tmp_path):
     spectra, truth, shots, evaluation = run
     capture = capture_time(7.463, evaluation=evaluation.compute())
     index = write_report(
@@ -106,30 +128,78 @@ def test_report_contains_every_figure_and_table_with_the_numbers(run, tmp_path):
         baselines={"perfect": truth.radiance, "biased": truth.radiance * 1.2},
     )
     assert index == tmp_path / "report" / "index.html"
+    assert [p.name for p in index.parent.iterdir()] == ["index.html"]  # self-contained
     page = parse(index)
     assert page.title == "demo report"
-    expected_images = {"histogram.png", "capture_time.png"} | {
-        f"{kind}_{i:03d}.png" for kind in ("error_map", "spectra") for i in range(3)
+    figures = embedded(page)
+    expected = {"histogram", "capture_time"} | {
+        f"{k}_{i:03d}" for k in ("error_map", "spectra") for i in range(3)
     }
-    assert set(page.images) == expected_images
-    for name in page.images:  # relative links to real PNG files in the folder
-        assert "/" not in name and not name.startswith("http")
-        assert (index.parent / name).read_bytes()[:8] == PNG
-    assert set(page.figures) == {name[:-4] for name in expected_images}
-    assert page.tables == ["run", "summary", "per-image", "capture-time", "baselines"]
-    cells = page.cells
-    # what run it describes
-    assert "demo/run.zarr" in cells and "spectra-fp-123" in cells and "reconstruct v1" in cells
-    # the numbers: per-image statistics, subsets, capture time, baselines
+    assert set(figures) == expected
+    assert all(png[:8] == PNG for png in figures.values())
+    assert page.tables == ["summary", "per-image", "capture-time", "baselines", "run"]
+    text = index.read_text()
+    # headline numbers first: before the first section
     ev = evaluation.compute()
+    median = float(ev.nrmse_subset_statistics.sel(subset="all", statistic="median"))
+    assert text.index('id="headline"') < text.index("<section")
+    assert f"{median:.4g}" in text[: text.index("<section")]
+    cells = page.cells
+    assert "demo/run.zarr" in cells and "spectra-fp-123" in cells and "reconstruct v1" in cells
     for image in range(3):
-        median = float(ev.nrmse_statistics[image].sel(statistic="median"))
-        assert f"{median:.4g}" in cells
+        image_median = float(ev.nrmse_statistics.sel(image=image, statistic="median"))
+        assert f"{image_median:.4g}" in cells
     assert {"with band shots", "without band shots", "all"} <= set(cells)
-    assert "30.3x" in index.read_text() and "7.463" in cells
+    assert "30.3x" in text and "7.463" in cells
     assert {"this run (spectra)", "perfect", "biased"} <= set(cells)
-    row = cells.index("perfect")
-    assert cells[row + 1] == "0"  # a perfect method has nRMSE median 0
+    assert cells[cells.index("perfect") + 1] == "0"  # a perfect method has nRMSE median 0
+
+
+def test_truth_and_reconstruction_panels_show_the_same_image_whatever_the_order(run, tmp_path):
+    spectra, truth, shots, _ = run
+    # three clearly different images; the reconstruction is stored in image-set order 2, 0, 1
+    values = truth["radiance"].values * np.array([1.0, 0.3, 0.05])[:, None, None, None]
+    truth = truth.copy(data={"radiance": values}).assign_coords(image=[0, 1, 2])
+    order = [2, 0, 1]
+    spectra = truth.sel(image=order)
+    # spectra and evaluation in image-set order, truth in label order: the report's old bug
+    evaluation = evaluate(spectra, truth, shots=shots).compute().sel(image=order)
+    assert evaluation["image"].values.tolist() == order
+    for label, error_map, _ in error_map_figures(evaluation, spectra, truth, [0, 1, 2]):
+        truth_panel, recon_panel = (ax.images[0].get_array() for ax in error_map.axes[:2])
+        np.testing.assert_allclose(recon_panel, truth_panel, atol=1)  # the same image
+        brightness = float(np.asarray(truth_panel, dtype=float).mean())
+        assert error_map._suptitle.get_text().startswith(f"image {label},")
+        assert float(np.nanmax(evaluation["nrmse"].sel(image=label))) < 1e-5
+        if label == 0:
+            bright = brightness
+        elif label == 2:
+            assert brightness < bright  # label 2 is the dim image, not position 2
+    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path, shots=shots)
+    page = parse(index)
+    start = page.cells.index("image")
+    width = page.cells.index("NaN px", start) - start + 1
+    table = page.cells[start + width : start + 4 * width]
+    first_column = table[::width]
+    assert first_column == ["0", "1", "2"]  # per-image table in label order, named by label
+    assert [h.split(",")[0] for h in page.headings] == ["image 0", "image 1", "image 2"]
+
+
+def test_histogram_covers_every_pixel_with_an_overflow_bin_and_fractions(run):
+    spectra, truth, shots, _ = run
+    worse = spectra.copy(data={"radiance": spectra["radiance"].values * 1.6})  # nRMSE far above 0.12
+    evaluation = evaluate(worse, truth, shots=shots).compute()
+    assert int(evaluation["nrmse_above_range"].sum()) > 0  # the stored histogram misses pixels
+    above = evaluation["nrmse_above_range"].values
+    total = (evaluation["nrmse_histogram"].sum("nrmse_bin") + evaluation["nrmse_above_range"]).values
+    has = evaluation["has_band_shots"].values
+    for label, table in nrmse_histograms(evaluation).items():
+        mask = has if label == "with band shots" else ~has
+        assert table["fraction"].sum() + table["overflow"] == pytest.approx(1.0)  # every pixel
+        assert table["pixels"] == int(np.isfinite(evaluation["nrmse"].values[mask]).sum())
+        hidden = above[mask].sum() / total[mask].sum()  # what the 0..0.12 axis used to hide
+        assert hidden > 0.2 and table["overflow"] < 0.05
+        assert table["edges"][-1] > 0.12
 
 
 def test_optional_sections_are_left_out_and_figures_limited(run, tmp_path):
@@ -142,8 +212,8 @@ def test_optional_sections_are_left_out_and_figures_limited(run, tmp_path):
         max_images=1,
     )
     page = parse(index)
-    assert page.tables == ["run", "summary", "per-image"]
-    assert set(page.images) == {"histogram.png", "error_map_000.png", "spectra_000.png"}
+    assert page.tables == ["summary", "per-image", "run"]
+    assert set(embedded(page)) == {"histogram", "error_map_000", "spectra_000"}
     assert "(not given)" in page.cells
     assert "Figures for the first 1 of 3 images." in index.read_text()
 
@@ -187,13 +257,71 @@ def test_write_run_report_reads_everything_from_the_store(run, tmp_path):
     index = write_run_report(store.path, max_images=1)
     assert index == store.path / "report" / "index.html"
     page = parse(index)
-    assert page.tables == ["run", "summary", "per-image", "capture-time", "baselines"]
+    assert page.tables == ["summary", "per-image", "capture-time", "baselines", "run"]
     assert str(store.path) in page.cells and "spectra-fp" in page.cells
     assert "biased" in page.cells and "1.6" in page.cells  # 32 shots x 0.05 s
     assert "reference: the paper's long-exposure capture" in html.unescape(index.read_text())
     assert page.cells[page.cells.index("with band shots") + 1] == str(12 * 18)  # image 0 only
+    assert {"renders", "pixel_spectra_000"} <= set(embedded(page))  # the reconstruction section
     # the report folder inside the run store does not disturb the store
     assert store.validate() == [] and "report" not in store.groups()
+
+
+def relative(ds: xr.Dataset) -> xr.Dataset:
+    for var in ds.data_vars.values():
+        var.attrs["units"] = "1"
+    return ds
+
+
+def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_path):
+    spectra, _, _, _ = run
+    store = RunStore.create(tmp_path / "run.zarr")
+    confidence = xr.DataArray(
+        np.linspace(0, 1, 3 * 12 * 18, dtype=np.float32).reshape(3, 12, 18),
+        dims=("image", "y", "x"),
+        attrs={"units": "1", "long_name": "confidence"},
+    )
+    store.write(
+        "spectra",
+        spectra.drop_attrs(deep=False).assign(confidence=confidence).isel(image=[1, 2, 0]),
+        fingerprint="spectra-fp",
+    )
+    measured = np.random.default_rng(0).uniform(0.1, 1.0, (24, 3))
+    store.write(
+        "calibration/spectral",
+        xr.Dataset(
+            {
+                "quantum_efficiency": ("wavelength", np.linspace(0.2, 1.0, SHAPE.wavelengths.size)),
+                "camera_matrix": (("channel", "wavelength"), np.ones((3, SHAPE.wavelengths.size))),
+                "measured_rgb": (("patch", "channel"), measured),
+                "predicted_rgb": (("patch", "channel"), measured * 1.02),
+                "relative_error": ("patch", np.full(24, 0.02)),
+            },
+            coords={
+                "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
+                "patch": np.arange(24),
+                "channel": ["R", "G", "B"],
+            },
+            attrs={"mean_relative_error": 0.02, "max_relative_error": 0.02},
+        ).pipe(relative),
+        fingerprint="calibration-fp",
+    )
+    index = write_run_report(store.path, directory=tmp_path / "report", pixels=[(1, 2), (10, 15)])
+    page = parse(index)
+    figures = embedded(page)
+    assert {"renders", "confidence", "cross_validation", "quantum_efficiency"} <= set(figures)
+    assert {f"pixel_spectra_{label:03d}" for label in range(3)} <= set(figures)
+    assert "cross-validation" in page.tables and "0.02" in page.cells
+    text = html.unescape(index.read_text())
+    headline = text[text.index('id="headline"') : text.index("<section")]
+    assert "images reconstructed" in headline and "2.00 %" in headline
+    assert [h.split(",")[0] for h in page.headings] == ["image 0", "image 1", "image 2"]
+    # a real browser renders it: a screenshot that is not blank
+    shot = screenshot(index, tmp_path / "report.png", width=1200, height=1600)
+    assert shot.shape[0] >= 1000 and shot.shape[1] >= 1000
+    colours = np.unique(shot.reshape(-1, 3) // 16, axis=0)
+    assert len(colours) > 50  # text, tables and figures, not a blank page
+    assert (shot < 128).any(axis=-1).mean() > 0.01
 
 
 def test_calibration_cross_validation_is_tabulated_and_drawn(run, tmp_path):
@@ -217,8 +345,7 @@ def test_calibration_cross_validation_is_tabulated_and_drawn(run, tmp_path):
     )
     page = parse(index)
     assert "cross-validation" in page.tables
-    assert "cross_validation.png" in page.images
-    assert (tmp_path / "cross_validation.png").read_bytes()[:8] == PNG
+    assert embedded(page)["cross_validation"][:8] == PNG
     assert "0.02" in page.cells
 
 
@@ -241,15 +368,3 @@ def test_labels_are_escaped_by_the_template(run, tmp_path):
     page = parse(index)
     assert page.title == f"run {attack}"  # shown as text, not run as markup
     assert attack in page.cells and f"{attack}.zarr" in page.cells
-
-
-def test_the_page_references_every_figure_file_it_wrote(run, tmp_path):
-    spectra, truth, _, evaluation = run
-    capture = capture_time(7.463, evaluation=evaluation.compute())
-    index = write_report(
-        evaluation, spectra=spectra, truth=truth, directory=tmp_path, capture=capture, max_images=2
-    )
-    written = {path.name for path in tmp_path.iterdir() if path.name != "index.html"}
-    page = parse(index)
-    assert written == set(page.images)
-    assert len(page.images) == len(set(page.images)) == 2 + 2 * 2

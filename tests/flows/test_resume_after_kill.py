@@ -16,7 +16,7 @@ import numpy as np
 import xarray as xr
 
 from spectralize.schemas import RunStore
-from spectralize.schemas.store import STAGING
+from spectralize.schemas.lock import work_dir
 
 _HELPERS = Path(__file__).parents[1] / "nodes" / "reconstruction" / "test_set_reconstruction.py"
 _spec = util.spec_from_file_location("set_reconstruction_inputs", _HELPERS)
@@ -56,7 +56,9 @@ def prepared_store(path: Path) -> RunStore:
 
 def region_flags(store: Path) -> list[Path]:
     """Flag chunks of finished regions (not zarr's ``*.partial`` files of a write in flight)."""
-    return sorted(p for p in store.glob(f"{STAGING}/spectra.*.done/c/*") if p.name.isdigit())
+    return sorted(
+        p for p in (work_dir(store) / "staging").glob("spectra.*.done/c/*") if p.name.isdigit()
+    )
 
 
 def test_killed_reconstruction_resumes_without_recomputing_finished_sets(tmp_path):
@@ -82,7 +84,9 @@ def test_killed_reconstruction_resumes_without_recomputing_finished_sets(tmp_pat
         process.wait()
     finished = [int(p.name) for p in region_flags(killed)]
     assert finished and len(finished) < n_sets, finished
-    staged = next(killed.glob(f"{STAGING}/spectra.*[!e]"))
+    staged = next(
+        p for p in (work_dir(killed) / "staging").glob("spectra.*") if not p.name.endswith(".done")
+    )
     written = {
         p.relative_to(staged).as_posix(): p.stat().st_mtime_ns
         for p in (staged / "radiance" / "c").rglob("*")
@@ -98,7 +102,7 @@ def test_killed_reconstruction_resumes_without_recomputing_finished_sets(tmp_pat
     store = RunStore.open(killed)
     # chunks of the sets finished before the kill were not written again
     final = store.path / "spectra"
-    set_of_image = store.read("spectra").image_set.values
+    set_of_image = store.read("spectra", friendly=False).image_set.values  # as written
     set_of_region = list(dict.fromkeys(set_of_image.tolist()))  # regions are sets, in order
     finished_sets = [set_of_region[i] for i in finished]
     kept = 0

@@ -125,7 +125,7 @@ def test_bad_graph_fails_before_anything_is_written(nodes, store):
 
 
 def test_store_must_exist_when_the_first_node_needs_input(nodes, tmp_path):
-    with pytest.raises(PipelineError, match="group 'raw/dark' in the store .*no such group"):
+    with pytest.raises(StoreError, match="absent.zarr' does not exist .*reads raw/dark"):
         run_flow("dark", tmp_path / "absent.zarr")
     assert not (tmp_path / "absent.zarr").exists()
 

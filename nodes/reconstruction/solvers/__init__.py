@@ -12,6 +12,10 @@ All of them are listed in
 ``"guided-prior-pcg"`` (:mod:`.guided_prior_pcg`)
     The same solver on eq. 1 plus a prior towards the RGB-guided filtered bands.
 
+``"material-prior-pcg"`` (:mod:`.material_prior_pcg`)
+    Eq. 1 with neighbourhoods in chromaticity and position, scale-invariant coupling, the
+    guided prior and non-negativity.
+
 All stop when the relative residual of the normal equations ``||A^T b - A^T A S|| /
 ||A^T b||`` falls below ``tolerance``, or after ``max_iterations``
 (:mod:`.common`).
@@ -31,6 +35,7 @@ from .block_jacobi_pcg import (
 )
 from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, SolverResult
 from .guided_prior_pcg import DEFAULT_PRIOR, guided_prior_pcg
+from .material_prior_pcg import material_prior_pcg
 from .paper_cg import paper_cg
 
 __all__ = [
@@ -42,6 +47,7 @@ __all__ = [
     "paper_cg",
     "block_jacobi_pcg",
     "guided_prior_pcg",
+    "material_prior_pcg",
     "BlockJacobiPreconditioner",
     "projected_filtered_initial",
     "guided_initial",

@@ -140,3 +140,16 @@ def test_a_baseline_reconstructs_the_sets_too():
     cube = reconstruct_image_sets(hdr, bands, camera, sets, seed, method="filtered-projected").compute()
     assert np.isfinite(cube.radiance.values).all()
     assert (cube.iterations == 0).all()
+
+
+def test_spectra_group_carries_a_confidence_that_tracks_the_error(solved):
+    from scipy.stats import spearmanr
+
+    _, _, truth, _, cube = solved
+    cube = cube.compute()
+    assert cube.confidence.dims == ("image", "y", "x") and cube.confidence.dtype == np.float32
+    assert validate_dataset(cube, SPECTRA) == []
+    assert float(cube.confidence.min()) >= 0 and np.isfinite(cube.confidence.values).all()
+    reference = truth.radiance.sel(image=cube.image).transpose(*cube.radiance.dims).values
+    error = np.sqrt(np.mean((cube.radiance.values - reference) ** 2, axis=1))
+    assert spearmanr(cube.confidence.values.ravel(), error.ravel()).statistic > 0.2

@@ -1,0 +1,55 @@
+"""A per-pixel error estimate beside the spectra: where not to trust the reconstruction.
+
+The spread of the reconstructed spectra over each pixel's appearance neighbourhood, coupled
+scale-invariantly: ``u(p) = sqrt(mean_n ||S(p) - (b_p / b_n) S(n)||^2 / n_wavelength) /
+mean(S)`` over the ``k`` nearest neighbours ``n`` in chromaticity and position
+(:func:`~.neighbourhoods.appearance_features`), ``b`` the RGB brightness. Where similar
+looking pixels nearby got different spectral shapes the band data did not pin the answer
+down (noise, sub-pixel mixtures, highlights); ``u`` is in the units of the benchmark's
+nRMSE (the image's mean), higher meaning *less* trustworthy.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, section 3 (appearance neighbourhoods) and
+   Fig. 5 (nRMSE).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .neighbourhoods import appearance_features, appearance_neighbours, brightness_ratios
+
+__all__ = ["neighbourhood_spread"]
+
+
+def neighbourhood_spread(cube: np.ndarray, rgb: np.ndarray, *, k: int = 6) -> np.ndarray:
+    """Per-pixel error estimate ``(n_image, height, width)`` of a reconstructed cube.
+
+    Parameters
+    ----------
+    cube
+        ``(n_wavelength, n_image, height, width)`` spectra.
+    rgb
+        ``(n_image, height, width, 3)`` the RGB they were reconstructed from.
+    k
+        Neighbours per pixel.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``u(p)`` (see the module docstring), float32, >= 0.
+    """
+    cube = np.asarray(cube, dtype=np.float64)
+    n_wavelength, n_image, height, width = cube.shape
+    pixels = np.moveaxis(np.asarray(rgb, dtype=np.float64), -1, 0).reshape(3, -1)
+    features = appearance_features(pixels, (n_image, height, width), space="chromaticity-spatial")
+    neighbours = appearance_neighbours(features, k=k)
+    ratios = brightness_ratios(pixels, neighbours)
+    flat = cube.reshape(n_wavelength, -1)
+    squared = np.zeros(flat.shape[1])
+    for j in range(neighbours.shape[1]):
+        squared += np.mean((flat - ratios[:, j] * flat[:, neighbours[:, j]]) ** 2, axis=0)
+    spread = np.sqrt(squared / max(neighbours.shape[1], 1)).reshape(n_image, height, width)
+    mean = np.abs(cube).mean(axis=(0, 2, 3))
+    return (spread / np.maximum(mean, 1e-30)[:, None, None]).astype(np.float32)

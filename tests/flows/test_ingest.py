@@ -1,0 +1,220 @@
+"""Capture folders into run stores: real files (TIFF, PNG), real zarr stores, the real CLI."""
+
+import csv
+import os
+import shutil
+
+import numpy as np
+import pytest
+import tifffile
+
+from spectralize.datasets.capture_folder import write_capture_folder, write_png
+from spectralize.flows.cli import main
+from spectralize.flows.ingest import CaptureError, capture_state, ingest, read_capture
+from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.recipes import get_recipe
+from spectralize.schemas import RunStore
+
+RAW = (
+    "raw/rgb",
+    "raw/spectral",
+    "raw/dark",
+    "raw/white_reference",
+    "raw/colour_checker",
+    "raw/registration",
+)
+
+
+@pytest.fixture(scope="module")
+def sample(tmp_path_factory):
+    """The tiny recipe as a capture folder, written once per module (copy it to change it)."""
+    return write_capture_folder(tmp_path_factory.mktemp("sample") / "capture", recipe="tiny")
+
+
+@pytest.fixture
+def capture(sample, tmp_path):
+    return shutil.copytree(sample, tmp_path / "capture", copy_function=shutil.copy2)
+
+
+def rows(folder):
+    with open(folder / "manifest.csv", newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def write_rows(folder, table):
+    with open(folder / "manifest.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(table[0]), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(table)
+
+
+def test_a_capture_folder_ingests_into_the_raw_groups_of_the_simulated_run(capture, tmp_path):
+    report = ingest(capture, tmp_path / "run.zarr")
+    store = RunStore.open(tmp_path / "run.zarr")
+    assert store.validate() == []
+    assert set(report.groups) == set(RAW) | {"raw/exposure_plan"}
+    assert set(report.groups.values()) == {"written"}
+    simulated = simulate_run(get_recipe("tiny"))
+    for group in RAW:  # the pixels are the simulator's, bit for bit, in the same order
+        ingested = store.read(group)
+        for name, var in ingested.data_vars.items():
+            if var.dtype == np.uint16:
+                np.testing.assert_array_equal(var.values, simulated[group][name].values, err_msg=name)
+    rgb, spectral = store.read("raw/rgb"), store.read("raw/spectral")
+    np.testing.assert_allclose(rgb["theta_o"].values, simulated["raw/rgb"]["theta_o"].values)
+    # band shots pair with the RGB image seen from the same angles (here: the simulator's pairing)
+    np.testing.assert_array_equal(spectral["image"].values, simulated["raw/spectral"]["image"].values)
+    np.testing.assert_allclose(
+        spectral["filter_size"].values, simulated["raw/spectral"]["filter_size"].values
+    )
+    assert store.read("raw/exposure_plan").attrs["omega"] == pytest.approx(0.8)
+    assert store.read("raw/colour_checker").attrs["chart"] == "colour_checker.csv"
+
+
+def test_reingest_reads_only_new_frames_and_skips_unchanged_groups(capture, tmp_path):
+    full = rows(capture)
+    # first the folder without one RGB image of the unpaired camera (4 exposures)
+    missing = [
+        r
+        for r in full
+        if r["kind"] == "rgb" and r["camera"] == "rgb15" and r["led"] == "91" and r["rotation"] == "0"
+    ]
+    assert len(missing) == 4
+    write_rows(capture, [r for r in full if r not in missing])
+    first = ingest(capture, tmp_path / "run.zarr")
+    assert first.frames_read == len(full) - 4
+    store = RunStore.open(tmp_path / "run.zarr")
+    assert store.read("raw/rgb").sizes["image"] == 19
+    fingerprints = {g: store.fingerprint(g) for g in RAW}
+    # an ingested file changes on disk but keeps size and time: it is not read again
+    kept = capture / next(r["file"] for r in full if r["kind"] == "rgb" and r["camera"] == "rgb45")
+    stat = kept.stat()
+    kept.write_bytes(b"\0" * stat.st_size)
+    os.utime(kept, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    write_rows(capture, full)
+    second = ingest(capture, tmp_path / "run.zarr")
+    assert second.groups["raw/rgb"] == "written" and second.frames_read == 4
+    # raw/spectral is rewritten too (its pairing labels moved), from the store: no file read
+    assert second.groups["raw/spectral"] == "written" and second.frames_copied == 76 + 32
+    unchanged = ("raw/dark", "raw/white_reference", "raw/colour_checker", "raw/registration")
+    assert all(second.groups[g] == "up to date" for g in unchanged)
+    assert all(store.fingerprint(g) == fingerprints[g] for g in unchanged)
+    np.testing.assert_array_equal(
+        store.read("raw/rgb")["counts"].values,
+        simulate_run(get_recipe("tiny"))["raw/rgb"]["counts"].values,
+    )
+    assert store.read("raw/rgb").sizes["image"] == 20 and store.validate() == []
+    third = ingest(capture, tmp_path / "run.zarr")
+    assert set(third.groups.values()) == {"up to date"} and third.frames_read == 0
+
+
+def test_bad_input_lists_every_problem_with_file_and_line_and_writes_nothing(capture, tmp_path, capsys):
+    table = rows(capture)
+    line = {r["file"]: i + 2 for i, r in enumerate(table)}  # header is line 1
+    rgb = [r for r in table if r["kind"] == "rgb"]
+    bands = [r for r in table if r["kind"] == "spectral"]
+    (capture / rgb[0]["file"]).unlink()  # missing file
+    (capture / bands[0]["file"]).write_bytes(b"not a tiff")  # unreadable
+    write_png(capture / rgb[1]["file"], np.full((32, 32, 3), 4000, np.uint16))  # > 10 bits
+    tifffile.imwrite(capture / bands[1]["file"], np.zeros((16, 32), np.uint16))  # wrong shape
+    tifffile.imwrite(capture / bands[2]["file"], np.zeros((32, 32), np.float32))  # not 16-bit
+    rgb[5]["theta_i"] = "41"  # contradicts the other exposures of its image
+    bands[3]["wavelength_nm"] = ""  # a band shot without a wavelength
+    table[-1]["kind"] = "flat_field"  # unknown kind
+    for row in rgb[8:12]:  # an exposure series with one time
+        row["exposure_time_s"] = "0.01"
+    table.append(dict(table[0]))  # duplicate row
+    write_rows(capture, table)
+    code = main(["ingest", str(capture), str(tmp_path / "run.zarr")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert not (tmp_path / "run.zarr").exists()  # nothing written
+    expected = [
+        (rgb[0]["file"], "no such file"),
+        (bands[0]["file"], "readable TIFF or PNG"),
+        (rgb[1]["file"], "a value of 4000"),
+        (bands[1]["file"], "found 16 x 32 px"),
+        (bands[2]["file"], "float32"),
+        (rgb[5]["file"], "contradicting rows"),
+        (bands[3]["file"], "wavelength_nm: expected the filter's wavelength for a band shot"),
+        (table[-2]["file"], "flat_field"),
+        (table[0]["file"], "duplicate of line 2"),
+    ]
+    for file, what in expected:
+        hit = [text for text in err.splitlines() if file in text and what in text]
+        assert hit, f"no problem for {file} mentioning {what!r} in:\n{err}"
+    assert f"manifest.csv line {line[rgb[5]['file']]} ({rgb[5]['file']})" in err
+    assert "an exposure series of at least two exposure times, found one time" in err
+    assert f"line {len(table) + 1} ({table[0]['file']})" in err  # the duplicate's own line
+
+
+def test_bad_input_never_touches_an_existing_store(capture, tmp_path):
+    ingest(capture, tmp_path / "run.zarr")
+    store = RunStore.open(tmp_path / "run.zarr")
+    before = {g: store.fingerprint(g) for g in store.groups()}
+    (capture / "calibration" / "illuminant.csv").write_text("wavelength_nm,value\n500,1\n")
+    with pytest.raises(CaptureError, match="illuminant") as error:
+        ingest(capture, tmp_path / "run.zarr")
+    assert "nothing was written" in str(error.value)
+    assert {g: store.fingerprint(g) for g in store.groups()} == before
+
+
+def test_the_chart_can_be_named_instead_of_tabulated(sample, tmp_path):
+    folder = shutil.copytree(sample, tmp_path / "capture")
+    (folder / "calibration" / "colour_checker.csv").unlink()
+    with pytest.raises(CaptureError, match="colour_checker.chart"):
+        read_capture(folder)
+    config = folder / "capture.toml"
+    config.write_text(
+        config.read_text().replace(
+            "[colour_checker]\n", '[colour_checker]\nchart = "ColorChecker N Ohta"\n'
+        )
+    )
+    capture = read_capture(folder)
+    names, reflectance, chart = capture.patches
+    assert chart == "ColorChecker N Ohta" and len(names) == 24 and reflectance.shape == (24, 32)
+
+
+def test_a_folder_still_being_written_waits(capture):
+    assert capture_state(capture, settle_seconds=0).ready
+    fresh = capture_state(capture, settle_seconds=3600)
+    assert not fresh.ready and "changed" in fresh.reason
+    first = rows(capture)[0]["file"]
+    (capture / first).unlink()
+    missing = capture_state(capture, settle_seconds=0)
+    assert not missing.ready and "not present yet" in missing.reason and first in missing.reason
+
+
+def test_nightly_run_ingests_complete_capture_folders_processes_and_reports_them(
+    prefect_api, sample, tmp_path
+):
+    """The whole path a lab takes: capture folders in, btf, a report without ground truth."""
+    from spectralize.flows.export import export
+    from spectralize.flows.runtime import report_directory
+    from spectralize.flows.schedule import process_new_runs
+
+    captures = tmp_path / "captures"
+    shutil.copytree(sample, captures / "night1", copy_function=shutil.copy2)
+    growing = shutil.copytree(sample, captures / "night2", copy_function=shutil.copy2)
+    (growing / rows(growing)[-1]["file"]).unlink()  # the gantry is still writing
+    outcome = process_new_runs(
+        root=str(captures), output_root=str(tmp_path / "runs"), settle_seconds=0.0
+    )
+    assert outcome[str(captures / "night2")].startswith("waiting:")
+    assert "not present yet" in outcome[str(captures / "night2")]
+    assert not (tmp_path / "runs" / "night2.zarr").exists()
+    assert outcome[str(captures / "night1")].startswith("ingested: raw/rgb")
+    store = RunStore.open(tmp_path / "runs" / "night1.zarr")
+    assert "10 node(s) ran" in outcome[str(store.path)]  # btf without the evaluation (no truth)
+    assert {"spectra", "calibration/spectral", "registration"} <= set(store.groups())
+    page = report_directory(store.path) / "index.html"
+    assert page.is_file() and f"report {page}" in outcome[str(store.path)]
+    text = page.read_text()
+    for section in ('id="reconstruction"', 'id="calibration"', 'id="response_histograms"', 'id="oecf"'):
+        assert section in text
+    assert 'id="accuracy"' not in text  # no accuracy section without ground truth
+    (path,) = export(store, tmp_path / "night1.nc", format="netcdf")
+    import xarray as xr
+
+    with xr.open_dataset(path) as ds:
+        assert ds["radiance"].sizes["image"] == 20 and np.isfinite(ds["radiance"].values).mean() > 0.9
