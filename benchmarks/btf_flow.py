@@ -96,7 +96,9 @@ def main(argv: list[str] | None = None) -> dict:
             continue
         members, _ = set_members(sets, index)
         rgb, shots = _set_inputs(hdr, bands, members)
-        _, iterations, seconds = solve_set(rgb, shots, camera_matrix, **_settings(spectra))
+        _, iterations, seconds = solve_set(
+            rgb, shots, camera_matrix, **_settings(store.provenance("spectra"))
+        )
         cold[index] = iterations
         warm[index] = int(warm_iterations[index])
         log(f"set {index}: {warm[index]} iterations warm-started, {iterations} cold")
@@ -114,7 +116,12 @@ def main(argv: list[str] | None = None) -> dict:
             Client(cluster),
         ):
             lazy = reconstruct_image_sets(
-                hdr, bands, calibration, sets, seed_group, **_settings(spectra, full=True)
+                hdr,
+                bands,
+                calibration,
+                sets,
+                seed_group,
+                **_settings(store.provenance("spectra"), full=True),
             )
             begin = time.perf_counter()
             lazy["radiance"].data.sum().compute()
@@ -168,8 +175,8 @@ def main(argv: list[str] | None = None) -> dict:
     return result
 
 
-def _settings(spectra, full: bool = False) -> dict:
-    provenance = spectra.attrs.get("spectralize_provenance", {})
+def _settings(provenance: dict, full: bool = False) -> dict:
+    """The solver settings a run used, from its ``spectra`` provenance (RunStore.provenance)."""
     parameters = dict(provenance.get("parameters", {}))
     keys = ("method", "gamma_hat", "tolerance", "max_iterations", "k")
     if full:

@@ -4,6 +4,11 @@ Prefect's embedded local API (SQLite) is the default; no server needs to be star
 The environment defaults below are set before Prefect is imported (see ../shared/STACK.md):
 a new Prefect database can take longer than Prefect's 20 s start-up limit, and the
 embedded server's analytics cause 'database is locked' errors.
+
+Nothing is imported eagerly: ``spectralize --help`` and ``spectralize nodes`` answer without
+Prefect (imported by :mod:`.runtime`, when a flow runs) and without the engine's science
+stack (imported by :mod:`.pipelines`, on first use of ``FLOWS``). ``from spectralize.flows
+import run_flow, FLOWS`` works as before (module ``__getattr__``).
 """
 
 import os
@@ -16,22 +21,33 @@ for _key, _value in {
 }.items():
     os.environ.setdefault(_key, _value)
 
-from .pipelines import FLOWS, FlowDefinition, get_flow  # noqa: E402
-
 if TYPE_CHECKING:
-    from .runtime import RunReport
+    from .pipelines import FLOWS, FlowDefinition, get_flow
+    from .runtime import RunReport, StepReport, run_steps
 
-# Prefect is imported on first use of the runtime, so `spectralize validate`, `clean` and
-# `--version` answer without paying for its import.
-_RUNTIME = ("RunReport", "StepReport", "run_steps")
+# where each lazy attribute lives
+_LAZY = {
+    "FLOWS": "pipelines",
+    "FlowDefinition": "pipelines",
+    "get_flow": "pipelines",
+    "RunReport": "runtime",
+    "StepReport": "runtime",
+    "run_steps": "runtime",
+}
 
 
 def __getattr__(name: str):
-    if name in _RUNTIME:
-        from . import runtime
+    if name in _LAZY:
+        from importlib import import_module
 
-        return getattr(runtime, name)
+        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
 
 
 __all__ = ["FLOWS", "FlowDefinition", "get_flow", "run_flow", "run_steps", "RunReport", "StepReport"]
@@ -60,7 +76,8 @@ def run_flow(
     dask_address
         Address of an existing ``dask.distributed`` scheduler; local threads by default.
     """
-    from .runtime import run_steps, step_parameters
+    from .pipelines import get_flow, step_parameters
+    from .runtime import run_steps
 
     definition = get_flow(name)
     problems: list = []

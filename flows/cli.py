@@ -10,38 +10,87 @@ spectralize demo [--capture DIR]        make the sample run (or capture folder) 
 spectralize ingest CAPTURE_DIR STORE    a gantry's capture folder into a run store (incremental)
 spectralize report STORE [--out DIR]    the HTML report of a run (with or without ground truth)
 spectralize export STORE OUT --format envi|netcdf [--image LABEL ...]   cubes for other software
+
+Options anywhere on the line: --debug (full tracebacks), -v/--verbose (Prefect's log lines).
+Run `spectralize COMMAND --help` for a command's options, their defaults and allowed values.
 """
+
+# Answering --help, nodes, flows, validate or export imports neither Prefect (imported by
+# flows/runtime.py when a flow runs) nor matplotlib (reports): every import of ours and of
+# heavy libraries happens inside the command that needs it.
 
 from __future__ import annotations
 
 import argparse
+import ast
 import json
+import shlex
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
-from spectralize.schemas import SpectralizeError
-
-__all__ = ["main"]
+__all__ = ["main", "build_parser", "format_value", "parse_value", "parse_assignments"]
 
 
-def _parse_value(text: str) -> Any:
+def parse_value(text: str) -> Any:
+    """A ``--set`` value: JSON (``null``, ``true``, ``[0.5, 0.0]``, ``"text"``), else a Python
+    literal (``None``, ``True``, ``(0.5, 0.0)``, ``'D65'``), else the text itself (``demo``)."""
     try:
         return json.loads(text)
     except json.JSONDecodeError:
+        pass
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
         return text
 
 
-def _parse_assignments(items: Sequence[str]) -> dict[str, Any]:
+def format_value(value: Any) -> str:
+    """``value`` as ``--set`` text that :func:`parse_value` reads back: a string bare when
+    it reads back as itself (``block-jacobi-pcg``), anything else as compact JSON (``null``,
+    ``[0.05,0.5]``, ``"None"``)."""
+    if isinstance(value, str) and value and value == value.strip() and parse_value(value) == value:
+        return value
+    from pydantic_core import to_jsonable_python
+
+    return json.dumps(to_jsonable_python(value), separators=(",", ":"))
+
+
+def parse_assignments(items: Sequence[str]) -> dict[str, Any]:
+    """``--set`` items (``KEY=VALUE``) as ``{key: value}``."""
     values = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
+            from spectralize.schemas import SpectralizeError
+
             raise SpectralizeError(
                 f"--set expects KEY=VALUE (e.g. dark_average.frames_per_chunk=8), got {item!r}"
             )
-        values[key.strip()] = _parse_value(value.strip())
+        values[key.strip()] = parse_value(value.strip())
     return values
+
+
+_parse_assignments = parse_assignments  # older name
+
+
+def _type_text(annotation: str) -> str:
+    """A parameter's type without constraint metadata: ``Annotated[float, Field...]`` -> ``float``."""
+    while (start := annotation.find("Annotated[")) >= 0:
+        depth, first_end, i = 0, None, start + len("Annotated[")
+        for i in range(start + len("Annotated["), len(annotation)):
+            char = annotation[i]
+            if char in "[(":
+                depth += 1
+            elif char in "])" and depth:
+                depth -= 1
+            elif char == "," and depth == 0 and first_end is None:
+                first_end = i
+            elif char == "]" and depth == 0:
+                break
+        inner = annotation[start + len("Annotated[") : first_end or i]
+        annotation = annotation[:start] + inner + annotation[i + 1 :]
+    return annotation
 
 
 def _cmd_nodes(args: argparse.Namespace) -> int:
@@ -62,14 +111,20 @@ def _cmd_nodes(args: argparse.Namespace) -> int:
         print(f"    outputs: {', '.join(node.outputs)}")
         choices = node.parameter_choices()
         for pname, ptype, default, description in node.describe_parameters():
-            print(f"    --set {name}.{pname}={default!r}  ({ptype}) {description}".rstrip())
+            required = pname in node.parameters.model_fields and (
+                node.parameters.model_fields[pname].is_required()
+            )
+            value = "VALUE" if required else format_value(default)
+            setting = shlex.quote(f"{name}.{pname}={value}")
+            note = " (required)" if required else ""
+            print(f"    --set {setting}  ({_type_text(ptype)}{note}) {description}".rstrip())
             if pname in choices:
                 print(f"        one of: {', '.join(choices[pname]) or 'none'}")
     return 0
 
 
 def _cmd_flows(args: argparse.Namespace) -> int:
-    from spectralize.flows import FLOWS
+    from spectralize.flows.pipelines import FLOWS
 
     for name, definition in sorted(FLOWS.items()):
         print(f"{name}: {definition.description}")
@@ -84,7 +139,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     groups = store.groups()
     required: list[str] = []
     if args.flow:
-        from spectralize.flows.runtime import flow_inputs
+        from spectralize.flows.pipelines import flow_inputs
 
         required = flow_inputs(args.flow)
     problems = store.validate(deep=args.deep, required=required)
@@ -126,30 +181,33 @@ def _print_report(report) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from spectralize.flows import run_flow
+    from spectralize.flows.progress import console_progress
 
-    report = run_flow(
-        args.flow,
-        args.store,
-        parameters=_parse_assignments(args.set),
-        retries=args.retries,
-        dask_address=args.dask_address,
-    )
+    parameters = parse_assignments(args.set)
+    with console_progress(verbose=args.verbose):
+        report = run_flow(
+            args.flow,
+            args.store,
+            parameters=parameters,
+            retries=args.retries,
+            dask_address=args.dask_address,
+        )
     _print_report(report)
     return 0
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from spectralize.flows.demo import DEMO_STORE, run_capture_demo, run_demo
+    from spectralize.flows.progress import console_progress
 
-    if args.capture:
-        store, report, _ = run_capture_demo(
-            args.capture,
-            args.store or DEMO_STORE,
-            recipe=args.recipe,
-            parameters=_parse_assignments(args.set),
-        )
-    else:
-        store, report = run_demo(args.store or DEMO_STORE, parameters=_parse_assignments(args.set))
+    parameters = parse_assignments(args.set)
+    with console_progress(verbose=args.verbose):
+        if args.capture:
+            store, report, _ = run_capture_demo(
+                args.capture, args.store or DEMO_STORE, recipe=args.recipe, parameters=parameters
+            )
+        else:
+            store, report = run_demo(args.store or DEMO_STORE, parameters=parameters)
     _print_report(report)
     print(f"results: {store.path}")
     print(f"  groups: {', '.join(store.groups())}")
@@ -161,6 +219,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     import os
 
     from spectralize.flows.schedule import serve_nightly
+    from spectralize.schemas import SpectralizeError
 
     if not os.environ.get("PREFECT_API_URL"):
         from prefect.settings import PREFECT_API_URL
@@ -201,8 +260,8 @@ def _cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    from spectralize.flows.pipelines import report_directory
     from spectralize.flows.report import write_run_report
-    from spectralize.flows.runtime import report_directory
 
     pixels = [tuple(int(v) for v in p.split(",")) for p in args.pixel] or None
     path = write_run_report(
@@ -231,14 +290,73 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the layout of descriptions and epilogs; adds ``(default: X)`` to an option's
+    help when it has a default worth saying (not ``None``, ``False`` or empty) and its help
+    does not already name one."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (
+            default is None
+            or default is False
+            or default is argparse.SUPPRESS
+            or default == []
+            or "default" in text
+            or not action.option_strings
+        ):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose epilog may be computed only when its help is shown (the
+    flow names need the node engine, which ``spectralize --help`` does not import)."""
+
+    def __init__(self, *args: Any, lazy_epilog: Callable[[], str] | None = None, **kwargs: Any):
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+        self.lazy_epilog = lazy_epilog
+
+    def format_help(self) -> str:
+        if self.lazy_epilog is not None:
+            self.epilog = self.lazy_epilog()
+        return super().format_help()
+
+
+def _flows_epilog() -> str:
+    from spectralize.flows.pipelines import FLOW_DESCRIPTIONS
+
+    lines = ["flows (FLOW):"]
+    lines += [f"  {name:<10} {text}" for name, text in sorted(FLOW_DESCRIPTIONS.items())]
+    lines.append("  or the name of one node (see `spectralize nodes`), run on its own")
+    lines.append("")
+    lines.append("parameters: `spectralize nodes` prints each as --set NODE.PARAM=DEFAULT")
+    return "\n".join(lines)
+
+
+_SET_HELP = (
+    "node parameter NODE.PARAM=VALUE or PARAM=VALUE (repeatable); VALUE is JSON (null, true, "
+    '[0.5,0.0], "text"), a Python literal (None, (0.5, 0.0)) or bare text (block-jacobi-pcg); '
+    "`spectralize nodes` lists every parameter with its default in this syntax"
+)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="spectralize", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = _Parser(prog="spectralize", description=__doc__)
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
-    commands = parser.add_subparsers(dest="command", required=True)
-    commands.add_parser("nodes", help="list registered nodes").set_defaults(handler=_cmd_nodes)
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="show Prefect's log lines (INFO) instead of the progress display",
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands.add_parser(
+        "nodes", help="list registered nodes, their parameters, defaults and allowed values"
+    ).set_defaults(handler=_cmd_nodes)
     commands.add_parser("flows", help="list named flows").set_defaults(handler=_cmd_flows)
     validate = commands.add_parser("validate", help="check a run store against the contract")
     validate.add_argument("store")
@@ -246,27 +364,30 @@ def build_parser() -> argparse.ArgumentParser:
         "--deep", action="store_true", help="recompute every chunk's checksum (reads all data)"
     )
     validate.add_argument(
-        "--flow", default=None, help="also require the groups this flow reads (e.g. btf)"
+        "--flow",
+        default=None,
+        help="also require the groups this flow reads (a flow of `spectralize flows`, e.g. btf)",
     )
     validate.set_defaults(handler=_cmd_validate)
     clean = commands.add_parser("clean", help="remove unfinished writes of killed runs")
     clean.add_argument("store")
     clean.set_defaults(handler=_cmd_clean)
-    run = commands.add_parser("run", help="run a flow against a store")
-    run.add_argument("flow")
-    run.add_argument("store")
-    run.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="node parameter: NODE.PARAM=VALUE or PARAM=VALUE (repeatable)",
+    run = commands.add_parser(
+        "run",
+        help="run a flow against a store (finished nodes are skipped)",
+        description="Run a flow against a run store. Nodes whose results are up to date are "
+        "skipped; an interrupted write resumes where it stopped. Progress: a bar with ETA per "
+        "image set on a terminal, plain lines otherwise; -v shows Prefect's log lines instead.",
+        lazy_epilog=_flows_epilog,
     )
+    run.add_argument("flow", help="a flow (listed below) or a node name")
+    run.add_argument("store", help="the run store (a zarr directory)")
+    run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=_SET_HELP)
     run.add_argument("--retries", type=int, default=0, help="Prefect task retries per node")
     run.add_argument(
         "--dask-address",
         default=None,
-        help="address of an existing dask.distributed scheduler (default: local)",
+        help="address of an existing dask.distributed scheduler (default: local threads)",
     )
     run.set_defaults(handler=_cmd_run)
     serve = commands.add_parser("serve", help="serve scheduled processing of a folder of runs")
@@ -302,15 +423,24 @@ def build_parser() -> argparse.ArgumentParser:
     export = commands.add_parser("export", help="export spectral cubes as ENVI or netCDF")
     export.add_argument("store")
     export.add_argument("out", help="ENVI: a folder; netCDF: a .nc file (or a folder)")
-    export.add_argument("--format", choices=("envi", "netcdf"), required=True)
-    export.add_argument("--group", default="spectra", help="cube group (default: spectra)")
     export.add_argument(
-        "--image", type=int, action="append", default=[], metavar="LABEL", help="image label"
+        "--format", choices=("envi", "netcdf"), required=True, help="one of: %(choices)s"
+    )
+    export.add_argument("--group", default="spectra", help="cube group")
+    export.add_argument(
+        "--image",
+        type=int,
+        action="append",
+        default=[],
+        metavar="LABEL",
+        help="image label (repeatable; default: every image)",
     )
     export.add_argument("--per-image", action="store_true", help="netCDF: one file per image")
     export.set_defaults(handler=_cmd_export)
     demo = commands.add_parser("demo", help="make the sample run and process it")
-    demo.add_argument("--store", default=None, help="where to put the demo run store")
+    demo.add_argument(
+        "--store", default=None, help="where to put the demo run store (default: demo/run.zarr)"
+    )
     demo.add_argument(
         "--capture",
         default=None,
@@ -323,7 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="node parameter, e.g. simulate.recipe=tiny (repeatable)",
+        help="node parameter, e.g. simulate.recipe=tiny (repeatable; syntax: see run --help)",
     )
     demo.set_defaults(handler=_cmd_demo)
     return parser
@@ -342,12 +472,28 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"spectralize: warning: {message}", file=file or sys.stderr)
 
 
+_ANYWHERE = {"--debug": "debug", "-v": "verbose", "--verbose": "verbose"}
+
+
+def _is_ours(error: BaseException) -> bool:
+    """Whether ``error`` is a :class:`SpectralizeError` (not imported for it: if the errors
+    module was never imported, none of its errors can have been raised)."""
+    errors = sys.modules.get("spectralize.schemas.errors")
+    return errors is not None and isinstance(error, errors.SpectralizeError)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; errors exit 2 with a message (``--debug``: with the traceback)."""
+    """Run the command line; errors exit 2 with a message (``--debug``: with the traceback).
+
+    ``--debug`` and ``-v``/``--verbose`` are accepted anywhere on the line
+    (``spectralize run btf run.zarr --debug -v``).
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
-    debug = "--debug" in argv  # accepted anywhere: `spectralize run btf run.zarr --debug`
-    args = build_parser().parse_args([a for a in argv if a != "--debug"])
-    args.debug = debug
+    flags = {
+        name: any(a in argv for a, n in _ANYWHERE.items() if n == name) for name in ("debug", "verbose")
+    }
+    args = build_parser().parse_args([a for a in argv if a not in _ANYWHERE])
+    args.debug, args.verbose = flags["debug"], flags["verbose"]
     if not args.debug:
         import warnings
 
@@ -362,11 +508,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             import traceback
 
             traceback.print_exc()
-        kind = "" if isinstance(error, SpectralizeError) else f"{type(error).__name__}: "
+        ours = _is_ours(error)
+        kind = "" if ours else f"{type(error).__name__}: "
         print(f"spectralize {args.command}: error: {kind}{error}", file=sys.stderr)
         for note in getattr(error, "__notes__", ()):
             print(f"  ({note})", file=sys.stderr)
-        if not args.debug and not isinstance(error, SpectralizeError):
+        if not args.debug and not ours:
             print("  (run again with --debug for the traceback)", file=sys.stderr)
         return 2
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import base64
 import io
+import json
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -224,15 +225,25 @@ def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
     return _table("per-image", "Statistics per image (by image label)", header, rows)
 
 
+def _provenance(ds: xr.Dataset) -> dict[str, Any]:
+    """How a group read from a run store was made (its ``spectralize_provenance`` attr is
+    JSON text; ``RunStore.provenance(group)`` gives the same from the store)."""
+    value = ds.attrs.get("spectralize_provenance") or {}
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except ValueError:
+            return {}
+    return dict(value) if isinstance(value, Mapping) else {}
+
+
 def _run_table(
     run: str | os.PathLike[str] | None, groups: Mapping[str, xr.Dataset], spectra: xr.Dataset | None
 ) -> dict[str, Any]:
     rows = [["run store", str(run) if run is not None else "(not given)"]]
     for role, ds in groups.items():
         fingerprint = ds.attrs.get("spectralize_fingerprint")
-        provenance = ds.attrs.get("spectralize_provenance") or {}
-        if isinstance(provenance, str):
-            provenance = {}
+        provenance = _provenance(ds)
         made_by = (
             f"{provenance.get('node', '?')} v{provenance.get('version', '?')}"
             if provenance

@@ -29,7 +29,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +38,13 @@ from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
 
 from spectralize.engine import PlannedStep, Step, check_graph, registry
+from spectralize.flows import progress
+from spectralize.flows.pipelines import (  # noqa: F401  (re-exported: older imports)
+    external_inputs,
+    flow_inputs,
+    report_directory,
+    step_parameters,
+)
 from spectralize.schemas import (
     GROUP_SCHEMAS,
     PipelineError,
@@ -88,37 +95,59 @@ def dask_scheduler(address: str | None, log: Callable[[str], None] = print) -> I
 
     Yields how many regions (image sets) to compute at the same time: the number of worker
     threads of the cluster, or of this machine's cores. On a cluster a watchdog reports a
-    lost worker within seconds; when no worker is left for ``LOST_WORKERS_SECONDS`` it
-    cancels the computation, which then fails with a :class:`StoreError` instead of waiting
-    forever for workers that will not come back.
+    lost worker (a warning naming it) within seconds; when no worker is left for
+    ``LOST_WORKERS_SECONDS`` it cancels the computation, which then fails with a
+    :class:`StoreError` saying so instead of waiting forever for workers that will not come
+    back (dask reschedules a lost worker's tasks and waits for a new worker without limit).
     """
     if not address:
         yield max(1, os.cpu_count() or 1)
         return
     from distributed import Client
 
-    with Client(address, set_as_default=True) as client:
-        watchdog = _WorkerWatchdog(client, address, log)
+    try:
+        warn = get_run_logger().warning  # bound here: the watchdog thread has no run context
+    except Exception:  # outside a Prefect run (plain .fn() call)
+
+        def warn(message: str) -> None:
+            print(f"warning: {message}", file=sys.stderr, flush=True)
+
+    try:
+        client = Client(address, set_as_default=True)
+    except (OSError, TimeoutError) as error:
+        raise StoreError(
+            f"cannot reach the dask scheduler at {address} ({type(error).__name__}: {error}); "
+            "check --dask-address and that `dask scheduler` and its workers run"
+        ) from None
+    with client:
+        watchdog = _WorkerWatchdog(client, address, warn)
+        threads = client.nthreads()
+        log(f"dask cluster {address}: {len(threads)} worker(s), {sum(threads.values())} thread(s)")
         watchdog.start()
         try:
-            yield max(1, sum(client.nthreads().values()))
+            yield max(1, sum(threads.values()))
         except Exception as error:
             if watchdog.gave_up:
                 raise StoreError(watchdog.gave_up) from error
             raise
         finally:
             watchdog.stop()
+            watchdog.join(timeout=5)
 
 
 LOST_WORKERS_SECONDS = 30.0
 
 
 class _WorkerWatchdog(threading.Thread):
-    """Polls a dask cluster's workers; reports losses; cancels the work when none is left."""
+    """Polls a dask cluster's workers; reports losses; cancels the work when none is left.
 
-    def __init__(self, client: Any, address: str, log: Callable[[str], None], interval: float = 2.0):
+    Once it has given up it keeps cancelling whatever is submitted afterwards (another
+    thread of the same run may start a computation after the first cancel) until stopped.
+    """
+
+    def __init__(self, client: Any, address: str, warn: Callable[[str], None], interval: float = 2.0):
         super().__init__(name="spectralize-dask-watchdog", daemon=True)
-        self.client, self.address, self.log, self.interval = client, address, log, interval
+        self.client, self.address, self.warn, self.interval = client, address, warn, interval
         self.gave_up: str | None = None
         self._stop_event = threading.Event()
 
@@ -132,15 +161,19 @@ class _WorkerWatchdog(threading.Thread):
             return
         empty_since: float | None = None
         while not self._stop_event.wait(self.interval):
+            if self.gave_up:
+                self._cancel_everything()
+                continue
             try:
                 now = self._workers()
             except Exception:
                 continue
             lost = known - now
             if lost:
-                self.log(
+                wait = f"; the run is cancelled if none is back within {LOST_WORKERS_SECONDS:.0f} s"
+                self.warn(
                     f"dask cluster {self.address}: lost {len(lost)} worker(s) "
-                    f"({', '.join(sorted(lost))}); {len(now)} left"
+                    f"({', '.join(sorted(lost))}); {len(now)} left{'' if now else wait}"
                 )
             known = now
             if now:
@@ -153,9 +186,8 @@ class _WorkerWatchdog(threading.Thread):
                     f"{LOST_WORKERS_SECONDS:.0f} s (they died or were stopped): the computation "
                     "was cancelled; restart the workers and run again (finished regions are kept)"
                 )
-                self.log(self.gave_up)
+                self.warn(self.gave_up)
                 self._cancel_everything()
-                return
 
     def _cancel_everything(self) -> None:
         client, reason = self.client, "no dask workers left"
@@ -289,6 +321,7 @@ def run_node(
             _warn(f"{node.name}: recomputing: {reason}")
         elif not reason:
             log(f"{node.name}: skipped, {', '.join(expected)} already up to date")
+            progress.notify("step_finished", node.name, "skipped", 0.0)
             return StepReport(node.name, "skipped", 0.0, expected)
         else:
             log(f"{node.name}: running again: {reason}")
@@ -301,14 +334,17 @@ def run_node(
         store.check_free_space(sum(store.size_on_disk(g) for g in expected), group=", ".join(expected))
         stage = f"reading {', '.join(sorted(inputs.values())) or 'no inputs'}"
         log(f"{node.name}: {stage}")
+        progress.notify("stage", node.name, stage)
         with dask_scheduler(dask_address, log) as parallel:
             data = {argument: store.read(group, friendly=False) for argument, group in inputs.items()}
             stage = "computing"
+            progress.notify("stage", node.name, stage)
             results = node(data, params)
             for schema, ds in results.items():
                 group = outputs[schema]
                 stage = f"writing group {group!r}"
                 log(f"{node.name}: writing {group}")
+                progress.notify("stage", node.name, f"computing and writing {group}")
                 provenance = {
                     "node": node.name,
                     "version": node.version,
@@ -324,14 +360,26 @@ def run_node(
                     chunks=node.chunks.get(schema),
                     resumable_along=node.resumable_along.get(schema),
                     concurrent_regions=parallel,
-                    progress=lambda message, g=group: log(f"{node.name}: {g}: {message}"),
+                    progress=_region_progress(log, node.name, group),
                 )
     except Exception as error:
         error.add_note(f"in node {node.name!r} ({stage}) on run store {store_path}")
         raise
     seconds = time.perf_counter() - start
     log(f"{node.name}: done in {seconds:.1f} s")
+    progress.notify("step_finished", node.name, "ran", seconds)
     return StepReport(node.name, "ran", seconds, expected, reason)
+
+
+def _region_progress(log: Callable[[str], None], node: str, group: str) -> Callable[[str], None]:
+    """The store's progress callback of one write: a log line, and the console's bar."""
+    resumed: dict[str, int] = {}
+
+    def report(message: str) -> None:
+        log(f"{node}: {group}: {message}")
+        progress.store_message(node, group, message, resumed)
+
+    return report
 
 
 def _warn(message: str) -> None:
@@ -405,33 +453,8 @@ def run_steps(
         )
 
 
-def flow_inputs(flow: str) -> list[str]:
-    """The groups the named flow reads but none of its steps makes (its raw inputs)."""
-    from spectralize.flows.pipelines import get_flow
-
-    return _external_inputs(get_flow(flow).steps)
-
-
-def _external_inputs(steps: Sequence[Step]) -> list[str]:
-    nodes = registry()
-    return sorted(
-        {
-            group
-            for step in steps
-            if step.node in nodes and not step.optional
-            for group in step.input_groups(nodes[step.node].node).values()
-        }
-        - {
-            group
-            for step in steps
-            if step.node in nodes
-            for group in step.output_groups(nodes[step.node].node).values()
-        }
-    )
-
-
 def _require_store_or_first_steps_without_inputs(path: Path, steps: Sequence[Step], flow: str) -> None:
-    needs = _external_inputs(steps)
+    needs = external_inputs(steps)
     if needs:
         raise StoreError(
             f"run store {str(path)!r} does not exist (the {flow!r} flow reads "
@@ -551,12 +574,6 @@ def _mark_crashed(previous: LockHolder, path: Path) -> None:
     )
 
 
-def report_directory(store_path: str | Path) -> Path:
-    """Where the HTML report of a run store goes: ``<folder>/<store name>-report/``."""
-    path = Path(store_path)
-    return path.parent / f"{path.stem}-report"
-
-
 @task(name="report", cache_policy=NO_CACHE, persist_result=False)
 def write_report_task(store_path: str) -> str | None:
     """Write the HTML report of a processed run (skip if current).
@@ -618,6 +635,7 @@ def _graph_flow(
     repaired: set[str] = set()  # groups recomputed because they were damaged, or made from such
     for index, item in enumerate(planned, start=1):
         log.info(f"[{index}/{len(planned)}] {item.node.name}")
+        progress.notify("step_started", index, len(planned) + bool(report), item.node.name)
         input_fps = {}
         for group in item.inputs.values():
             fp = fingerprints.get(group) or store.fingerprint(group)
@@ -647,60 +665,8 @@ def _graph_flow(
     ran = sum(s.status == "ran" for s in run_report.steps)
     log.info(f"{flow_name}: {ran} node(s) ran, {len(run_report.steps) - ran} skipped")
     if report:
+        progress.notify("step_started", len(planned) + 1, len(planned) + 1, "report")
+        start = time.perf_counter()
         run_report.report = write_report_task(store_path)
+        progress.notify("step_finished", "report", "ran", time.perf_counter() - start)
     return run_report
-
-
-def step_parameters(
-    steps: Sequence[Step],
-    assignments: Mapping[str, Any],
-    *,
-    problems: list | None = None,
-) -> list[Step]:
-    """Apply ``--set`` style assignments to the steps of a flow.
-
-    Keys are ``node.parameter`` or a bare ``parameter`` that exactly one step's node has.
-    Unknown keys raise :class:`~spectralize.schemas.ParameterError` listing what is known,
-    unless a ``problems`` list is given: then they are appended to it and the known keys are
-    still applied (so a caller can report them together with the graph's problems).
-    """
-    collect = problems is not None
-    from spectralize.schemas import ParameterError, Problem
-
-    nodes = registry()
-    steps = list(steps)
-    updates: list[dict[str, Any]] = [dict(s.parameters) for s in steps]
-    problems = problems if problems is not None else []
-    for key, value in assignments.items():
-        node_name, _, parameter = key.rpartition(".")
-        matches = []
-        for i, step in enumerate(steps):
-            node = nodes[step.node].node if step.node in nodes else None
-            fields = node.parameters.model_fields if node is not None else {}
-            if (not node_name or node_name == step.node) and parameter in fields:
-                matches.append(i)
-        if len(matches) == 1:
-            updates[matches[0]][parameter] = value
-            continue
-        known = sorted(
-            f"{s.node}.{p}"
-            for s in steps
-            if s.node in nodes
-            for p in nodes[s.node].node.parameters.model_fields
-        )
-        if not matches:
-            problems.append(
-                Problem(f"--set {key}", f"one of: {', '.join(known) or 'none'}", "an unknown parameter")
-            )
-        else:
-            names = ", ".join(steps[i].node for i in matches)
-            problems.append(
-                Problem(
-                    f"--set {key}",
-                    "a parameter of exactly one node",
-                    f"a parameter of nodes {names}; write NODE.{parameter}",
-                )
-            )
-    if problems and not collect:
-        raise ParameterError("invalid --set:", problems)
-    return [dataclasses.replace(s, parameters=u) for s, u in zip(steps, updates, strict=True)]

@@ -482,6 +482,10 @@ class RunStore:
             (``image`` of ``spectra`` and ``evaluation``, written image set by image set)
             sorted, per-image and other small coordinates loaded, ``y``/``x`` given pixel
             index coordinates. Nodes read with ``friendly=False``: the data as stored.
+
+        The bookkeeping attrs ``spectralize_provenance`` and ``spectralize_manifest`` are
+        JSON text (so the dataset writes with ``to_netcdf``); :meth:`provenance` gives the
+        provenance as a dict.
         """
         if not self.has(group):
             raise StoreError(
@@ -495,8 +499,9 @@ class RunStore:
                     + "\n".join(f"  - {p}" for p in problems)
                 )
         ds = self._open(group, checked=verify, chunks=chunks)
-        if PROVENANCE_ATTR in ds.attrs:
-            ds.attrs[PROVENANCE_ATTR] = _json_attr(ds.attrs[PROVENANCE_ATTR])
+        for attr in _JSON_ATTRS:  # JSON text, as stored: netCDF attrs cannot hold dicts
+            if attr in ds.attrs and not isinstance(ds.attrs[attr], str):
+                ds.attrs[attr] = _canonical(ds.attrs[attr])
         return _friendly(ds) if friendly else ds
 
     def _open(

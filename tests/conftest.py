@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
+from hypothesis import settings
 
 import spectralize.flows  # noqa: F401  (sets Prefect's environment defaults before import)
+
+# Property tests draw the same examples on every run (CI must not fail on a new random draw);
+# `HYPOTHESIS_PROFILE=explore pytest` draws new examples and keeps failures in .hypothesis/.
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 
 @pytest.fixture(scope="session")

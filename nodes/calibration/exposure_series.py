@@ -46,6 +46,8 @@ __all__ = [
     "target_spectral_series",
 ]
 
+_LISTED = 5  # problems listed one by one in an error; the rest are counted
+
 
 def check_bit_depth(value: object, *, where: str) -> int:
     """The ADC bit depth ``value`` as an int, or a :class:`SchemaError` naming ``where``.
@@ -127,10 +129,20 @@ def check_exposure_times(times: xr.DataArray, series_dim: str, where: str) -> No
     CalibrationError
         Naming the unsorted or duplicate values, their positions and the fix.
     """
-    values = np.asarray(times.transpose(..., series_dim).values, dtype=np.float64)
-    if not np.all(np.isfinite(values)) or np.any(values <= 0):
+    ordered = times.transpose(..., series_dim)
+    values = np.asarray(ordered.values, dtype=np.float64)
+    bad = np.argwhere(~(np.isfinite(values) & (values > 0)))
+    if bad.size:
+        labels = [", ".join(f"{d}={i}" for d, i in zip(ordered.dims, at, strict=True)) for at in bad]
+        found = [float(values[tuple(at)]) for at in bad]
         raise CalibrationError(
-            f"{where}: exposure_time must be positive and finite, got {values.tolist()}"
+            f"{where}: exposure_time must be positive and finite; {len(bad)} value(s) are not, "
+            f"the first at {labels[0]}: {found[0]:g} s. Fix the capture's exposure times",
+            [
+                Problem(f"{where}:exposure_time[{label}]", "a positive, finite time [s]", f"{value:g}")
+                for label, value in zip(labels[:_LISTED], found[:_LISTED], strict=True)
+            ]
+            + ([f"... and {len(bad) - _LISTED} more"] if len(bad) > _LISTED else []),
         )
     rows = values.reshape(-1, values.shape[-1])
     for row_index, row in enumerate(rows):
@@ -222,22 +234,38 @@ def raise_for_frames(
             f"{where}: pixel values must lie in [0, {max_code}] for the bit "
             f"depth, found [{lo}, {hi}]; is bit_depth right?"
         )
-    for flags, what, bound in (
-        (not_saturated, "saturated (>= saturation", saturation),
-        (not_dark, "dark (<= black_level", black_level),
+    for flags, what, name, op, bound, expected, fix in (
+        (not_saturated, "saturated", "saturation", ">=", saturation, "below", "shorter"),
+        (not_dark, "dark", "black_level", "<=", black_level, "above", "longer"),
     ):
         bad = np.argwhere(~np.asarray(flags, dtype=bool))
-        if bad.size:
-            position = dict(zip(frame_dims, bad[0].tolist(), strict=True))
+        if not bad.size:
+            continue
+        problems: list[Problem | str] = []
+        for at in bad[:_LISTED]:
+            position = dict(zip(frame_dims, at.tolist(), strict=True))
             t = ""
             if times is not None:
-                at = {k: v for k, v in position.items() if k in times.dims}
-                t = f" (exposure_time {float(times.isel(at).values)} s)"
+                index = {k: v for k, v in position.items() if k in times.dims}
+                t = f" (exposure_time {float(times.isel(index).values):g} s)"
             label = ", ".join(f"{k}={v}" for k, v in position.items())
-            raise CalibrationError(
-                f"{where}: frame {label}{t} is entirely {what} = {bound}): it carries no "
-                f"information; {len(bad)} such frame(s) in all. Drop it or fix its exposure"
+            problems.append(
+                Problem(
+                    f"{where}[{label}]",
+                    f"a frame with some values {expected} {name} = {bound}",
+                    f"every value {op} {bound}{t}",
+                )
             )
+            if len(problems) == 1:
+                first = f"frame {label}{t}"
+        if len(bad) > _LISTED:
+            problems.append(f"... and {len(bad) - _LISTED} more")
+        raise CalibrationError(
+            f"{where}: {first} is entirely {what} ({op} {name} = {bound}): it carries no "
+            "information; "
+            f"{len(bad)} such frame(s) in all. Use {fix} exposures (or drop these frames)",
+            problems,
+        )
 
 
 def check_frames(

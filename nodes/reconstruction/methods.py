@@ -35,8 +35,15 @@ from .baselines import (
     wiener_estimation,
 )
 from .operators import build_problem
-from .solvers import block_jacobi_pcg, guided_prior_pcg, material_prior_pcg, paper_cg
+from .solvers import (
+    block_jacobi_pcg,
+    guided_prior_pcg,
+    material_prior_pcg,
+    paper_cg,
+    spectral_prior_pcg,
+)
 from .solvers.material_prior_pcg import SETUP_DEFAULTS as MATERIAL_SETUP_DEFAULTS
+from .solvers.spectral_prior_pcg import SETUP_DEFAULTS as SPECTRAL_SETUP_DEFAULTS
 
 __all__ = [
     "ReconstructionMethod",
@@ -146,6 +153,14 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             np.float32,
             "eq. 1, chromaticity+position neighbours, scale-invariant coupling, guided prior, S >= 0",
             MATERIAL_SETUP_DEFAULTS,
+        ),
+        _method(
+            "spectral-prior-pcg",
+            "solver",
+            spectral_prior_pcg,
+            np.float32,
+            "material-prior-pcg plus a Gaussian spectral prior from reflectance collections",
+            SPECTRAL_SETUP_DEFAULTS,
         ),
         _method(
             "paper-cg",

@@ -1,6 +1,7 @@
 """The command line, end to end, in real subprocesses (real Prefect, real zarr)."""
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +14,8 @@ EXE = [sys.executable, "-m", "spectralize.flows.cli"]
 
 
 def cli(*args, cwd):
-    env = {**os.environ, "PREFECT_LOGGING_LEVEL": "WARNING"}
+    # Prefect's own console level is the command's to set: quiet unless -v
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_LOGGING_")}
     return subprocess.run([*EXE, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
@@ -34,6 +36,12 @@ def test_demo_runs_then_skips(tmp_path):
         assert f"{node:<24} ran" in first.stdout
     report = tmp_path / "demo" / "run-report" / "index.html"
     assert f"report: {report}" in first.stdout and report.is_file()
+    # not a terminal: progress as plain lines on stderr, image sets with the time left;
+    # Prefect's INFO lines stay off the console
+    assert "[1/13] simulate" in first.stderr and "[13/13] report" in first.stderr
+    assert "reconstruct_image_sets: spectra: 1/" in first.stderr
+    assert re.search(r"reconstruct_image_sets: spectra: (\d+)/\1 image set\(s\) written", first.stderr)
+    assert "Finished in state" not in first.stderr and "| INFO" not in first.stderr
 
     second = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path)
     assert second.returncode == 0, second.stderr
@@ -64,8 +72,10 @@ def test_demo_runs_then_skips(tmp_path):
     assert tree(store) == before
 
     # a changed parameter re-runs the node through `run`
-    rerun = cli("run", "dark", str(store), "--set", "ddof=0", cwd=tmp_path)
+    rerun = cli("run", "dark", str(store), "--set", "ddof=0", "-v", cwd=tmp_path)
     assert rerun.returncode == 0, rerun.stderr
+    assert "| INFO" in rerun.stderr  # -v: Prefect's lines instead of the progress lines
+    assert not re.search(r"^\[1/1\] dark_average", rerun.stderr, re.MULTILINE)
     assert "dark_average             ran" in rerun.stdout
     assert RunStore.open(store).provenance("dark")["parameters"]["ddof"] == 0
 
@@ -107,3 +117,31 @@ def test_validate_lists_every_problem_and_fails(tmp_path):
 @pytest.mark.parametrize("argv", [["run"], ["frobnicate"]])
 def test_usage_errors_exit_non_zero(tmp_path, argv):
     assert cli(*argv, cwd=tmp_path).returncode != 0
+
+
+def test_a_node_that_fails_prints_one_clear_error_and_no_traceback(prefect_api, tmp_path):
+    from prefect.settings import PREFECT_API_URL
+
+    from spectralize.nodes.simulation.gantry import simulate_run
+    from spectralize.nodes.simulation.recipes import get_recipe
+
+    raw_rgb = simulate_run(get_recipe("tiny"))["raw/rgb"]
+    raw_rgb["counts"] = raw_rgb["counts"] * 0 + 1023  # every frame saturated
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write("raw/rgb", raw_rgb, fingerprint="lab import")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_LOGGING_")}
+    env["PREFECT_API_URL"] = PREFECT_API_URL.value()  # the session's API: no server to start
+    out = subprocess.run(
+        [*EXE, "run", "recover_rgb_oecf", str(store.path)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 2
+    assert "spectralize run: error: recover_rgb_oecf: raw/rgb:counts" in out.stderr
+    assert "entirely saturated" in out.stderr and "Use shorter exposures" in out.stderr
+    # Prefect's own failure lines (with their tracebacks) stay off the console without -v
+    assert "Traceback" not in out.stdout + out.stderr
+    assert "calibration/oecf_rgb" not in RunStore.open(store.path).groups()

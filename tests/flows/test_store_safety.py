@@ -1,6 +1,7 @@
 """One writer per store, nothing damaged or stale trusted, clear errors: real CLI processes,
 real Prefect runs, real zarr stores, real file systems."""
 
+import functools
 import json
 import os
 import shutil
@@ -8,12 +9,14 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 import psutil
 import pytest
 import xarray as xr
+from zarr.errors import UnstableSpecificationWarning
 
 from spectralize.datasets.dark_stack import make_raw_dark
 from spectralize.engine import Node, RegisteredNode, Step
@@ -266,6 +269,31 @@ def nan_hdr(path):
     return store
 
 
+@functools.cache
+def simulated_rgb() -> xr.Dataset:
+    """raw/rgb of the tiny simulated run (image, exposure, y, x, channel), 10 bit, in memory."""
+    from spectralize.nodes.simulation.gantry import simulate_run
+    from spectralize.nodes.simulation.recipes import get_recipe
+
+    return simulate_run(get_recipe("tiny"))["raw/rgb"].load()
+
+
+def imported_rgb(path, *, counts=None, exposure_time=None):
+    """A store whose raw/rgb a lab's importer wrote, with edited counts or exposure times."""
+    store = RunStore.create(path)
+    rgb = simulated_rgb().copy(deep=True)
+    if counts is not None:
+        rgb["counts"].values[...] = counts
+    if exposure_time is not None:
+        times = rgb["exposure_time"].values.copy()
+        times[1, 2] = exposure_time  # image 1, exposure 2 (0.01 s)
+        rgb = rgb.assign_coords(exposure_time=(rgb["exposure_time"].dims, times, {"units": "s"}))
+    with warnings.catch_warnings():  # the channel names: str arrays are not in zarr v3's spec
+        warnings.simplefilter("ignore", UnstableSpecificationWarning)
+        rgb.to_zarr(store.path, group="raw/rgb", zarr_format=3, consolidated=False)
+    return store
+
+
 HOLDER = "import sys, time\nfrom spectralize.schemas import RunStore\nwith RunStore.open(sys.argv[1]).lock():\n    print('locked', flush=True)\n    time.sleep(300)\n"
 
 # (case, setup, command, exit status, fragments of stderr/stdout)
@@ -315,6 +343,42 @@ CORPUS = [
         2,
         [
             "raw/dark:exposure_time: expected finite values, found 1 NaN/inf value(s) (first at exposure_time=2"
+        ],
+    ),
+    (
+        "all-saturated RGB frames",
+        lambda p: imported_rgb(p, counts=1023),
+        ["run", "recover_rgb_oecf", "{store}"],
+        2,
+        [
+            "recover_rgb_oecf: raw/rgb:counts: frame image=0, exposure=0, channel=0 (exposure_time "
+            "0.001 s) is entirely saturated (>= saturation = 1023): it carries no information; "
+            "240 such frame(s) in all. Use shorter exposures",
+            "raw/rgb:counts[image=0, exposure=1, channel=1]: expected a frame with some values "
+            "below saturation = 1023, found every value >= 1023 (exposure_time 0.003 s)",
+            "... and 235 more",
+            "in node 'recover_rgb_oecf' (computing)",
+        ],
+    ),
+    (
+        "negative RGB exposure time",
+        lambda p: imported_rgb(p, exposure_time=-0.01),
+        ["run", "recover_rgb_oecf", "{store}"],
+        2,
+        [
+            "raw/rgb:exposure_time: expected values in [0, 10000], found range [-0.01, 0.04] "
+            "(1 value(s) outside, first at image=1, exposure=2: -0.01)"
+        ],
+    ),
+    (
+        "zero RGB exposure time",
+        lambda p: imported_rgb(p, exposure_time=0.0),
+        ["run", "recover_rgb_oecf", "{store}"],
+        2,
+        [
+            "recover_rgb_oecf: raw/rgb: exposure_time must be positive and finite; 1 value(s) are "
+            "not, the first at image=1, exposure=2: 0 s",
+            "raw/rgb:exposure_time[image=1, exposure=2]: expected a positive, finite time [s], found 0",
         ],
     ),
     (

@@ -163,7 +163,9 @@ def test_reads_are_sorted_have_loaded_coords_pixel_coords_and_netcdf_friendly_at
     assert ds.camera.chunks is None  # loaded
     assert ds.where(ds.camera == 1, drop=True).image.values.tolist() == [1, 3]
     assert ds.x.values.tolist() == [0, 1] and ds.y.attrs["units"] == "px"
-    assert ds.attrs["spectralize_provenance"]["p"] == {"a": 1}
+    assert json.loads(ds.attrs["spectralize_provenance"])["p"] == {"a": 1}  # JSON text
+    assert store.provenance("cube")["p"] == {"a": 1}
+    ds.to_netcdf(tmp_path / "read.nc")  # a read() result writes as it is
     assert store.read("cube", friendly=False).image.values.tolist() == [3, 0, 2, 1]  # as stored
     plain = xr.open_zarr(str(store.path), group="cube", consolidated=False)
     assert json.loads(plain.attrs["spectralize_provenance"])["node"] == "n"

@@ -801,14 +801,43 @@ def recover_rgb_oecf(
     .. [1] Robertson, Borman, Stevenson 2003.
     .. [2] Fast Capture of Spectral Image Series, section 4.
     """
+    where = "recover_rgb_oecf: raw/rgb"
     depth = check_bit_depth(raw_rgb.attrs.get("bit_depth"), where="raw/rgb.attrs['bit_depth']")
+    saturation = 2**depth - 1
     counts = raw_rgb["counts"]
     cameras = np.asarray(raw_rgb["camera"].values)
+    # The checks recover_oecf makes, named after raw/rgb, before the default black level is
+    # taken from the shortest exposures (saturated ones would put it above saturation)
+    times = raw_rgb["exposure_time"]
+    check_exposure_times(times.transpose(..., "exposure"), "exposure", where)
+    check_frames(
+        counts,
+        tuple(d for d in ("image", "exposure", "channel") if d in counts.dims),
+        black_level=-1,  # dark frames: checked by recover_oecf with the real black level
+        saturation=saturation,
+        max_code=saturation,
+        where=f"{where}:counts",
+        times=times,
+    )
     if black_level is None:
         shortest = counts.isel(exposure=0)
         if shortest.sizes["image"] > 8:
             shortest = shortest.isel(image=slice(0, None, shortest.sizes["image"] // 8))
-        black_level = int(np.quantile(np.asarray(shortest.values), 0.001)) + 3
+        floor = int(np.quantile(np.asarray(shortest.values), 0.001))
+        black_level = floor + 3
+        if black_level >= saturation:
+            raise CalibrationError(
+                f"{where}:counts: the shortest exposures are (almost) entirely saturated: their "
+                f"0.1 % quantile is {floor} DN, so the default black_level ({black_level}) is not "
+                f"below saturation ({saturation}). Use shorter exposures, or set black_level",
+                [
+                    Problem(
+                        f"{where}:counts[exposure=0]",
+                        f"a 0.1 % quantile below saturation - 3 = {saturation - 3} DN",
+                        f"{floor} DN (exposure_time {float(times.isel(exposure=0).min()):g} s)",
+                    )
+                ],
+            )
     data = raw_rgb[["counts"]].assign_attrs(bit_depth=depth)
     if not per_camera:
         data = data.drop_vars("camera")

@@ -15,6 +15,9 @@ All of them are listed in
 ``"material-prior-pcg"`` (:mod:`.material_prior_pcg`)
     Eq. 1 with neighbourhoods in chromaticity and position, scale-invariant coupling, the
     guided prior and non-negativity.
+``"spectral-prior-pcg"`` (:mod:`.spectral_prior_pcg`)
+    ``material-prior-pcg`` plus a soft Gaussian spectral prior from colour-science's
+    reflectances, centred on the Wiener estimate and scaled by each pixel's brightness.
 
 All stop when the relative residual of the normal equations ``||A^T b - A^T A S|| /
 ||A^T b||`` falls below ``tolerance``, or after ``max_iterations``
@@ -37,6 +40,7 @@ from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, SolverResult
 from .guided_prior_pcg import DEFAULT_PRIOR, guided_prior_pcg
 from .material_prior_pcg import material_prior_pcg
 from .paper_cg import paper_cg
+from .spectral_prior_pcg import spectral_prior_pcg
 
 __all__ = [
     "SolverResult",
@@ -48,6 +52,7 @@ __all__ = [
     "block_jacobi_pcg",
     "guided_prior_pcg",
     "material_prior_pcg",
+    "spectral_prior_pcg",
     "BlockJacobiPreconditioner",
     "projected_filtered_initial",
     "guided_initial",

@@ -1,0 +1,176 @@
+"""The command line answers without Prefect (and mostly without matplotlib), its help says
+defaults and allowed values, and every default `spectralize nodes` prints parses back."""
+
+import contextlib
+import io
+import json
+import shlex
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from support.cubes import WAVELENGTH, cube_dataset
+
+from spectralize.engine import registry
+from spectralize.flows.cli import build_parser, format_value, main, parse_assignments, parse_value
+from spectralize.flows.pipelines import FLOW_DESCRIPTIONS, FLOWS
+from spectralize.schemas import RunStore
+
+HEAVY = ("prefect", "matplotlib", "rich", "spectralize.engine", "spectralize.flows.runtime")
+
+
+def loaded_after(argv, cwd):
+    """Run ``main(argv)`` in a fresh interpreter; the exit code, output, and which of HEAVY
+    were imported."""
+    code = textwrap.dedent(
+        f"""
+        import contextlib, io, json, sys
+        from spectralize.flows.cli import main
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            try:
+                code = main({argv!r})
+            except SystemExit as exit:
+                code = exit.code
+        print(json.dumps({{
+            "code": code,
+            "out": out.getvalue(),
+            "loaded": [m for m in {HEAVY!r} if m in sys.modules],
+        }}))
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    run = RunStore.create(tmp_path_factory.mktemp("cli") / "run.zarr")
+    values = np.random.default_rng(1).uniform(0.0, 1.0, (2, WAVELENGTH.size, 4, 5))
+    run.write("spectra", cube_dataset(values), fingerprint="spectra-fp")
+    return run.path
+
+
+def test_importing_the_cli_imports_nothing_heavy(tmp_path):
+    code = f"import sys, spectralize.flows.cli; print([m for m in {HEAVY!r} if m in sys.modules])"
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["export", "--help"]])
+def test_help_imports_neither_prefect_nor_the_engine(argv, tmp_path):
+    found = loaded_after(argv, tmp_path)
+    assert found["code"] == 0
+    assert found["loaded"] == []
+    assert "usage: spectralize" in found["out"]
+
+
+def test_flows_nodes_validate_and_export_do_not_import_prefect(store, tmp_path):
+    flows = loaded_after(["flows"], tmp_path)
+    assert flows["code"] == 0 and "btf: full-BTF processing" in flows["out"]
+    assert "prefect" not in flows["loaded"] and "matplotlib" not in flows["loaded"]
+    assert "spectralize.flows.runtime" not in flows["loaded"]
+
+    nodes = loaded_after(["nodes"], tmp_path)
+    assert nodes["code"] == 0 and "--set dark_average.frames_per_chunk=16" in nodes["out"]
+    # matplotlib comes with colour-science (the evaluation node's illuminant table), not us
+    assert "prefect" not in nodes["loaded"] and "spectralize.flows.runtime" not in nodes["loaded"]
+
+    valid = loaded_after(["validate", str(store)], tmp_path)
+    assert valid["code"] == 0 and "valid" in valid["out"]
+    assert not {"prefect", "matplotlib", "spectralize.flows.runtime"} & set(valid["loaded"])
+    missing = loaded_after(["validate", str(store), "--flow", "dark"], tmp_path)
+    assert missing["code"] == 1  # the dark flow's raw/dark is missing: a problem, not a crash
+    assert not {"prefect", "spectralize.flows.runtime"} & set(missing["loaded"])
+
+    export = loaded_after(
+        ["export", str(store), str(tmp_path / "cube.nc"), "--format", "netcdf"], tmp_path
+    )
+    assert export["code"] == 0 and (tmp_path / "cube.nc").is_file()
+    assert not {"prefect", "matplotlib", "spectralize.flows.runtime"} & set(export["loaded"])
+
+
+def test_every_printed_default_parses_back_to_the_default(capsys):
+    assert main(["nodes"]) == 0
+    printed = {}
+    for line in capsys.readouterr().out.splitlines():
+        if line.strip().startswith("--set "):
+            # the word after --set, as a shell hands it over (the description is not read)
+            words = shlex.shlex(line.split("--set ", 1)[1], posix=True, punctuation_chars=False)
+            words.whitespace_split = True
+            setting = words.get_token()
+            printed.update(parse_assignments([setting]))
+    nodes = registry()
+    expected = {
+        f"{name}.{field}"
+        for name, entry in nodes.items()
+        for field in entry.node.parameters.model_fields
+    }
+    assert set(printed) == expected
+    for key, value in printed.items():
+        name, _, field = key.partition(".")
+        node = nodes[name].node
+        parsed = getattr(node.parse_parameters({field: value}), field)
+        default = node.parameters.model_fields[field].get_default(call_default_factory=True)
+        assert parsed == default, key
+
+
+@pytest.mark.parametrize(
+    "text, value",
+    [
+        ("null", None),
+        ("None", None),
+        ("[0.5,0.0]", [0.5, 0.0]),
+        ("(0.5, 0.0)", (0.5, 0.0)),
+        ('"block-jacobi-pcg"', "block-jacobi-pcg"),
+        ("block-jacobi-pcg", "block-jacobi-pcg"),
+        ("'D65'", "D65"),
+        ("true", True),
+        ("1e-06", 1e-06),
+        ('{"misregistration":[0.5,0.0]}', {"misregistration": [0.5, 0.0]}),
+        ("ISO 7589 Photoflood", "ISO 7589 Photoflood"),
+        ('"None"', "None"),
+    ],
+)
+def test_set_values(text, value):
+    assert parse_value(text) == value
+
+
+@pytest.mark.parametrize(
+    "value", [None, "demo", "None", "null", "1", "", " x", 0.001, (0.05, 1.0), {"a": [1]}]
+)
+def test_formatted_values_read_back(value):
+    back = parse_value(format_value(value))
+    assert back == (list(value) if isinstance(value, tuple) else value)
+
+
+def test_none_is_accepted_for_an_optional_parameter():
+    node = registry()["hdr_merge"].node
+    (value,) = parse_assignments(["hdr_merge.saturation=None"]).values()
+    assert node.parse_parameters({"saturation": value}).saturation is None
+
+
+def help_of(*argv):
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
+        build_parser().parse_args([*argv, "--help"])
+    return " ".join(out.getvalue().split())  # argparse wraps lines
+
+
+def test_help_shows_defaults_and_allowed_values():
+    run = help_of("run")
+    for name in FLOWS:
+        assert f"{name} {FLOW_DESCRIPTIONS[name]}" in run
+    assert "--retries RETRIES Prefect task retries per node (default: 0)" in run
+    export = help_of("export")
+    assert "--format {envi,netcdf} one of: envi, netcdf" in export
+    assert "cube group (default: spectra)" in export
+    serve = help_of("serve")
+    assert "(default: 0 2 * * *)" in serve and "(default: 5.0)" in serve
+    assert "-v, --verbose" in help_of()
