@@ -34,6 +34,7 @@ import xarray as xr
 
 from spectralize.nodes.simulation.gantry import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
+from spectralize.schemas.capture import KINDS, MANIFEST_COLUMNS
 
 __all__ = [
     "MANIFEST_COLUMNS",
@@ -44,22 +45,6 @@ __all__ = [
     "write_manifest",
 ]
 
-#: The columns of ``manifest.csv``, in the order they are written.
-MANIFEST_COLUMNS: tuple[str, ...] = (
-    "file",
-    "kind",
-    "camera",
-    "rotation",
-    "led",
-    "exposure_time_s",
-    "wavelength_nm",
-    "theta_i",
-    "phi_i",
-    "theta_o",
-    "phi_o",
-)
-#: The values of the ``kind`` column.
-KINDS: tuple[str, ...] = ("rgb", "spectral", "dark", "white_reference", "colour_checker", "registration")
 SPECTRAL_CAMERA = "mono"
 
 

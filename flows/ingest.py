@@ -49,6 +49,7 @@ import xarray as xr
 import zarr
 
 from spectralize.schemas import Problem, RunStore, SpectralizeError
+from spectralize.schemas.capture import KINDS, MANIFEST_COLUMNS
 
 __all__ = [
     "MANIFEST",
@@ -71,21 +72,6 @@ CALIBRATION = "calibration"
 CAPTURE_FORMAT = "spectralize-capture"
 #: Bumped when the groups ingest writes change: every group is then rewritten.
 INGEST_VERSION = "1"
-#: The columns ``manifest.csv`` must have (more are allowed and ignored).
-MANIFEST_COLUMNS: tuple[str, ...] = (
-    "file",
-    "kind",
-    "camera",
-    "rotation",
-    "led",
-    "exposure_time_s",
-    "wavelength_nm",
-    "theta_i",
-    "phi_i",
-    "theta_o",
-    "phi_o",
-)
-KINDS: tuple[str, ...] = ("rgb", "spectral", "dark", "white_reference", "colour_checker", "registration")
 ANGLES: tuple[str, ...] = ("theta_i", "phi_i", "theta_o", "phi_o")
 _ANGLE_RANGE = {
     "theta_i": (0.0, 90.0),

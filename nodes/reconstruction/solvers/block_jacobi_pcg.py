@@ -26,7 +26,14 @@ import numpy as np
 
 from ..baselines import filtered_bands_projected, guided_filtered_projected
 from ..operators import ReconstructionProblem
-from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, Callback, SolverResult, vdot
+from .common import (
+    DEFAULT_MAX_ITERATIONS,
+    DEFAULT_TOLERANCE,
+    Callback,
+    SolverResult,
+    preconditioned_cg,
+    vdot,
+)
 
 __all__ = [
     "block_jacobi_pcg",
@@ -238,34 +245,23 @@ def block_jacobi_pcg(
         def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
             return residual.copy()
 
-    z = apply_preconditioner(r)
-    p = z.copy()
-    rz = vdot(r, z)
-    history = [np.sqrt(vdot(r, r)) / rhs_norm]
-    iterations = 0
-    while history[-1] > tolerance and iterations < max_iterations:
-        q = work.normal(p)
+    def operator(direction: np.ndarray) -> np.ndarray:
+        q = work.normal(direction)
         if regularised:
-            q += epsilon * p
-        pq = vdot(p, q)
-        if not pq > 0:
-            break
-        step = dtype.type(rz / pq)
-        x += step * p
-        q *= step
-        r -= q
-        del q
-        iterations += 1
-        history.append(np.sqrt(vdot(r, r)) / rhs_norm)
-        if callback is not None:
-            callback(iterations, x)
-        if history[-1] <= tolerance:
-            break
-        z = apply_preconditioner(r)
-        rz_new = vdot(r, z)
-        p *= dtype.type(rz_new / rz)
-        p += z
-        rz = rz_new
+            q += epsilon * direction
+        return q
+
+    x, history, iterations = preconditioned_cg(
+        operator,
+        x,
+        r,
+        rhs_norm,
+        apply_preconditioner,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        dtype=dtype,
+        callback=callback,
+    )
     return SolverResult(
         x,
         iterations,

@@ -1,4 +1,4 @@
-"""What every solver of eq. 1 shares: its result record, defaults and a dot product.
+"""What every solver of eq. 1 shares: its result record, defaults, a dot product and the PCG loop.
 
 References
 ----------
@@ -12,7 +12,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SolverResult", "Callback", "DEFAULT_TOLERANCE", "DEFAULT_MAX_ITERATIONS"]
+__all__ = [
+    "SolverResult",
+    "Callback",
+    "DEFAULT_TOLERANCE",
+    "DEFAULT_MAX_ITERATIONS",
+    "vdot",
+    "preconditioned_cg",
+]
 
 DEFAULT_TOLERANCE = 1e-3
 """Stop when the relative normal-equation residual ``||A^T b - A^T A S|| / ||A^T b||`` is below it."""
@@ -63,3 +70,62 @@ def vdot(a: np.ndarray, b: np.ndarray) -> float:
     :func:`~spectralize.nodes.reconstruction.operators._einsum`).
     """
     return float(np.einsum("i,i->", a.ravel(), b.ravel(), optimize=False))
+
+
+def preconditioned_cg(
+    operator: Callable[[np.ndarray], np.ndarray],
+    x: np.ndarray,
+    r: np.ndarray,
+    rhs_norm: float,
+    apply_preconditioner: Callable[[np.ndarray], np.ndarray],
+    *,
+    tolerance: float,
+    max_iterations: int,
+    dtype: np.dtype,
+    callback: Callback | None = None,
+) -> tuple[np.ndarray, list[float], int]:
+    """Preconditioned conjugate gradients on a symmetric positive definite system, in place.
+
+    Solves ``operator(x) = rhs`` from the start ``x`` with residual ``r = rhs - operator(x)``
+    (both updated in place), until the relative residual ``||r|| / rhs_norm`` is below
+    ``tolerance`` or after ``max_iterations``; it stops early if ``operator`` is not positive
+    along a search direction.
+
+    Returns
+    -------
+    x, history, iterations
+        The solution, the relative residual before the first and after every iteration, and
+        the number of iterations done.
+
+    References
+    ----------
+    .. [1] Shewchuk, J. R. (1994). An Introduction to the Conjugate Gradient Method Without
+       the Agonizing Pain, section B3.
+    """
+    z = apply_preconditioner(r)
+    p = z.copy()
+    rz = vdot(r, z)
+    history = [np.sqrt(vdot(r, r)) / rhs_norm]
+    iterations = 0
+    while history[-1] > tolerance and iterations < max_iterations:
+        q = operator(p)
+        pq = vdot(p, q)
+        if not pq > 0:
+            break
+        step = dtype.type(rz / pq)
+        x += step * p
+        q *= step
+        r -= q
+        del q
+        iterations += 1
+        history.append(np.sqrt(vdot(r, r)) / rhs_norm)
+        if callback is not None:
+            callback(iterations, x)
+        if history[-1] <= tolerance:
+            break
+        z = apply_preconditioner(r)
+        rz_new = vdot(r, z)
+        p *= dtype.type(rz_new / rz)
+        p += z
+        rz = rz_new
+    return x, history, iterations

@@ -50,7 +50,14 @@ from .block_jacobi_pcg import (
     _prior_mask,
     guided_initial,
 )
-from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, Callback, SolverResult, vdot
+from .common import (
+    DEFAULT_MAX_ITERATIONS,
+    DEFAULT_TOLERANCE,
+    Callback,
+    SolverResult,
+    preconditioned_cg,
+    vdot,
+)
 from .guided_prior_pcg import DEFAULT_PRIOR
 from .material_prior_pcg import DEFAULT_PROJECTED_ITERATIONS
 from .material_prior_pcg import SETUP_DEFAULTS as MATERIAL_SETUP_DEFAULTS
@@ -302,32 +309,17 @@ def spectral_prior_pcg(
         if precondition
         else (lambda residual: residual.copy())
     )
-    z = apply_preconditioner(r)
-    p = z.copy()
-    rz = vdot(r, z)
-    history = [np.sqrt(vdot(r, r)) / rhs_norm]
-    iterations = 0
-    while history[-1] > tolerance and iterations < max_iterations:
-        q = operator(p)
-        pq = vdot(p, q)
-        if not pq > 0:
-            break
-        step = dtype.type(rz / pq)
-        x += step * p
-        q *= step
-        r -= q
-        del q
-        iterations += 1
-        history.append(np.sqrt(vdot(r, r)) / rhs_norm)
-        if callback is not None:
-            callback(iterations, x)
-        if history[-1] <= tolerance:
-            break
-        z = apply_preconditioner(r)
-        rz_new = vdot(r, z)
-        p *= dtype.type(rz_new / rz)
-        p += z
-        rz = rz_new
+    x, history, iterations = preconditioned_cg(
+        operator,
+        x,
+        r,
+        rhs_norm,
+        apply_preconditioner,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        dtype=dtype,
+        callback=callback,
+    )
     converged = history[-1] <= tolerance
     if projected_iterations > 0:
         scale = preconditioner.inverse_scalar_diagonal.reshape(work.shape)
