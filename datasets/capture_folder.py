@@ -102,6 +102,19 @@ def _write_table(path: Path, header: tuple[str, ...], rows: Iterable[tuple]) -> 
             writer.writerow([_cell(v) for v in row])
 
 
+def _image_row(name: str, kind: str, camera: str, coords: Any, **values: Any) -> dict[str, Any]:
+    """A manifest row of an image of the gantry: rotation, LED and the four angles [degree]."""
+    return {
+        "file": name,
+        "kind": kind,
+        "camera": camera,
+        "rotation": int(coords["rotation"]),
+        "led": int(coords["led"]),
+        **values,
+        **{a: float(coords[a]) for a in ("theta_i", "phi_i", "theta_o", "phi_o")},
+    }
+
+
 def write_capture_folder(
     path: str | os.PathLike[str],
     *,
@@ -152,17 +165,7 @@ def write_capture_folder(
             t = float(c["exposure_time"][e])
             name = f"rgb/{cam}_rot{int(c['rotation']):02d}_led{int(c['led']):03d}_exp{e}.png"
             write_png(root / name, series[e])
-            rows.append(
-                {
-                    "file": name,
-                    "kind": "rgb",
-                    "camera": cam,
-                    "rotation": int(c["rotation"]),
-                    "led": int(c["led"]),
-                    "exposure_time_s": t,
-                    **{a: float(c[a]) for a in ("theta_i", "phi_i", "theta_o", "phi_o")},
-                }
-            )
+            rows.append(_image_row(name, "rgb", cam, c, exposure_time_s=t))
     say(f"raw/rgb: {rgb.sizes['image']} images x {rgb.sizes['exposure']} exposures")
 
     # band shots: TIFF
@@ -174,16 +177,14 @@ def write_capture_folder(
         name = f"spectral/rot{int(c['rotation']):02d}_led{int(c['led']):03d}_{wl:g}nm.tif"
         write_tiff(root / name, shots[shot])
         rows.append(
-            {
-                "file": name,
-                "kind": "spectral",
-                "camera": SPECTRAL_CAMERA,
-                "rotation": int(c["rotation"]),
-                "led": int(c["led"]),
-                "exposure_time_s": float(c["exposure_time"]),
-                "wavelength_nm": wl,
-                **{a: float(c[a]) for a in ("theta_i", "phi_i", "theta_o", "phi_o")},
-            }
+            _image_row(
+                name,
+                "spectral",
+                SPECTRAL_CAMERA,
+                c,
+                exposure_time_s=float(c["exposure_time"]),
+                wavelength_nm=wl,
+            )
         )
     say(f"raw/spectral: {spectral.sizes['shot']} band shots")
 
