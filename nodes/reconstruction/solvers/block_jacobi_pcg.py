@@ -25,14 +25,14 @@ import time
 import numpy as np
 
 from ..baselines import filtered_bands_projected, guided_filtered_projected
-from ..operators import ReconstructionProblem
+from ..operators import PixelOrder, ReconstructionProblem
 from .common import (
+    COMPILED,
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_TOLERANCE,
     Callback,
     SolverResult,
     preconditioned_cg,
-    vdot,
 )
 
 __all__ = [
@@ -66,10 +66,17 @@ class BlockJacobiPreconditioner:
         ``epsilon`` relative to the mean diagonal of ``A^T A``: a number, or an array that
         broadcasts to the cube's shape (a per band and image ridge); the absolute value is
         :attr:`ridge` after construction.
+    order
+        Pixel-major storage order of the residuals :meth:`apply_pixels` takes (default: the
+        problem's ``"natural"`` order).
     """
 
     def __init__(
-        self, problem: ReconstructionProblem, dtype: np.dtype | type = np.float32, ridge: float = 0.0
+        self,
+        problem: ReconstructionProblem,
+        dtype: np.dtype | type = np.float32,
+        ridge: float = 0.0,
+        order: PixelOrder | None = None,
     ):
         w = problem.weights
         n_wavelength = problem.shape[0]
@@ -84,15 +91,16 @@ class BlockJacobiPreconditioner:
         per_pixel = np.broadcast_to(self.ridge, problem.shape).reshape(n_wavelength, -1)
         diagonal += np.maximum(per_pixel, max(1e-9 * mean_diagonal, 1e-300))
         self.dtype = np.dtype(dtype)
-        self.inverse_diagonal = (1.0 / diagonal).astype(self.dtype)  # (n_wavelength, P)
+        self.order = problem.pixel_order("natural") if order is None else order
+        # pixel-major (n_pixels, n_wavelength) in ``order``, the layout of the compiled kernel
+        inverse = (1.0 / diagonal)[:, self.order.order]
+        self.inverse_diagonal = np.ascontiguousarray(inverse.T.astype(self.dtype))
         # C a^-1 C^T per pixel: (P, 3, 3)
-        small = np.einsum("cw,wp,dw->pcd", c, 1.0 / diagonal, c, optimize=True)
+        small = np.einsum("cw,wp,dw->pcd", c, inverse, c, optimize=True)
         small += np.eye(3) / max(w.beta, 1e-300)
-        # stored (3, 3, P) so that applying it is nine vector multiply-adds
-        self.small_inverse = np.ascontiguousarray(np.linalg.inv(small).transpose(1, 2, 0)).astype(
-            self.dtype
-        )
-        self.camera_matrix = c.astype(self.dtype)
+        self.small_inverse = np.ascontiguousarray(np.linalg.inv(small)).astype(self.dtype)
+        del inverse
+        self.camera_matrix = np.ascontiguousarray(c.astype(self.dtype))
         self.shape = problem.shape
         # the scalar diagonal of A^T A (+ ridge), for plain Jacobi preconditioning
         full = diagonal + w.beta * np.sum(c * c, axis=0)[:, None]
@@ -107,18 +115,20 @@ class BlockJacobiPreconditioner:
         """Absolute ``epsilon`` of a ridge given relative to the mean diagonal of ``A^T A``."""
         return float(relative) * self.mean_diagonal
 
+    def apply_pixels(self, residual: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``M^-1 r`` on a pixel-major residual ``(n_pixels, n_wavelength)`` in :attr:`order`,
+        one compiled pass (:func:`~..kernels.block_jacobi_pixels`)."""
+        from ..kernels import block_jacobi_pixels
+
+        if out is None:
+            out = np.empty_like(residual)
+        block_jacobi_pixels(residual, self.inverse_diagonal, self.camera_matrix, self.small_inverse, out)
+        return out
+
     def __call__(self, residual: np.ndarray) -> np.ndarray:
-        n_wavelength = self.shape[0]
-        u = residual.reshape(n_wavelength, -1) * self.inverse_diagonal
-        v = np.einsum("cw,wp->cp", self.camera_matrix, u, optimize=False)  # (3, P)
-        s = self.small_inverse
-        w = s[:, 0] * v[0]
-        w += s[:, 1] * v[1]
-        w += s[:, 2] * v[2]  # (3, P)
-        correction = np.einsum("cw,cp->wp", self.camera_matrix, w, optimize=False)
-        correction *= self.inverse_diagonal
-        u -= correction
-        return u.reshape(self.shape)
+        """``M^-1 r`` for a residual of the problem's :attr:`shape`."""
+        pixels = self.order.to_pixels(np.asarray(residual, dtype=self.dtype).reshape(self.shape))
+        return self.order.to_cube(self.apply_pixels(pixels))
 
 
 def projected_filtered_initial(problem: ReconstructionProblem) -> np.ndarray:
@@ -220,36 +230,42 @@ def block_jacobi_pcg(
         relative_ridge = ridge + prior * _prior_mask(problem)
     if initial is None:
         initial = centre if centre is not None else projected_filtered_initial(problem)
-    x = np.array(initial, dtype=dtype, copy=True).reshape(work.shape)
-    preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative_ridge)
+    # the iteration runs on pixel-major vectors stored in appearance order (:mod:`..kernels`)
+    order = work.pixel_order("appearance")
+    x = order.to_pixels(np.asarray(initial, dtype=dtype).reshape(work.shape))
+    preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative_ridge, order=order)
     epsilon = preconditioner.ridge.astype(dtype)
     regularised = bool(np.any(epsilon > 0))
-    rhs = work.normal_rhs()
+    rhs = order.to_pixels(work.normal_rhs())
     if regularised:  # epsilon_r S_start + epsilon_p M S_0
         towards = dtype.type(preconditioner.ridge_of(ridge))
         rhs += towards * x
         if centre is not None:
-            rhs += (epsilon - towards) * centre
-            del centre
-    rhs_norm = np.sqrt(vdot(rhs, rhs)) or 1.0
-    r = rhs - work.normal(x)
-    if regularised:
-        r -= epsilon * x
+            ridge_cube = np.broadcast_to(epsilon, work.shape) - towards
+            rhs += order.to_pixels(ridge_cube * centre)
+            del centre, ridge_cube
+    ridge_argument = epsilon if regularised else 0.0
+    rhs_norm = np.sqrt(COMPILED.dot(rhs, rhs)) or 1.0
+    r = rhs - work.normal_pixels(x, order=order, epsilon=ridge_argument)
     del rhs
     if precondition == "jacobi":
-        apply_preconditioner = preconditioner.jacobi
+        scalar = order.to_pixels(preconditioner.inverse_scalar_diagonal.reshape(work.shape))
+
+        def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
+            return residual * scalar
+
     elif precondition:
-        apply_preconditioner = preconditioner
+        apply_preconditioner = preconditioner.apply_pixels
     else:
 
         def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
             return residual.copy()
 
     def operator(direction: np.ndarray) -> np.ndarray:
-        q = work.normal(direction)
-        if regularised:
-            q += epsilon * direction
-        return q
+        return work.normal_pixels(direction, order=order, epsilon=ridge_argument)
+
+    def band_major_callback(iteration: int, cube: np.ndarray) -> None:
+        callback(iteration, order.to_cube(cube))
 
     x, history, iterations = preconditioned_cg(
         operator,
@@ -260,8 +276,10 @@ def block_jacobi_pcg(
         tolerance=tolerance,
         max_iterations=max_iterations,
         dtype=dtype,
-        callback=callback,
+        callback=None if callback is None else band_major_callback,
+        vectors=COMPILED,
     )
+    x = order.to_cube(x)
     return SolverResult(
         x,
         iterations,

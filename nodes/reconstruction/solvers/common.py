@@ -18,6 +18,9 @@ __all__ = [
     "DEFAULT_TOLERANCE",
     "DEFAULT_MAX_ITERATIONS",
     "vdot",
+    "VectorOps",
+    "NUMPY",
+    "COMPILED",
     "preconditioned_cg",
 ]
 
@@ -72,6 +75,57 @@ def vdot(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.einsum("i,i->", a.ravel(), b.ravel(), optimize=False))
 
 
+@dataclass(frozen=True)
+class VectorOps:
+    """The vector updates of :func:`preconditioned_cg`.
+
+    Attributes
+    ----------
+    dot
+        ``dot(a, b)``: ``sum(a * b)`` as a float.
+    step
+        ``step(x, r, p, q, alpha)``: ``x += alpha p``, ``r -= alpha q`` in place; returns
+        the new ``r . r``.
+    direction
+        ``direction(p, z, beta)``: ``p = z + beta p`` in place.
+    """
+
+    dot: Callable[[np.ndarray, np.ndarray], float]
+    step: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float], float]
+    direction: Callable[[np.ndarray, np.ndarray, float], None]
+
+
+def _numpy_step(x: np.ndarray, r: np.ndarray, p: np.ndarray, q: np.ndarray, alpha: float) -> float:
+    alpha = x.dtype.type(alpha)
+    x += alpha * p
+    q *= alpha
+    r -= q
+    return vdot(r, r)
+
+
+def _numpy_direction(p: np.ndarray, z: np.ndarray, beta: float) -> None:
+    p *= p.dtype.type(beta)
+    p += z
+
+
+NUMPY = VectorOps(vdot, _numpy_step, _numpy_direction)
+"""Vector updates in numpy (temporaries; any array layout)."""
+
+
+def _compiled(name: str) -> Callable:
+    def call(*args):
+        from .. import kernels  # numba compiles on first use, not on import
+
+        return getattr(kernels, name)(*args)
+
+    call.__name__ = name
+    return call
+
+
+COMPILED = VectorOps(_compiled("dot"), _compiled("cg_step"), _compiled("cg_direction"))
+"""Vector updates fused into single compiled passes (:mod:`..kernels`); C-contiguous arrays."""
+
+
 def preconditioned_cg(
     operator: Callable[[np.ndarray], np.ndarray],
     x: np.ndarray,
@@ -83,13 +137,15 @@ def preconditioned_cg(
     max_iterations: int,
     dtype: np.dtype,
     callback: Callback | None = None,
+    vectors: VectorOps = NUMPY,
 ) -> tuple[np.ndarray, list[float], int]:
     """Preconditioned conjugate gradients on a symmetric positive definite system, in place.
 
     Solves ``operator(x) = rhs`` from the start ``x`` with residual ``r = rhs - operator(x)``
     (both updated in place), until the relative residual ``||r|| / rhs_norm`` is below
     ``tolerance`` or after ``max_iterations``; it stops early if ``operator`` is not positive
-    along a search direction.
+    along a search direction. ``vectors`` does the vector updates (:data:`NUMPY`, or
+    :data:`COMPILED` for C-contiguous float arrays).
 
     Returns
     -------
@@ -102,30 +158,27 @@ def preconditioned_cg(
     .. [1] Shewchuk, J. R. (1994). An Introduction to the Conjugate Gradient Method Without
        the Agonizing Pain, section B3.
     """
+    dot = vectors.dot
     z = apply_preconditioner(r)
     p = z.copy()
-    rz = vdot(r, z)
-    history = [np.sqrt(vdot(r, r)) / rhs_norm]
+    rz = dot(r, z)
+    history = [np.sqrt(dot(r, r)) / rhs_norm]
     iterations = 0
     while history[-1] > tolerance and iterations < max_iterations:
         q = operator(p)
-        pq = vdot(p, q)
+        pq = dot(p, q)
         if not pq > 0:
             break
-        step = dtype.type(rz / pq)
-        x += step * p
-        q *= step
-        r -= q
+        rr = vectors.step(x, r, p, q, dtype.type(rz / pq))
         del q
         iterations += 1
-        history.append(np.sqrt(vdot(r, r)) / rhs_norm)
+        history.append(np.sqrt(max(rr, 0.0)) / rhs_norm)
         if callback is not None:
             callback(iterations, x)
         if history[-1] <= tolerance:
             break
         z = apply_preconditioner(r)
-        rz_new = vdot(r, z)
-        p *= dtype.type(rz_new / rz)
-        p += z
+        rz_new = dot(r, z)
+        vectors.direction(p, z, dtype.type(rz_new / rz))
         rz = rz_new
     return x, history, iterations
