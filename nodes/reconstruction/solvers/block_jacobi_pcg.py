@@ -32,6 +32,7 @@ from .common import (
     DEFAULT_TOLERANCE,
     Callback,
     SolverResult,
+    needs_cube,
     preconditioned_cg,
 )
 
@@ -265,7 +266,9 @@ def block_jacobi_pcg(
         return work.normal_pixels(direction, order=order, epsilon=ridge_argument)
 
     def band_major_callback(iteration: int, cube: np.ndarray) -> None:
-        callback(iteration, order.to_cube(cube))
+        callback(iteration, order.to_cube(cube) if cube_wanted else None)
+
+    cube_wanted = needs_cube(callback)
 
     x, history, iterations = preconditioned_cg(
         operator,

@@ -15,6 +15,8 @@ import numpy as np
 __all__ = [
     "SolverResult",
     "Callback",
+    "counting_iterations",
+    "needs_cube",
     "DEFAULT_TOLERANCE",
     "DEFAULT_MAX_ITERATIONS",
     "vdot",
@@ -31,7 +33,25 @@ DEFAULT_MAX_ITERATIONS = 2000
 """Iteration limit of every solver."""
 
 Callback = Callable[[int, np.ndarray], None]
-"""``callback(iteration, cube)``, called after every iteration (benchmarks' convergence curves)."""
+"""``callback(iteration, cube)``, called after every iteration (benchmarks' convergence curves).
+
+A callback made by :func:`counting_iterations` gets ``cube=None``: a solver that iterates on
+another layout then skips building the cube each iteration."""
+
+
+def counting_iterations(count: Callable[[int], None]) -> Callback:
+    """A :data:`Callback` that only wants the iteration number (e.g. a progress bar)."""
+
+    def callback(iteration: int, cube: np.ndarray | None) -> None:
+        count(iteration)
+
+    callback.needs_cube = False  # type: ignore[attr-defined]
+    return callback
+
+
+def needs_cube(callback: Callback | None) -> bool:
+    """Whether ``callback`` looks at the cube (see :func:`counting_iterations`)."""
+    return callback is not None and getattr(callback, "needs_cube", True)
 
 
 @dataclass

@@ -1,0 +1,72 @@
+"""The compiled pixel-major passes agree with the operators they replace, in any pixel order."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spectralize.nodes.reconstruction import build_problem, inputs_from_xarray
+from spectralize.nodes.reconstruction.neighbourhoods import appearance_order
+from spectralize.nodes.reconstruction.solvers import BlockJacobiPreconditioner, block_jacobi_pcg
+from spectralize.nodes.reconstruction.solvers.common import counting_iterations
+
+
+@pytest.fixture
+def problem(scene_factory):
+    scene = scene_factory(
+        size=20, n_wavelength=5, n_images=3, shading=True, noise=0.05, shots={0: [0, 1, 2, 3, 4], 1: [2]}
+    )
+    return build_problem(inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix))
+
+
+def test_appearance_order_is_a_permutation_that_groups_alike_pixels():
+    rng = np.random.default_rng(0)
+    colours = rng.random((6, 3))
+    pixels = colours[rng.integers(0, 6, 600)] + rng.normal(scale=1e-4, size=(600, 3))
+    order = appearance_order(pixels)
+    assert np.array_equal(np.sort(order), np.arange(600))
+    # stored in that order, pixels of one colour are contiguous runs: 6 runs, 5 changes
+    labels = np.argmin(((pixels[order, None, :] - colours[None]) ** 2).sum(-1), axis=1)
+    assert np.count_nonzero(np.diff(labels)) == 5
+
+
+@pytest.mark.parametrize("kind", ["natural", "appearance"])
+def test_normal_pixels_equals_the_stacked_operator_in_every_order(problem, kind):
+    rng = np.random.default_rng(1)
+    cube = rng.normal(size=problem.shape)
+    epsilon = rng.uniform(0, 0.3, size=problem.shape[:2] + (1, 1))
+    order = problem.pixel_order(kind)
+    pixels = order.to_pixels(cube)
+    result = order.to_cube(problem.normal_pixels(pixels, order=order, epsilon=epsilon))
+    expected = problem.apply_adjoint(problem.apply(cube)) + epsilon * cube
+    np.testing.assert_allclose(result, expected, rtol=1e-9, atol=1e-9)
+    assert np.array_equal(order.to_cube(order.to_pixels(cube)), cube)
+
+
+def test_block_jacobi_inverts_the_per_pixel_blocks_in_appearance_order(problem):
+    order = problem.pixel_order("appearance")
+    preconditioner = BlockJacobiPreconditioner(problem, np.float64, ridge=1e-3, order=order)
+    n_wavelength = problem.shape[0]
+    # apply the block diagonal of A^T A + epsilon to a cube, then its inverse: identity
+    rng = np.random.default_rng(2)
+    cube = rng.normal(size=problem.shape)
+    w = problem.weights
+    diagonal = w.alpha * problem.filters.normal_diagonal().reshape(n_wavelength, -1)
+    diagonal += w.gamma * problem.neighbours.degree[None, :] + preconditioner.ridge
+    flat = cube.reshape(n_wavelength, -1)
+    c = problem.camera_matrix
+    blocks = diagonal * flat + w.beta * c.T @ (c @ flat)
+    recovered = preconditioner(blocks.reshape(problem.shape))
+    np.testing.assert_allclose(recovered, cube, rtol=1e-8, atol=1e-8)
+
+
+def test_an_iteration_counter_gets_no_cube_and_a_curve_gets_the_band_major_cube(problem):
+    counted, shapes = [], []
+    block_jacobi_pcg(
+        problem, max_iterations=5, tolerance=1e-12, callback=counting_iterations(counted.append)
+    )
+    block_jacobi_pcg(
+        problem, max_iterations=5, tolerance=1e-12, callback=lambda i, cube: shapes.append(cube.shape)
+    )
+    assert counted == [1, 2, 3, 4, 5]
+    assert shapes == [problem.shape] * 5
