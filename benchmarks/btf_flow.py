@@ -180,7 +180,7 @@ def _settings(provenance: dict, full: bool = False) -> dict:
     parameters = dict(provenance.get("parameters", {}))
     keys = ("method", "gamma_hat", "tolerance", "max_iterations", "k")
     if full:
-        keys += ("warm_start_pixels",)
+        keys += ("warm_start_pixels", "tile")
     return {k: parameters[k] for k in keys if k in parameters}
 
 

@@ -10,6 +10,8 @@ node runs. Nothing here imports Prefect.
                     parameters derived from the function's signature, input checks
 ``discovery.py``    entry point group ``spectralize.nodes``: :func:`registry`, :func:`get_node`
 ``graph.py``        :class:`Step`, :func:`check_graph` (run order and cycles by ``graphlib``)
+``progress.py``     :func:`progress.task`: nodes report long work (a solver run) to whoever
+                    listens (:func:`progress.listening`; the command line's bars), else nothing
 ==================  ==========================================================================
 
 Declaring a node
@@ -48,6 +50,7 @@ or else from the first line of the argument's numpydoc entry. An explicit
 ``parameters=SomeParameters`` model still works (and may use :class:`Choices` too).
 """
 
+from . import progress
 from .discovery import ENTRY_POINT_GROUP, RegisteredNode, discover_nodes, get_node, registry
 from .graph import PlannedStep, Step, check_graph
 from .node import Choices, Node, Parameters, choices_of, parameters_from_signature
@@ -65,5 +68,6 @@ __all__ = [
     "discover_nodes",
     "get_node",
     "parameters_from_signature",
+    "progress",
     "registry",
 ]

@@ -377,7 +377,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a flow against a store (finished nodes are skipped)",
         description="Run a flow against a run store. Nodes whose results are up to date are "
         "skipped; an interrupted write resumes where it stopped. Progress: a bar with ETA per "
-        "image set on a terminal, plain lines otherwise; -v shows Prefect's log lines instead.",
+        "image set and per running solver (iterations of the limit) on a terminal, plain lines "
+        "otherwise; -v shows Prefect's log lines instead.",
         lazy_epilog=_flows_epilog,
     )
     run.add_argument("flow", help="a flow (listed below) or a node name")

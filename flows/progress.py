@@ -1,16 +1,23 @@
-"""Progress of a flow run on the console: which node runs, and a bar with ETA per image set.
+"""Progress of a flow run on the console: which node runs, a bar with ETA per image set, and
+one per solver run.
 
 The runtime (:mod:`.runtime`) reports what happens through :func:`notify`; whoever wants to
 show it (the command line) registers a listener with :func:`listening`. Without a listener
 nothing happens, so library users and tests see no change. Listeners are called from the
-flow's threads, including the store's region-writing threads.
+flow's threads, including the store's region-writing threads and dask's worker threads.
+
+Work inside a node (a solver run on one image set) is reported by the node through
+:mod:`spectralize.engine.progress`, which knows nothing of flows; while a node runs,
+:func:`node_tasks` passes those tasks on to the listeners here as ``task_*`` calls.
 
 Two displays:
 
 - :class:`RichProgress` (a terminal): one line per running node with its stage and elapsed
-  time, and for a resumable write a bar of the regions (image sets) written, with the ETA;
-  a finished node leaves one line.
-- :class:`PlainProgress` (a pipe or a file): the same as plain lines, with the ETA in words.
+  time, for a resumable write a bar of the regions (image sets) written, with the ETA, and
+  under it a bar per running solver (iterations of the limit; its ETA is an upper bound,
+  a solver that converges stops earlier); a finished node leaves one line.
+- :class:`PlainProgress` (a pipe or a file): the same as plain lines, with the ETA in words;
+  a solver run gets a line at most every 10 s (none when it takes less) and one when it ends.
 
 :func:`quiet_prefect` keeps Prefect's INFO lines off the console (its API still gets them,
 so the Prefect UI shows the run's logs); ``spectralize -v`` keeps them.
@@ -35,6 +42,7 @@ __all__ = [
     "PlainProgress",
     "RichProgress",
     "listening",
+    "node_tasks",
     "notify",
     "store_message",
     "quiet_prefect",
@@ -53,6 +61,15 @@ class Listener(Protocol):
     def regions(self, node: str, group: str, done: int, total: int, resumed: int) -> None: ...
 
     def step_finished(self, node: str, status: str, seconds: float) -> None: ...
+
+    # Optional (a listener without them is not told): a task inside the running node, such
+    # as a solver run (see :func:`node_tasks`); ``key`` tells concurrent tasks apart.
+
+    def task_started(self, node: str, key: int, label: str, total: int | None) -> None: ...
+
+    def task_advanced(self, node: str, key: int, done: int) -> None: ...
+
+    def task_finished(self, node: str, key: int, done: int) -> None: ...
 
 
 _LISTENERS: list[Listener] = []
@@ -73,13 +90,16 @@ def listening(listener: Listener) -> Iterator[Listener]:
 
 
 def notify(method: str, *args: Any) -> None:
-    """Call ``method(*args)`` of every listener. A failing display never fails the run: its
-    error is printed once and the display is dropped."""
+    """Call ``method(*args)`` of every listener that has it. A failing display never fails the
+    run: its error is printed once and the display is dropped."""
     with _LOCK:
         listeners = list(_LISTENERS)
     for listener in listeners:
+        call = getattr(listener, method, None)
+        if call is None:  # e.g. a display without the optional task_* methods
+            continue
         try:
-            getattr(listener, method)(*args)
+            call(*args)
         except Exception as error:  # a broken display must not cost a long run
             with _LOCK:
                 if listener in _LISTENERS:
@@ -88,6 +108,43 @@ def notify(method: str, *args: Any) -> None:
                 f"spectralize: progress display stopped: {type(error).__name__}: {error}",
                 file=sys.stderr,
             )
+
+
+class _NodeTasks:
+    """A :class:`spectralize.engine.progress.TaskListener` that passes the tasks of ``node``
+    on to the listeners here."""
+
+    def __init__(self, node: str):
+        self.node = node
+
+    def task_started(self, key: int, label: str, total: int | None) -> None:
+        notify("task_started", self.node, key, label, total)
+
+    def task_advanced(self, key: int, done: int) -> None:
+        notify("task_advanced", self.node, key, done)
+
+    def task_finished(self, key: int, done: int) -> None:
+        notify("task_finished", self.node, key, done)
+
+
+@contextlib.contextmanager
+def node_tasks(node: str) -> Iterator[None]:
+    """While ``node`` runs (the block), pass the tasks it reports through
+    :mod:`spectralize.engine.progress` (its solver runs) on to the listeners here.
+
+    Without a listener here nothing is registered there, so the node reports nothing and
+    passes its solvers no callback. The engine's registry is per process, not per node: two
+    nodes running at once in one process would each see the other's tasks too.
+    """
+    with _LOCK:
+        anyone = bool(_LISTENERS)
+    if not anyone:
+        yield
+        return
+    from spectralize.engine import progress as engine_progress
+
+    with engine_progress.listening(_NodeTasks(node)):
+        yield
 
 
 # The run store's resumable writes report in words (RunStore.write(progress=...)); these
@@ -127,12 +184,16 @@ def format_seconds(seconds: float) -> str:
 
 class PlainProgress:
     """Progress as plain lines (for logs and pipes): node starts and stages, every region
-    written with the time left, node ends."""
+    written with the time left, a running solver's iteration at most every ``task_interval``
+    seconds (and its end, if it printed), node ends."""
 
-    def __init__(self, stream: IO[str] | None = None, clock=time.monotonic):
+    def __init__(self, stream: IO[str] | None = None, clock=time.monotonic, task_interval: float = 10.0):
         self.stream = stream
         self.clock = clock
+        self.task_interval = task_interval
         self._started: dict[tuple[str, str], tuple[float, int]] = {}
+        # (node, key) -> [label, total, start time, time of the last line or None]
+        self._tasks: dict[tuple[str, int], list[Any]] = {}
         self._lock = threading.Lock()
 
     def _print(self, text: str) -> None:
@@ -159,10 +220,46 @@ class PlainProgress:
             line += f", about {format_seconds((now - start) / written * left)} left"
         self._print(line)
 
+    def task_started(self, node: str, key: int, label: str, total: int | None) -> None:
+        with self._lock:
+            self._tasks[(node, key)] = [label, total, self.clock(), None]
+
+    def task_advanced(self, node: str, key: int, done: int) -> None:
+        # a line only after task_interval without one (since the start), so a solver run
+        # shorter than that prints nothing and many in parallel do not flood the log
+        with self._lock:
+            state = self._tasks.get((node, key))
+            if state is None:
+                return
+            label, total, start, last = state
+            now = self.clock()
+            if now - (start if last is None else last) < self.task_interval:
+                return
+            state[3] = now
+        line = f"    {node}: {label}: iteration {done}"
+        if total:
+            line += f"/{total}"
+            if 0 < done < total and now > start:
+                left = (now - start) / done * (total - done)
+                line += f", at most about {format_seconds(left)} left"
+        self._print(line)
+
+    def task_finished(self, node: str, key: int, done: int) -> None:
+        with self._lock:
+            state = self._tasks.pop((node, key), None)
+            now = self.clock()
+        if state is not None and state[3] is not None:  # it printed: say that it ended
+            self._print(
+                f"    {node}: {state[0]}: done after {done} iteration(s) in "
+                f"{format_seconds(now - state[2])}"
+            )
+
     def step_finished(self, node: str, status: str, seconds: float) -> None:
         with self._lock:
             for key in [k for k in self._started if k[0] == node]:
                 del self._started[key]
+            for key in [k for k in self._tasks if k[0] == node]:
+                del self._tasks[key]
         if status == "ran":
             self._print(f"    {node}: done in {format_seconds(seconds)}")
         else:
@@ -171,7 +268,8 @@ class PlainProgress:
 
 class RichProgress:
     """A live display on a terminal (rich): the running node with its stage and elapsed
-    time, and per resumable write a bar of image sets with the ETA."""
+    time, per resumable write a bar of image sets with the ETA, and per running solver a bar
+    of its iterations with the ETA at the iteration limit (``ETA <= ...``)."""
 
     def __init__(self, console: Any = None):
         from rich.console import Console
@@ -203,7 +301,11 @@ class RichProgress:
                 if task.total is None or task.finished:
                     return Text("")
                 remaining = task.time_remaining
-                return Text(f"ETA {format_seconds(remaining)}" if remaining is not None else "ETA …")
+                # a solver's total is its iteration limit: it may stop earlier
+                eta = "ETA <=" if task.fields.get("at_most") else "ETA"
+                return Text(
+                    f"{eta} {format_seconds(remaining)}" if remaining is not None else f"{eta} …"
+                )
 
         self.console = console or Console(stderr=True)
         self.progress = Progress(
@@ -219,6 +321,7 @@ class RichProgress:
         self._steps: dict[str, Any] = {}  # node -> task id
         self._labels: dict[str, str] = {}
         self._bars: dict[tuple[str, str], Any] = {}
+        self._tasks: dict[tuple[str, int], Any] = {}  # (node, key) -> task id
         self._lock = threading.Lock()
 
     def __enter__(self) -> RichProgress:
@@ -248,8 +351,26 @@ class RichProgress:
                 )
             self.progress.update(self._bars[key], completed=done, total=total)
 
+    def task_started(self, node: str, key: int, label: str, total: int | None) -> None:
+        with self._lock:
+            self._tasks[(node, key)] = self.progress.add_task(
+                f"    {label}: iterations" if total else f"    {label}", total=total, at_most=True
+            )
+
+    def task_advanced(self, node: str, key: int, done: int) -> None:
+        with self._lock:
+            if (node, key) in self._tasks:
+                self.progress.update(self._tasks[(node, key)], completed=done)
+
+    def task_finished(self, node: str, key: int, done: int) -> None:
+        with self._lock:
+            if (node, key) in self._tasks:
+                self.progress.remove_task(self._tasks.pop((node, key)))
+
     def step_finished(self, node: str, status: str, seconds: float) -> None:
         with self._lock:
+            for key in [k for k in self._tasks if k[0] == node]:
+                self.progress.remove_task(self._tasks.pop(key))
             for key in [k for k in self._bars if k[0] == node]:
                 self.progress.remove_task(self._bars.pop(key))
             if node in self._steps:

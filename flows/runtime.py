@@ -335,7 +335,8 @@ def run_node(
         stage = f"reading {', '.join(sorted(inputs.values())) or 'no inputs'}"
         log(f"{node.name}: {stage}")
         progress.notify("stage", node.name, stage)
-        with dask_scheduler(dask_address, log) as parallel:
+        # the node's solver runs (spectralize.engine.progress) become bars under its line
+        with progress.node_tasks(node.name), dask_scheduler(dask_address, log) as parallel:
             data = {argument: store.read(group, friendly=False) for argument, group in inputs.items()}
             stage = "computing"
             progress.notify("stage", node.name, stage)

@@ -217,9 +217,19 @@ CAMERA_MATRIX = GroupSchema(
 SPECTRA_SEED = GroupSchema(
     name="spectra_seed",
     description="spectra of the seed image set, solved first to warm-start the others",
-    variables=_SPECTRA_VARIABLES,
+    variables=(
+        *_SPECTRA_VARIABLES,
+        # per image, not an attr: a tiled seed set is written as it is solved, tile by tile
+        ArraySpec(
+            "iterations",
+            ("image",),
+            "kind:iu",
+            None,
+            "solver iterations of the seed set (the most over its tiles)",
+        ),
+    ),
     coords=_SPECTRA_COORDS,
-    attrs={"seed_set": "index of the seed set", "iterations": "solver iterations"},
+    attrs={"seed_set": "index of the seed set"},
 )
 
 TRUTH_SPECTRA = GroupSchema(

@@ -10,8 +10,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import dask
-import dask.array as da
 import numpy as np
 import xarray as xr
 
@@ -175,6 +173,11 @@ def _check_values(where: str, array: xr.DataArray, spec: ArraySpec, *, lazy_ok: 
         return problems
     if not lazy_ok:
         return []
+    # dask only here: importing dask.array takes 0.2-1 s, which every command that imports
+    # the schemas would otherwise pay
+    import dask
+    import dask.array as da
+
     data = array.data.astype(float) if lazy else array.variable.chunk().data.astype(float)
     finite_mask = da.isfinite(data)
     nonfinite_count = (~finite_mask).sum()

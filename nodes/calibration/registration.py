@@ -17,8 +17,6 @@ from typing import Annotated
 import numpy as np
 import xarray as xr
 from pydantic import Field
-from scipy import ndimage
-from skimage.registration import phase_cross_correlation
 
 from spectralize.schemas import SchemaError
 from spectralize.schemas.errors import Problem
@@ -74,7 +72,9 @@ def estimate_shift(
     .. [2] M. Guizar-Sicairos, S. T. Thurman, J. R. Fienup, "Efficient subpixel image
        registration algorithms", Optics Letters 33(2), 2008 (upsampled DFT).
     """
+    from scipy import ndimage
     from skimage.filters import window
+    from skimage.registration import phase_cross_correlation
 
     if reference.shape != moving.shape or reference.ndim != 2:
         raise SchemaError(
@@ -255,6 +255,8 @@ def estimate_registration(
 
 
 def _shift_frames(frames: np.ndarray, shift: tuple[float, float], order: int) -> np.ndarray:
+    from scipy import ndimage
+
     out = np.empty_like(frames, dtype=np.float32)
     for index in np.ndindex(frames.shape[:-2]):
         # registered(p) = spectral(p + shift): ndimage.shift(x, t)(p) = x(p - t) with t = -shift

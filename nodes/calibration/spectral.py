@@ -29,7 +29,6 @@ from typing import Annotated
 import numpy as np
 import xarray as xr
 from pydantic import Field
-from scipy import ndimage, optimize
 
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import (
@@ -378,6 +377,8 @@ def camera_matrix(
     ----------
     Fast Capture of Spectral Image Series, eq. 1 (matrix ``C``) and section 4.
     """
+    from scipy import optimize
+
     where = "camera_matrix"
     if set(rgb.dims) != {"patch", "channel"}:
         raise SchemaError(
@@ -672,6 +673,8 @@ def _rgb_series(target: xr.Dataset, group: str) -> xr.Dataset:
 
 
 def _eroded_labels(labels: np.ndarray, margin: int) -> np.ndarray:
+    from scipy import ndimage
+
     if margin <= 0:
         return labels
     out = np.full_like(labels, -1)

@@ -31,14 +31,19 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Literal
+from typing import TYPE_CHECKING, Literal, Union
 
-import colour
 import numpy as np
 import numpy.typing as npt
 import xarray as xr
 
 from spectralize.schemas import ParameterError, Problem, SchemaError
+
+if TYPE_CHECKING:
+    import colour
+
+# colour-science is imported inside the functions that use it: importing it costs 1-2 s (it
+# imports matplotlib), which declaring the ``evaluate`` node (``spectralize nodes``) must not pay.
 
 __all__ = [
     "OBSERVER",
@@ -57,7 +62,7 @@ OBSERVER: str = "CIE 1931 2 Degree Standard Observer"
 
 #: An illuminant: a key of ``colour.SDS_ILLUMINANTS``, a spectral distribution, or ``None``
 #: (equal energy, CIE illuminant E: the spectra are integrated as they are).
-Illuminant = str | colour.SpectralDistribution | None
+Illuminant = Union[str, "colour.SpectralDistribution", None]  # noqa: UP007 (a forward reference)
 
 _WAVELENGTH_TOLERANCE_NM = 1e-6
 
@@ -65,6 +70,8 @@ _WAVELENGTH_TOLERANCE_NM = 1e-6
 @contextmanager
 def _quiet_colour() -> Iterator[None]:
     """Silence colour-science's notes about aligning spectral shapes (expected here)."""
+    import colour
+
     with warnings.catch_warnings():
         for category in (
             colour.utilities.ColourWarning,
@@ -88,6 +95,8 @@ def illuminant_sd(illuminant: Illuminant) -> colour.SpectralDistribution | None:
     ----------
     CIE 015:2018 Colorimetry (standard illuminants).
     """
+    import colour
+
     if illuminant is None or isinstance(illuminant, colour.SpectralDistribution):
         return illuminant
     if isinstance(illuminant, str):
@@ -146,6 +155,8 @@ def white_point(
     ----------
     CIE 015:2018 Colorimetry (chromaticity coordinates, white points).
     """
+    import colour
+
     if wavelength is not None:
         xyz = xyz_weights(wavelength, illuminant=illuminant).values.sum(axis=0)
         return np.asarray(colour.XYZ_to_xy(xyz), dtype=np.float64)
@@ -161,6 +172,8 @@ def white_point(
 
 
 def _spectral_shape(wavelength: npt.ArrayLike) -> colour.SpectralShape:
+    import colour
+
     wl = np.asarray(wavelength, dtype=np.float64).reshape(-1)
     if wl.size < 2:
         raise SchemaError(
@@ -217,6 +230,8 @@ def xyz_weights(wavelength: npt.ArrayLike, *, illuminant: Illuminant = "D65") ->
     ----------
     CIE 015:2018 Colorimetry; colour-science's ``colour.msds_to_XYZ`` (integration).
     """
+    import colour
+
     shape = _spectral_shape(wavelength)
     sd = illuminant_sd(illuminant)
     n = len(shape.wavelengths)
@@ -277,6 +292,8 @@ def spectra_to_xyz(radiance: xr.DataArray, *, illuminant: Illuminant = "D65") ->
     Fast Capture of Spectral Image Series, Figures 5, 6 and 8 (spectra "converted to RGB
     for display"); CIE 015:2018 Colorimetry.
     """
+    import colour
+
     if "wavelength" not in radiance.dims or "wavelength" not in radiance.coords:
         raise SchemaError(
             "cannot integrate the spectra:",
@@ -307,6 +324,8 @@ def spectra_to_xyz(radiance: xr.DataArray, *, illuminant: Illuminant = "D65") ->
 
 
 def _xyz_to_srgb_numpy(xyz: np.ndarray, white: np.ndarray) -> np.ndarray:
+    import colour
+
     with _quiet_colour():
         rgb = colour.XYZ_to_sRGB(
             xyz, illuminant=white, chromatic_adaptation_transform="CAT02", apply_cctf_encoding=True

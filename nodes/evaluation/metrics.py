@@ -32,10 +32,9 @@ histograms, images with and without band shots, logarithmic count axis).
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping, Sequence
-from typing import Annotated
+from collections.abc import Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Annotated
 
-import colour
 import numpy as np
 import xarray as xr
 from pydantic import AfterValidator, Field
@@ -45,6 +44,12 @@ from spectralize.engine import Choices
 from spectralize.nodes.evaluation.colorimetry import Illuminant, _quiet_colour, spectra_to_xyz
 from spectralize.schemas import ParameterError, Problem, SchemaError
 from spectralize.schemas.run import SPECTRA
+
+if TYPE_CHECKING:
+    import colour
+
+# colour-science is imported where it is used: importing it costs 1-2 s (it imports
+# matplotlib), which declaring the ``evaluate`` node (``spectralize nodes``) must not pay.
 
 __all__ = [
     "CUBE_DIMS",
@@ -71,9 +76,53 @@ STATISTICS: tuple[str, ...] = ("mean", "median", "p95", "p99")
 DEFAULT_THRESHOLD: float = 0.03
 #: Quantiles of the nRMSE map at which representative pixels are picked (low .. highest).
 DEFAULT_SAMPLE_QUANTILES: tuple[float, ...] = (0.05, 0.5, 0.9, 0.99, 1.0)
+#: The keys of ``colour.SDS_ILLUMINANTS`` (colour-science 0.4.7) plus ``"E"``, written out so
+#: that the ``evaluate`` node's choices are known without importing colour-science; a test
+#: (tests/flows/test_cli_fast.py) checks them against the installed colour-science.
+ILLUMINANT_NAMES: tuple[str, ...] = (
+    "A", "B", "C", "D50", "D55", "D60", "D65", "D75", "E",
+    "FL1", "FL2", "FL3", "FL4", "FL5", "FL6", "FL7", "FL8", "FL9", "FL10", "FL11", "FL12",
+    "FL3.1", "FL3.2", "FL3.3", "FL3.4", "FL3.5", "FL3.6", "FL3.7", "FL3.8", "FL3.9", "FL3.10",
+    "FL3.11", "FL3.12", "FL3.13", "FL3.14", "FL3.15",
+    "HP1", "HP2", "HP3", "HP4", "HP5",
+    "LED-B1", "LED-B2", "LED-B3", "LED-B4", "LED-B5", "LED-BH1", "LED-RGB1", "LED-V1", "LED-V2",
+    "ID65", "ID50",
+    "ISO 7589 Photographic Daylight", "ISO 7589 Sensitometric Daylight", "ISO 7589 Studio Tungsten",
+    "ISO 7589 Sensitometric Studio Tungsten", "ISO 7589 Photoflood",
+    "ISO 7589 Sensitometric Photoflood", "ISO 7589 Sensitometric Printer",
+)  # fmt: skip
+
+
+class _IlluminantTable(Mapping[str, "colour.SpectralDistribution | None"]):
+    """:data:`ILLUMINANTS`: the names without colour-science, the distributions on first use."""
+
+    def __init__(self, names: Sequence[str]) -> None:
+        self._names = tuple(names)
+        self._table: dict[str, colour.SpectralDistribution | None] | None = None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._names
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def __getitem__(self, name: str) -> colour.SpectralDistribution | None:
+        if name not in self._names:
+            raise KeyError(name)
+        if self._table is None:
+            import colour
+
+            self._table = {"E": None, **colour.SDS_ILLUMINANTS}
+        return self._table[name]
+
+
 #: Illuminants of the CIEDE2000 colour difference by name: colour-science's table plus
-#: ``"E"`` (equal energy: the cubes are integrated as they are).
-ILLUMINANTS: Mapping[str, colour.SpectralDistribution | None] = {"E": None, **colour.SDS_ILLUMINANTS}
+#: ``"E"`` (equal energy: the cubes are integrated as they are). The distributions are
+#: loaded from colour-science on first access.
+ILLUMINANTS: Mapping[str, colour.SpectralDistribution | None] = _IlluminantTable(ILLUMINANT_NAMES)
 
 _METRICS = {
     "nrmse": ("1", "normalised RMSE over wavelength (RMSE / mean ground-truth intensity of the image)"),
@@ -271,6 +320,8 @@ def _angle(s: xr.DataArray, t: xr.DataArray) -> xr.DataArray:
 
 
 def _ciede2000(xyz_spectra: np.ndarray, xyz_truth: np.ndarray, white: np.ndarray) -> np.ndarray:
+    import colour
+
     with _quiet_colour(), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         lab_s = colour.XYZ_to_Lab(xyz_spectra, white)

@@ -15,6 +15,7 @@ References
 from spectralize.engine import Node
 from spectralize.nodes.reconstruction.image_sets import select_image_sets
 from spectralize.nodes.reconstruction.set_reconstruction import (
+    DISK_TILE,
     reconstruct_image_sets,
     reconstruct_seed_set,
 )
@@ -32,16 +33,17 @@ SELECT_IMAGE_SETS = Node(
 
 RECONSTRUCT_SEED_SET = Node(
     name="reconstruct_seed_set",
-    version="1",
+    version="2",  # 2: tiled (parameter ``tile``), iterations per image instead of an attr
     function=reconstruct_seed_set,
     inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix", "image_sets": "image_sets"},
     outputs=("spectra_seed",),
-    description="Solve eq. 1 for the seed image set from a cold start.",
+    chunks={"spectra_seed": {"y": DISK_TILE, "x": DISK_TILE}},
+    description="Solve eq. 1 for the seed image set from a cold start, tile by tile.",
 )
 
 RECONSTRUCT_IMAGE_SETS = Node(
     name="reconstruct_image_sets",
-    version="1",
+    version="2",  # 2: tiled (parameter ``tile``), warm start from a strided seed sample
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",
@@ -51,7 +53,8 @@ RECONSTRUCT_IMAGE_SETS = Node(
         "spectra_seed": "spectra_seed",
     },
     outputs=("spectra",),
-    chunks={"spectra": {"y": 256, "x": 256}},
+    chunks={"spectra": {"y": DISK_TILE, "x": DISK_TILE}},  # the tiles line up with them
     resumable_along={"spectra": "image"},
-    description="All image sets, warm-started from the seed, in parallel; written set by set.",
+    description="All image sets, warm-started from the seed, in parallel tile by tile; "
+    "written set by set.",
 )

@@ -20,6 +20,7 @@ References
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Annotated, Any
 
@@ -27,7 +28,7 @@ import dask
 import dask.array as da
 import numpy as np
 import xarray as xr
-from pydantic import Field
+from pydantic import AfterValidator, Field
 
 from spectralize.engine import Choices
 from spectralize.schemas import ReconstructionError
@@ -36,12 +37,15 @@ from .api import reconstruct
 from .confidence import neighbourhood_spread
 from .image_sets import set_members
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
+from .solvers.common import counting_iterations
+from .tiling import TileWindow, check_windows, default_halo, tile_windows
 from .warm_start import transport_spectra
 
 __all__ = [
     "solve_set",
     "reconstruct_seed_set",
     "reconstruct_image_sets",
+    "DISK_TILE",
 ]
 
 _PER_IMAGE = ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
@@ -76,6 +80,32 @@ Prior = Annotated[
 ]
 WarmStartPixels = Annotated[
     int, Field(ge=1000, description="seed pixels used to transport spectra to the other sets")
+]
+
+DISK_TILE = 256
+"""Tile size [px] of the spectra on disk (the nodes' declared ``y``/``x`` chunks) and the
+default tile of a set's solve: a tile that divides it or is a multiple of it keeps every
+chunk on disk inside one tile."""
+
+
+def _aligned_tile(tile: int | None) -> int | None:
+    if tile is not None and tile % DISK_TILE and DISK_TILE % tile:
+        raise ValueError(
+            f"expected a divisor or a multiple of the {DISK_TILE} px chunks on disk "
+            f"(e.g. 64, 128, 256, 512), or None for one tile; found {tile}"
+        )
+    return tile
+
+
+Tile = Annotated[
+    int | None,
+    Field(
+        ge=16,
+        description=f"tile size [px]: each set is solved tile by tile, every tile with all of "
+        f"the set's images and a halo of its largest filter (memory: tile x set); a divisor "
+        f"or multiple of {DISK_TILE}; None: the whole image at once",
+    ),
+    AfterValidator(_aligned_tile),
 ]
 
 
@@ -163,9 +193,22 @@ def solve_set(
     if initial is not None and "initial" in get_method(method).options:
         options["initial"] = initial
     start = time.perf_counter()
-    result = reconstruct(
-        rgb.load(), shots.load(), camera_matrix, method=method, full_output=True, **options
-    )
+    # a solver's iterations, for the console's bars (nothing is reported when nobody listens)
+    from spectralize.engine import progress
+
+    # named by its images without band shots (the anchors with shots are in every set)
+    images = rgb["image"].values.tolist()
+    anchors = set(shots["image"].values.tolist())
+    named = [str(i) for i in sorted(i for i in images if i not in anchors) or images]
+    more = f" and {len(named) - 3} more" if len(named) > 3 else ""
+    label = f"images {', '.join(named[:3])}{more}"
+    solver = "callback" in get_method(method).options
+    with progress.task(label, total=max_iterations if solver else None) as solving:
+        if solving is not None and solver:
+            options["callback"] = counting_iterations(solving.advance)
+        result = reconstruct(
+            rgb.load(), shots.load(), camera_matrix, method=method, full_output=True, **options
+        )
     return result.spectra, int(result.iterations), time.perf_counter() - start
 
 
@@ -182,6 +225,48 @@ def _wavelengths(bands: xr.Dataset) -> np.ndarray:
     return np.unique(np.asarray(bands["wavelength"].values, dtype=float))
 
 
+def _set_windows(
+    shots: xr.DataArray, height: int, width: int, tile: int | None
+) -> tuple[list[TileWindow], int]:
+    """``(windows, halo)``: the tiles a set is solved in. One window, the whole image, when
+    ``tile`` is None or covers the image; else :func:`~.tiling.tile_windows` with the halo of
+    the set's largest filter (:func:`~.tiling.default_halo`)."""
+    if tile is None or (height <= tile and width <= tile):
+        return tile_windows(height, width, max(height, width), 0), 0
+    if shots.sizes["shot"] == 0:  # solve_set says why it cannot be solved
+        return tile_windows(height, width, tile, 0), 0
+    sizes = np.asarray(shots["filter_size"].values, dtype=np.float64)
+    halo = default_halo(sizes)
+    windows = tile_windows(height, width, tile, halo)
+    check_windows(windows, sizes)
+    return windows, halo
+
+
+def _core_chunks(windows: list[TileWindow]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The cores' heights (along y) and widths (along x): the dask chunks of a tiled result."""
+    ys = sorted({(w.core[0].start, w.core[0].stop) for w in windows})
+    xs = sorted({(w.core[1].start, w.core[1].stop) for w in windows})
+    return tuple(b - a for a, b in ys), tuple(b - a for a, b in xs)
+
+
+def _tiled(blocks: list[da.Array], windows: list[TileWindow]) -> da.Array:
+    """Per-tile blocks (row-major, like ``windows``) joined along their last two dims."""
+    columns = len(_core_chunks(windows)[1])
+    return da.block([blocks[i : i + columns] for i in range(0, len(blocks), columns)])
+
+
+def _recorded_settings(method: str, options: dict[str, Any]) -> dict[str, Any]:
+    """The method and its scalar settings (its defaults where not given) as attrs."""
+    used = {**get_method(method).defaults(), **options}
+    attrs: dict[str, Any] = {"method": method}
+    for name, value in used.items():
+        if isinstance(value, bool | np.bool_):
+            attrs[name] = int(value)
+        elif isinstance(value, int | float | str):
+            attrs[name] = value
+    return attrs
+
+
 def reconstruct_seed_set(
     hdr: xr.Dataset,
     bands: xr.Dataset,
@@ -194,8 +279,9 @@ def reconstruct_seed_set(
     max_iterations: MaxIterations = 400,
     k: Neighbours = 3,
     prior: Prior = None,
+    tile: Tile = DISK_TILE,
 ) -> xr.Dataset:
-    """Solve the seed set from a cold start (eq. 1 by any solver, or a baseline).
+    """Solve the seed set from a cold start (eq. 1 by any solver, or a baseline), tile by tile.
 
     Parameters
     ----------
@@ -212,54 +298,110 @@ def reconstruct_seed_set(
     method, gamma_hat, tolerance, max_iterations, k, prior
         Method and solver settings (see :func:`spectralize.nodes.reconstruction.reconstruct`);
         a baseline takes none of the solver settings.
+    tile
+        Tile size [px] (:mod:`~.tiling`): every tile is solved with all images of the set on
+        its core plus a halo of the set's largest filter, and its core kept. ``None``, or a
+        tile that covers the image: the set is solved whole, in memory.
 
     Returns
     -------
     xarray.Dataset
         Group ``spectra_seed``: ``radiance`` (image, wavelength, y, x) of every member of the
-        seed set, attrs ``seed_set``, ``iterations``, ``seconds``.
+        seed set and ``iterations`` (image) int32 (the set's solver iterations, the most
+        over its tiles); attrs ``seed_set``, ``method``, ``tiles`` (and ``tile``, ``halo``
+        when tiled). Solved whole, the data are in memory; tiled, they are lazy: one dask
+        task per tile, chunked (all images, all wavelengths, the tile's core), solved as the
+        runner writes them, so memory is bounded by tile x set, not by the image size.
     """
     seed = int(image_sets.attrs["seed_set"])
     members, _ = set_members(image_sets, seed)
     wavelength = _wavelengths(bands)
     rgb, shots = _set_inputs(hdr, bands, members)
-    spectra, iterations, seconds = solve_set(
-        rgb,
-        shots,
-        _camera_matrix(calibration, wavelength),
-        method=method,
-        gamma_hat=gamma_hat,
-        tolerance=tolerance,
-        max_iterations=max_iterations,
-        k=k,
-        prior=prior,
-    )
-    spectra = spectra.drop_vars(
-        [c for c in spectra.coords if c not in ("image", "wavelength", *_PER_IMAGE)]
-    )
+    camera_matrix = _camera_matrix(calibration, wavelength)
+    settings = {
+        "method": method,
+        "gamma_hat": gamma_hat,
+        "tolerance": tolerance,
+        "max_iterations": max_iterations,
+        "k": k,
+        "prior": prior,
+    }
+    options = _method_options(
+        method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
+    )  # fail before any solve
+    windows, halo = _set_windows(shots, hdr.sizes["y"], hdr.sizes["x"], tile)
+    attrs: dict[str, Any] = {
+        "seed_set": seed,
+        "method": method,
+        **({} if prior is None else {"prior": prior}),
+        "tiles": len(windows),
+        **({"tile": tile, "halo": halo} if len(windows) > 1 else {}),
+    }
+    iterations_attrs = {"long_name": "solver iterations of the seed set (the most over its tiles)"}
+    if len(windows) == 1:
+        spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, **settings)
+        spectra = spectra.drop_vars(
+            [c for c in spectra.coords if c not in ("image", "wavelength", *_PER_IMAGE)]
+        )
+        count = np.full(len(members), iterations, dtype=np.int32)
+    else:
+        token = dask.base.tokenize(rgb.data, shots.data, camera_matrix.values, settings, tile)
+        keep = np.ones(len(members), dtype=bool)
+        blocks, counts = [], []
+        for j, window in enumerate(windows):
+            oy, ox = window.outer
+            task = dask.delayed(_solve_tile, pure=True, nout=3)(
+                rgb.isel(y=oy, x=ox),
+                shots.isel(y=oy, x=ox),
+                camera_matrix,
+                keep,
+                None,
+                settings,
+                window.inner,
+                False,
+                dask_key_name=f"solve-seed-{seed}-tile-{j}-{token}",
+            )
+            shape = (len(members), wavelength.size, *window.core_shape)
+            blocks.append(da.from_delayed(task[0], shape=shape, dtype=np.float32))
+            counts.append(da.from_delayed(task[1], shape=shape[:1], dtype=np.int32))
+        per_image = hdr.drop_vars(list(hdr.data_vars)).sel(image=members).load()
+        coords = {n: per_image[n] for n in ("image", *_PER_IMAGE) if n in per_image.coords}
+        coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
+        spectra = xr.DataArray(
+            _tiled(blocks, windows),
+            dims=("image", "wavelength", "y", "x"),
+            coords=coords,
+            attrs={**_recorded_settings(method, options), "tile": tile, "halo": halo},
+        )
+        count = da.stack(counts).max(axis=0)
     return xr.Dataset(
-        {"radiance": spectra.assign_attrs(units="1", long_name="relative spectral radiance")},
-        attrs={
-            "seed_set": seed,
-            "iterations": iterations,
-            "seconds": round(seconds, 3),
-            "method": method,
-            **({} if prior is None else {"prior": prior}),
+        {
+            "radiance": spectra.assign_attrs(units="1", long_name="relative spectral radiance"),
+            "iterations": ("image", count, iterations_attrs),
         },
+        attrs=attrs,
     )
 
 
-def _solve_region(
+def _solve_tile(
     rgb: xr.DataArray,
     shots: xr.DataArray,
     camera_matrix: xr.DataArray,
-    owned: np.ndarray,
+    keep: np.ndarray,
     warm: tuple[np.ndarray, np.ndarray] | None,
     settings: dict,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Solve one set: the owned images' cube (image, wavelength, y, x) float32, per owned
-    image the set's iterations, and the owned images' confidence (image, y, x)
-    (:func:`~.confidence.neighbourhood_spread` over the whole set)."""
+    inner: tuple[slice, slice],
+    confidence: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Solve one set on one tile's outer window and keep the core of the images ``keep``.
+
+    ``rgb`` and ``shots`` are the set's inputs cut to the window; ``warm`` (seed pixels'
+    ``(rgb, spectra)``) is transported to the window's pixels as the initial guess (solvers
+    only). Returns the kept images' spectra (image, wavelength, y, x) float32 on the core
+    (``inner``: the core inside the window), the set's iterations per kept image, and with
+    ``confidence`` their :func:`~.confidence.neighbourhood_spread` over the window's images,
+    cut to the core (else ``None``).
+    """
     initial = None
     if warm is not None and "initial" in get_method(settings["method"]).options:
         source_rgb, source_spectra = warm
@@ -273,19 +415,59 @@ def _solve_region(
         )
     spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, initial=initial, **settings)
     cube = spectra.transpose("image", "wavelength", "y", "x").values
-    spread = neighbourhood_spread(
-        np.moveaxis(cube, 1, 0), rgb.transpose("image", "y", "x", "channel").values
-    )
+    iy, ix = inner
+    spread = None
+    if confidence:
+        rgb_values = rgb.transpose("image", "y", "x", "channel").values
+        spread = neighbourhood_spread(np.moveaxis(cube, 1, 0), rgb_values)[keep][:, iy, ix]
     return (
-        np.asarray(cube[owned], dtype=np.float32),
-        np.full(int(owned.sum()), iterations, dtype=np.int32),
-        spread[owned],
+        np.ascontiguousarray(cube[keep][:, :, iy, ix], dtype=np.float32),
+        np.full(int(keep.sum()), iterations, dtype=np.int32),
+        spread,
     )
 
 
-def _seed_confidence(cube: np.ndarray, rgb: np.ndarray) -> np.ndarray:
-    """Confidence (image, y, x) of the seed set's owned images from their spectra and RGB."""
-    return neighbourhood_spread(np.moveaxis(np.asarray(cube, dtype=np.float64), 1, 0), np.asarray(rgb))
+def _tile_confidence(cube: np.ndarray, rgb: np.ndarray, inner: tuple[slice, slice]) -> np.ndarray:
+    """Confidence (image, y, x) on a tile's core from its window's spectra (image, wavelength,
+    y, x) and RGB (image, y, x, channel)."""
+    cube = np.moveaxis(np.asarray(cube, dtype=np.float64), 1, 0)
+    iy, ix = inner
+    return neighbourhood_spread(cube, np.asarray(rgb))[:, iy, ix]
+
+
+def _warm_sample(
+    rgb: xr.DataArray, cube: xr.DataArray, count: int, *also: Any
+) -> tuple[np.ndarray, np.ndarray, list]:
+    """At most ``count`` seed pixels for the warm start, without reading the whole seed set.
+
+    ``rgb`` (image, y, x, channel) and ``cube`` (image, y, x, wavelength) are read on a
+    strided grid per image, its offset drawn per image (so a texture whose period divides
+    the stride is still sampled at every phase), then cut to ``count`` at random. ``also``:
+    more lazy values computed in the same pass (a lazy seed's tiles are solved once).
+
+    Returns
+    -------
+    tuple
+        ``(rgb (n, 3), spectra (n, wavelength), [computed also])``.
+    """
+    n_image, height, width = rgb.sizes["image"], rgb.sizes["y"], rgb.sizes["x"]
+    stride = max(1, math.ceil(math.sqrt(n_image * height * width / count)))
+    rng = np.random.default_rng(0)
+    offsets = rng.integers(0, stride, size=(n_image, 2))
+    pieces = []
+    for m, (oy, ox) in enumerate(offsets):
+        where = {"image": m, "y": slice(int(oy), None, stride), "x": slice(int(ox), None, stride)}
+        pieces.append(rgb.isel(where).transpose("y", "x", "channel").data)
+        pieces.append(cube.isel(where).transpose("y", "x", "wavelength").data)
+    computed = dask.compute(*pieces, *also)
+    source_rgb = np.concatenate([np.asarray(p).reshape(-1, 3) for p in computed[0 : len(pieces) : 2]])
+    spectra = np.concatenate(
+        [np.asarray(p).reshape(-1, cube.sizes["wavelength"]) for p in computed[1 : len(pieces) : 2]]
+    )
+    if len(source_rgb) > count:
+        pick = np.sort(rng.permutation(len(source_rgb))[:count])
+        source_rgb, spectra = source_rgb[pick], spectra[pick]
+    return source_rgb, spectra, list(computed[len(pieces) :])
 
 
 def reconstruct_image_sets(
@@ -302,13 +484,20 @@ def reconstruct_image_sets(
     k: Neighbours = 3,
     prior: Prior = None,
     warm_start_pixels: WarmStartPixels = 200_000,
+    tile: Tile = DISK_TILE,
 ) -> xr.Dataset:
-    """The spectral cube of the whole run, one lazy dask chunk per image set.
+    """The spectral cube of the whole run, lazy: one dask task per image set and tile.
 
     The seed set's owned images are copied from ``spectra_seed``; every other set is solved
-    warm-started from the seed through appearance neighbourhoods in RGB (paper sec. 4). The
-    ``image`` dim is ordered by set (the ``image`` coordinate keeps the run's labels, so
-    ``spectra.sel(image=...)`` works), one dask chunk per set: the runner writes it set by set.
+    warm-started from the seed through appearance neighbourhoods in RGB (paper sec. 4), tile
+    by tile (:mod:`~.tiling`: each tile with all images of the set, on its core plus a halo of
+    the set's largest filter; inputs are cut lazily from ``hdr`` and ``bands``, so a task
+    reads its window only). The ``image`` dim is ordered by set (the ``image`` coordinate
+    keeps the run's labels, so ``spectra.sel(image=...)`` works); the dask chunks are (the
+    set's owned images, all wavelengths, the tile's core): the runner writes set by set, tile
+    by tile, and memory is bounded by tile x set (times the tasks in flight), not by the
+    image size. Pass ``spectra_seed`` as written to the store (the flows do): a lazy,
+    unwritten seed is solved again wherever it is read.
 
     Parameters
     ----------
@@ -316,10 +505,11 @@ def reconstruct_image_sets(
         As for :func:`reconstruct_seed_set`.
     spectra_seed
         Group ``spectra_seed`` (:func:`reconstruct_seed_set`): the seed set's spectra.
-    method, gamma_hat, tolerance, max_iterations, k, prior
+    method, gamma_hat, tolerance, max_iterations, k, prior, tile
         As for :func:`reconstruct_seed_set`.
     warm_start_pixels
-        At most this many seed pixels transport spectra to the other sets' initial guesses.
+        At most this many seed pixels (read on a strided grid, not the whole seed set)
+        transport spectra to the other sets' initial guesses.
 
     Returns
     -------
@@ -327,7 +517,7 @@ def reconstruct_image_sets(
         Group ``spectra``: ``radiance`` (image, wavelength, y, x) float32 units ``"1"``,
         ``confidence`` (image, y, x) float32 (:func:`~.confidence.neighbourhood_spread`: an
         estimated per-pixel nRMSE, higher where the result deserves less trust), plus
-        ``image_set`` and ``iterations`` (image), lazy.
+        ``image_set`` and ``iterations`` (image, the most over the set's tiles), lazy.
     """
     seed = int(spectra_seed.attrs["seed_set"])
     wavelength = _wavelengths(bands)
@@ -338,8 +528,13 @@ def reconstruct_image_sets(
     seed_cube = (
         spectra_seed["radiance"].sel(image=seed_members).transpose("image", "y", "x", "wavelength")
     )
-    pick = np.random.default_rng(0).permutation(seed_rgb.size // 3)[:warm_start_pixels]
-    warm = (seed_rgb.values.reshape(-1, 3)[pick], seed_cube.values.reshape(-1, wavelength.size)[pick])
+    seed_counts = spectra_seed["iterations"].sel(image=seed_members)
+    source_rgb, source_spectra, (seed_count,) = _warm_sample(
+        seed_rgb, seed_cube, warm_start_pixels, seed_counts.max().data
+    )
+    warm = (source_rgb, source_spectra)
+    seed_iterations = int(seed_count)
+    warm_task = dask.delayed(warm, name=f"warm-start-{dask.base.tokenize(*warm)}")
     settings = {
         "method": method,
         "gamma_hat": gamma_hat,
@@ -353,12 +548,13 @@ def reconstruct_image_sets(
     )  # fail before any solve
 
     pieces, counts, labels, set_of, confidences = [], [], [], [], []
-    seed_iterations = int(spectra_seed.attrs.get("iterations", -1))
     for index in range(image_sets.sizes["set"]):
         members, owned = set_members(image_sets, index)
         if not owned.any():
             continue
-        shape = (int(owned.sum()), wavelength.size, ny, nx)
+        n_owned = int(owned.sum())
+        rgb, shots = _set_inputs(hdr, bands, members)
+        windows, _ = _set_windows(shots, ny, nx, tile)
         if index == seed:
             block = (
                 spectra_seed["radiance"]
@@ -366,33 +562,52 @@ def reconstruct_image_sets(
                 .transpose("image", "wavelength", "y", "x")
                 .data
             )
-            block = da.asarray(block).astype(np.float32).rechunk((shape[0], -1, -1, -1))
-            count = da.full(shape[0], seed_iterations, dtype=np.int32, chunks=shape[0])
+            block = da.asarray(block).astype(np.float32).rechunk((n_owned, -1, *_core_chunks(windows)))
+            count = da.asarray(seed_counts.sel(image=members[owned]).data).astype(np.int32)
             owned_rgb = hdr["radiance"].sel(image=members[owned]).transpose("image", "y", "x", "channel")
-            confidence = da.from_delayed(
-                dask.delayed(_seed_confidence, pure=True)(block, owned_rgb.data),
-                shape=(shape[0], ny, nx),
-                dtype=np.float32,
-            )
+            tiles = [
+                da.from_delayed(
+                    dask.delayed(_tile_confidence, pure=True)(
+                        block[:, :, w.outer[0], w.outer[1]],
+                        owned_rgb.data[:, w.outer[0], w.outer[1]],
+                        w.inner,
+                    ),
+                    shape=(n_owned, *w.core_shape),
+                    dtype=np.float32,
+                )
+                for w in windows
+            ]
+            confidence = _tiled(tiles, windows)
         else:
-            rgb, shots = _set_inputs(hdr, bands, members)
-            task = dask.delayed(_solve_region, pure=True)(
-                rgb,
-                shots,
-                camera_matrix,
-                owned,
-                warm,
-                settings,
-                dask_key_name=f"solve-set-{index}-{dask.base.tokenize(rgb.data, settings)}",
+            token = dask.base.tokenize(
+                rgb.data, shots.data, camera_matrix.values, settings, tile, warm_task.key
             )
-            block = da.from_delayed(task[0], shape=shape, dtype=np.float32)
-            count = da.from_delayed(task[1], shape=shape[:1], dtype=np.int32)
-            confidence = da.from_delayed(task[2], shape=(shape[0], ny, nx), dtype=np.float32)
+            blocks, tile_counts, tiles = [], [], []
+            for j, window in enumerate(windows):
+                oy, ox = window.outer
+                task = dask.delayed(_solve_tile, pure=True, nout=3)(
+                    rgb.isel(y=oy, x=ox),
+                    shots.isel(y=oy, x=ox),
+                    camera_matrix,
+                    owned,
+                    warm_task,
+                    settings,
+                    window.inner,
+                    True,
+                    dask_key_name=f"solve-set-{index}-tile-{j}-{token}",
+                )
+                shape = (n_owned, wavelength.size, *window.core_shape)
+                blocks.append(da.from_delayed(task[0], shape=shape, dtype=np.float32))
+                tile_counts.append(da.from_delayed(task[1], shape=shape[:1], dtype=np.int32))
+                tiles.append(da.from_delayed(task[2], shape=(n_owned, *shape[2:]), dtype=np.float32))
+            block = _tiled(blocks, windows)
+            count = da.stack(tile_counts).max(axis=0)
+            confidence = _tiled(tiles, windows)
         pieces.append(block)
         counts.append(count)
         confidences.append(confidence)
         labels.extend(members[owned].tolist())
-        set_of.extend([index] * shape[0])
+        set_of.extend([index] * n_owned)
     cube = da.concatenate(pieces, axis=0)
     per_image = hdr.drop_vars([v for v in hdr.data_vars]).sel(image=labels).load()
     coords = {name: per_image[name] for name in (*_PER_IMAGE, "image") if name in per_image.coords}
@@ -429,6 +644,7 @@ def reconstruct_image_sets(
             "gamma_hat": gamma_hat,
             **({} if prior is None else {"prior": prior}),
             "seed_iterations": seed_iterations,
+            **({} if tile is None else {"tile": tile}),
             "ordering": "images ordered by image set; use .sel(image=label)",
         },
     )

@@ -19,11 +19,23 @@ from spectralize.flows.pipelines import FLOW_DESCRIPTIONS, FLOWS
 from spectralize.schemas import RunStore
 
 HEAVY = ("prefect", "matplotlib", "rich", "spectralize.engine", "spectralize.flows.runtime")
+# What listing the nodes must not import (each costs 0.1-2 s): the flow runtime, reports and
+# colour-science (matplotlib), scipy's image filters and optimisers, scikit-image
+NOT_FOR_NODES = (
+    "prefect",
+    "rich",
+    "matplotlib",
+    "colour",
+    "scipy.ndimage",
+    "scipy.optimize",
+    "skimage",
+    "spectralize.flows.runtime",
+)
 
 
-def loaded_after(argv, cwd):
-    """Run ``main(argv)`` in a fresh interpreter; the exit code, output, and which of HEAVY
-    were imported."""
+def loaded_after(argv, cwd, modules=HEAVY):
+    """Run ``main(argv)`` in a fresh interpreter; the exit code, output, and which of
+    ``modules`` were imported."""
     code = textwrap.dedent(
         f"""
         import contextlib, io, json, sys
@@ -37,7 +49,7 @@ def loaded_after(argv, cwd):
         print(json.dumps({{
             "code": code,
             "out": out.getvalue(),
-            "loaded": [m for m in {HEAVY!r} if m in sys.modules],
+            "loaded": [m for m in {tuple(modules)!r} if m in sys.modules],
         }}))
         """
     )
@@ -79,8 +91,7 @@ def test_flows_nodes_validate_and_export_do_not_import_prefect(store, tmp_path):
 
     nodes = loaded_after(["nodes"], tmp_path)
     assert nodes["code"] == 0 and "--set dark_average.frames_per_chunk=16" in nodes["out"]
-    # matplotlib comes with colour-science (the evaluation node's illuminant table), not us
-    assert "prefect" not in nodes["loaded"] and "spectralize.flows.runtime" not in nodes["loaded"]
+    assert not {"prefect", "matplotlib", "spectralize.flows.runtime"} & set(nodes["loaded"])
 
     valid = loaded_after(["validate", str(store)], tmp_path)
     assert valid["code"] == 0 and "valid" in valid["out"]
@@ -94,6 +105,37 @@ def test_flows_nodes_validate_and_export_do_not_import_prefect(store, tmp_path):
     )
     assert export["code"] == 0 and (tmp_path / "cube.nc").is_file()
     assert not {"prefect", "matplotlib", "spectralize.flows.runtime"} & set(export["loaded"])
+
+
+def test_nodes_lists_every_node_and_parameter_without_heavy_imports(tmp_path):
+    found = loaded_after(["nodes"], tmp_path, NOT_FOR_NODES)
+    assert found["code"] == 0
+    assert found["loaded"] == []
+    out = found["out"]
+    for name, entry in registry().items():
+        assert f"{name}  (version {entry.node.version})" in out
+        for field in entry.node.parameters.model_fields:
+            assert f"--set {name}.{field}=" in out or f"--set '{name}.{field}=" in out, field
+    # the choices of the evaluate node's illuminant, known without colour-science
+    import colour
+
+    assert "--set evaluate.illuminant=D65  (str)" in out
+    assert f"one of: {', '.join(sorted({'E', *colour.SDS_ILLUMINANTS}))}\n" in out
+
+
+def test_the_written_out_illuminant_names_are_colour_sciences():
+    import colour
+
+    from spectralize.nodes.evaluation.metrics import ILLUMINANTS
+
+    assert set(ILLUMINANTS) == {"E", *colour.SDS_ILLUMINANTS}
+    assert len(ILLUMINANTS) == len(set(ILLUMINANTS))
+    # the distributions are colour-science's, loaded on first use ("E" as colour-science has it)
+    assert ILLUMINANTS["D65"] is colour.SDS_ILLUMINANTS["D65"]
+    assert ILLUMINANTS["E"] is colour.SDS_ILLUMINANTS.get("E")
+    assert "D65" in ILLUMINANTS and "D66" not in ILLUMINANTS
+    with pytest.raises(KeyError):
+        ILLUMINANTS["D66"]
 
 
 def test_every_printed_default_parses_back_to_the_default(capsys):

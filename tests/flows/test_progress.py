@@ -1,9 +1,11 @@
-"""Progress display: the store's region messages drive it, plain lines carry an ETA, the rich
-bar renders, and Prefect's console is quiet unless verbose."""
+"""Progress display: the store's region messages drive it, solver runs report their iterations
+under their node, plain lines carry an ETA, the rich bars render, and Prefect's console is quiet
+unless verbose."""
 
 import io
 import logging
 import sys
+import threading
 
 import dask
 import dask.array as da
@@ -11,15 +13,18 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from spectralize.engine import progress as engine_progress
 from spectralize.flows import progress
 from spectralize.flows.progress import (
     PlainProgress,
     RichProgress,
     format_seconds,
     listening,
+    node_tasks,
     quiet_prefect,
     store_message,
 )
+from spectralize.nodes.reconstruction.set_reconstruction import solve_set
 from spectralize.schemas import RunStore
 
 
@@ -150,3 +155,148 @@ def test_prefect_console_is_quiet_unless_verbose(monkeypatch):
         assert all(h.level == logging.WARNING for h in handlers)
     quiet_prefect(verbose=True)
     assert progress.os.environ[progress._CONSOLE_LEVEL] == "INFO"
+
+
+# -- solver runs inside a node (spectralize.engine.progress -> node_tasks -> the displays) ----
+
+
+class TaskRecorder(Recorder):
+    def task_started(self, *args):
+        self.calls.append(("task_started", *args))
+        self.thread = threading.current_thread()
+
+    def task_advanced(self, *args):
+        self.calls.append(("task_advanced", *args))
+
+    def task_finished(self, *args):
+        self.calls.append(("task_finished", *args))
+
+
+def small_set(size=12, n_wavelength=6):
+    """A two-image set: HDR RGB, band shots of image 10 and the camera matrix, from smooth
+    spectra (a real, small eq. 1)."""
+    rng = np.random.default_rng(3)
+    wavelength = np.linspace(450.0, 650.0, n_wavelength)
+    centres = np.array([600.0, 540.0, 460.0])
+    c = np.exp(-0.5 * ((wavelength[None, :] - centres[:, None]) / 40.0) ** 2)
+    y, x = np.mgrid[0:size, 0:size] / size
+    truth = np.stack(
+        [
+            0.3
+            + 0.2 * np.cos(3 * y + 2 * x + m)[None] * np.linspace(0.5, 1.0, n_wavelength)[:, None, None]
+            for m in range(2)
+        ]
+    )  # (image, wavelength, y, x)
+    rgb = xr.DataArray(
+        np.einsum("cw,mwyx->myxc", c, truth),
+        dims=("image", "y", "x", "channel"),
+        coords={"image": [10, 11], "channel": ["R", "G", "B"]},
+    )
+    shots = xr.DataArray(
+        truth[0] + 0.01 * rng.normal(size=truth[0].shape),
+        dims=("shot", "y", "x"),
+        coords={
+            "wavelength": ("shot", wavelength),
+            "image": ("shot", np.full(n_wavelength, 10)),
+            "filter_size": ("shot", np.full(n_wavelength, 3.0)),
+        },
+    )
+    camera = xr.DataArray(
+        c, dims=("channel", "wavelength"), coords={"channel": ["R", "G", "B"], "wavelength": wavelength}
+    )
+    return rgb, shots, camera
+
+
+def test_a_real_solve_reports_its_iterations_under_its_node_also_from_a_dask_thread():
+    rgb, shots, camera = small_set()
+    recorder = TaskRecorder()
+    solve = dask.delayed(solve_set)(rgb, shots, camera, tolerance=1e-9, max_iterations=40)
+    with listening(recorder), node_tasks("reconstruct_seed_set"):
+        spectra, iterations, _ = solve.compute(scheduler="threads")  # in a worker thread
+    assert spectra.sizes["image"] == 2 and 1 <= iterations <= 40
+    assert recorder.thread is not threading.main_thread()
+    assert [c[0] for c in recorder.calls][:2] == ["task_started", "task_advanced"]
+    started, *advanced, finished = recorder.calls
+    key = started[2]
+    assert started == ("task_started", "reconstruct_seed_set", key, "images 11", 40)
+    assert all(c[:3] == ("task_advanced", "reconstruct_seed_set", key) for c in advanced)
+    assert advanced[0][3] == 1  # the first iteration is told at once, later ones throttled
+    assert [c[3] for c in advanced] == sorted(c[3] for c in advanced)
+    assert finished == ("task_finished", "reconstruct_seed_set", key, iterations)
+    assert not engine_progress.listened()  # node_tasks unregistered its forwarder
+
+
+def test_without_a_display_nothing_listens_to_the_node_and_a_solve_still_runs():
+    rgb, shots, camera = small_set()
+    with node_tasks("reconstruct_seed_set"):  # nobody listens to the flow: nothing registered
+        assert not engine_progress.listened()
+        spectra, iterations, _ = solve_set(rgb, shots, camera, tolerance=1e-9, max_iterations=40)
+    assert spectra.sizes["image"] == 2 and iterations >= 1
+
+
+def test_a_display_without_the_task_methods_is_not_told_and_not_dropped(capsys):
+    rgb, shots, camera = small_set()
+    older = Recorder()  # step and region methods only
+    with listening(older), node_tasks("reconstruct_seed_set"):
+        solve_set(rgb, shots, camera, max_iterations=5)
+        progress.notify("stage", "reconstruct_seed_set", "writing")
+    assert older.calls == [("stage", "reconstruct_seed_set", "writing")]
+    assert "progress display stopped" not in capsys.readouterr().err
+
+
+def test_plain_solver_lines_at_most_every_ten_seconds_with_the_time_left():
+    now = [0.0]
+    out = io.StringIO()
+    display = PlainProgress(out, clock=lambda: now[0])
+    display.task_started("reconstruct_image_sets", 7, "images 4, 5, 6", 400)
+    display.task_started("reconstruct_image_sets", 8, "images 7, 8", 400)
+    for second, done in [(2.0, 10), (9.0, 45), (12.0, 60), (18.0, 90), (25.0, 125)]:
+        now[0] = second
+        display.task_advanced("reconstruct_image_sets", 7, done)
+    now[0] = 5.0
+    display.task_finished("reconstruct_image_sets", 8, 30)  # short: never printed, no end line
+    now[0] = 30.0
+    display.task_finished("reconstruct_image_sets", 7, 150)
+    assert out.getvalue().splitlines() == [
+        # 12 s in, 60 of 400 iterations: 5 iterations/s, 340 to go at most
+        "    reconstruct_image_sets: images 4, 5, 6: iteration 60/400, at most about 1 min 08 s left",
+        "    reconstruct_image_sets: images 4, 5, 6: iteration 125/400, at most about 55 s left",
+        "    reconstruct_image_sets: images 4, 5, 6: done after 150 iteration(s) in 30 s",
+    ]
+
+
+def test_a_real_solve_on_the_plain_display_prints_a_solver_line():
+    rgb, shots, camera = small_set()
+    clock = iter(range(0, 100_000, 20))  # 20 s pass between two looks at the clock
+    out = io.StringIO()
+    display = PlainProgress(out, clock=lambda: float(next(clock)))
+    with listening(display), node_tasks("reconstruct_seed_set"):
+        _, iterations, _ = solve_set(rgb, shots, camera, tolerance=1e-9, max_iterations=40)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("    reconstruct_seed_set: images 11: iteration 1/40, at most about ")
+    assert lines[-1].startswith(
+        f"    reconstruct_seed_set: images 11: done after {iterations} iteration(s)"
+    )
+
+
+def test_the_rich_display_shows_a_bar_per_running_solver():
+    from rich.console import Console
+
+    out = io.StringIO()
+    with RichProgress(Console(file=out, force_terminal=True, width=100)) as display:
+        with listening(display):
+            progress.notify("step_started", 1, 2, "reconstruct_image_sets")
+            progress.notify("task_started", "reconstruct_image_sets", 1, "images 4, 5, 6", 400)
+            progress.notify("task_started", "reconstruct_image_sets", 2, "images 7, 8", 400)
+            for done in (50, 100, 150):
+                progress.notify("task_advanced", "reconstruct_image_sets", 1, done)
+                progress.notify("task_advanced", "reconstruct_image_sets", 2, done // 2)
+                display.progress.refresh()
+            running = out.getvalue()
+            progress.notify("task_finished", "reconstruct_image_sets", 1, 160)
+            assert len(display.progress.tasks) == 2  # the node and the other solver
+            progress.notify("step_finished", "reconstruct_image_sets", "ran", 3.0)
+            assert display.progress.tasks == []  # the node took its solver bars with it
+    assert "images 4, 5, 6: iterations" in running and "150/400" in running
+    assert "images 7, 8: iterations" in running and "75/400" in running
+    assert "ETA <=" in running  # an upper bound: a solver may converge earlier

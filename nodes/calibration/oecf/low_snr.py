@@ -25,8 +25,6 @@ from typing import Annotated
 import numpy as np
 import xarray as xr
 from pydantic import Field
-from scipy import ndimage
-from scipy.optimize import isotonic_regression
 
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import (
@@ -107,6 +105,8 @@ def _reverse_regression(
     samples per bin) and interpolated at ``grid`` (linear); beyond the outermost points the
     shape of ``levels`` is kept, scaled to join continuously.
     """
+    from scipy.optimize import isotonic_regression
+
     keep = np.isfinite(exposure)
     x, v = exposure[keep], values[keep]
     edges = 0.5 * (levels[1:] + levels[:-1])
@@ -285,6 +285,9 @@ def recover_oecf_low_snr(
     .. [1] Fast Capture of Spectral Image Series, section 4 and Fig. 2.
     .. [2] Robertson, Borman, Stevenson 2003.
     """
+    from scipy import ndimage
+    from scipy.optimize import isotonic_regression
+
     where = "recover_oecf_low_snr: series"
     counts = counts_array(series)
     dim = _series_dim(counts, where)

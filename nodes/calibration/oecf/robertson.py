@@ -26,7 +26,6 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 from scipy import sparse
-from scipy.optimize import isotonic_regression
 from scipy.sparse import linalg as sparse_linalg
 
 from spectralize.engine import Choices
@@ -242,6 +241,8 @@ def robertson_response(
     .. [1] Robertson, Borman, Stevenson 2003, section 3 (iterative estimation, weighting).
     .. [2] Grossberg, Nayar 2003 (ambiguity of equal exposure ratios).
     """
+    from scipy.optimize import isotonic_regression
+
     codes, times = _as_groups(codes, exposure_times)
     weights = np.asarray(weights, dtype=np.float64)
     if weights.shape != (n_codes,):

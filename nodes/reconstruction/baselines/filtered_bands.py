@@ -13,7 +13,6 @@ References
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from spectralize.nodes.filter_size import FILTER_TRUNCATE, filter_sigma
 
@@ -25,6 +24,8 @@ __all__ = ["filtered_bands", "filtered_bands_projected"]
 
 def _blur(plane: np.ndarray, filter_size: float) -> np.ndarray:
     """The paper's Gaussian of filter size ``s_i`` over the whole image (reflecting borders)."""
+    from scipy import ndimage
+
     return ndimage.gaussian_filter(
         plane, sigma=filter_sigma(filter_size), mode="reflect", truncate=FILTER_TRUNCATE
     )

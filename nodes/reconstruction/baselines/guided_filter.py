@@ -13,7 +13,6 @@ References
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from spectralize.nodes.filter_size import filter_sigma
 
@@ -58,6 +57,8 @@ def _window_sigma(filter_size: float, window_scale: float) -> float:
 
 def _gaussian_window(planes: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian-weighted local mean over the last two axes (reflecting borders)."""
+    from scipy import ndimage
+
     sigmas = (0.0,) * (planes.ndim - 2) + (sigma, sigma)
     return ndimage.gaussian_filter(planes, sigma=sigmas, mode="reflect", truncate=GUIDED_WINDOW_TRUNCATE)
 

@@ -1,0 +1,120 @@
+"""The engine's task-progress hub: nothing without a listener, every task's calls in order from
+any thread, throttled advances, a failing listener dropped."""
+
+import threading
+
+import pytest
+
+from spectralize.engine import progress
+
+
+class Recorder:
+    def __init__(self):
+        self.calls = []
+        self.lock = threading.Lock()
+
+    def task_started(self, key, label, total):
+        with self.lock:
+            self.calls.append(("started", key, label, total))
+
+    def task_advanced(self, key, done):
+        with self.lock:
+            self.calls.append(("advanced", key, done))
+
+    def task_finished(self, key, done):
+        with self.lock:
+            self.calls.append(("finished", key, done))
+
+
+def test_without_a_listener_a_task_is_none_and_nothing_is_told():
+    assert not progress.listened()
+    with progress.task("images 1, 2", total=10) as task:
+        assert task is None
+
+
+def test_a_task_tells_its_start_progress_and_end():
+    recorder = Recorder()
+    with progress.listening(recorder):
+        assert progress.listened()
+        with progress.task("images 1, 2", total=10, interval=0.0) as task:
+            for done in (1, 2, 3):
+                task.advance(done)
+    assert not progress.listened()
+    key = task.key
+    assert recorder.calls == [
+        ("started", key, "images 1, 2", 10),
+        ("advanced", key, 1),
+        ("advanced", key, 2),
+        ("advanced", key, 3),
+        ("finished", key, 3),
+    ]
+    with progress.task("after", total=1) as after:  # the listener is gone
+        assert after is None
+    assert len(recorder.calls) == 5
+
+
+def test_advances_are_throttled_but_the_end_carries_the_last_count():
+    recorder = Recorder()
+    with progress.listening(recorder), progress.task("set", total=1000, interval=3600.0) as task:
+        for done in range(1, 1001):
+            task.advance(done)
+    assert [c[0] for c in recorder.calls] == ["started", "advanced", "finished"]
+    assert recorder.calls[1][2] == 1  # the first advance is told at once
+    assert recorder.calls[2][2] == 1000
+
+
+def test_the_end_is_told_when_the_task_fails():
+    recorder = Recorder()
+    with progress.listening(recorder), pytest.raises(RuntimeError, match="solver broke"):
+        with progress.task("set", total=5, interval=0.0) as task:
+            task.advance(2)
+            raise RuntimeError("solver broke")
+    assert recorder.calls[-1] == ("finished", task.key, 2)
+
+
+def test_tasks_in_worker_threads_reach_a_listener_registered_elsewhere():
+    # dask's worker threads do not carry the registering thread's contextvars
+    recorder = Recorder()
+
+    def solve(index):
+        with progress.task(f"set {index}", total=3, interval=0.0) as task:
+            for done in range(1, 4):
+                task.advance(done)
+
+    with progress.listening(recorder):
+        threads = [threading.Thread(target=solve, args=(i,)) for i in range(4)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    keys = {c[1] for c in recorder.calls}
+    assert len(keys) == 4  # every task has its own key
+    for key in keys:
+        own = [c for c in recorder.calls if c[1] == key]
+        assert [c[0] for c in own] == ["started", "advanced", "advanced", "advanced", "finished"]
+        assert [c[2] for c in own[1:]] == [1, 2, 3, 3]
+    assert {c[2] for c in recorder.calls if c[0] == "started"} == {f"set {i}" for i in range(4)}
+
+
+def test_a_failing_listener_is_dropped_and_the_task_goes_on(capsys):
+    class Broken(Recorder):
+        def task_advanced(self, key, done):
+            raise ValueError("display broke")
+
+    broken, healthy = Broken(), Recorder()
+    with progress.listening(broken), progress.listening(healthy):
+        with progress.task("set", total=3, interval=0.0) as task:
+            task.advance(1)
+            task.advance(2)
+    assert (
+        capsys.readouterr().err.count("task progress listener stopped: ValueError: display broke") == 1
+    )
+    assert [c[0] for c in broken.calls] == ["started"]  # nothing after its failure
+    assert [c[0] for c in healthy.calls] == ["started", "advanced", "advanced", "finished"]
+
+
+@pytest.mark.parametrize("total, interval", [(-1, 0.1), (5, -1.0)])
+def test_invalid_totals_and_intervals_are_refused(total, interval):
+    with pytest.raises(ValueError, match="task 'set'"):
+        with progress.task("set", total=total, interval=interval):
+            pass
