@@ -13,7 +13,7 @@ table), :mod:`.solvers` and :mod:`.baselines` (one method per module), :mod:`.op
 (filter, RGB and neighbour terms, the problem), :mod:`.neighbourhoods` (k nearest
 neighbours in RGB space), :mod:`.weights` (eq. 4), :mod:`.inputs` (checks),
 :mod:`.image_sets`, :mod:`.warm_start` and :mod:`.set_reconstruction` (a run, set by set),
-:mod:`.declarations` (the nodes).
+:mod:`.tiling` (a set, tile by tile), :mod:`.declarations` (the nodes).
 
 References
 ----------

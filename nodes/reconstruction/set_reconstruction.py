@@ -4,9 +4,10 @@ A run is reconstructed in the sets chosen by :mod:`~spectralize.nodes.reconstruc
 One seed set is solved first from a cold start (:func:`reconstruct_seed_set`); every other set
 starts from spectra transported from the seed through appearance neighbourhoods
 (:mod:`~spectralize.nodes.reconstruction.warm_start`) and is solved independently, so the sets
-run in parallel on dask (:func:`reconstruct_image_sets`). The cube is written set by set: each
-set is one resumable region of the ``spectra`` group, so a crash loses at most the sets in
-flight.
+run in parallel on dask (:func:`reconstruct_image_sets`). Every set is solved tile by tile
+(:mod:`~spectralize.nodes.reconstruction.tiling`), one dask task per set and tile, so memory
+is bounded by tile x set. The cube is written set by set: each set is one resumable region of
+the ``spectra`` group, so a crash loses at most the sets in flight.
 
 The node functions' keyword-only arguments are the nodes' parameters (the engine derives
 the parameter models from them; :mod:`~spectralize.nodes.reconstruction.declarations`
