@@ -213,6 +213,7 @@ def default_halo(
         woven-fabric     160   8       64    52 (2 s_max)    1.044   1.061
         woven-fabric     256   8       128   26              1.096   1.091
         woven-fabric     384   8       256   26              1.024   1.001
+        woven-fabric     384   8       256   52 (2 s_max)    1.019   0.994
         halftone-print   384   8       256   26              0.900   0.994
         glossy-mosaic    384   8       256   26              1.034   0.981
         dark-still-life  384   8       256   26              1.125   0.998
