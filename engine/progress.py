@@ -33,9 +33,11 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
-from typing import Protocol
+from typing import Protocol, TypeVar
 
-__all__ = ["TaskListener", "Task", "listening", "listened", "task"]
+__all__ = ["Listeners", "TaskListener", "Task", "listening", "listened", "task"]
+
+L = TypeVar("L")
 
 
 class TaskListener(Protocol):
@@ -51,22 +53,66 @@ class TaskListener(Protocol):
     def task_finished(self, key: int, done: int) -> None: ...
 
 
-_LISTENERS: list[TaskListener] = []
-_LOCK = threading.Lock()
+class Listeners:
+    """A thread-safe list of listeners: register for a block, call a method on every one.
+
+    A listener without the method is skipped; one that raises is dropped with one line on
+    stderr (a broken display must never cost a long run).
+
+    Parameters
+    ----------
+    what
+        What a listener is, for that line (``"progress display"``).
+    """
+
+    def __init__(self, what: str) -> None:
+        self.what = what
+        self._listeners: list[object] = []
+        self._lock = threading.Lock()
+
+    def __bool__(self) -> bool:
+        return bool(self._listeners)
+
+    @contextlib.contextmanager
+    def listening(self, listener: L) -> Iterator[L]:
+        """Register ``listener`` for the duration of the block."""
+        with self._lock:
+            self._listeners.append(listener)
+        try:
+            yield listener
+        finally:
+            self._drop(listener)
+
+    def _drop(self, listener: object) -> None:
+        with self._lock:
+            if listener in self._listeners:  # a failing one was dropped already
+                self._listeners.remove(listener)
+
+    def emit(self, method: str, *args: object) -> None:
+        """Call ``method(*args)`` of every listener that has it."""
+        with self._lock:
+            listeners = list(self._listeners)
+        for listener in listeners:
+            call = getattr(listener, method, None)
+            if call is None:
+                continue
+            try:
+                call(*args)
+            except Exception as error:
+                self._drop(listener)
+                print(
+                    f"spectralize: {self.what} stopped: {type(error).__name__}: {error}",
+                    file=sys.stderr,
+                )
+
+
+_LISTENERS = Listeners("task progress listener")
 _KEYS = itertools.count(1)
 
 
-@contextlib.contextmanager
-def listening(listener: TaskListener) -> Iterator[TaskListener]:
+def listening(listener: TaskListener):
     """Send the tasks reported with :func:`task` to ``listener`` for the duration of the block."""
-    with _LOCK:
-        _LISTENERS.append(listener)
-    try:
-        yield listener
-    finally:
-        with _LOCK:
-            if listener in _LISTENERS:  # a failing one was dropped already
-                _LISTENERS.remove(listener)
+    return _LISTENERS.listening(listener)
 
 
 def listened() -> bool:
@@ -74,20 +120,7 @@ def listened() -> bool:
     return bool(_LISTENERS)
 
 
-def _emit(method: str, *args: object) -> None:
-    with _LOCK:
-        listeners = list(_LISTENERS)
-    for listener in listeners:
-        try:
-            getattr(listener, method)(*args)
-        except Exception as error:  # a broken display must not cost a long solve
-            with _LOCK:
-                if listener in _LISTENERS:
-                    _LISTENERS.remove(listener)
-            print(
-                f"spectralize: task progress listener stopped: {type(error).__name__}: {error}",
-                file=sys.stderr,
-            )
+_emit = _LISTENERS.emit
 
 
 class Task:

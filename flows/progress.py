@@ -72,42 +72,30 @@ class Listener(Protocol):
     def task_finished(self, node: str, key: int, done: int) -> None: ...
 
 
-_LISTENERS: list[Listener] = []
+_DISPLAYS: list = []  # the one Listeners registry, made on first use
 _LOCK = threading.Lock()
 
 
-@contextlib.contextmanager
-def listening(listener: Listener) -> Iterator[Listener]:
-    """Send the runtime's progress to ``listener`` for the duration of the block."""
+def _displays():
+    """The displays' registry (:class:`spectralize.engine.progress.Listeners`); imported on
+    first use, so ``spectralize --help`` stays light."""
     with _LOCK:
-        _LISTENERS.append(listener)
-    try:
-        yield listener
-    finally:
-        with _LOCK:
-            if listener in _LISTENERS:  # a failing one was dropped already
-                _LISTENERS.remove(listener)
+        if not _DISPLAYS:
+            from spectralize.engine.progress import Listeners
+
+            _DISPLAYS.append(Listeners("progress display"))
+    return _DISPLAYS[0]
+
+
+def listening(listener: Listener):
+    """Send the runtime's progress to ``listener`` for the duration of the block."""
+    return _displays().listening(listener)
 
 
 def notify(method: str, *args: Any) -> None:
     """Call ``method(*args)`` of every listener that has it. A failing display never fails the
     run: its error is printed once and the display is dropped."""
-    with _LOCK:
-        listeners = list(_LISTENERS)
-    for listener in listeners:
-        call = getattr(listener, method, None)
-        if call is None:  # e.g. a display without the optional task_* methods
-            continue
-        try:
-            call(*args)
-        except Exception as error:  # a broken display must not cost a long run
-            with _LOCK:
-                if listener in _LISTENERS:
-                    _LISTENERS.remove(listener)
-            print(
-                f"spectralize: progress display stopped: {type(error).__name__}: {error}",
-                file=sys.stderr,
-            )
+    _displays().emit(method, *args)
 
 
 class _NodeTasks:
@@ -136,8 +124,7 @@ def node_tasks(node: str) -> Iterator[None]:
     passes its solvers no callback. The engine's registry is per process, not per node: two
     nodes running at once in one process would each see the other's tasks too.
     """
-    with _LOCK:
-        anyone = bool(_LISTENERS)
+    anyone = bool(_displays())
     if not anyone:
         yield
         return
