@@ -346,35 +346,28 @@ def reconstruct_seed_set(
         )
         count = np.full(len(members), iterations, dtype=np.int32)
     else:
-        token = dask.base.tokenize(rgb.data, shots.data, camera_matrix.values, settings, tile)
         keep = np.ones(len(members), dtype=bool)
-        blocks, counts = [], []
-        for j, window in enumerate(windows):
-            oy, ox = window.outer
-            task = dask.delayed(_solve_tile, pure=True, nout=3)(
-                rgb.isel(y=oy, x=ox),
-                shots.isel(y=oy, x=ox),
-                camera_matrix,
-                keep,
-                None,
-                settings,
-                window.inner,
-                False,
-                dask_key_name=f"solve-seed-{seed}-tile-{j}-{token}",
-            )
-            shape = (len(members), wavelength.size, *window.core_shape)
-            blocks.append(da.from_delayed(task[0], shape=shape, dtype=np.float32))
-            counts.append(da.from_delayed(task[1], shape=shape[:1], dtype=np.int32))
+        cube, count, _ = _tile_tasks(
+            rgb,
+            shots,
+            camera_matrix,
+            windows,
+            keep,
+            None,
+            settings,
+            wavelength.size,
+            f"solve-seed-{seed}",
+            confidence=False,
+        )
         per_image = hdr.drop_vars(list(hdr.data_vars)).sel(image=members).load()
         coords = {n: per_image[n] for n in ("image", *_PER_IMAGE) if n in per_image.coords}
         coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
         spectra = xr.DataArray(
-            _tiled(blocks, windows),
+            cube,
             dims=("image", "wavelength", "y", "x"),
             coords=coords,
             attrs={**_recorded_settings(method, options), "tile": tile, "halo": halo},
         )
-        count = da.stack(counts).max(axis=0)
     return xr.Dataset(
         {
             "radiance": spectra.assign_attrs(units="1", long_name="relative spectral radiance"),
@@ -382,6 +375,53 @@ def reconstruct_seed_set(
         },
         attrs=attrs,
     )
+
+
+def _tile_tasks(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    windows: list[TileWindow],
+    owned: np.ndarray,
+    warm: Any,
+    settings: dict,
+    n_wavelength: int,
+    name: str,
+    confidence: bool,
+) -> tuple[da.Array, da.Array, da.Array | None]:
+    """One dask task per tile of a set (:func:`_solve_tile`): the owned images' cube
+    ``(image, wavelength, y, x)``, their iterations (the most over the tiles) and confidence
+    ``(image, y, x)`` (``None`` without ``confidence``), lazy, chunked by tile."""
+    token = dask.base.tokenize(
+        rgb.data,
+        shots.data,
+        camera_matrix.values,
+        settings,
+        [w.core for w in windows],
+        getattr(warm, "key", None),
+    )
+    n_owned = int(np.count_nonzero(owned))
+    blocks, counts, tiles = [], [], []
+    for j, window in enumerate(windows):
+        oy, ox = window.outer
+        task = dask.delayed(_solve_tile, pure=True, nout=3)(
+            rgb.isel(y=oy, x=ox),
+            shots.isel(y=oy, x=ox),
+            camera_matrix,
+            owned,
+            warm,
+            settings,
+            window.inner,
+            confidence,
+            dask_key_name=f"{name}-tile-{j}-{token}",
+        )
+        shape = (n_owned, n_wavelength, *window.core_shape)
+        blocks.append(da.from_delayed(task[0], shape=shape, dtype=np.float32))
+        counts.append(da.from_delayed(task[1], shape=shape[:1], dtype=np.int32))
+        if confidence:
+            tiles.append(da.from_delayed(task[2], shape=(n_owned, *shape[2:]), dtype=np.float32))
+    spread = _tiled(tiles, windows) if confidence else None
+    return _tiled(blocks, windows), da.stack(counts).max(axis=0), spread
 
 
 def _solve_tile(
@@ -580,30 +620,18 @@ def reconstruct_image_sets(
             ]
             confidence = _tiled(tiles, windows)
         else:
-            token = dask.base.tokenize(
-                rgb.data, shots.data, camera_matrix.values, settings, tile, warm_task.key
+            block, count, confidence = _tile_tasks(
+                rgb,
+                shots,
+                camera_matrix,
+                windows,
+                owned,
+                warm_task,
+                settings,
+                wavelength.size,
+                f"solve-set-{index}",
+                confidence=True,
             )
-            blocks, tile_counts, tiles = [], [], []
-            for j, window in enumerate(windows):
-                oy, ox = window.outer
-                task = dask.delayed(_solve_tile, pure=True, nout=3)(
-                    rgb.isel(y=oy, x=ox),
-                    shots.isel(y=oy, x=ox),
-                    camera_matrix,
-                    owned,
-                    warm_task,
-                    settings,
-                    window.inner,
-                    True,
-                    dask_key_name=f"solve-set-{index}-tile-{j}-{token}",
-                )
-                shape = (n_owned, wavelength.size, *window.core_shape)
-                blocks.append(da.from_delayed(task[0], shape=shape, dtype=np.float32))
-                tile_counts.append(da.from_delayed(task[1], shape=shape[:1], dtype=np.int32))
-                tiles.append(da.from_delayed(task[2], shape=(n_owned, *shape[2:]), dtype=np.float32))
-            block = _tiled(blocks, windows)
-            count = da.stack(tile_counts).max(axis=0)
-            confidence = _tiled(tiles, windows)
         pieces.append(block)
         counts.append(count)
         confidences.append(confidence)
