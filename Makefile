@@ -35,6 +35,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/reconstruction.py
 	$(BIN)/python benchmarks/calibration.py
 	$(BIN)/python benchmarks/btf_flow.py
+	$(BIN)/python benchmarks/cli.py
 
 # Style and import rules: formatting, lint, and the import contracts in pyproject.toml
 # (schemas <- engine <- nodes <- flows; only flows imports Prefect; no stage imports simulation).

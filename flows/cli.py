@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import ast
 import json
-import shlex
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -94,32 +93,13 @@ def _type_text(annotation: str) -> str:
 
 
 def _cmd_nodes(args: argparse.Namespace) -> int:
-    from spectralize.engine import registry
+    from spectralize.flows.node_listing import node_listing
 
-    nodes = registry()
-    if not nodes:
+    text = node_listing(use_cache=not args.refresh)
+    if not text:
         print("no nodes are installed (is spectralize installed with pip?)")
         return 1
-    for name, entry in sorted(nodes.items()):
-        node = entry.node
-        print(f"{name}  (version {node.version})")
-        if node.description:
-            print(f"    {node.description}")
-        print(f"    from:    {entry.source}")
-        inputs = ", ".join(f"{arg} <- {group}" for arg, group in node.inputs.items()) or "none"
-        print(f"    inputs:  {inputs}")
-        print(f"    outputs: {', '.join(node.outputs)}")
-        choices = node.parameter_choices()
-        for pname, ptype, default, description in node.describe_parameters():
-            required = pname in node.parameters.model_fields and (
-                node.parameters.model_fields[pname].is_required()
-            )
-            value = "VALUE" if required else format_value(default)
-            setting = shlex.quote(f"{name}.{pname}={value}")
-            note = " (required)" if required else ""
-            print(f"    --set {setting}  ({_type_text(ptype)}{note}) {description}".rstrip())
-            if pname in choices:
-                print(f"        one of: {', '.join(choices[pname]) or 'none'}")
+    print(text, end="")
     return 0
 
 
@@ -354,9 +334,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="show Prefect's log lines (INFO) instead of the progress display",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    commands.add_parser(
+    nodes = commands.add_parser(
         "nodes", help="list registered nodes, their parameters, defaults and allowed values"
-    ).set_defaults(handler=_cmd_nodes)
+    )
+    nodes.add_argument(
+        "--refresh",
+        action="store_true",
+        help="load every node instead of reading the cached listing (which is renewed "
+        "whenever a node's source, a plugin or a version changes)",
+    )
+    nodes.set_defaults(handler=_cmd_nodes)
     commands.add_parser("flows", help="list named flows").set_defaults(handler=_cmd_flows)
     validate = commands.add_parser("validate", help="check a run store against the contract")
     validate.add_argument("store")

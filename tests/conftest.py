@@ -23,3 +23,16 @@ def prefect_api():
 
     with prefect_test_harness(server_startup_timeout=120):
         yield
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory):
+    """The suite's caches (the `spectralize nodes` listing) in a temporary folder, never the
+    user's; subprocesses inherit it through the environment."""
+    previous = os.environ.get("SPECTRALIZE_CACHE_DIR")
+    os.environ["SPECTRALIZE_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if previous is None:
+        os.environ.pop("SPECTRALIZE_CACHE_DIR", None)
+    else:
+        os.environ["SPECTRALIZE_CACHE_DIR"] = previous

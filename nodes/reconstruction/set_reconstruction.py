@@ -157,6 +157,7 @@ def solve_set(
     max_iterations: int = 400,
     k: int = 3,
     prior: float | None = None,
+    where: str | None = None,
 ) -> tuple[xr.DataArray, int, float]:
     """Reconstruct one image set (eq. 1 or a baseline).
 
@@ -172,6 +173,9 @@ def solve_set(
     gamma_hat, tolerance, max_iterations, k, prior
         Solver settings (a baseline takes none of them; ``prior=None``: the method's
         default).
+    where
+        Which part of the images this is (a tile's :attr:`~.tiling.TileWindow.label`), for
+        the progress display's label.
 
     Returns
     -------
@@ -202,7 +206,7 @@ def solve_set(
     anchors = set(shots["image"].values.tolist())
     named = [str(i) for i in sorted(i for i in images if i not in anchors) or images]
     more = f" and {len(named) - 3} more" if len(named) > 3 else ""
-    label = f"images {', '.join(named[:3])}{more}"
+    label = f"images {', '.join(named[:3])}{more}" + (f", {where}" if where else "")
     solver = "callback" in get_method(method).options
     with progress.task(label, total=max_iterations if solver else None) as solving:
         if solving is not None and solver:
@@ -413,6 +417,7 @@ def _tile_tasks(
             settings,
             window.inner,
             confidence,
+            window.label if len(windows) > 1 else None,
             dask_key_name=f"{name}-tile-{j}-{token}",
         )
         shape = (n_owned, n_wavelength, *window.core_shape)
@@ -433,6 +438,7 @@ def _solve_tile(
     settings: dict,
     inner: tuple[slice, slice],
     confidence: bool,
+    where: str | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Solve one set on one tile's outer window and keep the core of the images ``keep``.
 
@@ -441,7 +447,7 @@ def _solve_tile(
     only). Returns the kept images' spectra (image, wavelength, y, x) float32 on the core
     (``inner``: the core inside the window), the set's iterations per kept image, and with
     ``confidence`` their :func:`~.confidence.neighbourhood_spread` over the window's images,
-    cut to the core (else ``None``).
+    cut to the core (else ``None``). ``where`` names the tile in the progress display.
     """
     initial = None
     if warm is not None and "initial" in get_method(settings["method"]).options:
@@ -454,7 +460,9 @@ def _solve_tile(
             dims=("image", "wavelength", "y", "x"),
             coords={"wavelength": camera_matrix["wavelength"].values},
         )
-    spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, initial=initial, **settings)
+    spectra, iterations, _ = solve_set(
+        rgb, shots, camera_matrix, initial=initial, where=where, **settings
+    )
     cube = spectra.transpose("image", "wavelength", "y", "x").values
     iy, ix = inner
     spread = None

@@ -85,6 +85,12 @@ class TileWindow:
         )
 
     @property
+    def label(self) -> str:
+        """The core in image pixels, for people: ``"tile y 0:256, x 256:512"``."""
+        (y, x) = self.core
+        return f"tile y {y.start}:{y.stop}, x {x.start}:{x.stop}"
+
+    @property
     def core_shape(self) -> tuple[int, int]:
         """``(height, width)`` of the core."""
         return tuple(s.stop - s.start for s in self.core)
@@ -351,6 +357,7 @@ def solve_set_tiled(
             shots.isel(y=oy, x=ox),
             camera_matrix,
             initial=None if initial is None else initial.isel(y=oy, x=ox),
+            where=window.label,
             **settings,
         )
         spectra = spectra.transpose("image", "wavelength", "y", "x")

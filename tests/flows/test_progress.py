@@ -25,6 +25,7 @@ from spectralize.flows.progress import (
     store_message,
 )
 from spectralize.nodes.reconstruction.set_reconstruction import solve_set
+from spectralize.nodes.reconstruction.tiling import solve_set_tiled
 from spectralize.schemas import RunStore
 
 
@@ -224,6 +225,16 @@ def test_a_real_solve_reports_its_iterations_under_its_node_also_from_a_dask_thr
     assert [c[3] for c in advanced] == sorted(c[3] for c in advanced)
     assert finished == ("task_finished", "reconstruct_seed_set", key, iterations)
     assert not engine_progress.listened()  # node_tasks unregistered its forwarder
+
+
+def test_the_tiles_of_a_set_have_their_own_labels():
+    rgb, shots, camera = small_set(size=16)
+    recorder = TaskRecorder()
+    with listening(recorder), node_tasks("reconstruct_seed_set"):
+        solve_set_tiled(rgb, shots, camera, tile=8, halo=2, tolerance=1e-6, max_iterations=20)
+    labels = [c[3] for c in recorder.calls if c[0] == "task_started"]
+    assert labels == [f"images 11, tile y {y}:{y + 8}, x {x}:{x + 8}" for y in (0, 8) for x in (0, 8)]
+    assert len({c[2] for c in recorder.calls if c[0] == "task_started"}) == 4  # four bars
 
 
 def test_without_a_display_nothing_listens_to_the_node_and_a_solve_still_runs():

@@ -1,0 +1,148 @@
+"""The text of ``spectralize nodes``, cached on disk so that it answers without importing
+the science.
+
+Listing the nodes needs every node's parameter model, which the engine derives from the
+node function's signature: loading a node imports its stage (xarray, dask, zarr; about
+1.5 s). The listing changes only when the installed nodes or their sources change, so it
+is cached under a key computed without importing any of them:
+
+- the entry points of the group ``spectralize.nodes`` (name, target, distribution and its
+  version), Python's version, and pydantic's (the parameter models);
+- the size and modification time of every ``.py`` file in the package of each entry
+  point's module and in spectralize's engine, schemas and flows (what decides the text).
+
+An edited node, a new plugin or an upgraded distribution gives a new key. A listing whose
+discovery warned (a plugin that failed to load) is not cached, so the warning shows every
+time. The cache lives in ``$SPECTRALIZE_CACHE_DIR``, else ``$XDG_CACHE_HOME/spectralize``,
+else ``~/.cache/spectralize``; a cache that cannot be written is skipped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shlex
+import sys
+import warnings
+from collections.abc import Iterable, Iterator
+from importlib.metadata import entry_points, version
+from importlib.util import find_spec
+from pathlib import Path
+
+__all__ = ["node_listing", "listing_key", "cache_dir"]
+
+ENTRY_POINT_GROUP = "spectralize.nodes"  # engine.discovery's; not imported from there (heavy)
+# Sources that decide the listing besides the nodes' own packages
+LISTING_SOURCES = ("spectralize.engine", "spectralize.schemas", "spectralize.flows")
+
+
+def cache_dir() -> Path:
+    """Where the cached listing lives (see the module docstring)."""
+    if own := os.environ.get("SPECTRALIZE_CACHE_DIR"):
+        return Path(own)
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "spectralize"
+
+
+def _package_files(module: str) -> Iterator[Path]:
+    """The ``.py`` files of the first regular package on ``module``'s dotted path (for
+    ``spectralize.nodes.calibration.declarations``: all of ``spectralize.nodes``), found
+    without executing it (only namespace parents are imported)."""
+    parts = module.split(".")
+    for end in range(1, len(parts) + 1):
+        try:
+            spec = find_spec(".".join(parts[:end]))
+        except (ImportError, ValueError):
+            return
+        if spec is None:
+            return
+        if spec.origin not in (None, "namespace"):  # a regular package or a plain module
+            roots = spec.submodule_search_locations or ()
+            if not roots:
+                yield Path(spec.origin)
+                return
+            for root in roots:
+                yield from sorted(Path(root).rglob("*.py"))
+            return
+
+
+def listing_key(modules: Iterable[str] | None = None) -> str:
+    """A digest of everything the node listing depends on (see the module docstring)."""
+    digest = hashlib.sha256(sys.version.encode())
+    digest.update(version("pydantic").encode())
+    eps = sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda ep: (ep.name, ep.value))
+    sources = set(LISTING_SOURCES if modules is None else modules)
+    for ep in eps:
+        dist = getattr(ep, "dist", None)
+        origin = f"{dist.name} {dist.version}" if dist is not None else ""
+        digest.update(f"{ep.name}={ep.value} ({origin})\n".encode())
+        sources.add(ep.module)
+    seen: set[Path] = set()
+    for module in sorted(sources):
+        for path in _package_files(module):
+            if path in seen:
+                continue
+            seen.add(path)
+            try:
+                stat = path.stat()
+            except OSError:
+                continue
+            digest.update(f"{path}:{stat.st_size}:{stat.st_mtime_ns}\n".encode())
+    return digest.hexdigest()[:32]
+
+
+def _render() -> tuple[str, bool]:
+    """The listing, and whether discovery went without warnings (then it may be cached)."""
+    from spectralize.engine import registry
+
+    from .cli import _type_text, format_value
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        nodes = registry()
+    for warning in caught:
+        warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    lines = []
+    for name, entry in sorted(nodes.items()):
+        node = entry.node
+        lines.append(f"{name}  (version {node.version})")
+        if node.description:
+            lines.append(f"    {node.description}")
+        lines.append(f"    from:    {entry.source}")
+        inputs = ", ".join(f"{arg} <- {group}" for arg, group in node.inputs.items()) or "none"
+        lines.append(f"    inputs:  {inputs}")
+        lines.append(f"    outputs: {', '.join(node.outputs)}")
+        choices = node.parameter_choices()
+        for pname, ptype, default, description in node.describe_parameters():
+            field = node.parameters.model_fields.get(pname)
+            required = field is not None and field.is_required()
+            value = "VALUE" if required else format_value(default)
+            setting = shlex.quote(f"{name}.{pname}={value}")
+            note = " (required)" if required else ""
+            lines.append(f"    --set {setting}  ({_type_text(ptype)}{note}) {description}".rstrip())
+            if pname in choices:
+                lines.append(f"        one of: {', '.join(choices[pname]) or 'none'}")
+    return "".join(f"{line}\n" for line in lines), not caught and bool(nodes)
+
+
+def node_listing(*, use_cache: bool = True) -> str:
+    """The text ``spectralize nodes`` prints (empty when no node is installed): from the
+    cache when its key matches, else rendered from the registry and cached."""
+    path = cache_dir() / f"nodes-{listing_key()}.txt" if use_cache else None
+    if path is not None:
+        try:
+            return path.read_text(encoding="utf-8")
+        except OSError:
+            pass
+    text, cacheable = _render()
+    if path is not None and cacheable:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            for old in path.parent.glob("nodes-*.txt"):  # listings of older sources
+                old.unlink(missing_ok=True)
+            partial = path.with_suffix(f".{os.getpid()}.tmp")
+            partial.write_text(text, encoding="utf-8")
+            os.replace(partial, path)
+        except OSError:
+            pass
+    return text
