@@ -22,6 +22,9 @@ from .neighbourhoods import appearance_features, appearance_neighbours, brightne
 
 __all__ = ["neighbourhood_spread"]
 
+_CHUNK = 1 << 15
+"""Pixels per chunk of the spread's float64 temporaries."""
+
 
 def neighbourhood_spread(cube: np.ndarray, rgb: np.ndarray, *, k: int = 6) -> np.ndarray:
     """Per-pixel error estimate ``(n_image, height, width)`` of a reconstructed cube.
@@ -40,16 +43,23 @@ def neighbourhood_spread(cube: np.ndarray, rgb: np.ndarray, *, k: int = 6) -> np
     numpy.ndarray
         ``u(p)`` (see the module docstring), float32, >= 0.
     """
-    cube = np.asarray(cube, dtype=np.float64)
+    cube = np.asarray(cube)
     n_wavelength, n_image, height, width = cube.shape
     pixels = np.moveaxis(np.asarray(rgb, dtype=np.float64), -1, 0).reshape(3, -1)
     features = appearance_features(pixels, (n_image, height, width), space="chromaticity-spatial")
     neighbours = appearance_neighbours(features, k=k)
     ratios = brightness_ratios(pixels, neighbours)
+    del features, pixels
     flat = cube.reshape(n_wavelength, -1)
     squared = np.zeros(flat.shape[1])
-    for j in range(neighbours.shape[1]):
-        squared += np.mean((flat - ratios[:, j] * flat[:, neighbours[:, j]]) ** 2, axis=0)
+    for start in range(0, flat.shape[1], _CHUNK):  # float64 temporaries of one chunk only
+        here = slice(start, start + _CHUNK)
+        values = flat[:, here].astype(np.float64)
+        for j in range(neighbours.shape[1]):
+            gap = flat[:, neighbours[here, j]].astype(np.float64)
+            gap *= ratios[here, j]
+            gap -= values
+            squared[here] += np.einsum("wp,wp->p", gap, gap) / n_wavelength
     spread = np.sqrt(squared / max(neighbours.shape[1], 1)).reshape(n_image, height, width)
-    mean = np.abs(cube).mean(axis=(0, 2, 3))
+    mean = np.array([np.abs(cube[:, m]).mean(dtype=np.float64) for m in range(n_image)])
     return (spread / np.maximum(mean, 1e-30)[:, None, None]).astype(np.float32)

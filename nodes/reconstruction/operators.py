@@ -305,6 +305,25 @@ class FilterConstraints:
             out[self.band[i], self.image[i]] += np.outer(self._rows[i].diagonal, self._cols[i].diagonal)
         return out
 
+    def add_normal_diagonal(self, out: np.ndarray, scale: float, positions: np.ndarray) -> None:
+        """Add ``scale`` times the diagonal of ``F^T F`` to a pixel-major ``out``
+        ``(n_pixels, n_wavelength)`` stored in the order of ``positions``
+        (:attr:`PixelOrder.positions`), one shot plane at a time: the dense diagonal cube
+        of :meth:`normal_diagonal` is never formed (it is zero on every band and image
+        without a shot)."""
+        for i in range(self.n_shots):
+            plane = np.outer(self._rows[i].diagonal, self._cols[i].diagonal).ravel()
+            out[positions[self.image[i]], self.band[i]] += (scale * plane).astype(out.dtype)
+
+    def normal_diagonal_total(self) -> float:
+        """The sum of the diagonal of ``F^T F`` (the sum of :meth:`normal_diagonal`)."""
+        return float(
+            sum(
+                r.diagonal.sum(dtype=np.float64) * c.diagonal.sum(dtype=np.float64)
+                for r, c in zip(self._rows, self._cols, strict=True)
+            )
+        )
+
     def astype(self, dtype: np.dtype | type) -> FilterConstraints:
         """The same constraints in another floating dtype."""
         return FilterConstraints(

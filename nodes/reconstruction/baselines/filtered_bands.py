@@ -93,4 +93,4 @@ def filtered_bands_projected(inputs: ReconstructionInputs) -> np.ndarray:
     .. [1] Fast Capture of Spectral Image Series, section 3, "Filtering" and eq. 1.
     """
     rgb = np.moveaxis(inputs.rgb, -1, 0)  # (3, n_image, height, width)
-    return project_onto_rgb(filtered_bands(inputs), inputs.camera_matrix, rgb)
+    return project_onto_rgb(filtered_bands(inputs), inputs.camera_matrix, rgb, overwrite=True)

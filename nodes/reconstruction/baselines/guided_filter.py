@@ -162,4 +162,4 @@ def guided_filtered_projected(
     """
     rgb = np.moveaxis(inputs.rgb, -1, 0)
     cube = guided_filtered_bands(inputs, window_scale=window_scale, epsilon=epsilon)
-    return project_onto_rgb(cube, inputs.camera_matrix, rgb)
+    return project_onto_rgb(cube, inputs.camera_matrix, rgb, overwrite=True)

@@ -15,10 +15,13 @@ import numpy as np
 __all__ = ["project_onto_rgb"]
 
 
-def project_onto_rgb(cube: np.ndarray, camera_matrix: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+def project_onto_rgb(
+    cube: np.ndarray, camera_matrix: np.ndarray, rgb: np.ndarray, *, overwrite: bool = False
+) -> np.ndarray:
     """Smallest per-pixel change of ``cube`` that makes ``C S(p) = R(p)`` exact.
 
-    ``S = B + C^T (C C^T)^-1 (R - C B)``.
+    ``S = B + C^T (C C^T)^-1 (R - C B)``, computed in chunks of pixels (the temporaries are
+    one chunk's).
 
     Parameters
     ----------
@@ -28,14 +31,25 @@ def project_onto_rgb(cube: np.ndarray, camera_matrix: np.ndarray, rgb: np.ndarra
         ``C``, ``(3, n_wavelength)``.
     rgb
         ``R``, ``(3, ...)`` with the same trailing shape as ``cube``.
+    overwrite
+        Project ``cube`` in place (a C-contiguous floating array) instead of a copy.
 
     Returns
     -------
     numpy.ndarray
         Shaped like ``cube``.
     """
-    n_wavelength = cube.shape[0]
-    flat = cube.reshape(n_wavelength, -1)
-    gap = rgb.reshape(3, -1) - camera_matrix @ flat
-    correction = camera_matrix.T @ np.linalg.solve(camera_matrix @ camera_matrix.T, gap)
-    return (flat + correction).reshape(cube.shape)
+    out = cube if overwrite else np.array(cube, dtype=np.result_type(cube, np.float32))
+    n_wavelength = out.shape[0]
+    flat = out.reshape(n_wavelength, -1)
+    targets = rgb.reshape(3, -1)
+    c = np.asarray(camera_matrix, dtype=np.float64)
+    pseudo = c.T @ np.linalg.inv(c @ c.T)  # (n_wavelength, 3)
+    for start in range(0, flat.shape[1], _CHUNK):
+        here = slice(start, start + _CHUNK)
+        gap = targets[:, here] - c @ flat[:, here]
+        flat[:, here] += (pseudo @ gap).astype(flat.dtype, copy=False)
+    return out
+
+
+_CHUNK = 1 << 16

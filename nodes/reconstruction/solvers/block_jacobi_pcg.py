@@ -21,6 +21,7 @@ References
 from __future__ import annotations
 
 import time
+from functools import cached_property
 
 import numpy as np
 
@@ -46,6 +47,9 @@ __all__ = [
 
 DEFAULT_RIDGE = 1e-4
 """Ridge towards the starting cube, relative to the mean diagonal of ``A^T A``."""
+
+_CHUNK = 1 << 16
+"""Pixels per chunk of the preconditioner's 3 x 3 inverses (bounds their float64 temporaries)."""
 
 
 class BlockJacobiPreconditioner:
@@ -79,33 +83,57 @@ class BlockJacobiPreconditioner:
         ridge: float = 0.0,
         order: PixelOrder | None = None,
     ):
+        # Built pixel-major in ``dtype`` and in chunks: about 1.2 vectors of the cube beside
+        # what it keeps (a dense float64 diagonal cube and its permuted copies were 7).
         w = problem.weights
-        n_wavelength = problem.shape[0]
-        diagonal = w.alpha * problem.filters.normal_diagonal().reshape(n_wavelength, -1)
-        diagonal += w.gamma * problem.neighbours.degree[None, :].astype(np.float64)
-        c = problem.camera_matrix.astype(np.float64)
-        mean_diagonal = float(diagonal.mean() + w.beta * np.sum(c * c) / n_wavelength)
-        #: ``epsilon`` of a ridge ``epsilon I`` added to ``A^T A`` (absolute)
-        self.mean_diagonal = mean_diagonal
-        self.ridge = np.asarray(ridge, dtype=np.float64) * mean_diagonal
-        # the ridge, or a far tinier one, keeps blocks without filter and neighbours invertible
-        per_pixel = np.broadcast_to(self.ridge, problem.shape).reshape(n_wavelength, -1)
-        diagonal += np.maximum(per_pixel, max(1e-9 * mean_diagonal, 1e-300))
+        n_wavelength, n_image = problem.shape[:2]
         self.dtype = np.dtype(dtype)
         self.order = problem.pixel_order("natural") if order is None else order
-        # pixel-major (n_pixels, n_wavelength) in ``order``, the layout of the compiled kernel
-        inverse = (1.0 / diagonal)[:, self.order.order]
-        self.inverse_diagonal = np.ascontiguousarray(inverse.T.astype(self.dtype))
-        # C a^-1 C^T per pixel: (P, 3, 3)
-        small = np.einsum("cw,wp,dw->pcd", c, inverse, c, optimize=True)
-        small += np.eye(3) / max(w.beta, 1e-300)
-        self.small_inverse = np.ascontiguousarray(np.linalg.inv(small)).astype(self.dtype)
-        del inverse
-        self.camera_matrix = np.ascontiguousarray(c.astype(self.dtype))
         self.shape = problem.shape
-        # the scalar diagonal of A^T A (+ ridge), for plain Jacobi preconditioning
-        full = diagonal + w.beta * np.sum(c * c, axis=0)[:, None]
-        self.inverse_scalar_diagonal = (1.0 / full).astype(self.dtype)
+        c = problem.camera_matrix.astype(np.float64)
+        degree = problem.neighbours.degree
+        n_pixels = degree.size
+        # the mean diagonal of A^T A, from sums
+        total = w.alpha * problem.filters.normal_diagonal_total()
+        total += w.gamma * n_wavelength * float(degree.sum(dtype=np.float64))
+        mean_diagonal = total / (n_wavelength * n_pixels) + w.beta * float(np.sum(c * c)) / n_wavelength
+        #: mean of the diagonal of ``A^T A``, the unit of relative ridges
+        self.mean_diagonal = mean_diagonal
+        #: ``epsilon`` of a ridge ``epsilon I`` added to ``A^T A`` (absolute)
+        self.ridge = np.asarray(ridge, dtype=np.float64) * mean_diagonal
+        # the ridge, or a far tinier one, keeps blocks without filter and neighbours invertible
+        floor = max(1e-9 * mean_diagonal, 1e-300)
+        ridge_shape = np.shape(self.ridge)
+        if not ridge_shape or ridge_shape[-2:] == (1, 1):  # per band and image
+            table = np.broadcast_to(self.ridge, (n_wavelength, n_image, 1, 1))[:, :, 0, 0]
+            diagonal = np.maximum(table, floor).T.astype(self.dtype)[self.order.image]
+        else:  # per pixel
+            per_pixel = np.broadcast_to(self.ridge, problem.shape)
+            diagonal = np.maximum(self.order.to_pixels(per_pixel), floor).astype(self.dtype)
+        # a_p(b) = alpha (F^T F)_pp,b + gamma L_pp + epsilon, pixel-major in ``order``
+        diagonal += (w.gamma * degree[self.order.order]).astype(self.dtype)[:, None]
+        problem.filters.add_normal_diagonal(diagonal, w.alpha, self.order.positions)
+        self.inverse_diagonal = np.divide(1.0, diagonal, out=diagonal)
+        # (I / beta + C a^-1 C^T)^-1 per pixel, (n_pixels, 3, 3), in float64 chunks
+        self.small_inverse = np.empty((n_pixels, 3, 3), dtype=self.dtype)
+        identity = np.eye(3) / max(w.beta, 1e-300)
+        for start in range(0, n_pixels, _CHUNK):
+            inverse = self.inverse_diagonal[start : start + _CHUNK].astype(np.float64)
+            small = np.einsum("cw,pw,dw->pcd", c, inverse, c, optimize=True) + identity
+            self.small_inverse[start : start + _CHUNK] = np.linalg.inv(small)
+        self.camera_matrix = np.ascontiguousarray(c.astype(self.dtype))
+        self._beta = w.beta
+
+    @cached_property
+    def inverse_scalar_diagonal(self) -> np.ndarray:
+        """``1 / diag(A^T A + epsilon)``, ``(n_wavelength, n_pixels)`` in (image, y, x) order,
+        for plain Jacobi preconditioning (computed when first asked for)."""
+        c = self.camera_matrix.astype(np.float64)
+        full = 1.0 / self.inverse_diagonal.astype(np.float64)
+        full += self._beta * np.sum(c * c, axis=0)[None, :]
+        return self.order.to_cube(np.divide(1.0, full, out=full).astype(self.dtype)).reshape(
+            self.shape[0], -1
+        )
 
     def jacobi(self, residual: np.ndarray) -> np.ndarray:
         """Plain (scalar) Jacobi: ``r / diag(A^T A)``."""
@@ -234,6 +262,7 @@ def block_jacobi_pcg(
     # the iteration runs on pixel-major vectors stored in appearance order (:mod:`..kernels`)
     order = work.pixel_order("appearance")
     x = order.to_pixels(np.asarray(initial, dtype=dtype).reshape(work.shape))
+    del initial  # the caller's start is the caller's; one computed here is not kept
     preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative_ridge, order=order)
     epsilon = preconditioner.ridge.astype(dtype)
     regularised = bool(np.any(epsilon > 0))
@@ -256,14 +285,20 @@ def block_jacobi_pcg(
             return residual * scalar
 
     elif precondition:
-        apply_preconditioner = preconditioner.apply_pixels
+        z = np.empty_like(x)  # CG consumes M^-1 r before asking for the next one
+
+        def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
+            return preconditioner.apply_pixels(residual, out=z)
+
     else:
 
         def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
             return residual.copy()
 
+    q = np.empty_like(x)  # CG consumes A^T A p before asking for the next one
+
     def operator(direction: np.ndarray) -> np.ndarray:
-        return work.normal_pixels(direction, order=order, epsilon=ridge_argument)
+        return work.normal_pixels(direction, order=order, epsilon=ridge_argument, out=q)
 
     def band_major_callback(iteration: int, cube: np.ndarray) -> None:
         callback(iteration, order.to_cube(cube) if cube_wanted else None)

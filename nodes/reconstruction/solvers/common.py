@@ -165,7 +165,9 @@ def preconditioned_cg(
     (both updated in place), until the relative residual ``||r|| / rhs_norm`` is below
     ``tolerance`` or after ``max_iterations``; it stops early if ``operator`` is not positive
     along a search direction. ``vectors`` does the vector updates (:data:`NUMPY`, or
-    :data:`COMPILED` for C-contiguous float arrays).
+    :data:`COMPILED` for C-contiguous float arrays). ``operator`` and
+    ``apply_preconditioner`` may return the same buffer on every call: each result is used
+    up before the next call.
 
     Returns
     -------

@@ -70,3 +70,36 @@ def test_an_iteration_counter_gets_no_cube_and_a_curve_gets_the_band_major_cube(
     )
     assert counted == [1, 2, 3, 4, 5]
     assert shapes == [problem.shape] * 5
+
+
+def test_the_default_solver_holds_a_handful_of_cube_vectors(scene_factory):
+    """Memory of a tile is bounded by what PCG needs (x, r, z, p, A p, M^-1) plus small
+    tables: the preconditioner is built pixel-major in float32 without a dense float64
+    diagonal, and the iteration reuses its buffers (it held about 13 vectors before)."""
+    import tracemalloc
+
+    scene = scene_factory(
+        size=64,
+        n_wavelength=32,
+        n_images=4,
+        shading=True,
+        noise=0.05,
+        shots={0: list(range(0, 32, 2)), 1: list(range(1, 32, 2))},
+    )
+    problem = build_problem(
+        inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix), dtype=np.float32
+    )
+    vector = np.prod(problem.shape) * 4  # one float32 cube
+    block_jacobi_pcg(problem, max_iterations=2)  # compiled kernels loaded, order cached
+    tracemalloc.start()
+    try:
+        held = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+        result = block_jacobi_pcg(
+            problem, max_iterations=30, tolerance=1e-9, callback=counting_iterations(lambda i: None)
+        )
+        peak = tracemalloc.get_traced_memory()[1] - held
+    finally:
+        tracemalloc.stop()
+    assert result.iterations == 30
+    assert peak / vector < 9.0, f"peak {peak / vector:.1f} cube vectors"
