@@ -295,13 +295,14 @@ def reconstruct(
         wavelengths, on which the spectra are reconstructed.
     method
         A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`:
-        the solvers ``"block-jacobi-pcg"`` (default: eq. 1, fast), ``"guided-prior-pcg"``
-        (eq. 1 plus a prior towards the RGB-guided filtered bands, weight ``prior``),
-        ``"material-prior-pcg"`` (that prior plus neighbourhoods in chromaticity and
-        position, scale-invariant coupling and ``S >= 0``) and ``"paper-cg"`` (the paper's
-        CG); the baselines ``"pseudo-inverse"``, ``"wiener"``,
-        ``"mallett2019"``, ``"filtered-bands"``, ``"filtered-projected"``,
-        ``"guided-projected"``.
+        the solvers ``"spectral-prior-pcg"`` (default: ``"material-prior-pcg"`` plus a
+        soft per-pixel spectral prior), ``"block-jacobi-pcg"`` (eq. 1 alone, the paper's
+        method, fast), ``"guided-prior-pcg"`` (eq. 1 plus a prior towards the RGB-guided
+        filtered bands, weight ``prior``), ``"material-prior-pcg"`` (that prior plus
+        neighbourhoods in chromaticity and position, scale-invariant coupling and
+        ``S >= 0``) and ``"paper-cg"`` (the paper's CG); the baselines
+        ``"pseudo-inverse"``, ``"wiener"``, ``"mallett2019"``, ``"filtered-bands"``,
+        ``"filtered-projected"``, ``"guided-projected"``.
     filter_size
         ``s_i`` [px] of the bands of a ``(y, x, wavelength)`` band cube: one number, or one
         per wavelength.
@@ -316,7 +317,7 @@ def reconstruct(
             relative weights of the filter, RGB and neighbour terms (eq. 4);
             ``gamma_hat=None`` is 1 for one image and 20 for a set, as in the paper;
         ``k``
-            appearance neighbours per pixel in RGB space (paper: 3);
+            appearance neighbours per pixel (paper: 3; the material and spectral priors: 6);
         ``centre_spacing``
             ``d``: filter centres are at most this many pixels apart (paper: 2.5);
         ``normalize_camera_matrix``
@@ -332,7 +333,8 @@ def reconstruct(
         dims ``(image, wavelength, y, x)``, e.g. spectra transported from a previous image
         set, paper section 4), ``callback(iteration, cube)``; the PCG solvers also
         ``dtype``, ``ridge``, ``prior`` (the guided prior's weight: 0.1 for
-        ``"guided-prior-pcg"``, 0 for ``"block-jacobi-pcg"``) and ``precondition``.
+        ``"guided-prior-pcg"`` and the material and spectral priors, 0 for
+        ``"block-jacobi-pcg"``) and ``precondition``.
         Baselines: ``"wiener"`` takes ``relative_noise``, ``"guided-projected"``
         ``window_scale`` and ``epsilon``.
 

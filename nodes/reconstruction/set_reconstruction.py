@@ -69,14 +69,20 @@ Tolerance = Annotated[
 ]
 MaxIterations = Annotated[int, Field(ge=1, description="iteration limit per set; solvers only")]
 Neighbours = Annotated[
-    int, Field(ge=1, description="appearance neighbours per pixel (paper: 3); solvers only")
+    int | None,
+    Field(
+        ge=1,
+        description="appearance neighbours per pixel (None: the method's, 3 for eq. 1 as in "
+        "the paper, 6 for the material and spectral priors); solvers only",
+    ),
 ]
 Prior = Annotated[
     float | None,
     Field(
         ge=0,
         description="weight of the guided prior (None: the method's default, 0.1 for "
-        "guided-prior-pcg, 0 for block-jacobi-pcg); only methods with a prior",
+        "guided-prior-pcg, material-prior-pcg and spectral-prior-pcg, 0 for "
+        "block-jacobi-pcg); only methods with a prior",
     ),
 ]
 WarmStartPixels = Annotated[
@@ -155,7 +161,7 @@ def solve_set(
     gamma_hat: float = 20.0,
     tolerance: float = 1e-3,
     max_iterations: int = 400,
-    k: int = 3,
+    k: int | None = None,
     prior: float | None = None,
     where: str | None = None,
 ) -> tuple[xr.DataArray, int, float]:
@@ -171,8 +177,8 @@ def solve_set(
     method
         A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
     gamma_hat, tolerance, max_iterations, k, prior
-        Solver settings (a baseline takes none of them; ``prior=None``: the method's
-        default).
+        Solver settings (a baseline takes none of them; ``prior=None``, ``k=None``: the
+        method's default).
     where
         Which part of the images this is (a tile's :attr:`~.tiling.TileWindow.label`), for
         the progress display's label.
@@ -207,13 +213,19 @@ def solve_set(
     named = [str(i) for i in sorted(i for i in images if i not in anchors) or images]
     more = f" and {len(named) - 3} more" if len(named) > 3 else ""
     label = f"images {', '.join(named[:3])}{more}" + (f", {where}" if where else "")
-    solver = "callback" in get_method(method).options
-    with progress.task(label, total=max_iterations if solver else None) as solving:
+    record = get_method(method)
+    solver = "callback" in record.options
+    # a solver's CG iterations, then its S >= 0 refinement's (told when it is done)
+    refinement = int(record.defaults().get("projected_iterations", 0))
+    total = max_iterations + refinement if solver else None
+    with progress.task(label, total=total) as solving:
         if solving is not None and solver:
             options["callback"] = counting_iterations(solving.advance)
         result = reconstruct(
             rgb.load(), shots.load(), camera_matrix, method=method, full_output=True, **options
         )
+        if solving is not None and solver:
+            solving.advance(int(result.iterations))
     return result.spectra, int(result.iterations), time.perf_counter() - start
 
 
@@ -282,7 +294,7 @@ def reconstruct_seed_set(
     gamma_hat: GammaHat = 20.0,
     tolerance: Tolerance = 1e-3,
     max_iterations: MaxIterations = 400,
-    k: Neighbours = 3,
+    k: Neighbours = None,
     prior: Prior = None,
     tile: Tile = DISK_TILE,
 ) -> xr.Dataset:
@@ -453,7 +465,8 @@ def _solve_tile(
     if warm is not None and "initial" in get_method(settings["method"]).options:
         source_rgb, source_spectra = warm
         target = rgb.transpose("image", "y", "x", "channel").values
-        moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3), k=settings["k"])
+        k = settings.get("k") or 3
+        moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3), k=k)
         cube = moved.reshape(*target.shape[:3], -1)
         initial = xr.DataArray(
             np.moveaxis(cube, -1, 1),
@@ -530,7 +543,7 @@ def reconstruct_image_sets(
     gamma_hat: GammaHat = 20.0,
     tolerance: Tolerance = 1e-3,
     max_iterations: MaxIterations = 400,
-    k: Neighbours = 3,
+    k: Neighbours = None,
     prior: Prior = None,
     warm_start_pixels: WarmStartPixels = 200_000,
     tile: Tile = DISK_TILE,

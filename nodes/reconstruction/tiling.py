@@ -206,7 +206,7 @@ def default_halo(
 
     Notes
     -----
-    Measured with the default solver (``block-jacobi-pcg``, tolerance 1e-3) on the hard
+    Measured with ``block-jacobi-pcg`` (the default then; tolerance 1e-3) on the hard
     scenes (:func:`~spectralize.nodes.simulation.scenes.get_scene`; ``s_i`` 6 to 25.6 px,
     ``s_max = 25.6``): the tiled solve's median and p95 per-pixel nRMSE against the truth,
     divided by the untiled solve's (1 = identical; < 1: tiles better)::

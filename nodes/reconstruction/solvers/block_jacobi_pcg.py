@@ -40,6 +40,7 @@ from .common import (
 __all__ = [
     "block_jacobi_pcg",
     "BlockJacobiPreconditioner",
+    "normal_mean_diagonal",
     "projected_filtered_initial",
     "guided_initial",
     "DEFAULT_RIDGE",
@@ -50,6 +51,19 @@ DEFAULT_RIDGE = 1e-4
 
 _CHUNK = 1 << 16
 """Pixels per chunk of the preconditioner's 3 x 3 inverses (bounds their float64 temporaries)."""
+
+
+def normal_mean_diagonal(problem: ReconstructionProblem) -> float:
+    """The mean of the diagonal of ``A^T A`` (the unit of relative ridges and priors), from
+    sums of its terms: ``alpha F^T F`` (separable filters), ``gamma L`` (the degrees) and
+    ``beta C^T C``."""
+    w = problem.weights
+    n_wavelength = problem.shape[0]
+    degree = problem.neighbours.degree
+    c = problem.camera_matrix.astype(np.float64)
+    total = w.alpha * problem.filters.normal_diagonal_total()
+    total += w.gamma * n_wavelength * float(degree.sum(dtype=np.float64))
+    return total / (n_wavelength * degree.size) + w.beta * float(np.sum(c * c)) / n_wavelength
 
 
 class BlockJacobiPreconditioner:
@@ -93,10 +107,7 @@ class BlockJacobiPreconditioner:
         c = problem.camera_matrix.astype(np.float64)
         degree = problem.neighbours.degree
         n_pixels = degree.size
-        # the mean diagonal of A^T A, from sums
-        total = w.alpha * problem.filters.normal_diagonal_total()
-        total += w.gamma * n_wavelength * float(degree.sum(dtype=np.float64))
-        mean_diagonal = total / (n_wavelength * n_pixels) + w.beta * float(np.sum(c * c)) / n_wavelength
+        mean_diagonal = normal_mean_diagonal(problem)
         #: mean of the diagonal of ``A^T A``, the unit of relative ridges
         self.mean_diagonal = mean_diagonal
         #: ``epsilon`` of a ridge ``epsilon I`` added to ``A^T A`` (absolute)
@@ -124,16 +135,20 @@ class BlockJacobiPreconditioner:
         self.camera_matrix = np.ascontiguousarray(c.astype(self.dtype))
         self._beta = w.beta
 
+    def inverse_scalar_diagonal_pixels(self) -> np.ndarray:
+        """``1 / diag(A^T A + epsilon)``, pixel-major ``(n_pixels, n_wavelength)`` in
+        :attr:`order` (plain Jacobi scaling of the compiled solvers)."""
+        c = self.camera_matrix.astype(np.float64)
+        full = 1.0 / self.inverse_diagonal.astype(np.float64)
+        full += self._beta * np.sum(c * c, axis=0)[None, :]
+        return np.divide(1.0, full, out=full).astype(self.dtype)
+
     @cached_property
     def inverse_scalar_diagonal(self) -> np.ndarray:
         """``1 / diag(A^T A + epsilon)``, ``(n_wavelength, n_pixels)`` in (image, y, x) order,
         for plain Jacobi preconditioning (computed when first asked for)."""
-        c = self.camera_matrix.astype(np.float64)
-        full = 1.0 / self.inverse_diagonal.astype(np.float64)
-        full += self._beta * np.sum(c * c, axis=0)[None, :]
-        return self.order.to_cube(np.divide(1.0, full, out=full).astype(self.dtype)).reshape(
-            self.shape[0], -1
-        )
+        pixels = self.inverse_scalar_diagonal_pixels()
+        return self.order.to_cube(pixels).reshape(self.shape[0], -1)
 
     def jacobi(self, residual: np.ndarray) -> np.ndarray:
         """Plain (scalar) Jacobi: ``r / diag(A^T A)``."""

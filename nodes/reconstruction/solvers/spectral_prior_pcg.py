@@ -49,12 +49,15 @@ from .block_jacobi_pcg import (
     BlockJacobiPreconditioner,
     _prior_mask,
     guided_initial,
+    normal_mean_diagonal,
 )
 from .common import (
+    COMPILED,
     DEFAULT_MAX_ITERATIONS,
     DEFAULT_TOLERANCE,
     Callback,
     SolverResult,
+    needs_cube,
     preconditioned_cg,
     vdot,
 )
@@ -92,6 +95,9 @@ DEFAULT_COVARIANCE_FLOOR = 1e-2
 
 MIN_BRIGHTNESS = 0.1
 """``b_min``: pixels darker than this fraction of their image's mean are weighted as this."""
+
+_CHUNK = 1 << 15
+"""Pixels per chunk of the spectral prior's ``w_p Q S_p`` (bounds its temporary)."""
 
 
 @dataclass(frozen=True)
@@ -207,7 +213,7 @@ def _projected_refinement(
     gradient with Barzilai-Borwein steps (as :mod:`.material_prior_pcg`)."""
     dtype = x.dtype
     x = np.maximum(x, 0)
-    g = operator(x) - rhs
+    g = operator(x) - rhs  # a new array: ``operator`` may return its own buffer
     step = 1.0
     for _ in range(iterations):
         new = np.maximum(x - dtype.type(step) * scale * g, 0)
@@ -270,45 +276,72 @@ def spectral_prior_pcg(
     work = problem.astype(dtype)
     centre = np.asarray(guided_initial(problem), dtype=dtype).reshape(work.shape)
     relative: float | np.ndarray = ridge + prior * _prior_mask(problem)
-    base = BlockJacobiPreconditioner(work, dtype, ridge=0.0)
+    mean_diagonal = normal_mean_diagonal(work)
     term = None
     if spectral_prior > 0:
         term = spectral_prior_term(
             problem,
             spectral_prior,
-            base.mean_diagonal,
+            mean_diagonal,
             covariance_floor=covariance_floor,
             source=prior_source,
         )
     if term is not None:
         term = term.astype(dtype)
-        relative = relative + term.diagonal() / base.mean_diagonal
-    preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative)
+        relative = relative + term.diagonal() / mean_diagonal
+    # pixel-major vectors in appearance order and compiled passes, as block-jacobi-pcg
+    order = work.pixel_order("appearance")
+    preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative, order=order)
     # the ridges alone (without the spectral prior's diagonal), absolute
-    epsilon = ((ridge + prior * _prior_mask(problem)) * preconditioner.mean_diagonal).astype(dtype)
-    towards = dtype.type(ridge * preconditioner.mean_diagonal)
-    x = np.array(centre if initial is None else initial, dtype=dtype, copy=True).reshape(work.shape)
-
-    def operator(cube: np.ndarray) -> np.ndarray:
-        out = work.normal(cube)
-        out += epsilon * cube
-        if term is not None:
-            out += term.apply(cube)
-        return out
-
-    rhs = work.normal_rhs() + towards * x + (epsilon - towards) * centre
+    epsilon = ((ridge + prior * _prior_mask(problem)) * mean_diagonal).astype(dtype)
+    towards = dtype.type(ridge * mean_diagonal)
+    start = centre if initial is None else np.asarray(initial, dtype=dtype).reshape(work.shape)
+    rhs = work.normal_rhs() + towards * start + (epsilon - towards) * centre
     if term is not None:
         rhs += term.rhs()
     del centre
-    rhs_norm = np.sqrt(vdot(rhs, rhs)) or 1.0
+    x = order.to_pixels(start)
+    del start, initial
+    rhs = order.to_pixels(rhs)
+    q = np.empty_like(x)  # CG consumes H p before asking for the next one
+    precision = weight = None
+    if term is not None:  # Q and w_p, pixel-major
+        precision = np.ascontiguousarray(term.precision)
+        weight = term.weight.reshape(-1)[order.order]
+        del term
+
+    def operator(cube: np.ndarray) -> np.ndarray:
+        work.normal_pixels(cube, order=order, epsilon=epsilon, out=q)
+        if weight is not None:
+            for first in range(0, cube.shape[0], _CHUNK):  # + w_p Q S_p, chunk by chunk
+                here = slice(first, first + _CHUNK)
+                q[here] += (cube[here] @ precision) * weight[here, None]
+        return q
+
+    rhs_norm = np.sqrt(COMPILED.dot(rhs, rhs)) or 1.0
     r = rhs - operator(x)
-    apply_preconditioner = (
-        preconditioner.jacobi
-        if precondition == "jacobi"
-        else preconditioner
-        if precondition
-        else (lambda residual: residual.copy())
-    )
+    if precondition == "jacobi":
+        scalar = preconditioner.inverse_scalar_diagonal_pixels()
+
+        def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
+            return residual * scalar
+
+    elif precondition:
+        z = np.empty_like(x)
+
+        def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
+            return preconditioner.apply_pixels(residual, out=z)
+
+    else:
+
+        def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
+            return residual.copy()
+
+    cube_wanted = needs_cube(callback)
+
+    def band_major_callback(iteration: int, cube: np.ndarray) -> None:
+        callback(iteration, order.to_cube(cube) if cube_wanted else None)
+
     x, history, iterations = preconditioned_cg(
         operator,
         x,
@@ -318,12 +351,15 @@ def spectral_prior_pcg(
         tolerance=tolerance,
         max_iterations=max_iterations,
         dtype=dtype,
-        callback=callback,
+        callback=None if callback is None else band_major_callback,
+        vectors=COMPILED,
     )
+    del r
     converged = history[-1] <= tolerance
     if projected_iterations > 0:
-        scale = preconditioner.inverse_scalar_diagonal.reshape(work.shape)
+        scale = preconditioner.inverse_scalar_diagonal_pixels()
         x = _projected_refinement(operator, rhs, scale, x, int(projected_iterations))
+    x = order.to_cube(x)
     return SolverResult(
         x,
         iterations + int(projected_iterations),
@@ -334,7 +370,7 @@ def spectral_prior_pcg(
         {
             "ridge": float(ridge),
             "prior": float(prior),
-            "spectral_prior": float(spectral_prior) if term is not None else 0.0,
+            "spectral_prior": float(spectral_prior) if weight is not None else 0.0,
             "projected_iterations": int(projected_iterations),
         },
     )

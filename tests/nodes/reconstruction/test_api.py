@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spectralize.nodes.reconstruction import RECONSTRUCTION_METHODS, reconstruct
+from spectralize.nodes.reconstruction import DEFAULT_METHOD, RECONSTRUCTION_METHODS, reconstruct
 from spectralize.schemas.errors import ReconstructionError, SpectralizeError
 
 
@@ -36,9 +36,11 @@ def test_output_dims_dtype_coords_and_attrs(scene):
     assert out["rotation"].values.tolist() == [3, 4]
     assert out.attrs["units"] == "1"
     assert "long_name" in out.attrs
-    assert out.attrs["method"] == "block-jacobi-pcg"
+    assert out.attrs["method"] == DEFAULT_METHOD == "spectral-prior-pcg"
     assert out.attrs["iterations"] >= 1
-    assert out.attrs["residual_history_length"] == out.attrs["iterations"] + 1
+    # the default's iterations are its CG iterations plus those of its S >= 0 refinement
+    cg_iterations = out.attrs["iterations"] - out.attrs["projected_iterations"]
+    assert out.attrs["residual_history_length"] == cg_iterations + 1
     assert out.attrs["gamma_hat"] == 20.0  # a set of two images
     assert out.attrs["final_relative_residual"] <= out.attrs["tolerance"]
 

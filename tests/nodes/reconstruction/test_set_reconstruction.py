@@ -150,6 +150,7 @@ def test_spectra_group_carries_a_confidence_that_tracks_the_error(solved):
     assert cube.confidence.dims == ("image", "y", "x") and cube.confidence.dtype == np.float32
     assert validate_dataset(cube, SPECTRA) == []
     assert float(cube.confidence.min()) >= 0 and np.isfinite(cube.confidence.values).all()
-    reference = truth.radiance.sel(image=cube.image).transpose(*cube.radiance.dims).values
-    error = np.sqrt(np.mean((cube.radiance.values - reference) ** 2, axis=1))
+    # the confidence estimates the nRMSE (per-pixel RMSE / the image's mean): compared with it
+    error = normalised_rmse(cube.radiance, truth.radiance.sel(image=cube.image))
+    error = error.transpose(*cube.confidence.dims).values
     assert spearmanr(cube.confidence.values.ravel(), error.ravel()).statistic > 0.2
