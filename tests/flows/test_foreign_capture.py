@@ -1,0 +1,148 @@
+"""Issue 12's acceptance: a capture folder written by software outside the project.
+
+``tests/support/foreign_gantry.py`` plays another lab's gantry: numpy and tifffile only, its
+own physics, camera names, 12-bit cameras, 40 x 52 px frames, nested folders, compressed
+TIFFs, calibration tables on other wavelength grids, a TIFF patch label image. It is run as a
+separate process, and the result goes through the command line a lab uses (real
+subprocesses, real Prefect, real zarr): ``ingest``, ``run btf``, ``report``, ``export``; the
+exports are read back with Spectral Python and xarray.
+"""
+
+import ast
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import spectral
+import xarray as xr
+
+from spectralize.schemas import RunStore
+
+SCRIPT = Path(__file__).parents[1] / "support" / "foreign_gantry.py"
+EXE = [sys.executable, "-m", "spectralize.flows.cli"]
+
+
+def cli(*args, cwd):
+    from prefect.settings import PREFECT_API_URL
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_LOGGING_")}
+    env["PREFECT_API_URL"] = PREFECT_API_URL.value()  # the session's API: no server to start
+    out = subprocess.run([*EXE, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, f"spectralize {' '.join(args)} failed:\n{out.stdout}\n{out.stderr}"
+    return out
+
+
+def test_the_foreign_gantry_script_needs_nothing_of_spectralize():
+    imported = set()
+    for node in ast.walk(ast.parse(SCRIPT.read_text())):
+        if isinstance(node, ast.Import):
+            imported |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            imported.add((node.module or "").split(".")[0])
+    assert imported <= {"__future__", "argparse", "csv", "sys", "pathlib", "numpy", "tifffile"}
+
+
+@pytest.fixture(scope="module")
+def run(prefect_api, tmp_path_factory):
+    """The foreign folder written, ingested and run through btf, once for the module."""
+    root = tmp_path_factory.mktemp("foreign")
+    written = subprocess.run(
+        [sys.executable, str(SCRIPT), str(root / "capture"), "--truth", str(root / "truth.npz")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert written.returncode == 0, written.stderr
+    assert "spectralize modules imported: []" in written.stdout
+    store = root / "run.zarr"
+    ingested = cli("ingest", str(root / "capture"), str(store), cwd=root)
+    btf = cli("run", "btf", str(store), cwd=root)
+    return root, RunStore.open(store), ingested.stdout, btf.stdout
+
+
+def test_ingest_takes_the_lab_s_cameras_bit_depths_and_calibration_grids(run):
+    root, store, ingested, _ = run
+    assert "1282 frame(s) read from files" in ingested
+    assert store.validate() == []
+    rgb, spectral_shots = store.read("raw/rgb"), store.read("raw/spectral")
+    assert rgb.sizes == {"image": 24, "exposure": 5, "y": 40, "x": 52, "channel": 3}
+    assert rgb.attrs["bit_depth"] == 12 and spectral_shots.attrs["bit_depth"] == 12
+    assert spectral_shots.sizes["shot"] == 32
+    np.testing.assert_allclose(np.sort(spectral_shots["wavelength"].values), np.arange(410, 721, 10))
+    # every band shot pairs with a cam-45 (index 1) image of rotation 0 seen from its angles
+    paired = rgb.sel(image=spectral_shots["image"].values)
+    assert set(paired["camera"].values.tolist()) == {1} and set(paired["rotation"].values) == {0}
+    np.testing.assert_allclose(paired["phi_i"].values, spectral_shots["phi_i"].values)
+    # calibration tables (2 nm illuminant, 5 nm white certificate) on the band wavelengths
+    white = store.read("raw/white_reference")
+    np.testing.assert_allclose(white["target_reflectance"].values, 0.97, rtol=1e-6)
+    truth = np.load(root / "truth.npz")
+    np.testing.assert_allclose(white["illuminant"].values, truth["illuminant"], rtol=1e-3, atol=1e-4)
+    checker = store.read("raw/colour_checker")
+    assert checker.sizes["patch"] == 18 and checker["patch_name"].values[0] == "P01"
+    # exposure plan from the lab's eq. 2/3 constants: s_i = (s0 / t0) * t_i ** (1 / omega - 1)
+    plan = store.read("raw/exposure_plan")
+    t = plan["exposure_time"].values
+    np.testing.assert_allclose(plan["filter_size"].values, (0.25 / 0.03) * t**0.25, rtol=1e-6)
+
+
+def test_btf_calibrates_the_foreign_gantry_and_reconstructs_its_sample(run):
+    root, store, _, btf = run
+    ran = [line.split()[0] for line in btf.splitlines() if re.match(r"\s+\w+\s+ran\s", line)]
+    assert len(ran) == 10 and "reconstruct_image_sets" in ran and "evaluate" not in ran  # no truth
+    # the registration shots recover the lab's misregistration (0.4, -0.7) px
+    shift = store.read("registration")["shift"].values
+    assert np.all(np.abs(shift - [0.4, -0.7]) < 0.35), shift
+    # C reproduces the chart's RGB through the recovered OECF
+    assert store.read("calibration/spectral").attrs["mean_relative_error"] < 0.06
+    # the spectra have the shape of the truth (radiance is relative: compare per-pixel shape)
+    truth = np.load(root / "truth.npz")
+    expected = truth["reflectance"][truth["material"]] * truth["illuminant"]  # (y, x, wavelength)
+    spectra = store.read("spectra")
+    has_bands = store.read("image_sets")["has_bands"].load()
+    assert spectra["radiance"].attrs["units"] == "1"
+    labels = has_bands["image"].values
+    for label in (int(labels[has_bands.values][0]), int(labels[~has_bands.values][0])):
+        got = spectra["radiance"].sel(image=label).transpose("y", "x", "wavelength").values
+        scale = (got * expected).sum(-1) / (expected * expected).sum(-1)
+        error = np.linalg.norm(got - scale[..., None] * expected, axis=-1) / np.linalg.norm(
+            scale[..., None] * expected, axis=-1
+        )
+        assert np.median(error) < 0.2, (label, np.median(error))
+        for material in range(6):  # every material, the dark corner included
+            assert np.median(error[truth["material"] == material]) < 0.25, (label, material)
+        assert np.nanmin(got) >= 0.0
+
+
+@pytest.mark.filterwarnings("ignore::spectral.io.spyfile.NaNValueWarning")
+def test_report_and_exports_of_the_foreign_run_open_elsewhere(run):
+    root, store, _, _ = run
+    reported = cli("report", str(store.path), "--out", str(root / "report"), cwd=root)
+    page = root / "report" / "index.html"
+    assert str(page) in reported.stdout
+    html = page.read_text()
+    for section in ('id="reconstruction"', 'id="calibration"', 'id="registration"', 'id="oecf"'):
+        assert section in html
+    assert 'id="accuracy"' not in html and "<img" in html and "data:image/png;base64," in html
+
+    spectra = store.read("spectra")
+    cli("export", str(store.path), str(root / "envi"), "--format", "envi", "--image", "3", cwd=root)
+    (header,) = sorted((root / "envi").glob("*.hdr"))
+    image = spectral.open_image(str(header))
+    assert image.shape == (40, 52, 32)
+    np.testing.assert_allclose(image.bands.centers, np.arange(410, 721, 10))
+    expected = spectra["radiance"].sel(image=3).transpose("y", "x", "wavelength").values
+    np.testing.assert_array_equal(np.asarray(image.load()), expected)
+
+    cli("export", str(store.path), str(root / "run.nc"), "--format", "netcdf", cwd=root)
+    with xr.open_dataset(root / "run.nc") as ds:
+        assert ds["radiance"].sizes == {"image": 24, "wavelength": 32, "y": 40, "x": 52}
+        assert ds["wavelength"].attrs["units"] == "nm"
+        np.testing.assert_array_equal(
+            ds["radiance"].sel(image=3).values, spectra["radiance"].sel(image=3).values
+        )
+        assert re.fullmatch(r"cam-45|1", str(ds["camera"].sel(image=3).values))
