@@ -25,7 +25,7 @@ DEFAULTS = {
         "full_exposures": 4,
         "tolerance": 1e-6,
     },
-    "CALIBRATE_SPECTRAL": {"smoothness": 1e-3, "nonnegative": True, "patch_margin": 2, "min_snr": 1.0},
+    "CALIBRATE_SPECTRAL": {"smoothness": None, "nonnegative": True, "patch_margin": 2, "min_snr": 1.0},
     "HDR_MERGE": {"black_level": None, "saturation": None},
     "ESTIMATE_REGISTRATION": {"azimuth_offset": 15.0, "upsample_factor": 50, "max_shift": 8.0},
     "CALIBRATE_BANDS": {"filter_size": None, "order": 1},

@@ -232,6 +232,39 @@ def test_smoothness_regularises_and_nonnegativity_holds(checker_setup) -> None:
     assert np.all(smooth["camera_matrix"].values >= 0)
 
 
+def _shape_error(c: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Per channel: distance between the unit-norm rows of ``c`` and of ``truth``."""
+    unit = c / np.linalg.norm(c, axis=1, keepdims=True)
+    return np.linalg.norm(unit - truth / np.linalg.norm(truth, axis=1, keepdims=True), axis=1)
+
+
+def test_cross_validated_smoothness_recovers_c_under_a_peaked_led():
+    """A foreign lab's chart (18 smooth patches) under an LED with a narrow blue peak: many C
+    reproduce the chart, a fixed weak smoothness picks a wrong one, leaving patches out
+    does not."""
+    from support import foreign_gantry as lab
+
+    wl = lab.WAVELENGTHS
+    spectra = xr.DataArray(
+        lab.chart_reflectances(wl) * lab.illuminant(wl),
+        dims=("patch", "wavelength"),
+        coords={"patch": np.arange(18), "wavelength": wl},
+    )
+    truth = lab.rgb_sensitivity(wl)
+    rng = np.random.default_rng(3)
+    rgb = spectra.values @ truth.T
+    rgb = rgb * (1 + 0.01 * rng.standard_normal(rgb.shape))  # 1 % patch-mean noise
+    measured = xr.DataArray(rgb, dims=("patch", "channel"), coords={"patch": np.arange(18)})
+    chosen, scores = sc.cross_validated_smoothness(measured, spectra)
+    assert scores.dims == ("smoothness",) and scores.size == len(sc.SMOOTHNESS_CANDIDATES)
+    assert chosen == float(scores["smoothness"][int(np.argmin(scores.values))])
+    fixed = sc.camera_matrix(measured, spectra, smoothness=1e-3)["camera_matrix"].values
+    picked = sc.camera_matrix(measured, spectra, smoothness=chosen)["camera_matrix"].values
+    assert _shape_error(picked, truth).max() < 0.5 * _shape_error(fixed, truth).max()
+    with pytest.raises(CalibrationError, match="at least 3 patches"):
+        sc.cross_validated_smoothness(measured.isel(patch=[0, 1]), spectra.isel(patch=[0, 1]))
+
+
 def test_cross_validation_table_and_figure(checker_setup, white_setup) -> None:
     spectra, measured, c_true, labels, light = checker_setup
     c = sc.camera_matrix(measured, spectra)
