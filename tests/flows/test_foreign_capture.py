@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import spectral
 import xarray as xr
+from support import foreign_gantry as lab
 
 from spectralize.schemas import RunStore
 
@@ -97,8 +98,17 @@ def test_btf_calibrates_the_foreign_gantry_and_reconstructs_its_sample(run):
     # the registration shots recover the lab's misregistration (0.4, -0.7) px
     shift = store.read("registration")["shift"].values
     assert np.all(np.abs(shift - [0.4, -0.7]) < 0.35), shift
-    # C reproduces the chart's RGB through the recovered OECF
-    assert store.read("calibration/spectral").attrs["mean_relative_error"] < 0.06
+    # C reproduces the chart's RGB through the recovered OECF, and has the shape of the
+    # lab's sensitivities (per channel, unit norm); Q has the shape of its camera's efficiency
+    calibration = store.read("calibration/spectral")
+    assert calibration.attrs["mean_relative_error"] < 0.06
+    for found, true in (
+        (calibration["camera_matrix"].values, lab.rgb_sensitivity(lab.WAVELENGTHS)),
+        (calibration["quantum_efficiency"].values[None], lab.mono_efficiency(lab.WAVELENGTHS)[None]),
+    ):
+        unit = found / np.linalg.norm(found, axis=1, keepdims=True)
+        error = np.linalg.norm(unit - true / np.linalg.norm(true, axis=1, keepdims=True), axis=1)
+        assert error.max() < 0.3, error
     # the spectra have the shape of the truth (radiance is relative: compare per-pixel shape)
     truth = np.load(root / "truth.npz")
     expected = truth["reflectance"][truth["material"]] * truth["illuminant"]  # (y, x, wavelength)
