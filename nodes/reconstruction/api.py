@@ -295,14 +295,17 @@ def reconstruct(
         wavelengths, on which the spectra are reconstructed.
     method
         A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`:
-        the solvers ``"spectral-prior-pcg"`` (default: ``"material-prior-pcg"`` plus a
+        the solvers ``"mixture-prior-pcg"`` (the default: ``"spectral-prior-pcg"`` with its
+        prior learnt from and centred on the ``"endmember-mixture"`` estimate),
+        ``"spectral-prior-pcg"`` (``"material-prior-pcg"`` plus a
         soft per-pixel spectral prior), ``"block-jacobi-pcg"`` (eq. 1 alone, the paper's
         method, fast), ``"guided-prior-pcg"`` (eq. 1 plus a prior towards the RGB-guided
         filtered bands, weight ``prior``), ``"material-prior-pcg"`` (that prior plus
         neighbourhoods in chromaticity and position, scale-invariant coupling and
         ``S >= 0``) and ``"paper-cg"`` (the paper's CG); the baselines
         ``"pseudo-inverse"``, ``"wiener"``, ``"mallett2019"``, ``"filtered-bands"``,
-        ``"filtered-projected"``, ``"guided-projected"``.
+        ``"filtered-projected"``, ``"guided-projected"``; the estimator
+        ``"endmember-mixture"`` (non-iterative, about 3x faster than the default).
     filter_size
         ``s_i`` [px] of the bands of a ``(y, x, wavelength)`` band cube: one number, or one
         per wavelength.

@@ -34,11 +34,13 @@ from .baselines import (
     pseudo_inverse,
     wiener_estimation,
 )
+from .estimators import endmember_mixture
 from .operators import build_problem
 from .solvers import (
     block_jacobi_pcg,
     guided_prior_pcg,
     material_prior_pcg,
+    mixture_prior_pcg,
     paper_cg,
     spectral_prior_pcg,
 )
@@ -82,8 +84,10 @@ class ReconstructionMethod:
         Its key in the table (``"block-jacobi-pcg"``).
     kind
         ``"solver"``: ``function(problem, **options) -> SolverResult`` solves eq. 1 set up by
-        :func:`~.operators.build_problem`; ``"baseline"``: ``function(inputs, **options) ->
-        cube`` maps the checked inputs straight to a cube ``(wavelength, image, y, x)``.
+        :func:`~.operators.build_problem`; ``"baseline"`` (a published method, for
+        comparison) and ``"estimator"`` (this project's own, :mod:`.estimators`):
+        ``function(inputs, **options) -> cube`` maps the checked inputs straight to a cube
+        ``(wavelength, image, y, x)``.
     function
         The implementation.
     dtype
@@ -97,7 +101,7 @@ class ReconstructionMethod:
     """
 
     name: str
-    kind: Literal["solver", "baseline"]
+    kind: Literal["solver", "baseline", "estimator"]
     function: Callable[..., Any]
     dtype: np.dtype
     description: str
@@ -118,7 +122,7 @@ class ReconstructionMethod:
 
 def _method(
     name: str,
-    kind: Literal["solver", "baseline"],
+    kind: Literal["solver", "baseline", "estimator"],
     function: Callable[..., Any],
     dtype: type,
     description: str,
@@ -159,8 +163,23 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             "solver",
             spectral_prior_pcg,
             np.float32,
-            "material-prior-pcg plus a Gaussian spectral prior from reflectance collections",
+            "material-prior-pcg plus a Gaussian spectral prior learnt from the guided estimate",
             SPECTRAL_SETUP_DEFAULTS,
+        ),
+        _method(
+            "mixture-prior-pcg",
+            "solver",
+            mixture_prior_pcg,
+            np.float32,
+            "spectral-prior-pcg with its prior learnt from and centred on endmember-mixture",
+            SPECTRAL_SETUP_DEFAULTS,
+        ),
+        _method(
+            "endmember-mixture",
+            "estimator",
+            endmember_mixture,
+            np.float64,
+            "non-negative mixtures of endmembers learnt from all band shots, weights from RGB",
         ),
         _method(
             "paper-cg",
@@ -210,13 +229,12 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
 """Every reconstruction method by name; see :class:`ReconstructionMethod`. A plugin adds a
 method by adding a record."""
 
-DEFAULT_METHOD = "spectral-prior-pcg"
+DEFAULT_METHOD = "mixture-prior-pcg"
 """Eq. 1 with neighbourhoods that separate materials, coupled scale-invariantly, the guided
-and the spectral prior, and ``S >= 0`` (:mod:`~.solvers.spectral_prior_pcg`). Measured
-(``benchmarks/reconstruction.py``, README): more accurate than eq. 1 alone
-(``"block-jacobi-pcg"``, the paper's method, still selectable) at the median and at p95 on
-every hard scene, single image and 20-image set, and on the earlier benchmark scene; no
-negative radiance; about half the iterations on a set."""
+prior, a spectral prior centred on the endmember-mixture estimate, and ``S >= 0``
+(:mod:`~.solvers.mixture_prior_pcg`). Measured (``benchmarks/reconstruction.py``, README):
+the most accurate method at the median on every hard scene, single image and 20-image set;
+eq. 1 alone (``"block-jacobi-pcg"``, the paper's method) stays selectable."""
 
 
 def get_method(name: str) -> ReconstructionMethod:

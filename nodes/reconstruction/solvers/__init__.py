@@ -8,7 +8,7 @@ All of them are listed in
     The paper's solver, kept as the reference mode: CGNR, float64, started from zero.
 ``"block-jacobi-pcg"`` (:mod:`.block_jacobi_pcg`)
     Eq. 1 alone, solved fast: block-Jacobi preconditioned CG on ``A^T A``, float32,
-    started from the filtered bands projected onto ``C S = R``. The default.
+    started from the filtered bands projected onto ``C S = R``.
 ``"guided-prior-pcg"`` (:mod:`.guided_prior_pcg`)
     The same solver on eq. 1 plus a prior towards the RGB-guided filtered bands.
 
@@ -18,6 +18,9 @@ All of them are listed in
 ``"spectral-prior-pcg"`` (:mod:`.spectral_prior_pcg`)
     ``material-prior-pcg`` plus a soft Gaussian spectral prior from colour-science's
     reflectances, centred on the Wiener estimate and scaled by each pixel's brightness.
+``"mixture-prior-pcg"`` (:mod:`.mixture_prior_pcg`)
+    The same with the prior learnt from, and centred on, the endmember-mixture estimate
+    (:mod:`..estimators`). The default.
 
 All stop when the relative residual of the normal equations ``||A^T b - A^T A S|| /
 ||A^T b||`` falls below ``tolerance``, or after ``max_iterations``
@@ -39,6 +42,7 @@ from .block_jacobi_pcg import (
 from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, SolverResult
 from .guided_prior_pcg import DEFAULT_PRIOR, guided_prior_pcg
 from .material_prior_pcg import material_prior_pcg
+from .mixture_prior_pcg import mixture_prior_pcg
 from .paper_cg import paper_cg
 from .spectral_prior_pcg import spectral_prior_pcg
 
@@ -53,6 +57,7 @@ __all__ = [
     "guided_prior_pcg",
     "material_prior_pcg",
     "spectral_prior_pcg",
+    "mixture_prior_pcg",
     "BlockJacobiPreconditioner",
     "projected_filtered_initial",
     "guided_initial",

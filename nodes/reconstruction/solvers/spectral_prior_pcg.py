@@ -43,6 +43,7 @@ import numpy as np
 
 from ..baselines.training import estimate_illuminant, training_reflectances
 from ..baselines.wiener import WIENER_RELATIVE_NOISE
+from ..estimators import endmember_mixture
 from ..operators import ReconstructionProblem
 from .block_jacobi_pcg import (
     DEFAULT_RIDGE,
@@ -143,6 +144,17 @@ class SpectralPrior:
         )
 
 
+def _level_normalised(spectra: np.ndarray) -> np.ndarray:
+    """Sample spectra ``(n_wavelength, n)``, clipped at 0, each divided by its mean; those
+    darker than a quarter of the median left out; at most about 20000, strided."""
+    spectra = np.maximum(spectra, 0)
+    level = spectra.mean(axis=0)
+    keep = level > 0.25 * max(float(np.median(level)), 1e-300)
+    spectra = spectra[:, keep] / level[keep]
+    step = max(1, spectra.shape[1] // 20000)
+    return spectra[:, ::step]
+
+
 def _scene_spectra(problem: ReconstructionProblem) -> np.ndarray | None:
     """Pixel spectra of the guided estimate ``S_0`` on the images that have a shot of every
     band, each divided by its mean: ``(n_wavelength, n_samples)``; None if no image has."""
@@ -150,12 +162,7 @@ def _scene_spectra(problem: ReconstructionProblem) -> np.ndarray | None:
     if not full.any():
         return None
     centre = np.asarray(guided_initial(problem), dtype=np.float64).reshape(problem.shape)
-    spectra = np.maximum(centre[:, full].reshape(problem.shape[0], -1), 0)
-    level = spectra.mean(axis=0)
-    keep = level > 0.25 * max(float(np.median(level)), 1e-300)
-    spectra = spectra[:, keep] / level[keep]
-    step = max(1, spectra.shape[1] // 20000)
-    return spectra[:, ::step]
+    return _level_normalised(centre[:, full].reshape(problem.shape[0], -1))
 
 
 def spectral_prior_term(
@@ -173,20 +180,27 @@ def spectral_prior_term(
     training reflectances lit by the estimated illuminant; ``"scene"`` from the scene's own
     guided estimate ``S_0`` (pixels of the images with every band, normalised by their
     level; no illuminant estimate needed); None (no prior) without such an image (a sparse
-    set, where its covariance cannot be learnt).
+    set, where its covariance cannot be learnt). ``"mixture"``: the covariance of the
+    :func:`~..estimators.endmember_mixture` estimate of every pixel (level-normalised), and
+    that estimate itself as the centre ``m`` instead of the Wiener estimate (any set has
+    one).
     """
     inputs = problem.extras.get("inputs")
     if inputs is None:
         raise ValueError("the spectral prior needs a problem built from inputs")
+    mixture = None
     if source == "scene":
         samples = _scene_spectra(problem)
         if samples is None:
             return None
+    elif source == "mixture":
+        mixture = endmember_mixture(inputs).reshape(problem.shape)
+        samples = _level_normalised(mixture.reshape(problem.shape[0], -1))
     elif source == "training":
         reflectances = training_reflectances(inputs.wavelength)
         samples = estimate_illuminant(inputs, reflectances)[:, None] * reflectances
     else:
-        raise ValueError(f"unknown prior source {source!r}; use 'scene' or 'training'")
+        raise ValueError(f"unknown prior source {source!r}; use 'scene', 'mixture' or 'training'")
     n = samples.shape[0]
     covariance = np.cov(samples)
     covariance = covariance / max(float(np.mean(np.diag(covariance))), 1e-300)
@@ -196,6 +210,8 @@ def spectral_prior_term(
     brightness = np.abs(rgb.sum(axis=-1))
     brightness = brightness / np.maximum(brightness.mean(axis=(1, 2), keepdims=True), 1e-300)
     w = weight * mean_diagonal / np.maximum(brightness, MIN_BRIGHTNESS) ** 2
+    if mixture is not None:
+        return SpectralPrior(precision, w, mixture)
     # Wiener estimate from RGB with the samples' second moment
     second_moment = samples @ samples.T / samples.shape[1]
     c = inputs.camera_matrix
@@ -261,8 +277,9 @@ def spectral_prior_pcg(
     covariance_floor
         ``delta`` of ``Q`` (see the module docstring).
     prior_source
-        ``"training"`` or ``"scene"``: where the prior's mean and covariance are learnt
-        (:func:`spectral_prior_term`).
+        ``"scene"``, ``"mixture"`` or ``"training"``: where the prior's mean and covariance
+        are learnt (:func:`spectral_prior_term`). With ``"mixture"`` the guided prior
+        (``prior``) and the start are centred on the mixture estimate too.
     projected_iterations
         Projected-gradient iterations on ``S >= 0`` (0: none).
 
@@ -289,6 +306,8 @@ def spectral_prior_pcg(
     if term is not None:
         term = term.astype(dtype)
         relative = relative + term.diagonal() / mean_diagonal
+        if prior_source == "mixture":  # the guided prior pulls towards the same estimate
+            centre = term.centre.copy()
     # pixel-major vectors in appearance order and compiled passes, as block-jacobi-pcg
     order = work.pixel_order("appearance")
     preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative, order=order)

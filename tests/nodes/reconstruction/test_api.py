@@ -36,7 +36,7 @@ def test_output_dims_dtype_coords_and_attrs(scene):
     assert out["rotation"].values.tolist() == [3, 4]
     assert out.attrs["units"] == "1"
     assert "long_name" in out.attrs
-    assert out.attrs["method"] == DEFAULT_METHOD == "spectral-prior-pcg"
+    assert out.attrs["method"] == DEFAULT_METHOD == "mixture-prior-pcg"
     assert out.attrs["iterations"] >= 1
     # the default's iterations are its CG iterations plus those of its S >= 0 refinement
     cg_iterations = out.attrs["iterations"] - out.attrs["projected_iterations"]
@@ -95,7 +95,7 @@ def test_result_scales_with_radiance_and_ignores_the_gain_of_c(scene):
 @pytest.mark.parametrize("method", sorted(RECONSTRUCTION_METHODS))
 def test_every_method_of_the_table_runs_through_reconstruct(scene, method):
     record = RECONSTRUCTION_METHODS[method]
-    assert record.name == method and record.kind in ("solver", "baseline")
+    assert record.name == method and record.kind in ("solver", "baseline", "estimator")
     result = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method=method, full_output=True)
     out = result.spectra
     assert out.dims == ("image", "wavelength", "y", "x")

@@ -1,0 +1,422 @@
+"""Estimator ``"endmember-mixture"``: every pixel a non-negative mixture of a few of the
+scene's own spectra, learnt from the noisy bands of all pixels at once.
+
+The physics: a camera pixel integrates the materials under it, lit by one illuminant
+``L``, plus a highlight that has the illuminant's spectrum (the dichromatic reflection
+model). So a pixel's spectrum is a non-negative combination of a few *endmember* spectra
+``E_j = L rho_j`` and of ``L`` itself:
+
+``S(p) = sum_j w_j(p) E_j``,  ``w(p) >= 0``, few ``j`` per pixel.
+
+Three endmembers are pinned down by the (good, HDR) RGB alone, ``C E w = R``; what RGB
+cannot tell, the endmembers' spectra, is learnt from the band shots of *all* pixels
+together, where the noise of single pixels (band SNR at or below 1) averages out:
+
+1. **Endmembers**: k-means on the pixels' chromaticity (channel-balanced RGB, brightness
+   divided out, so shading does not split a material) over the pixels between 0.2 x the
+   median and the 90th percentile of brightness (the darkest have noisy chromaticity, the
+   brightest are highlights); every pixel joins its nearest cluster, and per cluster the
+   spectrum per unit brightness is the pooled least squares ``D_b(p) ~ b_p g_b``; one
+   more atom for the highlights, pooled over the brightest 1 % of pixels.
+2. **Abundances**: per pixel, non-negative least squares ``min ||C E_K w - R(p)||`` over the
+   ``K`` endmembers nearest in chromaticity and the highlight atom, solved exactly for all
+   pixels at once by enumerating the subsets of these ``K + 1`` atoms.
+3. **Dictionary update**: per band, the endmembers that best explain every pixel's band
+   value with those abundances (a ``J x J`` ridge regression over all pixels shot in that
+   band, held towards the previous atoms); then 2 again. A few rounds.
+4. The mixture, projected per pixel onto ``C S = R`` and onto ``S >= 0`` (alternately).
+5. A local correction from the band shots where they disagree with the mixture by more
+   than their noise (:func:`local_correction`: highlights, materials the dictionary
+   lacks), projected again.
+
+In a set, images share the endmembers (the same materials under other light and view), so
+an image without band shots gets spectra from the bands of the others through its RGB.
+The estimate is the centre and the covariance source of ``"mixture-prior-pcg"``
+(:mod:`~..solvers.mixture_prior_pcg`), which then adds eq. 1's filter and neighbour terms.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, sections 2 ("Hybrid Methods") and 3.
+.. [2] Shafer, S. A. (1985). Using color to separate reflection components. Color Research
+   and Application 10(4) (the dichromatic model: highlights have the illuminant's colour).
+.. [3] Keshava, N., Mustard, J. F. (2002). Spectral unmixing. IEEE Signal Processing
+   Magazine 19(1) (the linear mixing model, endmembers and non-negative abundances).
+.. [4] Lawson, C. L., Hanson, R. J. (1974). Solving Least Squares Problems (NNLS: the
+   active set of the solution is one of the subsets enumerated here).
+"""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+
+import numpy as np
+
+from ..baselines.projection import project_onto_rgb
+from ..inputs import ReconstructionInputs
+
+__all__ = [
+    "endmember_mixture",
+    "Endmembers",
+    "learn_endmembers",
+    "rgb_abundances",
+    "chromaticity",
+    "local_correction",
+    "band_noise_sigma",
+    "DEFAULT_ENDMEMBERS",
+    "DEFAULT_CANDIDATES",
+    "DEFAULT_ROUNDS",
+]
+
+DEFAULT_ENDMEMBERS = 32
+"""``J``: endmembers learnt per scene (clusters of chromaticity), besides the highlight atom."""
+
+DEFAULT_CANDIDATES = 3
+"""``K``: endmembers nearest in chromaticity each pixel may mix (plus the highlight atom);
+RGB determines at most three weights."""
+
+DEFAULT_ROUNDS = 4
+"""Abundance / dictionary rounds."""
+
+DICTIONARY_RIDGE = 0.1
+"""Ridge of the dictionary update towards the previous atoms, relative to the mean
+diagonal of the abundances' Gram matrix (endmembers of similar colour have nearly
+collinear abundances; without it their spectra fit the band noise)."""
+
+CLUSTER_BRIGHTNESS = (0.2, 90.0)
+"""Pixels clustered: brightness above this fraction of the median and below this
+percentile."""
+
+HIGHLIGHT_PERCENTILE = 99.0
+"""The highlight atom is pooled over the pixels brighter than this percentile."""
+
+LOCAL_WINDOW_SCALE = 3.0
+"""Window of the local correction's guided filter, in units of the shot's filter ``sigma``
+(as the ``"guided-projected"`` baseline)."""
+
+PROJECTION_ROUNDS = 5
+"""Alternating projections onto ``C S = R`` and ``S >= 0``."""
+
+_PIXELS_PER_ENDMEMBER = 256
+"""At least this many clustered pixels per endmember (fewer endmembers on small images: an
+endmember pooled over fewer pixels carries their band noise)."""
+
+_SAMPLE = 20000
+"""Pixels the k-means sees at most (a strided, seeded sample)."""
+
+_CHUNK = 1 << 16
+"""Pixels per chunk of the abundance solve (bounds its temporaries)."""
+
+
+def chromaticity(
+    rgb_pixels: np.ndarray, scale: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Brightness and chromaticity of RGB pixels ``(n, 3)``.
+
+    Each channel is divided by ``scale`` (default: its mean over the pixels) so the three
+    weigh alike; brightness ``b`` is the sum of the balanced channels, chromaticity its
+    first two shares, clipped to ``[0, 1]``. Shading scales ``b`` and leaves the
+    chromaticity alone.
+
+    Returns
+    -------
+    brightness, chroma
+        ``(n,)`` and ``(n, 2)``, float64.
+    """
+    rgb = np.asarray(rgb_pixels, dtype=np.float64)
+    if scale is None:
+        scale = np.abs(rgb.mean(axis=0))
+    balanced = rgb / np.maximum(scale, 1e-300)
+    brightness = balanced.sum(axis=1)
+    floor = 1e-6 * max(float(np.abs(brightness).mean()), 1e-300)
+    chroma = np.clip(balanced[:, :2] / np.maximum(brightness, floor)[:, None], 0.0, 1.0)
+    return brightness, chroma
+
+
+class Endmembers:
+    """The learnt dictionary: atoms ``(J + 1, n_wavelength)`` (the last one the highlight
+    atom) and the chromaticity centres ``(J, 2)`` of the first ``J``."""
+
+    def __init__(self, atoms: np.ndarray, centres: np.ndarray) -> None:
+        self.atoms = atoms
+        self.centres = centres
+
+    @property
+    def highlight(self) -> int:
+        """Index of the highlight atom."""
+        return self.atoms.shape[0] - 1
+
+    def candidates(self, chroma: np.ndarray, k: int) -> np.ndarray:
+        """``(n, min(k, J) + 1)``: the ``k`` atoms nearest in chromaticity, and the
+        highlight atom."""
+        k = min(k, self.centres.shape[0])
+        near = np.empty((chroma.shape[0], k + 1), dtype=np.intp)
+        for start in range(0, chroma.shape[0], _CHUNK):
+            here = slice(start, start + _CHUNK)
+            d2 = ((chroma[here, None, :] - self.centres[None]) ** 2).sum(axis=-1)
+            near[here, :k] = np.argsort(d2, axis=1, kind="stable")[:, :k]
+        near[:, k] = self.highlight
+        return near
+
+
+def _band_shots(inputs: ReconstructionInputs) -> dict[int, list[int]]:
+    shots: dict[int, list[int]] = {}
+    for i, b in enumerate(inputs.band):
+        shots.setdefault(int(b), []).append(i)
+    return shots
+
+
+def _pooled_shape(
+    inputs: ReconstructionInputs, brightness: np.ndarray, label: np.ndarray, n_label: int
+) -> np.ndarray:
+    """Per label and band the least-squares ``g`` of ``D_b(p) ~ b_p g`` over the label's
+    pixels; ``(n_label, n_wavelength)``; labels < 0 are left out, empty labels get the
+    pooled shape of all pixels."""
+    per_image = inputs.height * inputs.width
+    num = np.zeros((n_label + 1, inputs.n_wavelength))
+    den = np.zeros((n_label + 1, inputs.n_wavelength))
+    for i, (b, m) in enumerate(zip(inputs.band, inputs.image, strict=True)):
+        here = slice(m * per_image, (m + 1) * per_image)
+        lab = np.where(label[here] < 0, n_label, label[here])
+        weight = brightness[here]
+        data = inputs.band_data[i].ravel().astype(np.float64)
+        num[:, b] += np.bincount(lab, weights=weight * data, minlength=n_label + 1)
+        den[:, b] += np.bincount(lab, weights=weight * weight, minlength=n_label + 1)
+    total = num.sum(axis=0) / np.maximum(den.sum(axis=0), 1e-300)
+    shape = num[:n_label] / np.maximum(den[:n_label], 1e-300)
+    empty = den[:n_label] <= 0
+    shape[empty] = np.broadcast_to(total, shape.shape)[empty]
+    return shape
+
+
+def learn_endmembers(
+    inputs: ReconstructionInputs,
+    brightness: np.ndarray,
+    chroma: np.ndarray,
+    *,
+    n_endmembers: int = DEFAULT_ENDMEMBERS,
+    seed: int = 0,
+) -> Endmembers:
+    """Step 1 of the module docstring: chromaticity clusters and their pooled spectra.
+
+    Parameters
+    ----------
+    inputs
+        The checked input arrays (band shots).
+    brightness, chroma
+        :func:`chromaticity` of every pixel of every image, in (image, y, x) order.
+    n_endmembers
+        ``J`` (fewer when there are few pixels: at least 256 clustered pixels each).
+    seed
+        Seed of the k-means initialisation and sample (deterministic result).
+    """
+    from scipy.cluster.vq import kmeans2
+
+    low, high = CLUSTER_BRIGHTNESS
+    keep = (brightness > low * np.median(brightness)) & (brightness < np.percentile(brightness, high))
+    if keep.sum() < 16:
+        keep = np.ones_like(keep)
+    sample = chroma[keep]
+    step = max(1, sample.shape[0] // _SAMPLE)
+    sample = sample[::step]
+    n = int(max(1, min(n_endmembers, sample.shape[0] // _PIXELS_PER_ENDMEMBER)))
+    with warnings.catch_warnings():  # an empty cluster is handled below
+        warnings.simplefilter("ignore")
+        centres, _ = kmeans2(sample, n, minit="++", seed=np.random.default_rng(seed))
+    label = Endmembers(np.zeros((n + 1, 1)), centres).candidates(chroma, 1)[:, 0]
+    atoms = _pooled_shape(inputs, brightness, label, n)
+    bright = (brightness > np.percentile(brightness, HIGHLIGHT_PERCENTILE)).astype(np.intp) - 1
+    highlight = _pooled_shape(inputs, brightness, np.where(bright < 0, -1, 0), 1)
+    return Endmembers(np.vstack([atoms, highlight]), centres)
+
+
+def _subsets(k: int) -> list[tuple[int, ...]]:
+    return [s for r in range(1, k + 1) for s in itertools.combinations(range(k), r)]
+
+
+def rgb_abundances(
+    endmembers: Endmembers, near: np.ndarray, camera_matrix: np.ndarray, rgb_pixels: np.ndarray
+) -> np.ndarray:
+    """Step 2: per pixel ``w >= 0`` minimising ``||C E_near w - R||^2`` (a tiny ridge keeps
+    it unique), by enumerating the active sets; ``(n, K + 1)`` beside ``near``.
+
+    Exact NNLS: the solution is the unconstrained least-squares solution on its support,
+    which is feasible, and no feasible one on another support has a lower residual.
+    """
+    c = np.asarray(camera_matrix, dtype=np.float64)
+    rgb = np.asarray(rgb_pixels, dtype=np.float64)
+    projected = endmembers.atoms @ c.T  # (J + 1, 3): each atom's RGB
+    k = near.shape[1]
+    weights = np.zeros(near.shape)
+    for start in range(0, near.shape[0], _CHUNK):
+        here = slice(start, start + _CHUNK)
+        ca = projected[near[here]]  # (n, k, 3)
+        gram = np.einsum("pkc,plc->pkl", ca, ca)
+        gram += (1e-6 * np.trace(gram, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(k)
+        rhs = np.einsum("pkc,pc->pk", ca, rgb[here])
+        best = np.full(ca.shape[0], np.inf)
+        chosen = np.zeros((ca.shape[0], k))
+        for subset in _subsets(k):
+            s = list(subset)
+            w = np.linalg.solve(gram[:, s][:, :, s], rhs[:, s, None])[..., 0]
+            objective = -0.5 * np.einsum("pi,pi->p", w, rhs[:, s])
+            better = (w >= 0).all(axis=1) & (objective < best)
+            best[better] = objective[better]
+            chosen[better] = 0.0
+            chosen[np.ix_(better, s)] = w[better]
+        weights[here] = chosen
+    return weights
+
+
+def _update_atoms(
+    inputs: ReconstructionInputs, endmembers: Endmembers, near: np.ndarray, weights: np.ndarray
+) -> None:
+    """Step 3: per band, the atoms that best explain the band values with the abundances."""
+    atoms = endmembers.atoms
+    n_atoms = atoms.shape[0]
+    per_image = inputs.height * inputs.width
+    for b, shots in _band_shots(inputs).items():
+        gram = np.zeros(n_atoms * n_atoms)
+        rhs = np.zeros(n_atoms)
+        for i in shots:
+            m = inputs.image[i]
+            here = slice(m * per_image, (m + 1) * per_image)
+            idx, w = near[here], weights[here]
+            data = inputs.band_data[i].ravel().astype(np.float64)
+            for a in range(idx.shape[1]):
+                rhs += np.bincount(idx[:, a], weights=w[:, a] * data, minlength=n_atoms)
+                for c in range(idx.shape[1]):
+                    pair = idx[:, a] * n_atoms + idx[:, c]
+                    gram += np.bincount(pair, weights=w[:, a] * w[:, c], minlength=n_atoms**2)
+        gram = gram.reshape(n_atoms, n_atoms)
+        ridge = DICTIONARY_RIDGE * max(float(np.trace(gram)) / n_atoms, 1e-300)
+        atoms[:, b] = np.linalg.solve(gram + ridge * np.eye(n_atoms), rhs + ridge * atoms[:, b])
+
+
+def band_noise_sigma(inputs: ReconstructionInputs) -> np.ndarray:
+    """Per shot, the standard deviation of the band noise, from the high-pass part of the
+    image (the shot minus its 3 x 3 mean: white noise keeps 8/9 of its variance there)."""
+    from scipy import ndimage
+
+    sigma = np.empty(len(inputs.band))
+    for i in range(len(inputs.band)):
+        plane = inputs.band_data[i].astype(np.float64)
+        high = plane - ndimage.uniform_filter(plane, 3, mode="reflect")
+        sigma[i] = np.sqrt(np.var(high) * 9.0 / 8.0)
+    return sigma
+
+
+def local_correction(
+    inputs: ReconstructionInputs,
+    cube: np.ndarray,
+    *,
+    window_scale: float = LOCAL_WINDOW_SCALE,
+    draws: int = 2,
+    seed: int = 0,
+) -> np.ndarray:
+    """Add to ``cube`` what the band shots say locally and the mixture missed, where it
+    stands out of the noise.
+
+    The residual ``D - S`` of every shot is filtered with the RGB image as guide
+    (:func:`~..baselines.guided_filter.guided_filtered_bands`: locally affine in RGB, so
+    a highlight or a material the dictionary lacks keeps its per-pixel detail); the same
+    filter applied to pure noise of the shot's level (``draws`` draws) gives the
+    correction's noise variance ``v``; the correction is kept in the proportion ``max(0,
+    1 - <v> / <c^2>)`` (``<>``: the window's local mean), a James-Stein shrinkage per pixel.
+    Only bands an image has a shot of are corrected. In place; returns ``cube``.
+    """
+    import dataclasses
+
+    from ..baselines.guided_filter import _gaussian_window, _window_sigma, guided_filtered_bands
+
+    residual = inputs.band_data.astype(np.float64) - cube[inputs.band, inputs.image]
+    correction = guided_filtered_bands(
+        dataclasses.replace(inputs, band_data=residual.astype(np.float32)), window_scale=window_scale
+    )
+    sigma = band_noise_sigma(inputs)
+    rng = np.random.default_rng(seed)
+    variance = np.zeros_like(correction)
+    for _ in range(int(draws)):
+        noise = rng.normal(size=inputs.band_data.shape) * sigma[:, None, None]
+        pure = guided_filtered_bands(
+            dataclasses.replace(inputs, band_data=noise.astype(np.float32)), window_scale=window_scale
+        )
+        variance += pure**2 / draws
+    done = set()
+    for i, (b, m) in enumerate(zip(inputs.band, inputs.image, strict=True)):
+        if (b, m) in done:
+            continue
+        done.add((b, m))
+        window = _window_sigma(float(inputs.filter_size[i]), window_scale)
+        local_variance = _gaussian_window(variance[b, m], window)
+        local_power = _gaussian_window(correction[b, m] ** 2, window)
+        keep = np.clip(1.0 - local_variance / np.maximum(local_power, 1e-300), 0.0, 1.0)
+        cube[b, m] += correction[b, m] * keep
+    return cube
+
+
+def _project(cube: np.ndarray, inputs: ReconstructionInputs) -> np.ndarray:
+    """Step 4: alternate ``C S = R`` and ``S >= 0``; ends non-negative."""
+    rgb = np.moveaxis(inputs.rgb, -1, 0)
+    for _ in range(PROJECTION_ROUNDS):
+        project_onto_rgb(cube, inputs.camera_matrix, rgb, overwrite=True)
+        np.maximum(cube, 0, out=cube)
+    return cube
+
+
+def endmember_mixture(
+    inputs: ReconstructionInputs,
+    *,
+    n_endmembers: int = DEFAULT_ENDMEMBERS,
+    candidates: int = DEFAULT_CANDIDATES,
+    rounds: int = DEFAULT_ROUNDS,
+    local: bool = True,
+    seed: int = 0,
+) -> np.ndarray:
+    """Spectra as non-negative mixtures of learnt endmembers (see the module docstring).
+
+    Parameters
+    ----------
+    inputs
+        The checked input arrays.
+    n_endmembers
+        ``J``, endmembers besides the highlight atom.
+    candidates
+        ``K``, endmembers nearest in chromaticity a pixel may mix.
+    rounds
+        Abundance / dictionary-update rounds (1: the pooled cluster spectra as they are).
+    local
+        Add the :func:`local_correction` (step 5 of the module docstring).
+    seed
+        Seed of the clustering (the result is deterministic for a given seed).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n_wavelength, n_image, height, width)``, float64, ``>= 0``.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3 (eq. 1's RGB term).
+    .. [2] Keshava and Mustard (2002), Spectral unmixing.
+    """
+    rgb = inputs.rgb_pixels().T  # (n_pixels, 3)
+    brightness, chroma = chromaticity(rgb)
+    endmembers = learn_endmembers(
+        inputs, brightness, chroma, n_endmembers=int(n_endmembers), seed=int(seed)
+    )
+    near = endmembers.candidates(chroma, int(candidates))
+    del chroma
+    weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
+    for _ in range(int(rounds) - 1):
+        _update_atoms(inputs, endmembers, near, weights)
+        weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
+    cube = np.empty((inputs.n_wavelength, rgb.shape[0]))
+    for start in range(0, rgb.shape[0], _CHUNK):
+        here = slice(start, start + _CHUNK)
+        cube[:, here] = np.einsum("pk,pkw->wp", weights[here], endmembers.atoms[near[here]])
+    cube = cube.reshape(inputs.cube_shape)
+    if local:
+        _project(cube, inputs)
+        local_correction(inputs, cube, seed=int(seed))
+    return _project(cube, inputs)

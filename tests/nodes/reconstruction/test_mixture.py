@@ -1,0 +1,147 @@
+"""Tests of the endmember-mixture estimator and of ``mixture-prior-pcg`` (the default)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import nnls
+
+from spectralize.nodes.reconstruction import (
+    DEFAULT_METHOD,
+    RECONSTRUCTION_METHODS,
+    build_problem,
+    inputs_from_xarray,
+    reconstruct,
+)
+from spectralize.nodes.reconstruction.estimators import endmember_mixture
+from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
+    Endmembers,
+    chromaticity,
+    rgb_abundances,
+)
+from spectralize.nodes.reconstruction.solvers.spectral_prior_pcg import (
+    SETUP_DEFAULTS,
+    spectral_prior_term,
+)
+
+from .conftest import smooth_spectra
+from .test_material_prior import WAVELENGTH, C, _arrays
+
+
+def _blocks(seed: int, *, size: int = 32, n_material: int = 3, n_image: int = 1) -> np.ndarray:
+    """Blocks of ``n_material`` spectra, shaded 0.5-1.5, with two-material mixtures along
+    the block borders (as a pixel that straddles them integrates both)."""
+    rng = np.random.default_rng(seed)
+    spectra = smooth_spectra(rng, WAVELENGTH, n_material)
+    label = np.repeat(np.repeat(rng.integers(0, n_material, size=(size // 8, size // 8)), 8, 0), 8, 1)
+    pure = spectra[label].transpose(2, 0, 1)  # (w, y, x)
+    shifted = np.roll(pure, 1, axis=2)
+    mixed = np.where((np.arange(size) % 8 == 0)[None, None, :], 0.5 * (pure + shifted), pure)
+    shade = rng.uniform(0.5, 1.5, size=(1, size, size))
+    return np.stack([mixed * shade * (1.0 - 0.4 * m) for m in range(n_image)])
+
+
+def test_chromaticity_ignores_brightness():
+    rgb = np.random.default_rng(0).uniform(0.1, 1.0, size=(50, 3))
+    b1, c1 = chromaticity(rgb, scale=np.ones(3))
+    b2, c2 = chromaticity(3.7 * rgb, scale=np.ones(3))
+    np.testing.assert_allclose(c1, c2)
+    np.testing.assert_allclose(b2, 3.7 * b1)
+
+
+def test_abundances_are_the_exact_non_negative_least_squares_solution():
+    rng = np.random.default_rng(1)
+    atoms = np.abs(rng.normal(size=(6, WAVELENGTH.size)))
+    endmembers = Endmembers(atoms, rng.uniform(size=(5, 2)))
+    near = np.stack([rng.choice(5, size=3, replace=False) for _ in range(200)])
+    near = np.hstack([near, np.full((200, 1), endmembers.highlight)])
+    rgb = rng.normal(size=(200, 3)) + 2.0  # some reachable, some not: active constraints
+    weights = rgb_abundances(endmembers, near, C, rgb)
+    assert weights.min() >= 0
+    for p in range(200):
+        ca = (atoms[near[p]] @ C.T).T
+        reference, _ = nnls(ca, rgb[p])
+        np.testing.assert_allclose(
+            np.linalg.norm(ca @ weights[p] - rgb[p]),
+            np.linalg.norm(ca @ reference - rgb[p]),
+            rtol=1e-4,
+            atol=1e-4 * np.linalg.norm(rgb[p]),  # the ridge of 1e-6 x trace
+        )
+
+
+def test_exact_recovery_of_pure_and_mixed_pixels_from_noise_free_bands():
+    truth = _blocks(2, size=64)  # enough pixels for an endmember per material
+    rgb, bands, c = _arrays(truth, [0])
+    out = reconstruct(rgb, bands, c, method="endmember-mixture").values
+    assert out.min() >= 0
+    error = np.abs(out - truth) / truth.max()
+    assert np.median(error) < 1e-4  # float32 output, float64 inside
+    assert np.percentile(error, 99) < 1e-3
+    assert error.max() < 1e-2
+
+
+def test_noise_averages_out_over_a_material():
+    truth = _blocks(3, size=64)
+    rgb, bands, c = _arrays(truth, [0])
+    sigma = float(truth.mean())  # band SNR about 1 per pixel
+    rng = np.random.default_rng(4)
+    noisy = bands.copy(data=bands.values + rng.normal(scale=sigma, size=bands.shape).astype(np.float32))
+    rms = {}
+    for method in ("endmember-mixture", "filtered-projected"):
+        out = reconstruct(rgb, noisy, c, method=method).values
+        rms[method] = np.sqrt(np.mean((out - truth) ** 2)) / truth.mean()
+    assert rms["endmember-mixture"] < 0.1  # per pixel and band the noise is 1.0
+    assert rms["endmember-mixture"] < 0.5 * rms["filtered-projected"]
+
+
+def test_images_without_bands_get_the_shared_endmembers_at_their_brightness():
+    truth = _blocks(5, n_image=2)  # image 1: the same texels, 0.6 x as bright, no bands
+    rgb, bands, c = _arrays(truth, [0])
+    for method in ("endmember-mixture", DEFAULT_METHOD):
+        out = reconstruct(rgb, bands, c, method=method).values
+        error = np.abs(out[1] - truth[1]) / truth[1].max()
+        assert np.median(error) < 0.01, method
+        assert out.min() >= 0
+
+
+def test_the_mixture_prior_exists_for_a_sparse_set_and_is_centred_on_the_estimate():
+    truth = _blocks(6, n_image=3, size=24)
+    rgb, bands, c = _arrays(truth, [0, 1, 2])
+    band = np.searchsorted(WAVELENGTH, bands.wavelength.values)
+    sparse = bands.isel(shot=np.flatnonzero(band % 3 == bands.image.values))
+    inputs = inputs_from_xarray(rgb, sparse, c)
+    problem = build_problem(inputs, **SETUP_DEFAULTS)
+    assert spectral_prior_term(problem, 0.01, 1.0, source="scene") is None
+    term = spectral_prior_term(problem, 0.01, 1.0, source="mixture")
+    assert term is not None
+    np.testing.assert_allclose(term.centre, endmember_mixture(inputs).reshape(problem.shape))
+    assert np.linalg.eigvalsh(term.precision).min() > 0
+
+
+def test_default_is_the_mixture_prior_solver_and_beats_its_predecessor_on_noisy_bands():
+    assert DEFAULT_METHOD == "mixture-prior-pcg"
+    record = RECONSTRUCTION_METHODS[DEFAULT_METHOD]
+    assert record.kind == "solver" and record.defaults()["appearance"] == "chromaticity-spatial"
+    assert RECONSTRUCTION_METHODS["endmember-mixture"].kind == "estimator"
+    truth = _blocks(8, size=40, n_material=5)
+    rgb, bands, c = _arrays(truth, [0], filter_size=4.0)
+    rng = np.random.default_rng(9)
+    noisy = bands.copy(
+        data=bands.values + rng.normal(scale=float(truth.mean()), size=bands.shape).astype(np.float32)
+    )
+    error = {}
+    for method in (DEFAULT_METHOD, "spectral-prior-pcg"):
+        out = reconstruct(rgb, noisy, c, method=method).values
+        error[method] = np.median(np.sqrt(np.mean((out - truth) ** 2, axis=1))) / truth.mean()
+        assert out.min() >= 0
+    assert error[DEFAULT_METHOD] < 0.8 * error["spectral-prior-pcg"]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_deterministic(seed):
+    truth = _blocks(10)
+    rgb, bands, c = _arrays(truth, [0])
+    inputs = inputs_from_xarray(rgb, bands, c)
+    np.testing.assert_array_equal(
+        endmember_mixture(inputs, seed=seed), endmember_mixture(inputs, seed=seed)
+    )
