@@ -142,7 +142,7 @@ def summarise(cases: list[dict]) -> dict:
             solvers = {
                 m: {k: worst(m, k) for k in ("median", "p95", "fraction_under_0.03")}
                 for m, rec in RECONSTRUCTION_METHODS.items()
-                if rec.kind == "solver" and worst(m, "median") is not None
+                if rec.kind in ("solver", "estimator") and worst(m, "median") is not None
             }
             row = {
                 "default": default,

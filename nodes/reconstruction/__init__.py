@@ -3,14 +3,14 @@
 Public API::
 
     from spectralize.nodes.reconstruction import reconstruct, RECONSTRUCTION_METHODS
-    spectra = reconstruct(rgb, bands, camera_matrix)                      # fast default solver
+    spectra = reconstruct(rgb, bands, camera_matrix)                      # the default solver
     spectra = reconstruct(rgb, bands, camera_matrix, method="paper-cg")   # the paper's CG
     spectra = reconstruct(rgb, bands, camera_matrix, method="guided-prior-pcg", prior=0.3)
     spectra = reconstruct(rgb, bands, camera_matrix, method="wiener")     # a baseline
 
 Modules: :mod:`.api` (:func:`reconstruct`, the one entry point), :mod:`.methods` (the method
-table), :mod:`.solvers` and :mod:`.baselines` (one method per module), :mod:`.operators`
-(filter, RGB and neighbour terms, the problem), :mod:`.neighbourhoods` (k nearest
+table), :mod:`.solvers`, :mod:`.estimators` and :mod:`.baselines` (one method per module),
+:mod:`.operators` (filter, RGB and neighbour terms, the problem), :mod:`.neighbourhoods` (k nearest
 neighbours in RGB space), :mod:`.weights` (eq. 4), :mod:`.inputs` (checks),
 :mod:`.image_sets`, :mod:`.warm_start` and :mod:`.set_reconstruction` (a run, set by set),
 :mod:`.tiling` (a set, tile by tile), :mod:`.declarations` (the nodes).

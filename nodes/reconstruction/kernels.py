@@ -32,6 +32,9 @@ __all__ = [
     "cg_step",
     "cg_direction",
     "dot",
+    "mixture_abundances",
+    "mixture_gram",
+    "mixture_rhs",
 ]
 
 _JIT = {"cache": True, "nogil": True, "fastmath": True, "error_model": "numpy"}
@@ -144,3 +147,128 @@ def dot(a, b):  # pragma: no cover - compiled
     for i in range(af.size):
         total += np.float64(af[i]) * bf[i]
     return total
+
+
+@njit(**_JIT)
+def mixture_abundances(projected, near, rgb, ridge, out):  # pragma: no cover - compiled
+    """Per pixel the non-negative least-squares weights of its candidate atoms' RGB.
+
+    ``min ||sum_k w_k projected[near[p, k]] - rgb[p]||^2 + ridge_p ||w||^2`` over ``w >= 0``
+    with ``ridge_p = ridge * trace(Gram)``, exactly: every non-empty subset of the (at most
+    8) candidates is solved on its own (Gaussian elimination with partial pivoting) and the
+    feasible solution with the lowest objective kept.
+
+    Parameters
+    ----------
+    projected
+        ``(n_atoms, 3)``: every atom's RGB.
+    near
+        ``(n_pixels, k)`` candidate atoms per pixel.
+    rgb
+        ``(n_pixels, 3)``.
+    ridge
+        Relative ridge.
+    out
+        ``(n_pixels, k)``, overwritten with the weights.
+    """
+    n_pixels, k = near.shape
+    gram = np.empty((k, k))
+    rhs = np.empty(k)
+    system = np.empty((k, k + 1))
+    chosen = np.empty(k, dtype=np.int64)
+    w = np.empty(k)
+    for p in range(n_pixels):
+        trace = 0.0
+        for a in range(k):
+            ia = near[p, a]
+            rhs[a] = (
+                projected[ia, 0] * rgb[p, 0]
+                + projected[ia, 1] * rgb[p, 1]
+                + projected[ia, 2] * rgb[p, 2]
+            )
+            for c in range(k):
+                ic = near[p, c]
+                gram[a, c] = (
+                    projected[ia, 0] * projected[ic, 0]
+                    + projected[ia, 1] * projected[ic, 1]
+                    + projected[ia, 2] * projected[ic, 2]
+                )
+            trace += gram[a, a]
+        lam = ridge * trace + 1e-300
+        best = np.inf
+        for a in range(k):
+            out[p, a] = 0.0
+        for mask in range(1, 1 << k):
+            s = 0
+            for a in range(k):
+                if mask >> a & 1:
+                    chosen[s] = a
+                    s += 1
+            for i in range(s):
+                for j in range(s):
+                    system[i, j] = gram[chosen[i], chosen[j]]
+                system[i, i] += lam
+                system[i, s] = rhs[chosen[i]]
+            singular = False
+            for col in range(s):  # forward elimination, partial pivoting
+                pivot = col
+                for row in range(col + 1, s):
+                    if abs(system[row, col]) > abs(system[pivot, col]):
+                        pivot = row
+                if system[pivot, col] == 0.0:
+                    singular = True
+                    break
+                if pivot != col:
+                    for j in range(col, s + 1):
+                        tmp = system[col, j]
+                        system[col, j] = system[pivot, j]
+                        system[pivot, j] = tmp
+                for row in range(col + 1, s):
+                    factor = system[row, col] / system[col, col]
+                    for j in range(col, s + 1):
+                        system[row, j] -= factor * system[col, j]
+            if singular:
+                continue
+            feasible = True
+            for i in range(s - 1, -1, -1):
+                value = system[i, s]
+                for j in range(i + 1, s):
+                    value -= system[i, j] * w[j]
+                w[i] = value / system[i, i]
+                if w[i] < 0.0:
+                    feasible = False
+            if not feasible:
+                continue
+            objective = 0.0
+            for i in range(s):
+                objective -= 0.5 * w[i] * rhs[chosen[i]]
+            if objective < best:
+                best = objective
+                for a in range(k):
+                    out[p, a] = 0.0
+                for i in range(s):
+                    out[p, chosen[i]] = w[i]
+
+
+@njit(**_JIT)
+def mixture_gram(near, weights, n_atoms, gram):  # pragma: no cover - compiled
+    """``gram[a, c] += sum_p w_pa w_pc`` over the pixels, atoms scattered by ``near``."""
+    n_pixels, k = near.shape
+    for p in range(n_pixels):
+        for a in range(k):
+            wa = weights[p, a]
+            if wa == 0.0:
+                continue
+            ia = near[p, a]
+            for c in range(k):
+                gram[ia, near[p, c]] += wa * weights[p, c]
+
+
+@njit(**_JIT)
+def mixture_rhs(near, weights, data, rhs):  # pragma: no cover - compiled
+    """``rhs[a] += sum_p w_pa d_p`` over the pixels, atoms scattered by ``near``."""
+    n_pixels, k = near.shape
+    for p in range(n_pixels):
+        d = data[p]
+        for a in range(k):
+            rhs[near[p, a]] += weights[p, a] * d

@@ -22,6 +22,7 @@ from .projection import project_onto_rgb
 
 __all__ = [
     "guided_filtered_bands",
+    "guided_filtered_stacks",
     "guided_filtered_projected",
     "GUIDED_WINDOW_SCALE",
     "GUIDED_EPSILON",
@@ -103,15 +104,50 @@ def guided_filtered_bands(
        instead of box windows).
     .. [2] Fast Capture of Spectral Image Series, section 3, "Filtering".
     """
-    rgb = np.moveaxis(inputs.rgb, -1, 1).astype(np.float32)  # (n_image, 3, height, width)
+    (planes,) = guided_filtered_stacks(
+        inputs, [inputs.band_data], window_scale=window_scale, epsilon=epsilon
+    )
     cube = np.zeros(inputs.cube_shape)
     counts = np.zeros(inputs.cube_shape[:2])
+    for i, (b, m) in enumerate(zip(inputs.band, inputs.image, strict=True)):
+        cube[b, m] += planes[i]
+        counts[b, m] += 1
+    have = counts > 0
+    cube[have] /= counts[have][:, None, None]
+    if not have.all():
+        fallback = filtered_bands(inputs)
+        cube[~have] = fallback[~have]
+    return cube
+
+
+def guided_filtered_stacks(
+    inputs: ReconstructionInputs,
+    stacks: list[np.ndarray],
+    *,
+    window_scale: float = GUIDED_WINDOW_SCALE,
+    epsilon: float = GUIDED_EPSILON,
+) -> list[np.ndarray]:
+    """The guided filter of :func:`guided_filtered_bands`, shot by shot, for several stacks
+    of shots at once.
+
+    Each of ``stacks`` is ``(n_shot, height, width)``, shot ``i`` guided by the RGB of image
+    ``inputs.image[i]`` with the window of ``inputs.filter_size[i]`` (the band data itself,
+    or residuals or noise of the same shots); the windows' RGB statistics and their
+    inverses are computed once for all stacks.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        One ``(n_shot, height, width)`` float32 stack of filtered shots per input stack.
+    """
+    rgb = np.moveaxis(inputs.rgb, -1, 1).astype(np.float32)  # (n_image, 3, height, width)
+    outputs = [np.empty(stack.shape, dtype=np.float32) for stack in stacks]
     upper = np.triu_indices(3)
     sigmas = [_window_sigma(float(size), window_scale) for size in inputs.filter_size]
     statistics: tuple[tuple[int, float], np.ndarray, np.ndarray] | None = None
     # shots in order of image and window, so that one window's statistics serve them all
     for i in sorted(range(len(inputs.band)), key=lambda i: (inputs.image[i], sigmas[i])):
-        b, m, sigma = inputs.band[i], inputs.image[i], sigmas[i]
+        m, sigma = inputs.image[i], sigmas[i]
         if statistics is None or statistics[0] != (m, sigma):
             guide = rgb[m]
             mean = _gaussian_window(guide, sigma)
@@ -126,20 +162,15 @@ def guided_filtered_bands(
             statistics = ((m, sigma), mean, inverse)
         _, mean, inverse = statistics
         guide = rgb[m]
-        band = inputs.band_data[i].astype(np.float32)
-        band_mean = _gaussian_window(band, sigma)
-        cross = _gaussian_window(guide * band[None], sigma) - mean * band_mean[None]
-        slope = np.einsum("yxcd,dyx->cyx", inverse, cross)
-        offset = band_mean - np.sum(slope * mean, axis=0)
-        coefficients = _gaussian_window(np.concatenate([slope, offset[None]]), sigma)
-        cube[b, m] += np.sum(coefficients[:3] * guide, axis=0) + coefficients[3]
-        counts[b, m] += 1
-    have = counts > 0
-    cube[have] /= counts[have][:, None, None]
-    if not have.all():
-        fallback = filtered_bands(inputs)
-        cube[~have] = fallback[~have]
-    return cube
+        for out, stack in zip(outputs, stacks, strict=True):
+            band = stack[i].astype(np.float32)
+            band_mean = _gaussian_window(band, sigma)
+            cross = _gaussian_window(guide * band[None], sigma) - mean * band_mean[None]
+            slope = np.einsum("yxcd,dyx->cyx", inverse, cross)
+            offset = band_mean - np.sum(slope * mean, axis=0)
+            coefficients = _gaussian_window(np.concatenate([slope, offset[None]]), sigma)
+            out[i] = np.sum(coefficients[:3] * guide, axis=0) + coefficients[3]
+    return outputs
 
 
 def guided_filtered_projected(

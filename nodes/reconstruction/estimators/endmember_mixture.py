@@ -47,7 +47,6 @@ References
 
 from __future__ import annotations
 
-import itertools
 import warnings
 
 import numpy as np
@@ -230,65 +229,60 @@ def learn_endmembers(
     return Endmembers(np.vstack([atoms, highlight]), centres)
 
 
-def _subsets(k: int) -> list[tuple[int, ...]]:
-    return [s for r in range(1, k + 1) for s in itertools.combinations(range(k), r)]
+ABUNDANCE_RIDGE = 1e-6
+"""Ridge of the abundance solve relative to the trace of its Gram matrix: more candidates
+than RGB channels leave it singular; the ridge picks the smallest weights."""
 
 
 def rgb_abundances(
     endmembers: Endmembers, near: np.ndarray, camera_matrix: np.ndarray, rgb_pixels: np.ndarray
 ) -> np.ndarray:
-    """Step 2: per pixel ``w >= 0`` minimising ``||C E_near w - R||^2`` (a tiny ridge keeps
-    it unique), by enumerating the active sets; ``(n, K + 1)`` beside ``near``.
+    """Step 2: per pixel ``w >= 0`` minimising ``||C E_near w - R||^2`` (plus a tiny ridge,
+    :data:`ABUNDANCE_RIDGE`, that keeps it unique); ``(n, K + 1)`` beside ``near``.
 
-    Exact NNLS: the solution is the unconstrained least-squares solution on its support,
-    which is feasible, and no feasible one on another support has a lower residual.
+    Exact NNLS by enumerating the active sets (compiled,
+    :func:`~spectralize.nodes.reconstruction.kernels.mixture_abundances`): the solution is
+    the unconstrained least-squares solution on its support, which is feasible, and no
+    feasible one on another support has a lower objective.
     """
+    from ..kernels import mixture_abundances
+
     c = np.asarray(camera_matrix, dtype=np.float64)
-    rgb = np.asarray(rgb_pixels, dtype=np.float64)
-    projected = endmembers.atoms @ c.T  # (J + 1, 3): each atom's RGB
-    k = near.shape[1]
-    weights = np.zeros(near.shape)
-    for start in range(0, near.shape[0], _CHUNK):
-        here = slice(start, start + _CHUNK)
-        ca = projected[near[here]]  # (n, k, 3)
-        gram = np.einsum("pkc,plc->pkl", ca, ca)
-        gram += (1e-6 * np.trace(gram, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(k)
-        rhs = np.einsum("pkc,pc->pk", ca, rgb[here])
-        best = np.full(ca.shape[0], np.inf)
-        chosen = np.zeros((ca.shape[0], k))
-        for subset in _subsets(k):
-            s = list(subset)
-            w = np.linalg.solve(gram[:, s][:, :, s], rhs[:, s, None])[..., 0]
-            objective = -0.5 * np.einsum("pi,pi->p", w, rhs[:, s])
-            better = (w >= 0).all(axis=1) & (objective < best)
-            best[better] = objective[better]
-            chosen[better] = 0.0
-            chosen[np.ix_(better, s)] = w[better]
-        weights[here] = chosen
+    projected = np.ascontiguousarray(endmembers.atoms @ c.T)  # (J + 1, 3): each atom's RGB
+    weights = np.empty(near.shape)
+    mixture_abundances(
+        projected,
+        np.ascontiguousarray(near, dtype=np.int64),
+        np.ascontiguousarray(rgb_pixels, dtype=np.float64),
+        ABUNDANCE_RIDGE,
+        weights,
+    )
     return weights
 
 
 def _update_atoms(
     inputs: ReconstructionInputs, endmembers: Endmembers, near: np.ndarray, weights: np.ndarray
 ) -> None:
-    """Step 3: per band, the atoms that best explain the band values with the abundances."""
+    """Step 3: per band, the atoms that best explain the band values with the abundances
+    (the Gram matrix of an image's abundances serves every band shot in it)."""
+    from ..kernels import mixture_gram, mixture_rhs
+
     atoms = endmembers.atoms
     n_atoms = atoms.shape[0]
     per_image = inputs.height * inputs.width
+    near = np.ascontiguousarray(near, dtype=np.int64)
+    grams: dict[int, np.ndarray] = {}
     for b, shots in _band_shots(inputs).items():
-        gram = np.zeros(n_atoms * n_atoms)
+        gram = np.zeros((n_atoms, n_atoms))
         rhs = np.zeros(n_atoms)
         for i in shots:
-            m = inputs.image[i]
+            m = int(inputs.image[i])
             here = slice(m * per_image, (m + 1) * per_image)
-            idx, w = near[here], weights[here]
-            data = inputs.band_data[i].ravel().astype(np.float64)
-            for a in range(idx.shape[1]):
-                rhs += np.bincount(idx[:, a], weights=w[:, a] * data, minlength=n_atoms)
-                for c in range(idx.shape[1]):
-                    pair = idx[:, a] * n_atoms + idx[:, c]
-                    gram += np.bincount(pair, weights=w[:, a] * w[:, c], minlength=n_atoms**2)
-        gram = gram.reshape(n_atoms, n_atoms)
+            if m not in grams:
+                grams[m] = np.zeros((n_atoms, n_atoms))
+                mixture_gram(near[here], weights[here], n_atoms, grams[m])
+            gram += grams[m]
+            mixture_rhs(near[here], weights[here], inputs.band_data[i].ravel().astype(np.float64), rhs)
         ridge = DICTIONARY_RIDGE * max(float(np.trace(gram)) / n_atoms, 1e-300)
         atoms[:, b] = np.linalg.solve(gram + ridge * np.eye(n_atoms), rhs + ridge * atoms[:, b])
 
@@ -325,33 +319,22 @@ def local_correction(
     1 - <v> / <c^2>)`` (``<>``: the window's local mean), a James-Stein shrinkage per pixel.
     Only bands an image has a shot of are corrected. In place; returns ``cube``.
     """
-    import dataclasses
-
-    from ..baselines.guided_filter import _gaussian_window, _window_sigma, guided_filtered_bands
+    from ..baselines.guided_filter import _gaussian_window, _window_sigma, guided_filtered_stacks
 
     residual = inputs.band_data.astype(np.float64) - cube[inputs.band, inputs.image]
-    correction = guided_filtered_bands(
-        dataclasses.replace(inputs, band_data=residual.astype(np.float32)), window_scale=window_scale
-    )
     sigma = band_noise_sigma(inputs)
     rng = np.random.default_rng(seed)
-    variance = np.zeros_like(correction)
-    for _ in range(int(draws)):
-        noise = rng.normal(size=inputs.band_data.shape) * sigma[:, None, None]
-        pure = guided_filtered_bands(
-            dataclasses.replace(inputs, band_data=noise.astype(np.float32)), window_scale=window_scale
-        )
-        variance += pure**2 / draws
-    done = set()
+    noises = [rng.normal(size=inputs.band_data.shape) * sigma[:, None, None] for _ in range(int(draws))]
+    correction, *pure = guided_filtered_stacks(inputs, [residual, *noises], window_scale=window_scale)
+    del residual, noises
+    variance = sum(p.astype(np.float64) ** 2 for p in pure) / len(pure)
+    del pure
     for i, (b, m) in enumerate(zip(inputs.band, inputs.image, strict=True)):
-        if (b, m) in done:
-            continue
-        done.add((b, m))
         window = _window_sigma(float(inputs.filter_size[i]), window_scale)
-        local_variance = _gaussian_window(variance[b, m], window)
-        local_power = _gaussian_window(correction[b, m] ** 2, window)
+        local_variance = _gaussian_window(variance[i], window)
+        local_power = _gaussian_window(correction[i].astype(np.float64) ** 2, window)
         keep = np.clip(1.0 - local_variance / np.maximum(local_power, 1e-300), 0.0, 1.0)
-        cube[b, m] += correction[b, m] * keep
+        cube[b, m] += correction[i] * keep / np.count_nonzero((inputs.band == b) & (inputs.image == m))
     return cube
 
 

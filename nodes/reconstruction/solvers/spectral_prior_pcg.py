@@ -291,7 +291,6 @@ def spectral_prior_pcg(
     started = time.perf_counter()
     dtype = np.dtype(dtype)
     work = problem.astype(dtype)
-    centre = np.asarray(guided_initial(problem), dtype=dtype).reshape(work.shape)
     relative: float | np.ndarray = ridge + prior * _prior_mask(problem)
     mean_diagonal = normal_mean_diagonal(work)
     term = None
@@ -306,8 +305,10 @@ def spectral_prior_pcg(
     if term is not None:
         term = term.astype(dtype)
         relative = relative + term.diagonal() / mean_diagonal
-        if prior_source == "mixture":  # the guided prior pulls towards the same estimate
-            centre = term.centre.copy()
+    if term is not None and prior_source == "mixture":
+        centre = term.centre  # the guided prior pulls towards the same estimate (read only)
+    else:
+        centre = np.asarray(guided_initial(problem), dtype=dtype).reshape(work.shape)
     # pixel-major vectors in appearance order and compiled passes, as block-jacobi-pcg
     order = work.pixel_order("appearance")
     preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative, order=order)

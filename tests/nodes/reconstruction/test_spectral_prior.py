@@ -42,7 +42,7 @@ def _problem(truth: np.ndarray, with_bands: list[int], noise: float = 0.0):
     return (rgb, bands, c), build_problem(inputs, **SETUP_DEFAULTS, dtype=np.float64)
 
 
-@pytest.mark.parametrize("source", ["scene", "training"])
+@pytest.mark.parametrize("source", ["scene", "training", "mixture"])
 def test_prior_term_is_symmetric_positive_and_zero_at_its_centre(source):
     _, problem = _problem(_mixed_truth(0), [0])
     term = spectral_prior_term(problem, 0.01, 2.0, source=source)
