@@ -149,8 +149,13 @@ def _solve_window(rgb, shots, camera, window) -> tuple[float, int]:
     from spectralize.nodes.reconstruction.set_reconstruction import solve_set
 
     oy, ox = window.outer
+    method = (
+        {"method": os.environ["SPECTRALIZE_BENCH_METHOD"]}
+        if "SPECTRALIZE_BENCH_METHOD" in os.environ
+        else {}
+    )
     started = time.perf_counter()
-    _, iterations, _ = solve_set(rgb.isel(y=oy, x=ox), shots.isel(y=oy, x=ox), camera)
+    _, iterations, _ = solve_set(rgb.isel(y=oy, x=ox), shots.isel(y=oy, x=ox), camera, **method)
     return time.perf_counter() - started, int(iterations)
 
 

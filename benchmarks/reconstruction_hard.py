@@ -15,6 +15,7 @@ import time
 import tracemalloc
 
 import numpy as np
+from scipy.stats import spearmanr
 
 from spectralize.nodes.reconstruction import DEFAULT_METHOD, RECONSTRUCTION_METHODS, reconstruct
 from spectralize.nodes.simulation.scenes import SCENES, get_scene
@@ -66,8 +67,13 @@ def run_method(capture, method: str, **options) -> dict:
     tracemalloc.stop()
     spectra = result.spectra.values
     e = nrmse_per_pixel(spectra, capture.truth.values)
+    confidence = np.asarray(result.confidence.values).reshape(e.shape)
     row = {
         **statistics(e),
+        # does the per-pixel confidence (estimated nRMSE) rank the pixels as the error does?
+        "confidence_rank_correlation": round(
+            float(spearmanr(confidence.ravel(), e.ravel()).statistic), 3
+        ),
         "wall_s": round(wall, 3),
         "iterations": int(result.iterations),
         "peak_traced_mb": round(peak / 2**20, 1),
