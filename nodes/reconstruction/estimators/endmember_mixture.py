@@ -21,6 +21,9 @@ together, where the noise of single pixels (band SNR at or below 1) averages out
 2. **Abundances**: per pixel, non-negative least squares ``min ||C E_K w - R(p)||`` over the
    ``K`` endmembers nearest in chromaticity and the highlight atom, solved exactly for all
    pixels at once by enumerating the subsets of these ``K + 1`` atoms.
+2b. **Materials around**: after the last round below, each pixel also gets the endmembers
+   most abundant in its neighbourhood as candidates, and step 2 is solved once more
+   (:func:`neighbourhood_candidates`).
 3. **Dictionary update**: per band, the endmembers that best explain every pixel's band
    value with those abundances (a ``J x J`` ridge regression over all pixels shot in that
    band, held towards the previous atoms); then 2 again. A few rounds.
@@ -61,10 +64,12 @@ __all__ = [
     "rgb_abundances",
     "chromaticity",
     "local_correction",
+    "neighbourhood_candidates",
     "band_noise_sigma",
     "DEFAULT_ENDMEMBERS",
     "DEFAULT_CANDIDATES",
     "DEFAULT_ROUNDS",
+    "DEFAULT_SPATIAL_CANDIDATES",
 ]
 
 DEFAULT_ENDMEMBERS = 32
@@ -73,6 +78,12 @@ DEFAULT_ENDMEMBERS = 32
 DEFAULT_CANDIDATES = 3
 """``K``: endmembers nearest in chromaticity each pixel may mix (plus the highlight atom);
 RGB determines at most three weights."""
+
+DEFAULT_SPATIAL_CANDIDATES = 2
+"""Endmembers most abundant around a pixel added to its candidates (step 2b)."""
+
+NEIGHBOURHOOD_SIGMA = 1.5
+"""Gaussian ``sigma`` [px] of the abundance-share maps of step 2b."""
 
 DEFAULT_ROUNDS = 4
 """Abundance / dictionary rounds."""
@@ -338,6 +349,48 @@ def local_correction(
     return cube
 
 
+def neighbourhood_candidates(
+    inputs: ReconstructionInputs,
+    near: np.ndarray,
+    weights: np.ndarray,
+    count: int,
+    *,
+    sigma: float = NEIGHBOURHOOD_SIGMA,
+) -> np.ndarray:
+    """Step 2b: per pixel the ``count`` endmembers with the largest abundance share around
+    it (each atom's share map Gaussian-smoothed within its image), ``(n, count)``.
+
+    A pixel that straddles two yarns or print dots has a chromaticity between theirs, and
+    the endmembers nearest to it in chromaticity may be other mixtures; the materials of the
+    pixels around it are the ones it most likely holds. The highlight atom is left out (it
+    is always a candidate).
+    """
+    from scipy import ndimage
+
+    n_atoms = int(near.max()) + 1
+    shape = (inputs.n_image, inputs.height, inputs.width)
+    share = weights / np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
+    best = np.full((near.shape[0], count), -1.0)
+    index = np.zeros((near.shape[0], count), dtype=np.intp)
+    highlight = n_atoms - 1
+    for j in range(n_atoms):
+        if j == highlight:
+            continue
+        plane = np.zeros(near.shape[0])
+        for a in range(near.shape[1]):
+            plane += np.where(near[:, a] == j, share[:, a], 0.0)
+        plane = ndimage.gaussian_filter(plane.reshape(shape), (0, sigma, sigma), mode="reflect").ravel()
+        for c in range(count):  # insert into the running top-``count``
+            better = plane > best[:, c]
+            if c + 1 < count:
+                best[better, c + 1 :] = best[better, c:-1]
+                index[better, c + 1 :] = index[better, c:-1]
+            best[better, c] = plane[better]
+            index[better, c] = j
+            plane = np.where(better, -1.0, plane)
+    return index
+
+
 def _project(cube: np.ndarray, inputs: ReconstructionInputs) -> np.ndarray:
     """Step 4: alternate ``C S = R`` and ``S >= 0``; ends non-negative."""
     rgb = np.moveaxis(inputs.rgb, -1, 0)
@@ -353,6 +406,7 @@ def endmember_mixture(
     n_endmembers: int = DEFAULT_ENDMEMBERS,
     candidates: int = DEFAULT_CANDIDATES,
     rounds: int = DEFAULT_ROUNDS,
+    spatial_candidates: int = DEFAULT_SPATIAL_CANDIDATES,
     local: bool = True,
     seed: int = 0,
 ) -> np.ndarray:
@@ -368,6 +422,9 @@ def endmember_mixture(
         ``K``, endmembers nearest in chromaticity a pixel may mix.
     rounds
         Abundance / dictionary-update rounds (1: the pooled cluster spectra as they are).
+    spatial_candidates
+        Endmembers most abundant around each pixel added to its candidates (step 2b; 0:
+        none).
     local
         Add the :func:`local_correction` (step 5 of the module docstring).
     seed
@@ -393,6 +450,11 @@ def endmember_mixture(
     weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
     for _ in range(int(rounds) - 1):
         _update_atoms(inputs, endmembers, near, weights)
+        weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
+    if spatial_candidates > 0:
+        nearby = neighbourhood_candidates(inputs, near, weights, int(spatial_candidates))
+        near = np.hstack([near, nearby])
+        del nearby
         weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
     cube = np.empty((inputs.n_wavelength, rgb.shape[0]))
     for start in range(0, rgb.shape[0], _CHUNK):

@@ -17,6 +17,7 @@ from spectralize.nodes.reconstruction.estimators import endmember_mixture
 from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
     Endmembers,
     chromaticity,
+    neighbourhood_candidates,
     rgb_abundances,
 )
 from spectralize.nodes.reconstruction.solvers.spectral_prior_pcg import (
@@ -145,3 +146,21 @@ def test_deterministic(seed):
     np.testing.assert_array_equal(
         endmember_mixture(inputs, seed=seed), endmember_mixture(inputs, seed=seed)
     )
+
+
+def test_neighbourhood_candidates_are_the_materials_around_a_pixel():
+    truth = _blocks(12, size=16)
+    rgb, bands, c = _arrays(truth, [0])
+    inputs = inputs_from_xarray(rgb, bands, c)
+    n = 16 * 16
+    near = np.zeros((n, 2), dtype=np.intp)
+    weights = np.zeros((n, 2))
+    near[:, 0] = np.where(np.arange(n) % 16 < 8, 0, 1)  # left half atom 0, right half atom 1
+    near[:, 1] = 3  # the highlight atom (the largest index) is never proposed
+    weights[:, 0] = 1.0
+    weights[:, 1] = 0.5
+    chosen = neighbourhood_candidates(inputs, near, weights, 2)
+    assert chosen.shape == (n, 2)
+    left, right = np.arange(n) % 16 == 0, np.arange(n) % 16 == 15
+    assert (chosen[left, 0] == 0).all() and (chosen[right, 0] == 1).all()
+    assert not (chosen == 3).any()
