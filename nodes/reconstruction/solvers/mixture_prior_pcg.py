@@ -14,8 +14,10 @@ spectra carry far less band noise; what it cannot know (which materials a pixel 
 RGB alone does not tell, metamers, local detail) the filter and neighbour terms of eq. 1
 add. Unlike the ``"scene"`` prior of ``spectral-prior-pcg``, it exists for a sparse set
 too (images with a few band shots, or none). Measured in ``benchmarks/reconstruction.py``
-(README): lower median and p95 nRMSE than ``spectral-prior-pcg`` on every hard scene, as
-a single image and as a 20-image set.
+(README, "Reconstruction on the hard scenes"): against ``spectral-prior-pcg`` a lower median
+on the woven-fabric and halftone-print images and on three of the four sets, a lower p95 on
+six of the eight scene x mode rows; about 10 % worse on two (the dark-still-life image's
+median, the glossy-mosaic image's p95).
 
 References
 ----------

@@ -147,12 +147,11 @@ class SpectralPrior:
 def _level_normalised(spectra: np.ndarray) -> np.ndarray:
     """Sample spectra ``(n_wavelength, n)``, clipped at 0, each divided by its mean; those
     darker than a quarter of the median left out; at most about 20000, strided."""
-    spectra = np.maximum(spectra, 0)
+    step = max(1, spectra.shape[1] // 20000)
+    spectra = np.maximum(spectra[:, ::step], 0)  # the sample first: no cube-sized copies
     level = spectra.mean(axis=0)
     keep = level > 0.25 * max(float(np.median(level)), 1e-300)
-    spectra = spectra[:, keep] / level[keep]
-    step = max(1, spectra.shape[1] // 20000)
-    return spectra[:, ::step]
+    return spectra[:, keep] / level[keep]
 
 
 def _scene_spectra(problem: ReconstructionProblem) -> np.ndarray | None:
@@ -226,19 +225,30 @@ def _projected_refinement(
     operator, rhs: np.ndarray, scale: np.ndarray, x: np.ndarray, iterations: int
 ) -> np.ndarray:
     """Minimise ``x^T H x / 2 - rhs^T x`` over ``x >= 0`` by Jacobi-scaled projected
-    gradient with Barzilai-Borwein steps (as :mod:`.material_prior_pcg`)."""
+    gradient with Barzilai-Borwein steps (as :mod:`.material_prior_pcg`).
+
+    In place on six cube-sized buffers (``x`` and ``rhs`` included), so the refinement
+    needs no more memory than the PCG before it; ``x`` is overwritten.
+    """
     dtype = x.dtype
-    x = np.maximum(x, 0)
-    g = operator(x) - rhs  # a new array: ``operator`` may return its own buffer
+    np.maximum(x, 0, out=x)
+    g = np.subtract(operator(x), rhs)  # a new array: ``operator`` may return its own buffer
+    new, new_g, s, y = (np.empty_like(x) for _ in range(4))
     step = 1.0
     for _ in range(iterations):
-        new = np.maximum(x - dtype.type(step) * scale * g, 0)
-        new_g = operator(new) - rhs
-        s, y = (new - x).ravel(), (new_g - g).ravel()
+        np.multiply(scale, g, out=new)  # new = max(x - step * scale * g, 0)
+        new *= dtype.type(-step)
+        new += x
+        np.maximum(new, 0, out=new)
+        np.subtract(operator(new), rhs, out=new_g)
+        np.subtract(new, x, out=s)
+        np.subtract(new_g, g, out=y)
         sy = vdot(s, y)
-        step = float(vdot(s, s / scale.ravel()) / sy) if sy > 0 else step
+        np.divide(s, scale, out=y)
+        step = float(vdot(s, y) / sy) if sy > 0 else step
         step = min(max(step, 1e-3), 10.0)
-        x, g = new, new_g
+        x, new = new, x
+        g, new_g = new_g, g
     return x
 
 

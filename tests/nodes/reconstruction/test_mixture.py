@@ -9,7 +9,6 @@ from scipy.optimize import nnls
 from spectralize.nodes.reconstruction import (
     DEFAULT_METHOD,
     RECONSTRUCTION_METHODS,
-    build_problem,
     inputs_from_xarray,
     reconstruct,
 )
@@ -21,12 +20,12 @@ from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
     rgb_abundances,
 )
 from spectralize.nodes.reconstruction.solvers.spectral_prior_pcg import (
-    SETUP_DEFAULTS,
     spectral_prior_term,
 )
 
 from .conftest import smooth_spectra
 from .test_material_prior import WAVELENGTH, C, _arrays
+from .test_spectral_prior import sparse_set
 
 
 def _blocks(seed: int, *, size: int = 32, n_material: int = 3, n_image: int = 1) -> np.ndarray:
@@ -106,12 +105,8 @@ def test_images_without_bands_get_the_shared_endmembers_at_their_brightness():
 
 
 def test_the_mixture_prior_exists_for_a_sparse_set_and_is_centred_on_the_estimate():
-    truth = _blocks(6, n_image=3, size=24)
-    rgb, bands, c = _arrays(truth, [0, 1, 2])
-    band = np.searchsorted(WAVELENGTH, bands.wavelength.values)
-    sparse = bands.isel(shot=np.flatnonzero(band % 3 == bands.image.values))
-    inputs = inputs_from_xarray(rgb, sparse, c)
-    problem = build_problem(inputs, **SETUP_DEFAULTS)
+    _, problem = sparse_set(_blocks(6, n_image=3, size=24))
+    inputs = problem.extras["inputs"]
     assert spectral_prior_term(problem, 0.01, 1.0, source="scene") is None
     term = spectral_prior_term(problem, 0.01, 1.0, source="mixture")
     assert term is not None

@@ -94,14 +94,18 @@ def test_exact_recovery_when_the_constraints_determine_the_answer():
     np.testing.assert_allclose(out.values, truth, rtol=2e-3, atol=2e-4)
 
 
-def test_sparse_set_gets_no_scene_prior_and_matches_material_prior():
-    truth = _mixed_truth(6, n_image=3)
+def sparse_set(truth: np.ndarray):
+    """RGB, band shots and C of a 3-image set in which every band has a shot but each image
+    only of every third band; and its problem set up as the material prior's."""
     rgb, bands, c = _arrays(truth, [0, 1, 2])
     band = np.searchsorted(WAVELENGTH, bands.wavelength.values)
-    # every band has a shot, but each image only of every third band
     sparse = bands.isel(shot=np.flatnonzero(band % 3 == bands.image.values))
     inputs = inputs_from_xarray(rgb, sparse, c)
-    problem = build_problem(inputs, **SETUP_DEFAULTS)
+    return (rgb, sparse, c), build_problem(inputs, **SETUP_DEFAULTS)
+
+
+def test_sparse_set_gets_no_scene_prior_and_matches_material_prior():
+    (rgb, sparse, c), problem = sparse_set(_mixed_truth(6, n_image=3))
     assert spectral_prior_term(problem, 0.01, 1.0, source="scene") is None
     ours = reconstruct(rgb, sparse, c, method="spectral-prior-pcg", tolerance=1e-6).values
     theirs = reconstruct(rgb, sparse, c, method="material-prior-pcg", tolerance=1e-6).values
