@@ -51,6 +51,7 @@ References
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -114,8 +115,9 @@ endmember pooled over fewer pixels carries their band noise)."""
 _SAMPLE = 20000
 """Pixels the k-means sees at most (a strided, seeded sample)."""
 
-_CHUNK = 1 << 16
-"""Pixels per chunk of the abundance solve (bounds its temporaries)."""
+_CHUNK = 1 << 14
+"""Pixels per chunk of the candidate search and the mixing (bounds their temporaries: the
+mixing gathers ``K + 3`` atoms per pixel, about 25 MB a chunk)."""
 
 
 def chromaticity(
@@ -143,13 +145,13 @@ def chromaticity(
     return brightness, chroma
 
 
+@dataclass
 class Endmembers:
     """The learnt dictionary: atoms ``(J + 1, n_wavelength)`` (the last one the highlight
     atom) and the chromaticity centres ``(J, 2)`` of the first ``J``."""
 
-    def __init__(self, atoms: np.ndarray, centres: np.ndarray) -> None:
-        self.atoms = atoms
-        self.centres = centres
+    atoms: np.ndarray
+    centres: np.ndarray
 
     @property
     def highlight(self) -> int:
@@ -235,8 +237,8 @@ def learn_endmembers(
         centres, _ = kmeans2(sample, n, minit="++", seed=np.random.default_rng(seed))
     label = Endmembers(np.zeros((n + 1, 1)), centres).candidates(chroma, 1)[:, 0]
     atoms = _pooled_shape(inputs, brightness, label, n)
-    bright = (brightness > np.percentile(brightness, HIGHLIGHT_PERCENTILE)).astype(np.intp) - 1
-    highlight = _pooled_shape(inputs, brightness, np.where(bright < 0, -1, 0), 1)
+    brightest = np.where(brightness > np.percentile(brightness, HIGHLIGHT_PERCENTILE), 0, -1)
+    highlight = _pooled_shape(inputs, brightness, brightest, 1)
     return Endmembers(np.vstack([atoms, highlight]), centres)
 
 
