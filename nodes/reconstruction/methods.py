@@ -234,8 +234,8 @@ DEFAULT_METHOD = "mixture-prior-pcg"
 prior, a spectral prior centred on the endmember-mixture estimate, and ``S >= 0``
 (:mod:`~.solvers.mixture_prior_pcg`). Measured (``benchmarks/reconstruction.py``, README):
 against the previous default ``"spectral-prior-pcg"`` a lower p95 on six and a lower median
-on five of the eight hard scene x mode rows, and more accurate on the earlier scene; eq. 1 alone (``"block-jacobi-pcg"``,
-the paper's method) stays selectable."""
+on five of the eight hard scene x mode rows, and more accurate on the earlier scene; eq. 1
+alone (``"block-jacobi-pcg"``, the paper's method) stays selectable."""
 
 
 def get_method(name: str) -> ReconstructionMethod:
