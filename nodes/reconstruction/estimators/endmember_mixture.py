@@ -50,10 +50,13 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
+
+from spectralize.schemas import ReconstructionError
 
 from ..baselines.projection import project_onto_rgb
 from ..inputs import ReconstructionInputs
@@ -61,6 +64,9 @@ from ..inputs import ReconstructionInputs
 __all__ = [
     "endmember_mixture",
     "Endmembers",
+    "set_endmembers",
+    "sample_inputs",
+    "sample_stride",
     "learn_endmembers",
     "rgb_abundances",
     "chromaticity",
@@ -148,10 +154,13 @@ def chromaticity(
 @dataclass
 class Endmembers:
     """The learnt dictionary: atoms ``(J + 1, n_wavelength)`` (the last one the highlight
-    atom) and the chromaticity centres ``(J, 2)`` of the first ``J``."""
+    atom), the chromaticity centres ``(J, 2)`` of the first ``J``, and the channel scale
+    ``(3,)`` of :func:`chromaticity` the centres are in (so a tile of a set finds its
+    candidates in the set's chromaticity, not its own)."""
 
     atoms: np.ndarray
     centres: np.ndarray
+    scale: np.ndarray
 
     @property
     def highlight(self) -> int:
@@ -166,7 +175,12 @@ class Endmembers:
         for start in range(0, chroma.shape[0], _CHUNK):
             here = slice(start, start + _CHUNK)
             d2 = ((chroma[here, None, :] - self.centres[None]) ** 2).sum(axis=-1)
-            near[here, :k] = np.argsort(d2, axis=1, kind="stable")[:, :k]
+            if k < d2.shape[1]:  # the k nearest, then in order of distance
+                part = np.argpartition(d2, k - 1, axis=1)[:, :k]
+                rank = np.argsort(np.take_along_axis(d2, part, axis=1), axis=1, kind="stable")
+                near[here, :k] = np.take_along_axis(part, rank, axis=1)
+            else:
+                near[here, :k] = np.argsort(d2, axis=1, kind="stable")
         near[:, k] = self.highlight
         return near
 
@@ -205,6 +219,7 @@ def learn_endmembers(
     inputs: ReconstructionInputs,
     brightness: np.ndarray,
     chroma: np.ndarray,
+    scale: np.ndarray,
     *,
     n_endmembers: int = DEFAULT_ENDMEMBERS,
     seed: int = 0,
@@ -217,6 +232,8 @@ def learn_endmembers(
         The checked input arrays (band shots).
     brightness, chroma
         :func:`chromaticity` of every pixel of every image, in (image, y, x) order.
+    scale
+        The channel scale ``brightness`` and ``chroma`` were computed with.
     n_endmembers
         ``J`` (fewer when there are few pixels: at least 256 clustered pixels each).
     seed
@@ -235,11 +252,11 @@ def learn_endmembers(
     with warnings.catch_warnings():  # an empty cluster is handled below
         warnings.simplefilter("ignore")
         centres, _ = kmeans2(sample, n, minit="++", seed=np.random.default_rng(seed))
-    label = Endmembers(np.zeros((n + 1, 1)), centres).candidates(chroma, 1)[:, 0]
+    label = Endmembers(np.zeros((n + 1, 1)), centres, scale).candidates(chroma, 1)[:, 0]
     atoms = _pooled_shape(inputs, brightness, label, n)
     brightest = np.where(brightness > np.percentile(brightness, HIGHLIGHT_PERCENTILE), 0, -1)
     highlight = _pooled_shape(inputs, brightness, brightest, 1)
-    return Endmembers(np.vstack([atoms, highlight]), centres)
+    return Endmembers(np.vstack([atoms, highlight]), centres, scale)
 
 
 ABUNDANCE_RIDGE = 1e-6
@@ -402,9 +419,78 @@ def _project(cube: np.ndarray, inputs: ReconstructionInputs) -> np.ndarray:
     return cube
 
 
+def set_endmembers(
+    inputs: ReconstructionInputs,
+    *,
+    n_endmembers: int = DEFAULT_ENDMEMBERS,
+    candidates: int = DEFAULT_CANDIDATES,
+    rounds: int = DEFAULT_ROUNDS,
+    seed: int = 0,
+) -> Endmembers:
+    """Steps 1-3 of the module docstring: the endmembers of the pixels of ``inputs``.
+
+    Every step is per pixel or pooled over pixels, never spatial, so ``inputs`` may be a
+    strided sample of a set (:func:`sample_inputs`): a tiled solve learns the dictionary
+    once per set from such a sample and every tile mixes the same endmembers.
+
+    Parameters
+    ----------
+    inputs
+        The checked input arrays (all pixels, or a sample of them).
+    n_endmembers, candidates, rounds, seed
+        As for :func:`endmember_mixture`.
+
+    Returns
+    -------
+    Endmembers
+        After ``rounds - 1`` dictionary updates (the abundances of the last round are
+        solved by :func:`endmember_mixture` on the pixels it reconstructs).
+    """
+    rgb = inputs.rgb_pixels().T  # (n_pixels, 3)
+    scale = np.abs(rgb.mean(axis=0))
+    brightness, chroma = chromaticity(rgb, scale)
+    endmembers = learn_endmembers(
+        inputs, brightness, chroma, scale, n_endmembers=int(n_endmembers), seed=int(seed)
+    )
+    near = endmembers.candidates(chroma, int(candidates))
+    del chroma, brightness
+    for _ in range(int(rounds) - 1):
+        weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
+        _update_atoms(inputs, endmembers, near, weights)
+    return endmembers
+
+
+SAMPLE_PIXELS = 1 << 21
+"""Pixels (over all images) a set's dictionary is learnt from at most: a set larger than
+this is sampled on a strided grid (:func:`sample_inputs`)."""
+
+
+def sample_stride(n_image: int, height: int, width: int, pixels: int = SAMPLE_PIXELS) -> int:
+    """The smallest grid stride that leaves at most ``pixels`` of ``n_image`` images of
+    ``height x width`` (1: every pixel)."""
+    stride = 1
+    while n_image * -(-height // stride) * -(-width // stride) > pixels:
+        stride += 1
+    return stride
+
+
+def sample_inputs(inputs: ReconstructionInputs, stride: int) -> ReconstructionInputs:
+    """``inputs`` on every ``stride``-th pixel along y and x (for :func:`set_endmembers`;
+    the filter sizes are kept as they are, nothing spatial is computed on a sample)."""
+    if stride == 1:
+        return inputs
+    grid = (slice(None), slice(None, None, stride), slice(None, None, stride))
+    return dataclasses.replace(
+        inputs,
+        rgb=np.ascontiguousarray(inputs.rgb[grid]),
+        band_data=np.ascontiguousarray(inputs.band_data[grid]),
+    )
+
+
 def endmember_mixture(
     inputs: ReconstructionInputs,
     *,
+    endmembers: Endmembers | None = None,
     n_endmembers: int = DEFAULT_ENDMEMBERS,
     candidates: int = DEFAULT_CANDIDATES,
     rounds: int = DEFAULT_ROUNDS,
@@ -418,6 +504,10 @@ def endmember_mixture(
     ----------
     inputs
         The checked input arrays.
+    endmembers
+        A dictionary learnt before (:func:`set_endmembers`, e.g. once for a whole set that
+        is solved tile by tile); None: learnt from ``inputs`` (then ``n_endmembers``,
+        ``rounds`` and ``seed`` apply).
     n_endmembers
         ``J``, endmembers besides the highlight atom.
     candidates
@@ -430,29 +520,38 @@ def endmember_mixture(
     local
         Add the :func:`local_correction` (step 5 of the module docstring).
     seed
-        Seed of the clustering (the result is deterministic for a given seed).
+        Seed of the clustering and of the local correction's noise draws (the result is
+        deterministic for a given seed).
 
     Returns
     -------
     numpy.ndarray
         ``(n_wavelength, n_image, height, width)``, float64, ``>= 0``.
 
+    Raises
+    ------
+    ReconstructionError
+        For ``endmembers`` on other wavelengths than the bands'.
+
     References
     ----------
     .. [1] Fast Capture of Spectral Image Series, section 3 (eq. 1's RGB term).
     .. [2] Keshava and Mustard (2002), Spectral unmixing.
     """
+    if endmembers is None:
+        endmembers = set_endmembers(
+            inputs, n_endmembers=n_endmembers, candidates=candidates, rounds=rounds, seed=seed
+        )
+    elif endmembers.atoms.shape[1] != inputs.n_wavelength:
+        raise ReconstructionError(
+            f"endmembers: expected atoms on the bands' {inputs.n_wavelength} wavelengths, "
+            f"found {endmembers.atoms.shape[1]}"
+        )
     rgb = inputs.rgb_pixels().T  # (n_pixels, 3)
-    brightness, chroma = chromaticity(rgb)
-    endmembers = learn_endmembers(
-        inputs, brightness, chroma, n_endmembers=int(n_endmembers), seed=int(seed)
-    )
+    _, chroma = chromaticity(rgb, endmembers.scale)
     near = endmembers.candidates(chroma, int(candidates))
     del chroma
     weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
-    for _ in range(int(rounds) - 1):
-        _update_atoms(inputs, endmembers, near, weights)
-        weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
     if spatial_candidates > 0:
         nearby = neighbourhood_candidates(inputs, near, weights, int(spatial_candidates))
         near = np.hstack([near, nearby])

@@ -83,8 +83,9 @@ class BlockJacobiPreconditioner:
         Floating dtype of the application.
     ridge
         ``epsilon`` relative to the mean diagonal of ``A^T A``: a number, or an array that
-        broadcasts to the cube's shape (a per band and image ridge); the absolute value is
-        :attr:`ridge` after construction.
+        broadcasts to the cube's shape (per band and image, or per pixel); the absolute
+        value is :attr:`ridge` after construction (``None`` for a per-pixel ridge, which is
+        not kept: a cube).
     order
         Pixel-major storage order of the residuals :meth:`apply_pixels` takes (default: the
         problem's ``"natural"`` order).
@@ -110,17 +111,21 @@ class BlockJacobiPreconditioner:
         mean_diagonal = normal_mean_diagonal(problem)
         #: mean of the diagonal of ``A^T A``, the unit of relative ridges
         self.mean_diagonal = mean_diagonal
-        #: ``epsilon`` of a ridge ``epsilon I`` added to ``A^T A`` (absolute)
-        self.ridge = np.asarray(ridge, dtype=np.float64) * mean_diagonal
         # the ridge, or a far tinier one, keeps blocks without filter and neighbours invertible
         floor = max(1e-9 * mean_diagonal, 1e-300)
-        ridge_shape = np.shape(self.ridge)
+        ridge_shape = np.shape(ridge)
         if not ridge_shape or ridge_shape[-2:] == (1, 1):  # per band and image
+            #: ``epsilon`` of a ridge ``epsilon I`` added to ``A^T A`` (absolute); None for a
+            #: per-pixel ridge (a cube, not kept)
+            self.ridge = np.asarray(ridge, dtype=np.float64) * mean_diagonal
             table = np.broadcast_to(self.ridge, (n_wavelength, n_image, 1, 1))[:, :, 0, 0]
             diagonal = np.maximum(table, floor).T.astype(self.dtype)[self.order.image]
-        else:  # per pixel
-            per_pixel = np.broadcast_to(self.ridge, problem.shape)
-            diagonal = np.maximum(self.order.to_pixels(per_pixel), floor).astype(self.dtype)
+        else:  # per pixel, in the working dtype (no float64 cube)
+            self.ridge = None
+            per_pixel = np.broadcast_to(np.asarray(ridge, dtype=self.dtype), problem.shape)
+            diagonal = self.order.to_pixels(per_pixel)  # a new pixel-major array
+            diagonal *= self.dtype.type(mean_diagonal)
+            np.maximum(diagonal, self.dtype.type(floor), out=diagonal)
         # a_p(b) = alpha (F^T F)_pp,b + gamma L_pp + epsilon, pixel-major in ``order``
         diagonal += (w.gamma * degree[self.order.order]).astype(self.dtype)[:, None]
         problem.filters.add_normal_diagonal(diagonal, w.alpha, self.order.positions)
@@ -139,9 +144,9 @@ class BlockJacobiPreconditioner:
         """``1 / diag(A^T A + epsilon)``, pixel-major ``(n_pixels, n_wavelength)`` in
         :attr:`order` (plain Jacobi scaling of the compiled solvers)."""
         c = self.camera_matrix.astype(np.float64)
-        full = 1.0 / self.inverse_diagonal.astype(np.float64)
-        full += self._beta * np.sum(c * c, axis=0)[None, :]
-        return np.divide(1.0, full, out=full).astype(self.dtype)
+        full = np.divide(1.0, self.inverse_diagonal, dtype=self.dtype)  # one buffer, in place
+        full += (self._beta * np.sum(c * c, axis=0)).astype(self.dtype)[None, :]
+        return np.divide(1.0, full, out=full)
 
     @cached_property
     def inverse_scalar_diagonal(self) -> np.ndarray:
