@@ -6,7 +6,9 @@ starts from spectra transported from the seed through appearance neighbourhoods
 (:mod:`~spectralize.nodes.reconstruction.warm_start`) and is solved independently, so the sets
 run in parallel on dask (:func:`reconstruct_image_sets`). Every set is solved tile by tile
 (:mod:`~spectralize.nodes.reconstruction.tiling`), one dask task per set and tile, so memory
-is bounded by tile x set. The cube is written set by set: each set is one resumable region of
+is bounded by tile x set; a method with an endmember dictionary (the default) gets one more
+task per set that learns it from a strided sample of the set, shared by the set's tiles
+(:func:`~.tiling.shared_endmembers`). The cube is written set by set: each set is one resumable region of
 the ``spectra`` group, so a crash loses at most the sets in flight.
 
 The node functions' keyword-only arguments are the nodes' parameters (the engine derives

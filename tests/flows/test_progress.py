@@ -208,13 +208,21 @@ def small_set(size=12, n_wavelength=6):
     return rgb, shots, camera
 
 
+def _refinement() -> int:
+    """The default method's projected-gradient iterations on ``S >= 0`` after its CG."""
+    from spectralize.nodes.reconstruction import DEFAULT_METHOD, RECONSTRUCTION_METHODS
+
+    return int(RECONSTRUCTION_METHODS[DEFAULT_METHOD].defaults()["projected_iterations"])
+
+
 def test_a_real_solve_reports_its_iterations_under_its_node_also_from_a_dask_thread():
     rgb, shots, camera = small_set()
     recorder = TaskRecorder()
     solve = dask.delayed(solve_set)(rgb, shots, camera, tolerance=1e-9, max_iterations=40)
     with listening(recorder), node_tasks("reconstruct_seed_set"):
         spectra, iterations, _ = solve.compute(scheduler="threads")  # in a worker thread
-    refinement = 40  # the default's S >= 0 iterations after at most 40 of CG
+    refinement = _refinement()  # the default's S >= 0 iterations after at most 40 of CG
+    assert refinement == 10
     assert spectra.sizes["image"] == 2 and 1 + refinement <= iterations <= 40 + refinement
     assert recorder.thread is not threading.main_thread()
     assert [c[0] for c in recorder.calls][:2] == ["task_started", "task_advanced"]
@@ -285,8 +293,10 @@ def test_a_real_solve_on_the_plain_display_prints_a_solver_line():
     with listening(display), node_tasks("reconstruct_seed_set"):
         _, iterations, _ = solve_set(rgb, shots, camera, tolerance=1e-9, max_iterations=40)
     lines = out.getvalue().splitlines()
-    # of 40 CG iterations and the default's 40 of its S >= 0 refinement
-    assert lines[0].startswith("    reconstruct_seed_set: images 11: iteration 1/80, at most about ")
+    # of 40 CG iterations and the default's 10 of its S >= 0 refinement
+    assert lines[0].startswith(
+        f"    reconstruct_seed_set: images 11: iteration 1/{40 + _refinement()}, at most about "
+    )
     assert lines[-1].startswith(
         f"    reconstruct_seed_set: images 11: done after {iterations} iteration(s)"
     )

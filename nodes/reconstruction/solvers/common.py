@@ -166,8 +166,8 @@ def preconditioned_cg(
     ``tolerance`` or after ``max_iterations``; it stops early if ``operator`` is not positive
     along a search direction. ``vectors`` does the vector updates (:data:`NUMPY`, or
     :data:`COMPILED` for C-contiguous float arrays). ``operator`` and
-    ``apply_preconditioner`` may return the same buffer on every call: each result is used
-    up before the next call.
+    ``apply_preconditioner`` may return the same buffer on every call, even one buffer for
+    both: each result is used up before the next call of either.
 
     Returns
     -------

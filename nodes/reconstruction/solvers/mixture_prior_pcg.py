@@ -16,8 +16,8 @@ add. Unlike the ``"scene"`` prior of ``spectral-prior-pcg``, it exists for a spa
 too (images with a few band shots, or none). Measured in ``benchmarks/reconstruction.py``
 (README, "Reconstruction on the hard scenes"): against ``spectral-prior-pcg`` a lower median
 on the woven-fabric and halftone-print images and on three of the four sets, a lower p95 on
-six of the eight scene x mode rows; about 10 % worse on two (the dark-still-life image's
-median, the glossy-mosaic image's p95).
+six of the eight scene x mode rows; worse on three (the dark-still-life image's median by
+16 %, the glossy-mosaic image's p95 by 8 %, the glossy-mosaic set's median by 3 %).
 
 It stops earlier than eq. 1 (:data:`MIXTURE_TOLERANCE`) and refines ``S >= 0`` for fewer
 steps (:data:`MIXTURE_PROJECTED_ITERATIONS`): it starts at its prior's centre, and the

@@ -377,10 +377,11 @@ def spectral_prior_pcg(
             return residual * scalar
 
     elif precondition:
-        z = np.empty_like(x)
 
         def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
-            return preconditioner.apply_pixels(residual, out=z)
+            # into the operator's buffer: CG uses up ``H p`` before it asks for ``z`` and
+            # ``z`` before the next ``H p`` (one cube vector fewer)
+            return preconditioner.apply_pixels(residual, out=q)
 
     else:
 

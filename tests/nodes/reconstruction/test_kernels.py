@@ -103,3 +103,18 @@ def test_the_default_solver_holds_a_handful_of_cube_vectors(scene_factory):
         tracemalloc.stop()
     assert result.iterations == 30
     assert peak / vector < 9.0, f"peak {peak / vector:.1f} cube vectors"
+
+
+def test_projected_step_and_its_dots_equal_numpy():
+    from spectralize.nodes.reconstruction.kernels import projected_step, step_dots
+
+    rng = np.random.default_rng(3)
+    x, g, new_g = (rng.normal(size=(500, 7)).astype(np.float32) for _ in range(3))
+    scale = rng.uniform(0.5, 2.0, size=(500, 7)).astype(np.float32)
+    new = np.empty_like(x)
+    projected_step(x, g, scale, 0.7, new)
+    np.testing.assert_allclose(new, np.maximum(x - 0.7 * scale * g, 0), rtol=1e-6, atol=1e-7)
+    assert new.min() == 0 and (new > 0).any()
+    s, y = new.astype(np.float64) - x, new_g.astype(np.float64) - g
+    sy, ss = step_dots(new, x, new_g, g, scale)
+    np.testing.assert_allclose([sy, ss], [np.sum(s * y), np.sum(s * s / scale)], rtol=1e-6)

@@ -16,6 +16,7 @@ from spectralize.nodes.reconstruction import (
 )
 from spectralize.nodes.reconstruction.estimators import endmember_mixture
 from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
+    ABUNDANCE_RIDGE,
     SAMPLE_PIXELS,
     Endmembers,
     chromaticity,
@@ -74,6 +75,29 @@ def test_abundances_are_the_exact_non_negative_least_squares_solution():
             rtol=1e-4,
             atol=1e-4 * np.linalg.norm(rgb[p]),  # the ridge of 1e-6 x trace
         )
+
+
+def test_abundances_with_a_candidate_proposed_twice_minimise_the_ridge_objective():
+    rng = np.random.default_rng(2)
+    atoms = np.abs(rng.normal(size=(5, WAVELENGTH.size)))
+    endmembers = Endmembers(atoms, rng.uniform(size=(4, 2)), np.ones(3))
+    near = np.stack([rng.choice(4, size=3, replace=False) for _ in range(100)])
+    near = np.hstack([near, near[:, :1], np.full((100, 1), endmembers.highlight)])  # a repeat
+    rgb = rng.normal(size=(100, 3)) + 2.0
+    weights = rgb_abundances(endmembers, near, C, rgb)
+    assert weights.min() >= 0
+    for p in range(100):
+        ca = (atoms[near[p]] @ C.T).T
+        hessian = ca.T @ ca + ABUNDANCE_RIDGE * np.trace(ca.T @ ca) * np.eye(ca.shape[1])
+
+        def objective(w, hessian=hessian, ca=ca, p=p):
+            return 0.5 * w @ hessian @ w - (ca.T @ rgb[p]) @ w
+
+        # the same problem as an ordinary NNLS: [C E; sqrt(ridge) I] w ~ [R; 0]
+        root = np.sqrt(ABUNDANCE_RIDGE * np.trace(ca.T @ ca))
+        augmented = np.vstack([ca, root * np.eye(ca.shape[1])])
+        reference, _ = nnls(augmented, np.concatenate([rgb[p], np.zeros(ca.shape[1])]))
+        assert objective(weights[p]) <= objective(reference) + 1e-9 * abs(objective(reference))
 
 
 def test_exact_recovery_of_pure_and_mixed_pixels_from_noise_free_bands():

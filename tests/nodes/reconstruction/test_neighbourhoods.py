@@ -71,3 +71,20 @@ def test_neighbour_pixel_order_matches_the_cube_layout(scene_factory):
     np.testing.assert_allclose(rgb[:, q], scene.rgb.values[1, 2, 5])
     with pytest.raises(AssertionError):
         np.testing.assert_allclose(rgb[:, q], scene.rgb.values[0, 2, 5])
+
+
+@pytest.mark.parametrize("scale_invariant", [False, True])
+def test_the_laplacian_is_d_transpose_d(scale_invariant):
+    from spectralize.nodes.reconstruction.neighbourhoods import NeighbourGraph
+
+    rng = np.random.default_rng(5)
+    n, k = 40, 4
+    neighbours = (np.arange(n)[:, None] + rng.integers(1, n, size=(n, k))) % n  # never itself
+    neighbours[0, 0], neighbours[1, 0] = 1, 0  # a mutual pair, summed from both sides
+    neighbours[:, 1] = np.where(neighbours[:, 1] == n - 1, 0, neighbours[:, 1])  # n - 1: fewer in
+    ratios = rng.uniform(0.5, 2.0, size=(n, k)) if scale_invariant else None
+    graph = NeighbourGraph(neighbours, np.float64, ratios)
+    d = graph.difference_operator.toarray()
+    np.testing.assert_allclose(graph.laplacian.toarray(), d.T @ d, atol=1e-12)
+    assert graph.laplacian.has_canonical_format
+    np.testing.assert_allclose(graph.degree, np.diag(d.T @ d))
