@@ -22,10 +22,11 @@ distant metamers linked), and the default method's endmember dictionary. The dic
 therefore learnt once per set (:func:`shared_endmembers`, on a strided sample of the whole
 set) and shared by all its tiles. Measured with the default method (``benchmarks/
 paper_scale.py``, 20 x 256^2 glossy-mosaic set, 128 px tiles): median 1.004x and p95 1.001x
-the untiled solve's nRMSE (1.020x and 1.015x when every tile learnt its own dictionary);
-4-image 96^2 sets in 64 px tiles: 0.998x / 0.995x (woven-fabric), 1.001x / 1.008x
-(glossy-mosaic). The per-scene table in :func:`default_halo`'s Notes is of eq. 1, before the
-shared dictionary.
+the untiled solve's nRMSE (eq. 1 before: 1.020x and 1.015x); 8-image 128^2 sets in 64 px
+tiles, every hard scene: 1.001-1.017x and 0.999-1.012x. Tiles that learnt their own
+dictionaries were 0.96-1.24x there (0.90x / 0.86x on the 256^2 set: a local dictionary can
+fit better, but not reliably). The per-scene table in :func:`default_halo`'s Notes is of
+eq. 1, before the shared dictionary.
 
 References
 ----------
