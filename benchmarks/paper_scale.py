@@ -346,21 +346,27 @@ CASES = {
 }
 
 
-def run_case(name: str, *args, package: Path | None = None) -> dict:
+def run_case(name: str, *args, package: Path | None = None, method: str | None = None) -> dict:
     """Run one case in a fresh Python process (its own peak RSS); returns its JSON.
 
-    ``package``: a folder whose ``spectralize`` is imported instead of this checkout's.
+    ``package``: a folder whose ``spectralize`` is imported instead of this checkout's;
+    ``method``: the reconstruction method of the case (``SPECTRALIZE_BENCH_METHOD``;
+    default: the default method).
     """
     argv = [str(a) if isinstance(a, Path) else a for a in args]
     command = [sys.executable, str(Path(__file__).resolve())]
     if package is not None:
         command += ["--package", str(package)]
+    env = dict(os.environ)
+    if method:
+        env["SPECTRALIZE_BENCH_METHOD"] = method
     out = subprocess.run(
         [*command, "--case", name, json.dumps(argv)],
         cwd=ROOT,
         capture_output=True,
         text=True,
         check=False,
+        env=env,
     )
     if out.returncode != 0:
         raise RuntimeError(f"case {name}{tuple(argv)} failed:\n{out.stderr[-4000:]}")

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -31,28 +29,6 @@ def log(message: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {message}", flush=True)
 
 
-def case(name: str, *args, method: str | None = None) -> dict:
-    env = dict(os.environ)
-    if method:
-        env["SPECTRALIZE_BENCH_METHOD"] = method
-    out = subprocess.run(
-        [
-            sys.executable,
-            str(HERE / "paper_scale.py"),
-            "--case",
-            name,
-            json.dumps([str(a) if isinstance(a, Path) else a for a in args]),
-        ],
-        check=False,
-        capture_output=True,
-        text=True,
-        env=env,
-    )
-    if out.returncode != 0:
-        raise RuntimeError(f"case {name} failed:\n{out.stderr[-4000:]}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 def main() -> None:
     from spectralize.nodes.reconstruction import DEFAULT_METHOD
 
@@ -62,16 +38,16 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=2048)
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
-    from paper_scale import capture_inputs
+    from paper_scale import capture_inputs, run_case
 
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         log(f"capturing {args.scene} at 512^2 (20 images)")
         capture_inputs(args.scene, 512, 0, work / "set512.npz", truth=False)
         folder = work / f"mirrored{args.size}"
-        case("mirror", work / "set512.npz", args.size, folder)
+        run_case("mirror", work / "set512.npz", args.size, folder)
         log(f"solving 2 tiles of the {args.size}^2 set with {args.method}")
-        row = case("throughput", folder, args.size, 256, 2, 2, method=args.method)
+        row = run_case("throughput", folder, args.size, 256, 2, 2, method=args.method)
     row["method"] = args.method
     log(
         f"{row['seconds_per_mpx_image']} s/Mpx-image, peak {row['peak_rss_gb']} GB, "

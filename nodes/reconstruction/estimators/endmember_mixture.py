@@ -50,7 +50,6 @@ References
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from dataclasses import dataclass
 
@@ -65,7 +64,6 @@ __all__ = [
     "endmember_mixture",
     "Endmembers",
     "set_endmembers",
-    "sample_inputs",
     "sample_stride",
     "learn_endmembers",
     "rgb_abundances",
@@ -430,7 +428,7 @@ def set_endmembers(
     """Steps 1-3 of the module docstring: the endmembers of the pixels of ``inputs``.
 
     Every step is per pixel or pooled over pixels, never spatial, so ``inputs`` may be a
-    strided sample of a set (:func:`sample_inputs`): a tiled solve learns the dictionary
+    strided sample of a set (:func:`~..tiling.sample_grid`): a tiled solve learns the dictionary
     once per set from such a sample and every tile mixes the same endmembers.
 
     Parameters
@@ -462,7 +460,7 @@ def set_endmembers(
 
 SAMPLE_PIXELS = 1 << 21
 """Pixels (over all images) a set's dictionary is learnt from at most: a set larger than
-this is sampled on a strided grid (:func:`sample_inputs`)."""
+this is sampled on a strided grid (:func:`~..tiling.sample_grid`)."""
 
 
 def sample_stride(n_image: int, height: int, width: int, pixels: int = SAMPLE_PIXELS) -> int:
@@ -472,19 +470,6 @@ def sample_stride(n_image: int, height: int, width: int, pixels: int = SAMPLE_PI
     while n_image * -(-height // stride) * -(-width // stride) > pixels:
         stride += 1
     return stride
-
-
-def sample_inputs(inputs: ReconstructionInputs, stride: int) -> ReconstructionInputs:
-    """``inputs`` on every ``stride``-th pixel along y and x (for :func:`set_endmembers`;
-    the filter sizes are kept as they are, nothing spatial is computed on a sample)."""
-    if stride == 1:
-        return inputs
-    grid = (slice(None), slice(None, None, stride), slice(None, None, stride))
-    return dataclasses.replace(
-        inputs,
-        rgb=np.ascontiguousarray(inputs.rgb[grid]),
-        band_data=np.ascontiguousarray(inputs.band_data[grid]),
-    )
 
 
 def endmember_mixture(
