@@ -337,12 +337,114 @@ def case_dask(inputs: Path, tile: int, workers: int) -> dict:
     return {"workers": workers, "tiles": len(windows), "wall_s": round(wall, 2)}
 
 
+# -- the paper-scale slice through the whole flow ---------------------------------------------
+SLICE_AZIMUTHS = [120 + 15 * k for k in range(11)]
+"""LED azimuths [deg] of the slice on the 40 deg ring: 11 LEDs, so that 10 have a partner one
+rotation step on (the spectral camera sees one rotation later what the RGB camera saw)."""
+
+
+def slice_steps(size: int, dark_frames: int) -> list:
+    """The ``btf`` flow's steps after a ``simulate`` step of the paper-scale slice.
+
+    The paper recipe at ``size`` with one RGB camera at 45 deg, the 11 LEDs of
+    :data:`SLICE_AZIMUTHS` and two rotations (the least that gives the spectral camera a
+    sweep): 22 images, 10 of them with the 32 band shots, in one set of 10 + 12.
+    """
+    import dataclasses
+
+    from spectralize.engine import Step
+    from spectralize.flows.pipelines import BTF_STEPS
+    from spectralize.nodes.simulation.gantry import ring_leds
+
+    recipe = {
+        "recipe": "paper",
+        "size": size,
+        "n_rotations": 2,
+        "overrides": {
+            "rgb_camera_thetas": [45.0],
+            "leds": list(ring_leds(40.0, SLICE_AZIMUTHS)),
+            "n_dark_frames": dark_frames,
+        },
+    }
+    steps = [Step("simulate", parameters=recipe)]
+    for step in BTF_STEPS:
+        if step.node == "select_image_sets":  # all 22 images in one set (the seed set)
+            step = dataclasses.replace(step, parameters={"others_per_set": 12})
+        steps.append(step)
+    return steps
+
+
+def case_paper_slice(size: int, dark_frames: int, folder: Path) -> dict:
+    """Simulate the slice and run the whole ``btf`` flow on it (a real Prefect run)."""
+    import shutil
+
+    import spectralize.flows  # noqa: F401  (Prefect environment defaults)
+    from spectralize.flows.runtime import run_steps
+    from spectralize.schemas import RunStore
+
+    store_path = Path(folder) / "slice.zarr"
+    begin = time.perf_counter()
+    report = run_steps(store_path, slice_steps(int(size), int(dark_frames)), flow_name="paper-slice")
+    wall = time.perf_counter() - begin
+    nodes = {step.node: round(step.seconds, 1) for step in report.steps}
+    store = RunStore.open(store_path)
+    spectra = store.read("spectra")
+    images = int(spectra.sizes["image"])
+    sets = store.read("image_sets")
+    accuracy = {}
+    if store.has("evaluation"):
+        evaluation = store.read("evaluation")
+        stats = evaluation["nrmse_subset_statistics"]
+        for subset in evaluation["subset"].values.tolist():
+            accuracy[subset] = {
+                "median": round(float(stats.sel(subset=subset, statistic="median")), 4),
+                "p95": round(float(stats.sel(subset=subset, statistic="p95")), 4),
+            }
+    store_gb = sum(f.stat().st_size for f in store_path.rglob("*") if f.is_file()) / 1e9
+    processing = wall - nodes.get("simulate", 0.0)
+    mpx_images = images * int(spectra.sizes["y"]) * int(spectra.sizes["x"]) / 1e6
+    row = {
+        "size": int(size),
+        "images": images,
+        "images_with_bands": int(sets["has_bands"].sum()),
+        "sets": int(sets.sizes["set"]),
+        "dark_frames_per_exposure": int(dark_frames),
+        "wall_s": round(wall, 1),
+        "processing_s": round(processing, 1),
+        "processing_seconds_per_mpx_image": round(processing / mpx_images, 2),
+        "node_seconds": nodes,
+        "peak_rss_gb": round(resident_gb(), 3),
+        "store_gb": round(store_gb, 2),
+        "accuracy": accuracy,
+    }
+    shutil.rmtree(store_path, ignore_errors=True)
+    return row
+
+
+def paper_slice_summary(path: Path = RESULTS / "paper_slice.json") -> dict:
+    """The slice's figures from ``benchmarks/paper_slice.py`` (its own run of about 1.5 h)."""
+    if not path.exists():
+        return {
+            "paper_slice_wall_s": None,
+            "paper_slice_peak_rss_gb": None,
+            "paper_slice_note": "not run: see benchmarks/paper_slice.py",
+        }
+    row = json.loads(path.read_text())
+    return {
+        "paper_slice_wall_s": row["wall_s"],
+        "paper_slice_peak_rss_gb": row["peak_rss_gb"],
+        "paper_slice_note": f"benchmarks/paper_slice.py at {row['size']}^2, {row['images']} images, "
+        f"commit {row['commit']} on {row['date']} (results/paper_slice.json)",
+    }
+
+
 CASES = {
     "throughput": case_throughput,
     "untiled": case_untiled,
     "today": case_today,
     "dask": case_dask,
     "mirror": mirror_inputs,
+    "paper_slice": case_paper_slice,
 }
 
 
@@ -468,10 +570,7 @@ def main(argv: list[str] | None = None) -> dict:
         "tiled_vs_untiled_nrmse_ratio": untiled["tiled_vs_untiled_nrmse_ratio"],
         "seam_median_border_vs_interior": untiled["seam_median_border_vs_interior"],
         "dask_speedup_2_workers": round(dask_rows[0]["wall_s"] / dask_rows[1]["wall_s"], 3),
-        "paper_slice_wall_s": None,
-        "paper_slice_peak_rss_gb": None,
-        "paper_slice_note": "not run: at the measured throughput a 2048^2 slice (20 images plus "
-        "its seed set) takes hours on 2 cores; see set_seconds_extrapolated of the 2048 row",
+        **paper_slice_summary(),
         # hours = images x Mpx/image x (s per Mpx-image on `cores` cores) x cores / N / 3600
         "full_run_hours_at_100_cores": round(
             FULL_RUN_IMAGES

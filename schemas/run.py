@@ -185,20 +185,20 @@ _SPECTRA_COORDS = (
     *image_coords(),
 )
 
+_CONFIDENCE = ArraySpec(
+    "confidence",
+    ("image", "y", "x"),
+    "float32",
+    "1",
+    "estimated per-pixel nRMSE of the spectra (higher: trust less)",
+)
+
 SPECTRA = GroupSchema(
     name="spectra",
     description="reconstructed spectral cube (eq. 1), chunked per image and tile",
     variables=_SPECTRA_VARIABLES,
     coords=_SPECTRA_COORDS,
-    optional_variables=(
-        ArraySpec(
-            "confidence",
-            ("image", "y", "x"),
-            "float32",
-            "1",
-            "estimated per-pixel nRMSE of the spectra (higher: trust less)",
-        ),
-    ),
+    optional_variables=(_CONFIDENCE,),
 )
 
 CAMERA_MATRIX = GroupSchema(
@@ -229,6 +229,8 @@ SPECTRA_SEED = GroupSchema(
         ),
     ),
     coords=_SPECTRA_COORDS,
+    # optional: stores written before the seed set kept it have none (recomputed then)
+    optional_variables=(_CONFIDENCE,),
     attrs={"seed_set": "index of the seed set"},
 )
 

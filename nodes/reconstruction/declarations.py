@@ -33,7 +33,7 @@ SELECT_IMAGE_SETS = Node(
 
 RECONSTRUCT_SEED_SET = Node(
     name="reconstruct_seed_set",
-    version="2",  # 2: tiled (parameter ``tile``), iterations per image instead of an attr
+    version="3",  # 2: tiled (parameter ``tile``), iterations per image instead of an attr; 3: confidence
     function=reconstruct_seed_set,
     inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix", "image_sets": "image_sets"},
     outputs=("spectra_seed",),

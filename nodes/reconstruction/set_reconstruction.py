@@ -365,11 +365,13 @@ def reconstruct_seed_set(
     -------
     xarray.Dataset
         Group ``spectra_seed``: ``radiance`` (image, wavelength, y, x) of every member of the
-        seed set and ``iterations`` (image) int32 (the set's solver iterations, the most
-        over its tiles); attrs ``seed_set``, ``method``, ``tiles`` (and ``tile``, ``halo``
-        when tiled). Solved whole, the data are in memory; tiled, they are lazy: one dask
-        task per tile, chunked (all images, all wavelengths, the tile's core), solved as the
-        runner writes them, so memory is bounded by tile x set, not by the image size.
+        seed set, ``iterations`` (image) int32 (the set's solver iterations, the most
+        over its tiles) and ``confidence`` (image, y, x) float32 (computed with the solve,
+        from its neighbour graph; ``reconstruct_image_sets`` passes it on); attrs
+        ``seed_set``, ``method``, ``tiles`` (and ``tile``, ``halo`` when tiled). Solved
+        whole, the data are in memory; tiled, they are lazy: one dask task per tile, chunked
+        (all images, all wavelengths, the tile's core), solved as the runner writes them, so
+        memory is bounded by tile x set, not by the image size.
     """
     seed = int(image_sets.attrs["seed_set"])
     members, _ = set_members(image_sets, seed)
@@ -397,14 +399,15 @@ def reconstruct_seed_set(
     }
     iterations_attrs = {"long_name": "solver iterations of the seed set (the most over its tiles)"}
     if len(windows) == 1:
-        spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, **settings)
+        spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, confidence=True, **settings)
+        spread = spectra["confidence"].transpose("image", "y", "x").values.astype(np.float32)
         spectra = spectra.drop_vars(
             [c for c in spectra.coords if c not in ("image", "wavelength", *_PER_IMAGE)]
         )
         count = np.full(len(members), iterations, dtype=np.int32)
     else:
         keep = np.ones(len(members), dtype=bool)
-        cube, count, _ = _tile_tasks(
+        cube, count, spread = _tile_tasks(
             rgb,
             shots,
             camera_matrix,
@@ -414,7 +417,7 @@ def reconstruct_seed_set(
             settings,
             wavelength.size,
             f"solve-seed-{seed}",
-            confidence=False,
+            confidence=True,
         )
         per_image = hdr.drop_vars(list(hdr.data_vars)).sel(image=members).load()
         coords = {n: per_image[n] for n in ("image", *_PER_IMAGE) if n in per_image.coords}
@@ -429,6 +432,8 @@ def reconstruct_seed_set(
         {
             "radiance": spectra.assign_attrs(units="1", long_name="relative spectral radiance"),
             "iterations": ("image", count, iterations_attrs),
+            # kept here so that ``reconstruct_image_sets`` need not search neighbours again
+            "confidence": (("image", "y", "x"), spread, _CONFIDENCE_ATTRS),
         },
         attrs=attrs,
     )
@@ -546,6 +551,12 @@ def _solve_tile(
         np.full(int(keep.sum()), iterations, dtype=np.int32),
         spread,
     )
+
+
+_CONFIDENCE_ATTRS = {
+    "units": "1",
+    "long_name": "estimated per-pixel nRMSE of the spectra (higher: trust less)",
+}
 
 
 def _tile_confidence(cube: np.ndarray, rgb: np.ndarray, inner: tuple[slice, slice]) -> np.ndarray:
@@ -686,19 +697,25 @@ def reconstruct_image_sets(
             block = da.asarray(block).astype(np.float32).rechunk((n_owned, -1, *_core_chunks(windows)))
             count = da.asarray(seed_counts.sel(image=members[owned]).data).astype(np.int32)
             owned_rgb = hdr["radiance"].sel(image=members[owned]).transpose("image", "y", "x", "channel")
-            tiles = [
-                da.from_delayed(
-                    dask.delayed(_tile_confidence, pure=True)(
-                        block[:, :, w.outer[0], w.outer[1]],
-                        owned_rgb.data[:, w.outer[0], w.outer[1]],
-                        w.inner,
-                    ),
-                    shape=(n_owned, *w.core_shape),
-                    dtype=np.float32,
+            if "confidence" in spectra_seed:  # solved with the seed set
+                kept = spectra_seed["confidence"].sel(image=members[owned]).transpose("image", "y", "x")
+                confidence = da.asarray(kept.data).astype(np.float32)
+            else:  # a store written before the seed set kept its confidence
+                confidence = _tiled(
+                    [
+                        da.from_delayed(
+                            dask.delayed(_tile_confidence, pure=True)(
+                                block[:, :, w.outer[0], w.outer[1]],
+                                owned_rgb.data[:, w.outer[0], w.outer[1]],
+                                w.inner,
+                            ),
+                            shape=(n_owned, *w.core_shape),
+                            dtype=np.float32,
+                        )
+                        for w in windows
+                    ],
+                    windows,
                 )
-                for w in windows
-            ]
-            confidence = _tiled(tiles, windows)
         else:
             block, count, confidence = _tile_tasks(
                 rgb,
@@ -731,10 +748,7 @@ def reconstruct_image_sets(
             "confidence": (
                 ("image", "y", "x"),
                 da.concatenate(confidences, axis=0),
-                {
-                    "units": "1",
-                    "long_name": "estimated per-pixel nRMSE of the spectra (higher: trust less)",
-                },
+                _CONFIDENCE_ATTRS,
             ),
             "image_set": ("image", np.asarray(set_of), {"long_name": "set the image was solved in"}),
             "iterations": (

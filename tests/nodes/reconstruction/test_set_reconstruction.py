@@ -154,3 +154,20 @@ def test_spectra_group_carries_a_confidence_that_tracks_the_error(solved):
     error = normalised_rmse(cube.radiance, truth.radiance.sel(image=cube.image))
     error = error.transpose(*cube.confidence.dims).values
     assert spearmanr(cube.confidence.values.ravel(), error.ravel()).statistic > 0.2
+
+
+def test_seed_confidence_is_solved_with_the_seed_and_passed_on(solved):
+    hdr, sets, _, seed, cube = solved
+    cube = cube.compute()
+    assert seed.confidence.dims == ("image", "y", "x") and seed.confidence.dtype == np.float32
+    seed_images = cube.image.where(cube.image_set == sets.attrs["seed_set"], drop=True).values
+    assert seed_images.size > 0
+    kept = seed.confidence.sel(image=seed_images).values
+    assert np.array_equal(cube.confidence.sel(image=seed_images).values, kept)
+    # a seed group written before it kept a confidence: the spread is computed again from
+    # the seed's spectra; close to the solver's own (same neighbourhoods, searched anew)
+    _, bands, camera, _, _ = reconstruction_inputs()
+    older = reconstruct_image_sets(hdr, bands, camera, sets, seed.drop_vars("confidence")).compute()
+    again = older.confidence.sel(image=seed_images).values
+    assert np.isfinite(again).all() and again.shape == kept.shape
+    assert np.corrcoef(again.ravel(), kept.ravel())[0, 1] > 0.8

@@ -217,6 +217,7 @@ def test_tiled_nodes_write_what_the_whole_solve_writes_tile_by_tile(tmp_path):
     assert lazy.confidence.chunks[1:] == ((16, 16), (16, 16))
     lazy_seed = reconstruct_seed_set(hdr, bands, camera, sets, tile=16, **settings)
     assert lazy_seed.radiance.chunks[2:] == ((16, 16), (16, 16))
+    assert lazy_seed.confidence.chunks[1:] == ((16, 16), (16, 16))
 
     # the same result as the whole solve, within what a window 1 px short of the image changes
     results = {
@@ -232,3 +233,9 @@ def test_tiled_nodes_write_what_the_whole_solve_writes_tile_by_tile(tmp_path):
     assert (results["tiled"].image == results["whole"].image).all()
     assert (results["tiled"].iterations > 0).all()
     assert np.isfinite(results["tiled"].confidence.values).all()
+    # the seed set's confidence is written with its tiles and passed on to its images
+    seed_images = sets.member.isel(set=sets.attrs["seed_set"]).values
+    seed_images = seed_images[sets.owned.isel(set=sets.attrs["seed_set"]).values]
+    written = seed.confidence.sel(image=seed_images).values
+    assert np.isfinite(written).all()
+    assert np.array_equal(results["tiled"].confidence.sel(image=seed_images).values, written)
