@@ -348,9 +348,9 @@ def _pixel_maps(
     block of both cubes (as float64) stayed in memory until the last map had used it, which
     held whole cubes at once (24 GB at 22 x 2048^2 x 32).
     """
-    s, t = _chunk_spectral(s), _chunk_spectral(t)
     import colour
 
+    s, t = _chunk_spectral(s), _chunk_spectral(t)
     weights = xyz_weights(t["wavelength"].values, illuminant=illuminant)
     white = colour.XYZ_to_xy(weights.values.sum(axis=0))
     stacked = xr.apply_ufunc(
@@ -1058,9 +1058,7 @@ def compare_methods(
     rows = []
     for cube in cubes.values():
         s, t = _check_pair(cube, truth)
-        maps = {
-            **_pixel_maps(s, t, tuple(_METRICS), illuminant=illuminant),
-        }
+        maps = _pixel_maps(s, t, tuple(_METRICS), illuminant=illuminant)
         rows.append(_subset_statistics(maps, masks, threshold))
     out = xr.concat(
         rows, dim=METHOD_DIM, coords="minimal", compat="override", join="override"

@@ -35,6 +35,7 @@ from pydantic import AfterValidator, Field
 
 from spectralize.engine import Choices
 from spectralize.schemas import ReconstructionError
+from spectralize.schemas.run import SPECTRA
 
 from .api import reconstruct
 from .confidence import neighbourhood_spread
@@ -553,10 +554,8 @@ def _solve_tile(
     )
 
 
-_CONFIDENCE_ATTRS = {
-    "units": "1",
-    "long_name": "estimated per-pixel nRMSE of the spectra (higher: trust less)",
-}
+_CONFIDENCE_SPEC = next(v for v in SPECTRA.optional_variables if v.name == "confidence")
+_CONFIDENCE_ATTRS = {"units": _CONFIDENCE_SPEC.units, "long_name": _CONFIDENCE_SPEC.long_name}
 
 
 def _tile_confidence(cube: np.ndarray, rgb: np.ndarray, inner: tuple[slice, slice]) -> np.ndarray:
