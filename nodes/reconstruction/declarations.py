@@ -33,7 +33,9 @@ SELECT_IMAGE_SETS = Node(
 
 RECONSTRUCT_SEED_SET = Node(
     name="reconstruct_seed_set",
-    version="3",  # 2: tiled (parameter ``tile``), iterations per image instead of an attr; 3: confidence
+    # 2: tiled (parameter ``tile``), iterations per image instead of an attr; 3: confidence;
+    # 4: the mixture's band-noise estimate robust to texture, brightness-weighted prior
+    version="4",
     function=reconstruct_seed_set,
     inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix", "image_sets": "image_sets"},
     outputs=("spectra_seed",),
@@ -43,7 +45,9 @@ RECONSTRUCT_SEED_SET = Node(
 
 RECONSTRUCT_IMAGE_SETS = Node(
     name="reconstruct_image_sets",
-    version="2",  # 2: tiled (parameter ``tile``), warm start from a strided seed sample
+    # 2: tiled (parameter ``tile``), warm start from a strided seed sample; 3: as the seed
+    # set's version 4
+    version="3",
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",

@@ -47,7 +47,6 @@ from ..estimators.endmember_mixture import Endmembers
 from ..operators import ReconstructionProblem
 from .block_jacobi_pcg import DEFAULT_RIDGE
 from .common import DEFAULT_MAX_ITERATIONS, Callback, SolverResult
-from .guided_prior_pcg import DEFAULT_PRIOR
 from .spectral_prior_pcg import (
     DEFAULT_COVARIANCE_FLOOR,
     DEFAULT_SPECTRAL_PRIOR,
@@ -60,6 +59,8 @@ __all__ = [
     "SETUP_DEFAULTS",
     "MIXTURE_TOLERANCE",
     "MIXTURE_PROJECTED_ITERATIONS",
+    "MIXTURE_PRIOR",
+    "MIXTURE_PRIOR_WEIGHTING",
 ]
 
 MIXTURE_TOLERANCE = 3e-3
@@ -67,6 +68,14 @@ MIXTURE_TOLERANCE = 3e-3
 
 MIXTURE_PROJECTED_ITERATIONS = 10
 """Projected-gradient steps on ``S >= 0`` (``spectral-prior-pcg``: 40)."""
+
+MIXTURE_PRIOR = 0.3
+"""Mean weight of the guided prior towards the mixture, relative to the mean diagonal of
+``A^T A`` (``spectral-prior-pcg``: 0.1 towards the guided filter); see the module docstring."""
+
+MIXTURE_PRIOR_WEIGHTING = "brightness"
+"""The guided prior weighs each pixel by its relative brightness (mean 1); see
+:func:`~.spectral_prior_pcg.prior_brightness` and the module docstring."""
 
 
 def mixture_prior_pcg(
@@ -78,12 +87,13 @@ def mixture_prior_pcg(
     callback: Callback | None = None,
     dtype: np.dtype | type = np.float32,
     ridge: float = DEFAULT_RIDGE,
-    prior: float = DEFAULT_PRIOR,
+    prior: float = MIXTURE_PRIOR,
     spectral_prior: float = DEFAULT_SPECTRAL_PRIOR,
     covariance_floor: float = DEFAULT_COVARIANCE_FLOOR,
     precondition: bool | str = True,
     projected_iterations: int = MIXTURE_PROJECTED_ITERATIONS,
     endmembers: Endmembers | None = None,
+    prior_weighting: str = MIXTURE_PRIOR_WEIGHTING,
 ) -> SolverResult:
     """Eq. 1 + guided prior + the endmember-mixture spectral prior, then ``S >= 0``.
 
@@ -93,7 +103,7 @@ def mixture_prior_pcg(
         Eq. 1 set up by :func:`~spectralize.nodes.reconstruction.operators.build_problem`
         with its inputs (:data:`SETUP_DEFAULTS`).
     initial, tolerance, max_iterations, callback, dtype, ridge, prior, spectral_prior, \
-covariance_floor, precondition, projected_iterations
+covariance_floor, precondition, projected_iterations, prior_weighting
         As for :func:`~.spectral_prior_pcg.spectral_prior_pcg`.
     endmembers
         The mixture's dictionary, learnt before: a set solved tile by tile learns it once
@@ -121,6 +131,7 @@ covariance_floor, precondition, projected_iterations
         precondition=precondition,
         projected_iterations=projected_iterations,
         endmembers=endmembers,
+        prior_weighting=prior_weighting,
     )
     return dataclasses.replace(
         result, method="mixture-prior-pcg", info={**result.info, "prior_source": "mixture"}

@@ -78,6 +78,9 @@ __all__ = [
     "DEFAULT_COVARIANCE_FLOOR",
     "DEFAULT_PRIOR_SOURCE",
     "MIN_BRIGHTNESS",
+    "MAX_BRIGHTNESS",
+    "PRIOR_WEIGHTINGS",
+    "prior_brightness",
 ]
 
 SETUP_DEFAULTS = dict(MATERIAL_SETUP_DEFAULTS)
@@ -99,6 +102,15 @@ DEFAULT_COVARIANCE_FLOOR = 1e-2
 
 MIN_BRIGHTNESS = 0.1
 """``b_min``: pixels darker than this fraction of their image's mean are weighted as this."""
+
+MAX_BRIGHTNESS = 10.0
+"""``b_max``: with ``prior_weighting="brightness"``, pixels brighter than this multiple of
+their image's mean weigh the guided prior as this (a highlight does not pin its pixel
+harder than a bright material)."""
+
+PRIOR_WEIGHTINGS = ("uniform", "brightness")
+"""How the guided prior's weight ``epsilon_p`` is spread over the pixels (see
+:func:`spectral_prior_pcg`)."""
 
 _CHUNK = 1 << 15
 """Pixels per chunk of the spectral prior's ``w_p Q S_p`` (bounds its temporary)."""
@@ -230,6 +242,17 @@ def spectral_prior_term(
     return SpectralPrior(precision, w, centre)
 
 
+def prior_brightness(rgb: np.ndarray) -> np.ndarray:
+    """Per pixel ``f_p = clip(b_p, b_min, b_max) / mean(...)``, ``(n_image, height, width)``:
+    the RGB brightness relative to its image's mean, clipped to
+    [:data:`MIN_BRIGHTNESS`, :data:`MAX_BRIGHTNESS`] and normalised to mean 1 over all
+    pixels (so ``prior`` keeps its meaning as the mean weight)."""
+    brightness = np.abs(np.asarray(rgb, dtype=np.float64).sum(axis=-1))
+    brightness /= np.maximum(brightness.mean(axis=(1, 2), keepdims=True), 1e-300)
+    np.clip(brightness, MIN_BRIGHTNESS, MAX_BRIGHTNESS, out=brightness)
+    return brightness / max(float(brightness.mean()), 1e-300)
+
+
 def _projected_refinement(
     operator, rhs: np.ndarray, scale: np.ndarray, x: np.ndarray, iterations: int
 ) -> np.ndarray:
@@ -276,12 +299,15 @@ def spectral_prior_pcg(
     precondition: bool | str = True,
     projected_iterations: int = DEFAULT_PROJECTED_ITERATIONS,
     endmembers: Endmembers | None = None,
+    prior_weighting: str = "uniform",
 ) -> SolverResult:
     """Eq. 1 (set up as ``material-prior-pcg``) + guided prior + spectral prior, then S >= 0.
 
-    Minimises eq. 1 ``+ epsilon_r ||S - S_start||^2 + epsilon_p M ||S - S_0||^2 + sum_p w_p
-    (S_p - m_p)^T Q (S_p - m_p)`` by block-Jacobi PCG (the spectral prior's diagonal in the
-    preconditioner), then refines on ``S >= 0``.
+    Minimises eq. 1 ``+ epsilon_r ||S - S_start||^2 + epsilon_p sum_p f_p M ||S_p -
+    S_0,p||^2 + sum_p w_p (S_p - m_p)^T Q (S_p - m_p)`` by block-Jacobi PCG (the priors'
+    diagonals in the preconditioner), then refines on ``S >= 0``; ``f_p`` is 1
+    (``prior_weighting="uniform"``) or the pixel's relative brightness
+    (:func:`prior_brightness`, ``"brightness"``).
 
     Parameters
     ----------
@@ -305,16 +331,39 @@ def spectral_prior_pcg(
         With ``prior_source="mixture"``: the mixture's dictionary, learnt before
         (:func:`~..estimators.endmember_mixture.set_endmembers`); None: learnt from the
         problem's inputs.
+    prior_weighting
+        One of :data:`PRIOR_WEIGHTINGS`: ``"brightness"`` weighs the guided prior of each
+        pixel by its relative brightness ``f_p`` (mean 1), so that it pins the bright
+        pixels, whose estimate ``S_0`` is accurate relative to their level, harder than
+        the dark ones, where eq. 1's neighbour term averages out more band noise than it
+        adds errors.
 
     Returns
     -------
     SolverResult
         ``method="spectral-prior-pcg"``; iterations count both stages.
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``prior_weighting``.
     """
     started = time.perf_counter()
+    if prior_weighting not in PRIOR_WEIGHTINGS:
+        raise ValueError(
+            f"prior_weighting: expected one of {PRIOR_WEIGHTINGS}, found {prior_weighting!r}"
+        )
     dtype = np.dtype(dtype)
     work = problem.astype(dtype)
-    relative: float | np.ndarray = ridge + prior * _prior_mask(problem)
+    guided = prior * _prior_mask(problem)  # epsilon_p M / mean(diag A^T A), (w, m, 1, 1)
+    brightness = None
+    if prior_weighting == "brightness" and prior > 0:
+        inputs = problem.extras.get("inputs")
+        if inputs is None:
+            raise ValueError("prior_weighting='brightness' needs a problem built from inputs")
+        brightness = prior_brightness(inputs.rgb).astype(dtype)
+        guided = guided.astype(dtype) * brightness[None]  # per pixel: one float32 cube
+    relative: float | np.ndarray = ridge + guided
     mean_diagonal = normal_mean_diagonal(work)
     term = None
     if spectral_prior > 0:
@@ -342,10 +391,29 @@ def spectral_prior_pcg(
     preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative, order=order)
     del relative
     # the ridges alone (without the spectral prior's diagonal), absolute
-    epsilon = ((ridge + prior * _prior_mask(problem)) * mean_diagonal).astype(dtype)
     towards = dtype.type(ridge * mean_diagonal)
     start = centre if initial is None else np.asarray(initial, dtype=dtype).reshape(work.shape)
-    rhs = work.normal_rhs() + towards * start + (epsilon - towards) * centre
+    rhs = work.normal_rhs() + towards * start
+    if brightness is None:  # + epsilon_p M S_0
+        rhs += (guided * mean_diagonal).astype(dtype) * centre
+    else:  # + epsilon_p f_p M S_0, in the per-pixel weights' cube
+        guided *= dtype.type(mean_diagonal)
+        guided *= centre
+        rhs += guided
+    del guided
+    pixel_prior = None
+    if brightness is None:  # uniform per (band, image): a ridge of the compiled operator
+        epsilon = ((ridge + prior * _prior_mask(problem)) * mean_diagonal).astype(dtype)
+    else:  # per pixel: epsilon_p f_p M, applied chunk by chunk beside ``w_p Q``
+        epsilon = np.asarray(ridge * mean_diagonal, dtype=dtype)
+        mask = _prior_mask(problem)[:, :, 0, 0].T * (prior * mean_diagonal)  # (m, w)
+        pixel_image = order.order // (problem.shape[2] * problem.shape[3])
+        pixel_prior = (
+            brightness.reshape(-1)[order.order].astype(dtype),
+            mask.astype(dtype),
+            pixel_image.astype(np.intp),
+        )
+        del brightness
     if term is not None:
         rhs += term.rhs()
     del centre
@@ -362,10 +430,14 @@ def spectral_prior_pcg(
     def operator(cube: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         out = q if out is None else out
         work.normal_pixels(cube, order=order, epsilon=epsilon, out=out)
-        if weight is not None:
+        if weight is not None or pixel_prior is not None:
             for first in range(0, cube.shape[0], _CHUNK):  # + w_p Q S_p, chunk by chunk
                 here = slice(first, first + _CHUNK)
-                out[here] += (cube[here] @ precision) * weight[here, None]
+                if weight is not None:
+                    out[here] += (cube[here] @ precision) * weight[here, None]
+                if pixel_prior is not None:  # + epsilon_p f_p M S_p
+                    f, mask, image = pixel_prior
+                    out[here] += cube[here] * (f[here, None] * mask[image[here]])
         return out
 
     rhs_norm = np.sqrt(COMPILED.dot(rhs, rhs)) or 1.0
@@ -426,6 +498,7 @@ def spectral_prior_pcg(
             "ridge": float(ridge),
             "prior": float(prior),
             "spectral_prior": float(spectral_prior) if weight is not None else 0.0,
+            "prior_weighting": prior_weighting,
             "projected_iterations": int(projected_iterations),
         },
     )

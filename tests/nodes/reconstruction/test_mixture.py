@@ -19,6 +19,7 @@ from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
     ABUNDANCE_RIDGE,
     SAMPLE_PIXELS,
     Endmembers,
+    band_noise_sigma,
     chromaticity,
     neighbourhood_candidates,
     rgb_abundances,
@@ -239,3 +240,25 @@ def test_endmembers_on_other_wavelengths_are_an_error_naming_them():
         endmember_mixture(inputs, endmembers=short)
     with pytest.raises(ReconstructionError, match="only the 'mixture' prior source"):
         reconstruct(rgb, bands, c, method="spectral-prior-pcg", endmembers=endmembers)
+
+
+def test_band_noise_sigma_is_the_noise_and_not_the_texture():
+    """Fine texture (a new material and shading every pixel) is in the RGB too; the band
+    noise is not: the estimate is the noise, where the high-pass part alone is not."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(12)
+    size, sigma = 64, 0.02
+    spectra = smooth_spectra(rng, WAVELENGTH, 4)
+    share = rng.dirichlet(np.ones(4), size=(size, size))  # sub-pixel mixing, every pixel
+    shade = rng.uniform(0.2, 1.8, size=(size, size))
+    truth = (np.einsum("yxj,jw->wyx", share, spectra) * shade)[None]
+    rgb, bands, c = _arrays(truth, [0])
+    noisy = bands.copy(
+        data=bands.values + rng.normal(scale=sigma, size=bands.shape).astype(np.float32)
+    )
+    estimate = band_noise_sigma(inputs_from_xarray(rgb, noisy, c))
+    np.testing.assert_allclose(estimate, sigma, rtol=0.12)
+    plane = noisy.values[5].astype(np.float64)
+    high_pass = np.sqrt(np.var(plane - ndimage.uniform_filter(plane, 3)) * 9 / 8)
+    assert high_pass > 1.5 * sigma  # the texture is there to be mistaken for noise

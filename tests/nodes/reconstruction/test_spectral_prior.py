@@ -13,8 +13,12 @@ from spectralize.nodes.reconstruction import (
     reconstruct,
 )
 from spectralize.nodes.reconstruction.solvers import BlockJacobiPreconditioner
+from spectralize.nodes.reconstruction.solvers.block_jacobi_pcg import guided_initial
 from spectralize.nodes.reconstruction.solvers.spectral_prior_pcg import (
+    MAX_BRIGHTNESS,
+    MIN_BRIGHTNESS,
     SETUP_DEFAULTS,
+    prior_brightness,
     spectral_prior_pcg,
     spectral_prior_term,
 )
@@ -82,6 +86,67 @@ def test_solution_solves_the_regularised_normal_equations():
         problem, tolerance=1e-10, max_iterations=5000, spectral_prior=0.0, **options
     )
     assert np.abs(plain.cube - x).max() > 1e-3 * np.abs(x).max()
+
+
+def test_brightness_weighted_prior_solves_its_normal_equations():
+    """``(A^T A + epsilon_p f_p M) S = A^T b + epsilon_p f_p M S_0`` with ``f_p`` the
+    pixel's relative brightness: the per-pixel term, its right-hand side and its place in
+    the preconditioner are those of one energy."""
+    (rgb, _, _), problem = _problem(_mixed_truth(5), [0], noise=0.05)
+    prior = 0.5
+    result = spectral_prior_pcg(
+        problem,
+        tolerance=1e-10,
+        max_iterations=5000,
+        dtype=np.float64,
+        ridge=0.0,
+        prior=prior,
+        spectral_prior=0.0,
+        projected_iterations=0,
+        prior_weighting="brightness",
+    )
+    mean_diagonal = BlockJacobiPreconditioner(problem, np.float64).mean_diagonal
+    weight = prior * mean_diagonal * prior_brightness(rgb.values)[None]  # every band has a shot
+    centre = guided_initial(problem)
+    x = result.cube
+    rhs = problem.normal_rhs() + weight * centre
+    residual = problem.normal(x) + weight * x - rhs
+    assert np.linalg.norm(residual) / np.linalg.norm(rhs) < 1e-7
+    uniform = spectral_prior_pcg(
+        problem,
+        tolerance=1e-10,
+        max_iterations=5000,
+        dtype=np.float64,
+        ridge=0.0,
+        prior=prior,
+        spectral_prior=0.0,
+        projected_iterations=0,
+    )
+    # the brightest pixels are held closer to the centre than with a uniform weight
+    brightness = prior_brightness(rgb.values).ravel()
+    bright = brightness >= np.quantile(brightness, 0.9)
+    moved = {
+        name: np.abs(cube - centre).reshape(problem.shape[0], -1)[:, bright].mean()
+        for name, cube in (("brightness", x), ("uniform", uniform.cube))
+    }
+    assert moved["brightness"] < 0.9 * moved["uniform"]
+    with pytest.raises(ValueError, match="prior_weighting: expected one of"):
+        spectral_prior_pcg(problem, prior_weighting="luminance")
+
+
+def test_prior_brightness_has_mean_one_and_is_clipped():
+    rgb = np.ones((2, 4, 4, 3))
+    rgb[0, 0, 0] = 1000.0  # a highlight
+    rgb[1, 1:, :] = 1e-6  # a dark region
+    f = prior_brightness(rgb)
+    assert f.mean() == pytest.approx(1.0)
+    relative = rgb.sum(axis=-1) / rgb.sum(axis=-1).mean(axis=(1, 2), keepdims=True)
+    ratio = f / np.clip(relative, MIN_BRIGHTNESS, MAX_BRIGHTNESS)
+    np.testing.assert_allclose(ratio, ratio.flat[0])  # one normalisation for all pixels
+    # the highlight is held as a pixel MAX_BRIGHTNESS x its image's mean, the rest of its
+    # image (at 0.016 x the mean) as MIN_BRIGHTNESS x
+    assert relative[0, 0, 0] > MAX_BRIGHTNESS and relative[0, 1, 1] < MIN_BRIGHTNESS
+    assert f[0, 0, 0] / f[0, 1, 1] == pytest.approx(MAX_BRIGHTNESS / MIN_BRIGHTNESS)
 
 
 def test_exact_recovery_when_the_constraints_determine_the_answer():
