@@ -394,26 +394,24 @@ def spectral_prior_pcg(
     towards = dtype.type(ridge * mean_diagonal)
     start = centre if initial is None else np.asarray(initial, dtype=dtype).reshape(work.shape)
     rhs = work.normal_rhs() + towards * start
-    if brightness is None:  # + epsilon_p M S_0
-        rhs += (guided * mean_diagonal).astype(dtype) * centre
-    else:  # + epsilon_p f_p M S_0, in the per-pixel weights' cube
-        guided *= dtype.type(mean_diagonal)
-        guided *= centre
-        rhs += guided
-    del guided
+    mask = _prior_mask(problem)  # (w, m, 1, 1)
     pixel_prior = None
     if brightness is None:  # uniform per (band, image): a ridge of the compiled operator
-        epsilon = ((ridge + prior * _prior_mask(problem)) * mean_diagonal).astype(dtype)
+        epsilon = ((ridge + prior * mask) * mean_diagonal).astype(dtype)
+        rhs += (guided * mean_diagonal).astype(dtype) * centre  # + epsilon_p M S_0
     else:  # per pixel: epsilon_p f_p M, applied chunk by chunk beside ``w_p Q``
         epsilon = np.asarray(ridge * mean_diagonal, dtype=dtype)
-        mask = _prior_mask(problem)[:, :, 0, 0].T * (prior * mean_diagonal)  # (m, w)
+        guided *= dtype.type(mean_diagonal)  # + epsilon_p f_p M S_0, in the weights' cube
+        guided *= centre
+        rhs += guided
         pixel_image = order.order // (problem.shape[2] * problem.shape[3])
         pixel_prior = (
-            brightness.reshape(-1)[order.order].astype(dtype),
-            mask.astype(dtype),
-            pixel_image.astype(np.intp),
+            brightness.reshape(-1)[order.order],
+            (mask[:, :, 0, 0].T * (prior * mean_diagonal)).astype(dtype),  # (m, w)
+            pixel_image,
         )
         del brightness
+    del guided
     if term is not None:
         rhs += term.rhs()
     del centre

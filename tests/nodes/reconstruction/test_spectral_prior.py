@@ -94,17 +94,16 @@ def test_brightness_weighted_prior_solves_its_normal_equations():
     the preconditioner are those of one energy."""
     (rgb, _, _), problem = _problem(_mixed_truth(5), [0], noise=0.05)
     prior = 0.5
-    result = spectral_prior_pcg(
-        problem,
-        tolerance=1e-10,
-        max_iterations=5000,
-        dtype=np.float64,
-        ridge=0.0,
-        prior=prior,
-        spectral_prior=0.0,
-        projected_iterations=0,
-        prior_weighting="brightness",
-    )
+    exact = {
+        "tolerance": 1e-10,
+        "max_iterations": 5000,
+        "dtype": np.float64,
+        "ridge": 0.0,
+        "prior": prior,
+        "spectral_prior": 0.0,
+        "projected_iterations": 0,
+    }
+    result = spectral_prior_pcg(problem, prior_weighting="brightness", **exact)
     mean_diagonal = BlockJacobiPreconditioner(problem, np.float64).mean_diagonal
     weight = prior * mean_diagonal * prior_brightness(rgb.values)[None]  # every band has a shot
     centre = guided_initial(problem)
@@ -112,16 +111,7 @@ def test_brightness_weighted_prior_solves_its_normal_equations():
     rhs = problem.normal_rhs() + weight * centre
     residual = problem.normal(x) + weight * x - rhs
     assert np.linalg.norm(residual) / np.linalg.norm(rhs) < 1e-7
-    uniform = spectral_prior_pcg(
-        problem,
-        tolerance=1e-10,
-        max_iterations=5000,
-        dtype=np.float64,
-        ridge=0.0,
-        prior=prior,
-        spectral_prior=0.0,
-        projected_iterations=0,
-    )
+    uniform = spectral_prior_pcg(problem, **exact)
     # the brightest pixels are held closer to the centre than with a uniform weight
     brightness = prior_brightness(rgb.values).ravel()
     bright = brightness >= np.quantile(brightness, 0.9)
