@@ -1,0 +1,655 @@
+"""Writes ``docs/benchmarks.md`` from the benchmarks' JSON in ``benchmarks/results/``.
+
+Run from the repository root after a benchmark has written its JSON::
+
+    .venv/bin/python benchmarks/results_page.py            # rewrite docs/benchmarks.md
+    .venv/bin/python benchmarks/results_page.py --check    # exit 1 if the page is stale
+
+Every figure on the page comes from a JSON file; what a JSON cannot say (why a target is
+missed, what was tried) is written by hand in ``docs/benchmarks_notes.md``, one ``## <name>``
+section per benchmark, and placed under that benchmark's tables. A test
+(``tests/benchmarks/test_results_page.py``) keeps the committed page equal to this script's
+output, so the page never goes stale. Standard library only: nothing is run or imported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+NOTES = ROOT / "docs" / "benchmarks_notes.md"
+PAGE = ROOT / "docs" / "benchmarks.md"
+
+Json = dict[str, Any]
+
+
+# --- formatting ----------------------------------------------------------------------------
+
+
+def num(value: Any, digits: int = 3) -> str:
+    """A figure as the page prints it: ``digits`` significant digits, ``-`` for none."""
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if abs(value) >= 10 ** (digits - 1):
+            return f"{value:.0f}"
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def pct(value: float | None) -> str:
+    """A fraction as a percentage with one decimal."""
+    return "-" if value is None else f"{num(100 * value)} %"
+
+
+def pair(stats: Json | None, first: str = "median", second: str = "p95") -> str:
+    """``median / p95`` of a statistics record."""
+    if not stats:
+        return "-"
+    return f"{num(stats.get(first))} / {num(stats.get(second))}"
+
+
+def table(headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A markdown table; cells that are not strings go through :func:`num`."""
+    lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+    for row in rows:
+        lines.append("| " + " | ".join(c if isinstance(c, str) else num(c) for c in row) + " |")
+    return "\n".join(lines)
+
+
+def verdict(value: Any) -> str:
+    """A target's outcome: ``met``/``not met``, per key where the JSON has several."""
+    if isinstance(value, dict):
+        return ", ".join(f"{key}: {verdict(v)}" for key, v in value.items())
+    return "met" if value else "not met"
+
+
+def provenance(data: Json, name: str) -> str:
+    """Which commit and date the JSON records, and on what machine."""
+    parts = []
+    if data.get("commit"):
+        parts.append(f"commit `{data['commit']}`")
+    if data.get("date"):
+        parts.append(data["date"])
+    machine = data.get("machine") or {}
+    cores = machine.get("cpu_count") or data.get("cpu_count") or data.get("cores_measured")
+    if cores:
+        parts.append(f"{cores} cores")
+    if machine.get("python"):
+        parts.append(f"Python {machine['python']}")
+    recorded = ", ".join(parts) if parts else "no commit or date recorded"
+    return f"JSON: `benchmarks/results/{name}.json` ({recorded})."
+
+
+# --- one section per JSON ------------------------------------------------------------------
+
+
+def reconstruction(data: Json) -> list[str]:
+    targets = data["targets"]
+    out = [
+        f"Every hard scene x seeds {data['seeds']} x every method, on the same captures: single "
+        f"images {data['sizes']['single']}^2 with all 32 band shots, and sets of "
+        f"{data['sizes']['set']} (half the images with band shots). Per-pixel nRMSE (RMSE over "
+        "bands / the image's mean truth, paper Fig. 5); each cell is the worse of the seeds: "
+        f"median / p95. Default method: `{data['default_method']}`.",
+    ]
+    for mode, title in (("single", "Single images"), ("set", "Sets")):
+        scenes = data["summary"][mode]
+        names = list(scenes)
+        methods = list(next(iter(scenes.values()))["solvers"])
+        rows = [[f"`{m}`"] + [pair(scenes[s]["solvers"].get(m)) for s in names] for m in methods]
+        rows.append(
+            ["best baseline"]
+            + [
+                f"{num(scenes[s]['best_baseline_median']['value'])} "
+                f"({scenes[s]['best_baseline_median']['method']}) / "
+                f"{num(scenes[s]['best_baseline_p95']['value'])} "
+                f"({scenes[s]['best_baseline_p95']['method']})"
+                for s in names
+            ]
+        )
+        rows.append(
+            ["default: pixels < 0.03"]
+            + [pct(scenes[s]["default"]["fraction_under_0.03"]) for s in names]
+        )
+        rows.append(
+            ["default vs best baseline (median, p95)"]
+            + [
+                f"{num(scenes[s]['median_gain_vs_best_baseline'])}x, "
+                f"{num(scenes[s]['p95_gain_vs_best_baseline'])}x"
+                for s in names
+            ]
+        )
+        if mode == "set":
+            rows.append(
+                ["default with / without band shots (median)"]
+                + [
+                    f"{num(scenes[s]['default_with_bands']['median'])} / "
+                    f"{num(scenes[s]['default_without_bands']['median'])}"
+                    for s in names
+                ]
+            )
+        out += [f"**{title}** (median / p95 nRMSE)", table(["method"] + names, rows)]
+    target_rows = []
+    for mode in ("single", "set"):
+        for scene, summary in data["summary"][mode].items():
+            met = [k for k, v in summary["targets"].items() if v]
+            missed = [k for k, v in summary["targets"].items() if not v]
+            target_rows.append([f"{scene}, {mode}", ", ".join(met) or "-", ", ".join(missed) or "-"])
+    out += [
+        "**Targets** (" + ", ".join(f"`{k}` {num(v)}" for k, v in targets.items()) + ")",
+        table(["case", "met", "not met"], target_rows),
+    ]
+    rank = {}
+    for case in data["cases"]:
+        value = case["methods"][data["default_method"]].get("confidence_rank_correlation")
+        mode = "single" if case["n_images"] == 1 else "set"
+        rank.setdefault(mode, []).append(value)
+    if rank:
+        out.append(
+            "Confidence of the default (Spearman rank correlation with its per-pixel error, over "
+            "scenes and seeds): "
+            + "; ".join(f"{mode} {num(min(v))} to {num(max(v))}" for mode, v in rank.items())
+            + ". Every case's figures for every method, baselines included, are in the JSON "
+            "(`cases`)."
+        )
+    if data.get("note_paper_cg_sets"):
+        out.append(f"Note from the JSON: {data['note_paper_cg_sets']}.")
+    return out
+
+
+def reconstruction_legacy(data: Json) -> list[str]:
+    comparison = data["comparison"]
+    scene = comparison["scene"]
+    methods = sorted(comparison["methods"].items(), key=lambda item: item[1]["median"])
+    out = [
+        f"The earlier single scene: one simulated {scene['size']}^2 x 32 capture at the paper's "
+        "exposure plan (3 DN band noise, specular highlights), every method on the same data. "
+        f"Default method: `{data['default_method']}`.",
+        table(
+            [
+                "method",
+                "kind",
+                "median",
+                "p95",
+                "p99",
+                "pixels < 0.03",
+                "wall s",
+                "iterations",
+                "traced MB",
+            ],
+            (
+                [
+                    f"`{name}`",
+                    m.get("kind", "-"),
+                    m["median"],
+                    m["p95"],
+                    m["p99"],
+                    pct(m["fraction_under_0.03"]),
+                    m["wall_s"],
+                    m.get("iterations") or "-",
+                    m.get("peak_traced_mb"),
+                ]
+                for name, m in methods
+            ),
+        ),
+    ]
+    noise_free = comparison.get("default_on_noise_free_bands")
+    if noise_free:
+        out.append(f"The default on noise-free band shots: median {num(noise_free['median'])}.")
+    timing = comparison.get("time_to_equal_accuracy")
+    if timing:
+        out.append(
+            "Time to the paper CG's final median nRMSE: default "
+            f"{num(timing['default_seconds_to_target'])} s, paper CG "
+            f"{num(timing['paper_cg_seconds_to_target'])} s "
+            f"({num(timing['speedup_time_to_equal_accuracy'])}x)."
+        )
+    out += [
+        "**Scaling** (fresh processes, default method)",
+        table(
+            ["size", "images", "median", "wall s", "iterations", "peak RSS MB"],
+            (
+                [
+                    f"{s['size']}^2",
+                    s["n_images"],
+                    s["median"],
+                    s["wall_s"],
+                    s["iterations"],
+                    s["peak_rss_mb"],
+                ]
+                for s in data["scaling"]
+            ),
+        ),
+    ]
+    ablation = comparison.get("ablation")
+    if ablation:
+        steps = [(k, v) for k, v in ablation.items() if isinstance(v, dict)]
+        out += [
+            f"**Ablation of eq. 1's solver** ({ablation['size']}^2, time to median nRMSE "
+            f"{num(ablation['target_median_nrmse'])})",
+            table(
+                ["step", "s to target", "iterations to target", "final median"],
+                (
+                    [k, v["seconds_to_target"], v["iterations_to_target"], v["final_median_nrmse"]]
+                    for k, v in steps
+                ),
+            ),
+        ]
+    sensitivity = comparison.get("weight_sensitivity")
+    if sensitivity:
+        rows = [
+            [k, v["median"], v["p95"], pct(v["fraction_under_0.03"])]
+            for k, v in sensitivity.items()
+            if isinstance(v, dict)
+        ]
+        out += [
+            f"**Weight sensitivity of eq. 1** ({sensitivity['size']}^2)",
+            table(["weights", "median", "p95", "pixels < 0.03"], rows),
+        ]
+    return out
+
+
+def reconstruction_oracle(data: Json) -> list[str]:
+    return [
+        f"What the hard scenes allow ({data['size']}^2, seed 0): each scene's truth rebuilt as a "
+        "non-negative mixture of its *true* endmembers, weighted by the noisy RGB alone. "
+        "`present`: each pixel mixes the materials it truly holds (an oracle); `nearest-3`: the "
+        "three endmembers nearest in chromaticity, as the endmember-mixture estimator chooses.",
+        table(
+            [
+                "scene",
+                "materials",
+                "per pixel (median)",
+                "present: median / p95",
+                "nearest-3: median / p95",
+            ],
+            (
+                [
+                    s,
+                    v["materials"],
+                    v["materials_per_pixel_median"],
+                    pair(v["present"]),
+                    pair(v["nearest-3"]),
+                ]
+                for s, v in data["scenes"].items()
+            ),
+        ),
+    ]
+
+
+def calibration(data: Json) -> list[str]:
+    setup = data["setup"]
+    rows = []
+    for name, m in data["methods"].items():
+        error = m.get("response_error") or {}
+        hdr = m.get("hdr_error") or {}
+
+        def med_max(part: str, error: Json = error) -> str:
+            e = error.get(part)
+            return "-" if not e else f"{pct(e['median'])} / {pct(e['max'])}"
+
+        rows.append(
+            [
+                f"`{name}`",
+                med_max("whole_range"),
+                med_max("lowest_5pct"),
+                med_max("upper_95pct"),
+                pct(hdr.get("median")) if hdr else "-",
+                m.get("calibrate_seconds"),
+            ]
+        )
+    out = [
+        f"Radiometric calibration at the noise floor: one simulated camera ({setup['pixels']} px, "
+        f"{setup['bit_depth']} bit, read noise {num(setup['read_noise_dn'])} DN, "
+        f"{setup['true_oecf']}), an RGB exposure series and a low-SNR series with "
+        f"{setup['dark_frames']} dark frames; OpenCV and colour-hdri get the series shifted to "
+        "8 bit (all they accept). Response error `|s f / f_true - 1|` with one scale per method.",
+        table(
+            [
+                "method",
+                "response error, whole range: median / max",
+                "lowest 5 %",
+                "upper 95 %",
+                "HDR median error",
+                "calibrate s",
+            ],
+            rows,
+        ),
+    ]
+    snr = data["methods"].get("spectralize_low_snr_extension", {}).get("at_snr_le_1")
+    if snr:
+        levels = list(snr["extension"])
+        out += [
+            "**Response error near the dark level** (DN above dark)",
+            table(
+                ["method"] + [level.replace("_dn", " DN") for level in levels],
+                [[k] + [pct(v[level]) for level in levels] for k, v in snr.items()],
+            ),
+        ]
+    race = data["methods"].get("opencv_robertson", {}).get("race")
+    if race:
+        out += [
+            f"**Race** ({race.get('note', '')}, seconds)",
+            table(
+                ["run", "best", "median"],
+                ([k, v["min"], v["median"]] for k, v in race.items() if isinstance(v, dict)),
+            ),
+        ]
+    out += [
+        "**Targets**",
+        table(["target", "met"], ([k, verdict(v)] for k, v in data["targets_met"].items())),
+    ]
+    return out
+
+
+def btf_flow(data: Json) -> list[str]:
+    recipe = data["recipe"]
+    iterations = data["iterations"]
+    warm = list(iterations["warm_start"].values())
+    cold = list(iterations["cold_start"].values())
+    throughput = data["throughput"]
+    out = [
+        f"The whole `btf` flow as one Prefect run on the `{recipe['recipe']}` recipe "
+        f"({data['images']} images of {data['image_size'][0]} x {data['image_size'][1]} px, "
+        f"{data['sets']} image sets), simulation included.",
+        table(
+            ["measure", "value"],
+            [
+                ["flow wall time", f"{num(data['flow_seconds'])} s"],
+                ["processing per image", f"{num(data['processing_seconds_per_image'])} s"],
+                [
+                    "iterations per set, warm start / cold",
+                    f"{min(warm)}-{max(warm)} / {min(cold)}-{max(cold)}",
+                ],
+                ["iterations saved by the warm start", pct(iterations["mean_saved_fraction"])],
+                [
+                    "all sets, 1 / 2 dask workers",
+                    f"{num(throughput['1_workers']['seconds'])} s / "
+                    f"{num(throughput['2_workers']['seconds'])} s "
+                    f"({num(data['speedup_2_vs_1_workers'])}x)",
+                ],
+                ["peak memory of the process", f"{num(data['peak_rss_mb'])} MB"],
+            ],
+        ),
+        "**Node wall times** (s)",
+        table(["node", "s"], ([f"`{k}`", v] for k, v in data["node_seconds"].items())),
+        "**Accuracy against the truth** (paper Fig. 7)",
+        table(
+            ["images", "median nRMSE", "p95", "pixels < 0.03"],
+            (
+                [k.replace("_", " "), v["median_nrmse"], v["p95_nrmse"], pct(v["fraction_under_0.03"])]
+                for k, v in data["accuracy"].items()
+            ),
+        ),
+    ]
+    return out
+
+
+def paper_scale(data: Json) -> list[str]:
+    summary = data["summary"]
+    untiled = data["untiled"]
+    today = data["today"]
+    sizes = data["sizes"]
+    first = next(iter(sizes.values()))
+    out = [
+        f"{data['set']} of the `{data['scene']}` hard scene, method `{first['method']}`, solved tile "
+        f"by tile ({first['tile']} px cores, {first['halo']} px halo), two tiles at a time on "
+        f"{first['threads']} threads; inputs above 512^2 are the 512^2 capture mirrored up and read "
+        f"per tile from memory-mapped files; {first['tiles_solved']} interior tiles solved per size, "
+        "the set's time extrapolated.",
+        table(
+            ["size", "s per Mpx-image", "peak RSS GB", "iterations per tile", "set s (extrapolated)"],
+            (
+                [
+                    f"{k}^2",
+                    v["seconds_per_mpx_image"],
+                    v["peak_rss_gb"],
+                    "-".join(str(i) for i in sorted(set(v["iterations"]))),
+                    v["set_seconds_extrapolated"],
+                ]
+                for k, v in sizes.items()
+            ),
+        ),
+        f"**Side by side on one 20 x {untiled['size']}^2 set** (same inputs, one run)",
+        table(
+            ["solve", "wall s", "s per Mpx-image", "median / p95 nRMSE"],
+            [
+                [
+                    "the solver before the paper-scale work, whole set",
+                    today["wall_s"],
+                    summary["today_seconds_per_mpx_image"],
+                    pair(today),
+                ],
+                [
+                    "the default, whole set",
+                    untiled["untiled_s"],
+                    summary["untiled_seconds_per_mpx_image"],
+                    pair(untiled["accuracy"]["untiled"]),
+                ],
+                [
+                    f"the default, tiled ({untiled['tile']} px cores)",
+                    untiled["tiled_s"],
+                    summary["tiled_seconds_per_mpx_image_small"],
+                    pair(untiled["accuracy"]["tiled"]),
+                ],
+            ],
+        ),
+        table(
+            ["measure", "value"],
+            [
+                [
+                    "tiled / untiled nRMSE (median, p95)",
+                    f"{num(summary['tiled_vs_untiled_nrmse_ratio']['median'], 4)}, "
+                    f"{num(summary['tiled_vs_untiled_nrmse_ratio']['p95'], 4)}",
+                ],
+                [
+                    "error near tile borders / tile interiors (tiled, untiled)",
+                    f"{num(untiled['seam_median_border_vs_interior'])}, "
+                    f"{num(untiled['untiled_median_border_vs_interior'])}",
+                ],
+                ["speed-up over the earlier solver (tiled)", f"{num(summary['speedup_vs_today'])}x"],
+                [
+                    "dask workers: wall s",
+                    ", ".join(
+                        f"{d['workers']}: {num(d['wall_s'])} s ({d['sets']} sets, {d['tiles']} tiles)"
+                        for d in data["dask"]
+                    ),
+                ],
+                ["2 workers vs 1", f"{num(summary['dask_speedup_2_workers'])}x"],
+                [
+                    "full run on 100 cores, extrapolated",
+                    f"{num(summary['full_run_hours_at_100_cores'])} h",
+                ],
+            ],
+        ),
+        "**Targets**",
+        table(["target", "met"], ([k, verdict(v)] for k, v in summary["targets"].items())),
+    ]
+    return out
+
+
+def paper_scale_2048_rerun(data: Json) -> list[str]:
+    rows = [
+        [
+            f"`{name}`",
+            v["seconds_per_mpx_image"],
+            v["peak_rss_gb"],
+            "-".join(str(i) for i in sorted(set(v["iterations"]))),
+        ]
+        for name, v in data.items()
+        if isinstance(v, dict)
+    ]
+    return [
+        "The 2048^2 throughput row of `paper_scale.py` for one method at a time "
+        "(`benchmarks/paper_scale_default.py --method NAME`), merged by method.",
+        table(["method", "s per Mpx-image", "peak RSS GB", "iterations per tile"], rows),
+        f"Note from the JSON: {data['note']}",
+    ]
+
+
+def paper_slice(data: Json) -> list[str]:
+    return [
+        f"The paper recipe at {data['size']}^2 through every node of the `btf` flow (a real Prefect "
+        f"run on a zarr store on disk): {data['images']} images, {data['images_with_bands']} with "
+        f"the band shots of one sweep, {data['sets']} set, {data['dark_frames_per_exposure']} dark "
+        "frames per exposure time, in one fresh process.",
+        table(
+            ["measure", "value"],
+            [
+                ["wall time, all nodes", f"{num(data['wall_s'])} s"],
+                ["after the simulation", f"{num(data['processing_s'])} s"],
+                ["processing per Mpx-image", f"{num(data['processing_seconds_per_mpx_image'])} s"],
+                ["peak resident set", f"{num(data['peak_rss_gb'])} GB"],
+                ["store on disk", f"{num(data['store_gb'])} GB"],
+                ["full run on 100 cores, extrapolated", f"{num(data['full_run_hours_at_100_cores'])} h"],
+            ],
+        ),
+        table(["node", "s"], ([f"`{k}`", v] for k, v in data["node_seconds"].items())),
+        table(
+            ["images", "median / p95 nRMSE"],
+            ([k.replace("_", " "), pair(v)] for k, v in data["accuracy"].items()),
+        ),
+    ]
+
+
+def cli(data: Json) -> list[str]:
+    labels = {
+        "python_start_s": "`python -c pass` (the interpreter alone)",
+        "help_s": "`spectralize --help`",
+        "version_s": "`spectralize --version`",
+        "nodes_s": "`spectralize nodes` (cached listing)",
+        "nodes_uncached_s": "`spectralize nodes --refresh` (loads every node)",
+    }
+    return [
+        f"Median wall time of {data['repeat']} fresh processes per command; target under "
+        f"{num(data['target_s'])} s for `--help`, `--version` and `nodes` (met: {num(data['met'])}).",
+        table(["command", "s"], ([label, data[key]] for key, label in labels.items() if key in data)),
+    ]
+
+
+Section = tuple[str, str, str, Callable[[Json], list[str]]]
+SECTIONS: tuple[Section, ...] = (
+    (
+        "reconstruction",
+        "Reconstruction on the hard scenes",
+        "python benchmarks/reconstruction.py",
+        reconstruction,
+    ),
+    (
+        "reconstruction_oracle",
+        "What the hard scenes allow",
+        "python benchmarks/reconstruction_oracle.py",
+        reconstruction_oracle,
+    ),
+    (
+        "reconstruction_legacy",
+        "Reconstruction on the earlier scene",
+        "python benchmarks/reconstruction.py --legacy",
+        reconstruction_legacy,
+    ),
+    ("calibration", "Calibration (paper section 4)", "python benchmarks/calibration.py", calibration),
+    ("btf_flow", "The whole BTF flow on the demo run", "python benchmarks/btf_flow.py", btf_flow),
+    (
+        "paper_scale",
+        "Paper scale: tiled set reconstruction",
+        "python benchmarks/paper_scale.py",
+        paper_scale,
+    ),
+    (
+        "paper_scale_2048_rerun",
+        "Paper scale: 2048^2 per method",
+        "python benchmarks/paper_scale_default.py",
+        paper_scale_2048_rerun,
+    ),
+    (
+        "paper_slice",
+        "Paper-scale slice through the whole flow",
+        "python benchmarks/paper_slice.py",
+        paper_slice,
+    ),
+    ("cli", "Command line start-up", "python benchmarks/cli.py", cli),
+)
+"""(JSON name, title, command, renderer), in page order."""
+
+
+def read_notes(path: Path = NOTES) -> dict[str, str]:
+    """The hand-written ``## <name>`` sections of the notes file, by benchmark name."""
+    if not path.exists():
+        return {}
+    notes: dict[str, list[str]] = {}
+    current = None
+    for line in path.read_text().splitlines():
+        if line.startswith("## "):
+            current = line[3:].strip()
+            notes[current] = []
+        elif current is not None:
+            notes[current].append(line)
+    known = {name for name, *_ in SECTIONS}
+    unknown = sorted(set(notes) - known)
+    if unknown:
+        raise SystemExit(f"{path}: sections {unknown} name no benchmark; known: {sorted(known)}")
+    return {name: "\n".join(lines).strip() for name, lines in notes.items()}
+
+
+def render(results: Path = RESULTS, notes_path: Path = NOTES) -> str:
+    """The whole page, from the JSON files in ``results`` and the notes file."""
+    notes = read_notes(notes_path)
+    names = {path.stem for path in results.glob("*.json")}
+    unused = sorted(names - {name for name, *_ in SECTIONS})
+    if unused:
+        raise SystemExit(f"{results}: {unused} have no section in benchmarks/results_page.py")
+    parts = [
+        "# Benchmarks",
+        "<!-- Generated by benchmarks/results_page.py from benchmarks/results/*.json and "
+        "docs/benchmarks_notes.md; do not edit by hand. -->",
+        "Every figure below is read from the JSON a benchmark wrote into `benchmarks/results/`; "
+        "the prose under *Findings* is hand-written (`docs/benchmarks_notes.md`). Times are from "
+        "the machine named with each JSON, shared with other work while measuring, so they are "
+        "upper bounds. To refresh: run the benchmark, then `python benchmarks/results_page.py`.",
+        "\n".join(f"- [{title}](#{anchor(title)})" for name, title, _, _ in SECTIONS if name in names),
+    ]
+    for name, title, command, renderer in SECTIONS:
+        if name not in names:
+            continue
+        data = json.loads((results / f"{name}.json").read_text())
+        parts += [f"## {title}", f"Run: `{command}`. {provenance(data, name)}"]
+        parts += renderer(data)
+        if notes.get(name):
+            parts += ["**Findings**", notes[name]]
+    return "\n\n".join(parts) + "\n"
+
+
+def anchor(title: str) -> str:
+    """GitHub's anchor of a heading."""
+    kept = "".join(c for c in title.lower() if c.isalnum() or c in " -_")
+    return kept.replace(" ", "-")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 if docs/benchmarks.md is stale")
+    args = parser.parse_args(argv)
+    page = render()
+    if args.check:
+        if not PAGE.exists() or PAGE.read_text() != page:
+            print(f"{PAGE.relative_to(ROOT)} is stale: run python benchmarks/results_page.py")
+            return 1
+        return 0
+    PAGE.write_text(page)
+    print(f"wrote {PAGE.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
