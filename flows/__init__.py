@@ -1,9 +1,9 @@
 """spectralize.flows: orchestration only. Prefect flows that wire nodes against a run store.
 
 Prefect's embedded local API (SQLite) is the default; no server needs to be started.
-The environment defaults below are set before Prefect is imported (see ../shared/STACK.md):
-a new Prefect database can take longer than Prefect's 20 s start-up limit, and the
-embedded server's analytics cause 'database is locked' errors.
+The environment defaults below are set before Prefect is imported: a new Prefect database
+can take longer than Prefect's 20 s start-up limit, and the embedded server's analytics cause
+'database is locked' errors.
 
 Nothing is imported eagerly: ``spectralize --help`` and ``spectralize nodes`` answer without
 Prefect (imported by :mod:`.runtime`, when a flow runs) and without the engine's science

@@ -470,10 +470,10 @@ def cross_validated_smoothness(
     one left out; the score is the mean over patches of ``|C s_p - R_p|^2 / |R_p|^2``
     (leave-one-out cross-validation). A chart's smooth spectra, under an illuminant with a
     narrow peak, leave many ``C`` that reproduce every patch: the fit alone cannot tell a
-    sensitivity that peaks at 600 nm from one that puts its weight where the light is weak
-    (measured on a foreign capture: shape error of ``C`` 0.74 / 0.53 / 0.69 per channel at
-    a fixed smoothness of 1e-3, 0.11 / 0.08 / 0.18 at the cross-validated 1.0). A patch left
-    out is the test the fit has to pass.
+    sensitivity that peaks at 600 nm from one that puts its weight where the light is weak,
+    and a fixed smoothness that suits one chart and light gives a wrongly shaped ``C`` on
+    another. A patch left out is the test the fit has to pass
+    (``tests/flows/test_foreign_capture.py`` checks the shape of ``C`` on a foreign capture).
 
     Parameters
     ----------

@@ -57,11 +57,10 @@ LOW_SNR_TRUNCATE: float = 2.5
 """Gaussian support of the low-SNR extension in sigmas: kernel radius ``s / 2``.
 
 Deliberately shorter than the reconstruction's ``FILTER_TRUNCATE = 5`` (radius ``s``,
-:mod:`spectralize.nodes.filter_size`); the same ``sigma = s / 5`` either way. Measured with
-``benchmarks/calibration.py`` (512 px, filter size 40, one seed): with 5 sigmas the combined
-response's largest error over the whole range grows from 0.47 % to 0.62 % (the 0.5 % target
-fails) and the median over the lowest 5 % from 0.20 % to 0.35 %, while the extension's own
-table improves (median 0.18 % -> 0.09 %); the wider kernel also crops a border twice as wide.
+:mod:`spectralize.nodes.filter_size`); the same ``sigma = s / 5`` either way. With 5 sigmas
+the joined response is worse at its largest error and at the low end, although the
+extension's own table is better, and the wider kernel crops a border twice as wide
+(``benchmarks/calibration.py``, see ``docs/benchmarks.md``).
 """
 
 
