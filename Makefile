@@ -1,15 +1,16 @@
-# The two set-up commands of the README. Each creates .venv if missing and installs into it.
+# The two set-up commands of the README (`make demo`, `make test`), plus the inner loop.
+# Each creates .venv if missing and installs into it.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint clean browser
+.PHONY: demo test test-fast lint typecheck layout bench clean browser
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
-$(STAMP): pyproject.toml | $(BIN)/python
+$(STAMP): pyproject.toml setup.py | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
@@ -18,8 +19,14 @@ $(STAMP): pyproject.toml | $(BIN)/python
 demo: $(STAMP)
 	$(BIN)/spectralize demo --capture demo/capture
 
-test: lint browser
+# Lint, types and the whole suite, as CI runs it (.ci/run).
+test: lint typecheck browser
 	$(BIN)/python -m pytest
+
+# The inner loop: the suite without the tests marked `slow` (real flows, killed processes,
+# the wheel install); about a third of the time.
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -m "not slow"
 
 # A real headless browser for the report's test (tests/flows/test_report.py takes a screenshot):
 # Debian's chromium-headless-shell, installed only when no Chromium is there (PyPI has no
@@ -37,12 +44,27 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/btf_flow.py
 	$(BIN)/python benchmarks/cli.py
 
+# import-linter and mypy find packages by folder, so they read the rooms through a folder of links
+# with the installed layout: build/layout/spectralize/<room> -> <room> (every top-level folder
+# that is a package is a room, as in setup.py).
+LAYOUT := build/layout
+layout:
+	@rm -rf $(LAYOUT) && mkdir -p $(LAYOUT)/spectralize
+	@cp spectralize/__init__.py spectralize/py.typed $(LAYOUT)/spectralize/
+	@for init in */__init__.py; do room=$${init%/__init__.py}; \
+	  [ "$$room" = spectralize ] || ln -s ../../../$$room $(LAYOUT)/spectralize/$$room; done
+
 # Style and import rules: formatting, lint, and the import contracts in pyproject.toml
-# (schemas <- engine <- nodes <- flows; only flows imports Prefect; no stage imports simulation).
-lint: $(STAMP)
+# (schemas <- store <- engine <- nodes <- datasets <- flows; only flows imports Prefect; nodes do
+# not open the store; no stage imports the simulator; no import cycles).
+lint: $(STAMP) layout
 	$(BIN)/ruff format --check .
 	$(BIN)/ruff check .
-	$(BIN)/lint-imports
+	cd $(LAYOUT) && PYTHONPATH=. ../../$(BIN)/lint-imports ../../pyproject.toml --no-cache
+
+# Static types of the rooms every other one builds on (mypy settings in pyproject.toml).
+typecheck: $(STAMP) layout
+	MYPYPATH=$(LAYOUT) $(BIN)/mypy -p spectralize.schemas -p spectralize.store -p spectralize.engine
 
 clean:
-	rm -rf demo .pytest_cache
+	rm -rf demo build .pytest_cache .mypy_cache

@@ -171,13 +171,13 @@ def check_graph(
             if group in producer:
                 source = planned[producer[group]]
                 sorter.add(index, producer[group])
-                made = next(s for s, g in source.outputs.items() if g == group)
-                if not _provides(made, wanted):
+                made_schema = next(s for s, g in source.outputs.items() if g == group)
+                if not _provides(made_schema, wanted):
                     problems.append(
                         Problem(
                             f"node {item.node.name!r} input {argument!r} (group {group!r})",
                             f"schema {wanted!r}",
-                            f"schema {made!r} written by node {source.node.name!r}",
+                            f"schema {made_schema!r} written by node {source.node.name!r}",
                         )
                     )
             elif group in available:

@@ -173,7 +173,7 @@ def parameters_from_signature(
             fields[parameter.name] = (annotation, FieldInfo(default=default, description=text))
         else:
             fields[parameter.name] = (annotation, default)
-    model_name = f"{_camel(name or getattr(target, '__name__', 'node'))}Parameters"
+    model_name = f"{_camel(name or str(getattr(target, '__name__', 'node')))}Parameters"
     model = create_model(model_name, __base__=Parameters, __module__=target.__module__, **fields)
     model.__doc__ = (
         f"Parameters of :func:`{target.__module__}.{target.__qualname__}` "
@@ -200,8 +200,8 @@ class Node:
         Schema names of the groups it writes (also the default group names).
     parameters
         Parameter model (subclass of :class:`Parameters`); each field is a keyword of
-        ``function``. Leave it out (``None``) to derive it from the function's keyword-only
-        arguments (:func:`parameters_from_signature`); after declaration it is always a model.
+        ``function``. Leave it out (the base :class:`Parameters`) to derive it from the
+        function's keyword-only arguments (:func:`parameters_from_signature`).
     version
         Bump it when the results change: it is part of every output's fingerprint.
     description
@@ -216,7 +216,7 @@ class Node:
     function: Callable[..., Any]
     inputs: Mapping[str, str]
     outputs: tuple[str, ...]
-    parameters: type[Parameters] | None = None
+    parameters: type[Parameters] = Parameters
     version: str = "1"
     description: str = ""
     chunks: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
@@ -229,7 +229,7 @@ class Node:
             signature = inspect.signature(self.function)
         except (TypeError, ValueError):
             signature = None
-        if self.parameters is None:
+        if self.parameters is Parameters:
             if signature is None:
                 raise NodeDeclarationError.single(
                     f"{label} parameters",
