@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> dict:
         reconstruct_image_sets,
         solve_set,
     )
-    from spectralize.schemas import RunStore
+    from spectralize.store import RunStore
 
     root = Path(tempfile.mkdtemp(prefix="btf-bench-")) if args.store is None else args.store
     store_path = root / "run.zarr" if args.store is None else args.store

@@ -358,7 +358,7 @@ def slice_steps(size: int, dark_frames: int) -> list:
 
     from spectralize.engine import Step
     from spectralize.flows.pipelines import BTF_STEPS
-    from spectralize.nodes.simulation.gantry import ring_leds
+    from spectralize.nodes.simulation.recipes import ring_leds
 
     recipe = {
         "recipe": "paper",
@@ -384,7 +384,7 @@ def case_paper_slice(size: int, dark_frames: int, folder: Path) -> dict:
 
     import spectralize.flows  # noqa: F401  (Prefect environment defaults)
     from spectralize.flows.runtime import run_steps
-    from spectralize.schemas import RunStore
+    from spectralize.store import RunStore
 
     store_path = Path(folder) / "slice.zarr"
     begin = time.perf_counter()

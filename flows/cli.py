@@ -113,7 +113,7 @@ def _cmd_flows(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from spectralize.schemas import RunStore
+    from spectralize.store import RunStore
 
     store = RunStore.open(args.store)
     groups = store.groups()
@@ -138,7 +138,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_clean(args: argparse.Namespace) -> int:
-    from spectralize.schemas import RunStore
+    from spectralize.store import RunStore
 
     store = RunStore.open(args.store)
     removed = store.clean()
@@ -191,7 +191,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     _print_report(report)
     print(f"results: {store.path}")
     print(f"  groups: {', '.join(store.groups())}")
-    print(f"  in Python: spectralize.schemas.open_run({str(store.path)!r}).read('spectra')")
+    print(f"  in Python: spectralize.store.open_run({str(store.path)!r}).read('spectra')")
     return 0
 
 

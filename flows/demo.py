@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from spectralize.schemas import RunStore
+from spectralize.store import RunStore
 
 from . import run_flow
 from .runtime import RunReport

@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from spectralize.schemas import RunStore, SpectralizeError
+from spectralize.schemas import SpectralizeError
+from spectralize.store import RunStore
 
 __all__ = ["FORMATS", "ExportError", "export", "select_images"]
 

@@ -48,8 +48,9 @@ import numpy as np
 import xarray as xr
 import zarr
 
-from spectralize.schemas import Problem, RunStore, SpectralizeError
+from spectralize.schemas import Problem, SpectralizeError
 from spectralize.schemas.capture import KINDS, MANIFEST_COLUMNS
+from spectralize.store import RunStore
 
 __all__ = [
     "MANIFEST",

@@ -75,8 +75,9 @@ from spectralize.nodes.evaluation.metrics import (
     compare_methods,
     evaluate,
 )
-from spectralize.schemas import ParameterError, Problem, RunStore, SchemaError, SpectralizeError
+from spectralize.schemas import ParameterError, Problem, SchemaError, SpectralizeError
 from spectralize.schemas.run import EVALUATION
+from spectralize.store import RunStore
 
 __all__ = [
     "BASELINES_GROUP",

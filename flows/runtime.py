@@ -45,17 +45,8 @@ from spectralize.flows.pipelines import (  # noqa: F401  (re-exported: older imp
     report_directory,
     step_parameters,
 )
-from spectralize.schemas import (
-    GROUP_SCHEMAS,
-    PipelineError,
-    Problem,
-    RunStore,
-    StoreError,
-    compute_fingerprint,
-    validate_values,
-)
-from spectralize.schemas.lock import LockHolder, StoreLock
-from spectralize.schemas.store import SCHEMA_ATTR
+from spectralize.schemas import GROUP_SCHEMAS, PipelineError, Problem, StoreError, validate_values
+from spectralize.store import SCHEMA_ATTR, LockHolder, RunStore, StoreLock, compute_fingerprint
 
 __all__ = ["StepReport", "RunReport", "run_steps", "output_fingerprint", "flow_inputs"]
 
@@ -420,7 +411,7 @@ def run_steps(
     first steps need no input groups; otherwise the missing store is the error.
 
     The store's lock is held for the whole run (a second writer gets
-    :class:`~spectralize.schemas.StoreBusyError`). When every step is up to date the answer
+    :class:`~spectralize.store.StoreBusyError`). When every step is up to date the answer
     comes without starting Prefect.
     """
     path = Path(store_path).absolute()

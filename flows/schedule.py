@@ -27,7 +27,8 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger
 
-from spectralize.schemas import RunStore, SpectralizeError, StoreBusyError
+from spectralize.schemas import SpectralizeError
+from spectralize.store import RunStore, StoreBusyError
 
 __all__ = [
     "find_run_stores",

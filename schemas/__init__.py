@@ -1,6 +1,8 @@
-"""spectralize.schemas: the data contract of a run store, its validation, and store access.
+"""spectralize.schemas: the data contract of a run store and its validation.
 
-Nothing here imports Prefect; a notebook can open a run with ``open_run(path)``.
+The one error hierarchy (:mod:`.errors`), array and group specs and their checks
+(:mod:`.spec`), the run store's group schemas (:mod:`.run`) and the capture-folder contract
+(:mod:`.capture`). The store that keeps data by this contract is :mod:`spectralize.store`.
 """
 
 from .errors import (
@@ -16,29 +18,22 @@ from .errors import (
     SpectralizeError,
     StoreError,
 )
-from .lock import StoreBusyError
 from .run import GROUP_SCHEMAS, register_schema, render_table, schema_for
 from .spec import ArraySpec, GroupSchema, check_dataset, validate_dataset, validate_values
-from .store import ChecksumError, RunStore, compute_fingerprint
 
 __all__ = [
     "ArraySpec",
     "GroupSchema",
     "GROUP_SCHEMAS",
-    "RunStore",
     "register_schema",
     "render_table",
     "schema_for",
     "validate_dataset",
     "validate_values",
     "check_dataset",
-    "compute_fingerprint",
-    "open_run",
     "SpectralizeError",
     "SchemaError",
     "StoreError",
-    "StoreBusyError",
-    "ChecksumError",
     "NodeNotFoundError",
     "NodeDeclarationError",
     "ParameterError",
@@ -48,8 +43,3 @@ __all__ = [
     "SimulationError",
     "Problem",
 ]
-
-
-def open_run(path) -> RunStore:
-    """Open a run store for analysis: ``open_run("run.zarr").read("spectra")``."""
-    return RunStore.open(path)

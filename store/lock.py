@@ -30,7 +30,7 @@ from typing import Any
 
 import filelock
 
-from .errors import Problem, StoreError
+from spectralize.schemas import Problem, StoreError
 
 __all__ = ["StoreBusyError", "StoreLock", "LockHolder", "work_dir"]
 

@@ -1,20 +1,19 @@
 """Run stores: one zarr v3 directory per measurement run, one xarray Dataset per group.
 
-Writes are atomic at the group level. A group is staged beside the store and renamed
-into place when complete, so a crash never leaves a half-written group that looks finished
-and never destroys the previous result. Every finished group carries in its attrs
+:class:`RunStore` is the public API (``create``, ``open``, ``groups``, ``read``, ``write``,
+``verify``, ``validate``, ``clean``); :func:`open_run` opens one for analysis. Writes are
+atomic at the group level (:mod:`.staging`), and every finished group carries in its attrs
 
 ``spectralize_fingerprint``
-    a hash of (node name, node version, parameters, input fingerprints): a step whose output
-    already carries the fingerprint it would write is up to date (this is what resumes flows);
+    a hash of (node name, node version, parameters, input fingerprints), see
+    :func:`~.fingerprint.compute_fingerprint`: a step whose output already carries the
+    fingerprint it would write is up to date (this is what resumes flows);
 ``spectralize_provenance``
     those ingredients in readable form;
 ``spectralize_schema``
-    the name of the schema the group follows;
+    the name of the schema the group follows (:mod:`spectralize.schemas`);
 ``spectralize_manifest``
-    every file of the group (chunks and array metadata) with its size, modification time
-    and CRC-32, so that a missing, truncated, edited or bit-flipped chunk is reported instead
-    of silently read as fill values or garbage.
+    every file of the group with its size, modification time and CRC-32 (:mod:`.integrity`).
 
 Bookkeeping that is not a plain value (provenance, manifest) is stored as a JSON string, so
 a group opened with plain xarray can be written to netCDF; :meth:`RunStore.read` decodes it.
@@ -25,13 +24,7 @@ place); ``verify(group, deep=True)`` recomputes every checksum; and every chunk 
 :meth:`RunStore.read` serves is checked against its checksum as it is read.
 
 One process writes a store at a time: :meth:`RunStore.write` holds the store's lock
-(:mod:`.lock`). Staged groups live in the store's work directory beside it
-(``.<store>.spectralize/staging/``, see :func:`~.lock.work_dir`) with names unique to the write
-(``<group>.<fingerprint>.<pid>-<random>``), as zarr stores of their own, so they are
-invisible to ``xarray.open_datatree``; a writer only ever removes its own. Large outputs can
-be written region by region (``resumable_along=``): every finished region is flagged, and a
-later writer with the same fingerprint adopts an abandoned staged group (renaming it to its
-own name, under the lock) and writes only the regions that were not finished.
+(:mod:`.lock`).
 """
 
 from __future__ import annotations
@@ -43,33 +36,53 @@ import os
 import shutil
 import time
 import uuid
-import zlib
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import xarray as xr
 import zarr
-from zarr.storage import LocalStore
 
-from .errors import Problem, SchemaError, StoreError
-from .lock import StoreBusyError, StoreLock, work_dir
-from .run import GROUP_SCHEMAS, schema_for
-from .spec import GroupSchema, validate_dataset
+from spectralize.schemas import (
+    GROUP_SCHEMAS,
+    GroupSchema,
+    Problem,
+    SchemaError,
+    StoreError,
+    schema_for,
+    validate_dataset,
+)
+
+from .fingerprint import canonical_json
+from .integrity import (
+    CheckedLocalStore,
+    ChecksumError,
+    chunk_files,
+    make_manifest,
+    read_manifest,
+    verify_files,
+)
+from .layout import friendly as friendly_view
+from .layout import region_encoding, regular_chunks, variable_length_strings
+from .lock import StoreLock, work_dir
+from .staging import (
+    STAGING,
+    adopt_abandoned,
+    flags_path,
+    remove_tree,
+    replace_group,
+    replaced_group,
+    staged_path,
+    write_regions,
+)
 
 __all__ = [
     "RunStore",
-    "compute_fingerprint",
+    "open_run",
     "FINGERPRINT_ATTR",
     "PROVENANCE_ATTR",
     "SCHEMA_ATTR",
     "MANIFEST_ATTR",
-    "ChecksumError",
-    "StoreBusyError",
-    "StoreLock",
-    "work_dir",
 ]
 
 STORE_FORMAT = "spectralize-run-store"
@@ -78,154 +91,10 @@ FINGERPRINT_ATTR = "spectralize_fingerprint"
 PROVENANCE_ATTR = "spectralize_provenance"
 SCHEMA_ATTR = "spectralize_schema"
 MANIFEST_ATTR = "spectralize_manifest"
-STAGING = ".staging"  # where stores before the work directory staged their writes
 _BOOKKEEPING = (FINGERPRINT_ATTR, PROVENANCE_ATTR, SCHEMA_ATTR, MANIFEST_ATTR)
 _JSON_ATTRS = (PROVENANCE_ATTR, MANIFEST_ATTR)
-MANIFEST_FORMAT = 2  # {"format": 2, "checksum": "crc32", "files": {rel: [size, mtime_ns, crc]}}
 _NO_SPACE = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 _READ_ONLY = {errno.EROFS, errno.EACCES, errno.EPERM}
-
-
-class ChecksumError(StoreError):
-    """A chunk whose bytes do not match the checksum recorded when its group was committed."""
-
-
-def _canonical(value: Any) -> str:
-    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
-
-
-def compute_fingerprint(
-    node: str, version: str, parameters: Mapping[str, Any], inputs: Mapping[str, str]
-) -> str:
-    """Fingerprint of one node run: sha256 of its name, version, parameters and inputs.
-
-    Parameters
-    ----------
-    node, version
-        The node's declared name and version.
-    parameters
-        JSON-serialisable parameter values.
-    inputs
-        Input group name -> that group's fingerprint.
-    """
-    payload = {"node": node, "version": version, "parameters": dict(parameters), "inputs": dict(inputs)}
-    return hashlib.sha256(_canonical(payload).encode()).hexdigest()
-
-
-def _stem(group: str) -> str:
-    return group.strip("/").replace("/", "~")
-
-
-def _regular_chunks(
-    ds: xr.Dataset,
-    chunks: Mapping[str, int] | None,
-    *,
-    region_dim: str | None = None,
-) -> xr.Dataset:
-    """Rechunk so every dask array has chunks zarr can store.
-
-    Without ``region_dim`` all chunks are made regular. With it, the chunks along
-    ``region_dim`` are kept as they are (they are the regions of a resumable write, possibly
-    of unequal size; on disk that dim gets chunks of 1) and the other dims are made regular.
-    """
-    if chunks:
-        unknown = set(chunks) - set(ds.dims)
-        if unknown:
-            raise StoreError(
-                f"chunks name dims {sorted(unknown)} that the dataset does not have "
-                f"(its dims: {sorted(map(str, ds.dims))})"
-            )
-    sizes: dict[str, int] = {}
-    for var in ds.variables.values():
-        if var.chunks is None:
-            continue
-        for dim, dim_chunks in zip(var.dims, var.chunks, strict=True):
-            sizes[dim] = max(sizes.get(dim, 0), max(dim_chunks))
-    sizes.update(dict(chunks or {}))
-    if region_dim is not None:
-        sizes.pop(region_dim, None)
-        # the regions are the chunks of the largest variable along the dim (e.g. one per
-        # image set of a spectral cube); everything else follows its boundaries
-        lazy = [v for v in ds.data_vars.values() if v.chunks is not None and region_dim in v.dims]
-        if lazy:
-            largest = max(lazy, key=lambda v: v.size)
-            regions = dict(zip(largest.dims, largest.chunks, strict=True))[region_dim]
-            ds = ds.chunk({region_dim: regions})
-    return ds.chunk(sizes) if sizes else ds
-
-
-def _region_encoding(ds: xr.Dataset, dim: str, encoding: dict[str, dict[str, Any]]) -> None:
-    """On-disk chunks of 1 along the region dim, the dask chunks elsewhere."""
-    for name, var in ds.variables.items():
-        if dim not in var.dims or name in ds.indexes:
-            continue
-        chunks = var.chunks or tuple((size,) for size in var.shape)
-        disk = tuple(1 if d == dim else max(c) for d, c in zip(var.dims, chunks, strict=True))
-        encoding.setdefault(str(name), {}).setdefault("chunks", disk)
-
-
-PARTIAL_SUFFIX = ".partial"  # zarr's local store writes a chunk to NAME.<uuid>.partial, then renames
-
-
-def _remove_partial_chunks(root: Path) -> None:
-    """Delete chunk files a killed writer left half-written (they are never read, only clutter)."""
-    for leftover in root.rglob(f"*{PARTIAL_SUFFIX}"):
-        leftover.unlink(missing_ok=True)
-
-
-def _variable_length_strings(ds: xr.Dataset) -> xr.Dataset:
-    """Store text as zarr 3's specified variable-length ``string`` type.
-
-    numpy's fixed-width ``<U`` arrays would become zarr's ``FixedLengthUTF32``, which has no
-    zarr v3 specification (other readers may not open it); read back, text is numpy's
-    ``StringDType``.
-    """
-    fixed = [name for name, var in ds.variables.items() if var.dtype.kind == "U"]
-    text = np.dtypes.StringDType()  # stays lazy for dask data, unlike ``object``
-    return ds.assign({name: ds[name].astype(text) for name in fixed}) if fixed else ds
-
-
-def _is_group_dir(path: Path) -> bool:
-    try:
-        return json.loads((path / "zarr.json").read_text()).get("node_type") == "group"
-    except (OSError, ValueError):
-        return False
-
-
-def _chunk_files(root: Path) -> dict[str, os.stat_result]:
-    """Every file of the group at ``root`` but its own ``zarr.json`` (which holds the manifest).
-
-    Nested groups (their own manifests) and zarr's in-flight ``*.partial`` files are left out.
-    """
-    files: dict[str, os.stat_result] = {}
-    for dirpath, dirnames, filenames in os.walk(root):
-        here = Path(dirpath)
-        dirnames[:] = [d for d in dirnames if not _is_group_dir(here / d)]
-        for name in filenames:
-            if (here == root and name == "zarr.json") or name.endswith(PARTIAL_SUFFIX):
-                continue
-            full = here / name
-            files[full.relative_to(root).as_posix()] = full.stat()
-    return files
-
-
-def _crc32(path: Path) -> int:
-    crc = 0
-    with open(path, "rb") as file:
-        while block := file.read(1 << 22):
-            crc = zlib.crc32(block, crc)
-    return crc
-
-
-def _manifest(value: Any) -> dict[str, tuple[int, int | None, int | None]] | None:
-    """The manifest attr as ``{file: (size, mtime_ns, crc32)}`` (old stores: sizes only)."""
-    if not value:
-        return None
-    if isinstance(value, str):
-        value = json.loads(value)
-    if isinstance(value, dict) and value.get("format") == MANIFEST_FORMAT:
-        return {rel: (int(e[0]), int(e[1]), int(e[2])) for rel, e in value["files"].items()}
-    return {rel: (int(size), None, None) for rel, size in dict(value).items()}
 
 
 def _json_attr(value: Any) -> Any:
@@ -235,40 +104,6 @@ def _json_attr(value: Any) -> Any:
         except ValueError:
             return value
     return value
-
-
-class _CheckedLocalStore(LocalStore):
-    """A local zarr store that checks every whole chunk it serves against its recorded CRC-32.
-
-    ``checksums`` maps store keys (``"hdr/radiance/c/0/0/0/0"``) to checksums; keys it does
-    not list are served unchecked.
-    """
-
-    def __init__(
-        self,
-        root: Path | str,
-        *,
-        read_only: bool = True,
-        checksums: Mapping[str, int] | None = None,
-    ) -> None:
-        super().__init__(root, read_only=read_only)
-        self.checksums = dict(checksums or {})
-
-    def with_read_only(self, read_only: bool = False) -> _CheckedLocalStore:
-        return type(self)(self.root, read_only=read_only, checksums=self.checksums)
-
-    async def get(self, key: str, prototype: Any = None, byte_range: Any = None) -> Any:
-        buffer = await super().get(key, prototype, byte_range)
-        expected = self.checksums.get(key)
-        if buffer is not None and byte_range is None and expected is not None:
-            found = zlib.crc32(buffer.as_numpy_array())
-            if found != expected:
-                raise ChecksumError(
-                    f"chunk {key} of run store {str(self.root)!r} is damaged: its bytes do not "
-                    "match the checksum recorded when it was written",
-                    [Problem(key, f"CRC-32 {expected:08x}", f"CRC-32 {found:08x}")],
-                )
-        return buffer
 
 
 class RunStore:
@@ -454,7 +289,7 @@ class RunStore:
         """Bytes the files of a finished group take (0 when there is no such group)."""
         if not self.has(group):
             return 0
-        return sum(st.st_size for st in _chunk_files(self._group_path(group)).values())
+        return sum(st.st_size for st in chunk_files(self._group_path(group)).values())
 
     # -- reading ---------------------------------------------------------------------------
     def read(
@@ -501,21 +336,21 @@ class RunStore:
         ds = self._open(group, checked=verify, chunks=chunks)
         for attr in _JSON_ATTRS:  # JSON text, as stored: netCDF attrs cannot hold dicts
             if attr in ds.attrs and not isinstance(ds.attrs[attr], str):
-                ds.attrs[attr] = _canonical(ds.attrs[attr])
-        return _friendly(ds) if friendly else ds
+                ds.attrs[attr] = canonical_json(ds.attrs[attr])
+        return friendly_view(ds) if friendly else ds
 
     def _open(
         self, group: str, *, checked: bool = True, chunks: Mapping[str, int] | None = None
     ) -> xr.Dataset:
         checksums: dict[str, int] = {}
         if checked:
-            manifest = _manifest(self.group_attrs(group).get(MANIFEST_ATTR)) or {}
+            manifest = read_manifest(self.group_attrs(group).get(MANIFEST_ATTR)) or {}
             prefix = group.strip("/")
             checksums = {
                 f"{prefix}/{rel}": crc for rel, (_, _, crc) in manifest.items() if crc is not None
             }
         return xr.open_zarr(
-            _CheckedLocalStore(self.path, read_only=True, checksums=checksums),
+            CheckedLocalStore(self.path, read_only=True, checksums=checksums),
             group=group.strip("/"),
             consolidated=False,
             chunks=dict(chunks) if chunks is not None else {},
@@ -529,34 +364,10 @@ class RunStore:
         (finds bit rot that left the time alone). Groups imported by other means have no
         manifest and always pass.
         """
-        manifest = _manifest(self.group_attrs(group).get(MANIFEST_ATTR))
+        manifest = read_manifest(self.group_attrs(group).get(MANIFEST_ATTR))
         if not manifest:
             return []
-        root = self._group_path(group)
-        found = _chunk_files(root)
-        problems = []
-        for rel, (size, mtime, crc) in sorted(manifest.items()):
-            where = f"{group}/{rel}"
-            stat = found.get(rel)
-            if stat is None:
-                problems.append(Problem(where, f"a file of {size} bytes", "a missing file"))
-            elif stat.st_size != size:
-                problems.append(
-                    Problem(where, f"{size} bytes", f"{stat.st_size} bytes (truncated or overwritten)")
-                )
-            elif crc is not None and (deep or stat.st_mtime_ns != mtime):
-                actual = _crc32(root / rel)
-                if actual != crc:
-                    how = "edited after commit" if stat.st_mtime_ns != mtime else "changed on disk"
-                    problems.append(
-                        Problem(where, f"content with CRC-32 {crc:08x}", f"CRC-32 {actual:08x} ({how})")
-                    )
-        if any(crc is not None for _, _, crc in manifest.values()):
-            for rel in sorted(set(found) - set(manifest)):
-                problems.append(
-                    Problem(f"{group}/{rel}", "only the files written at commit", "a file added later")
-                )
-        return problems
+        return verify_files(self._group_path(group), manifest, group, deep=deep)
 
     def validate(
         self, *, deep: bool = False, values: bool = True, required: Sequence[str] = ()
@@ -681,51 +492,50 @@ class RunStore:
                 f"for {group!r} (dims: {sorted(map(str, ds.dims))})"
             )
         fingerprint = fingerprint or f"unrecorded:{uuid.uuid4().hex}"
-        ds = _regular_chunks(ds, chunks, region_dim=resumable_along)
+        ds = regular_chunks(ds, chunks, region_dim=resumable_along)
         attrs = {k: v for k, v in ds.attrs.items() if k not in _BOOKKEEPING}
         attrs[FINGERPRINT_ATTR] = fingerprint
-        attrs[PROVENANCE_ATTR] = _canonical(
+        attrs[PROVENANCE_ATTR] = canonical_json(
             {**dict(provenance or {}), "written": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         )
         if schema is not None:
             attrs[SCHEMA_ATTR] = schema.name
-        ds = _variable_length_strings(ds.copy(deep=False))
+        ds = variable_length_strings(ds.copy(deep=False))
         ds.attrs = attrs
         enc = {name: dict(value) for name, value in (encoding or {}).items()}
 
         with self.lock():
             self.check_free_space(int(ds.nbytes), group=group)
             staging = self.staging_dir
-            prefix = f"{_stem(group)}.{hashlib.sha256(fingerprint.encode()).hexdigest()[:16]}"
-            staged_path = staging / f"{prefix}.{os.getpid()}-{uuid.uuid4().hex[:8]}"
+            prefix, staged = staged_path(staging, group, fingerprint)
             try:
                 staging.mkdir(exist_ok=True)
                 if resumable_along is None:
                     ds.to_zarr(
-                        str(staged_path),
+                        str(staged),
                         mode="w-",
                         consolidated=False,
                         zarr_format=3,
                         encoding=enc or None,
                     )
                 else:
-                    _region_encoding(ds, resumable_along, enc)
-                    self._adopt_abandoned(prefix, staged_path)
-                    self._write_regions(
+                    region_encoding(ds, resumable_along, enc)
+                    adopt_abandoned(self._staging_dirs(), prefix, staged)
+                    write_regions(
                         ds,
-                        staged_path,
+                        staged,
                         resumable_along,
                         enc,
                         progress,
                         max(1, int(concurrent_regions)),
                     )
-                self._commit(staged_path, target, group)
+                self._commit(staged, target, group)
             except BaseException as error:
                 keep = resumable_along is not None and not (
                     isinstance(error, OSError) and error.errno in _NO_SPACE
                 )
                 if not keep:  # only this write's own staged copy, never another's
-                    _remove_tree(staged_path, _flags_path(staged_path))
+                    remove_tree(staged, flags_path(staged))
                 if isinstance(error, OSError):
                     raise self._write_error(error, group) from error
                 raise
@@ -760,120 +570,13 @@ class RunStore:
             f"{type(error).__name__}: {error}"
         )
 
-    def _adopt_abandoned(self, prefix: str, staged_path: Path) -> None:
-        """Take over the staged copy of an interrupted write of the same data (under the lock,
-        so its writer is gone), renaming it to this write's own name."""
-        candidates = [d / prefix for d in self._staging_dirs()] + [
-            p
-            for d in self._staging_dirs()
-            for p in d.glob(f"{prefix}.*")
-            if not p.name.endswith(".done")
-        ]
-        resumable = [
-            p for p in candidates if p.is_dir() and _flags_path(p).is_dir() and p != staged_path
-        ]
-        if not resumable:
-            return
-        latest = max(resumable, key=lambda p: _flags_path(p).stat().st_mtime_ns)
-        os.rename(_flags_path(latest), _flags_path(staged_path))
-        os.rename(latest, staged_path)
-
-    def _write_regions(
-        self,
-        ds: xr.Dataset,
-        staged_path: Path,
-        dim: str,
-        encoding: dict[str, dict[str, Any]],
-        progress: Callable[[str], None] | None,
-        concurrent: int,
-    ) -> None:
-        dim_chunks = next(
-            (
-                dict(zip(v.dims, v.chunks, strict=True))[dim]
-                for v in ds.variables.values()
-                if v.chunks and dim in v.dims
-            ),
-            (ds.sizes[dim],),
-        )
-        bounds = np.cumsum((0,) + tuple(dim_chunks))
-        regions = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-        flags_path = _flags_path(staged_path)
-        flags = None
-        if staged_path.exists() and flags_path.exists():
-            flags = zarr.open_array(str(flags_path), mode="r+")
-            if flags.shape != (len(regions),):
-                flags = None
-        if flags is None:
-            for leftover in (staged_path, flags_path):
-                if leftover.exists():
-                    shutil.rmtree(leftover)
-            ds.to_zarr(
-                str(staged_path),
-                mode="w",
-                consolidated=False,
-                zarr_format=3,
-                compute=False,
-                encoding=encoding or None,
-            )
-            flags = zarr.create_array(
-                str(flags_path), shape=(len(regions),), chunks=(1,), dtype="bool", fill_value=False
-            )
-        _remove_partial_chunks(staged_path)
-        _remove_partial_chunks(flags_path)
-        done = flags[:]
-        along = [name for name, var in ds.variables.items() if dim in var.dims]
-        total = len(regions)
-        skipped = [i for i in range(total) if done[i]]
-        if skipped and progress:
-            progress(f"{len(skipped)}/{total} region(s) of {dim} already written, resuming")
-
-        def write_region(index: int) -> int:
-            region = regions[index]
-            piece = ds[along].isel({dim: region})
-            piece = piece.drop_vars([n for n in piece.variables if dim not in piece[n].dims])
-            piece.attrs = {}
-            piece.to_zarr(str(staged_path), mode="r+", region={dim: region}, consolidated=False)
-            flags[index] = True  # its own chunk of the flag array: no two writers share one
-            return index
-
-        todo = [i for i in range(total) if not done[i]]
-        finished = len(skipped)
-        if concurrent == 1:
-            results = map(write_region, todo)
-        else:
-            pool = ThreadPoolExecutor(max_workers=concurrent)
-            results = (f.result() for f in as_completed(pool.submit(write_region, i) for i in todo))
-        try:
-            for index in results:
-                finished += 1
-                if progress:
-                    progress(f"region {index + 1} of {total} written ({finished}/{total} done)")
-        finally:
-            if concurrent != 1:
-                pool.shutdown(wait=True, cancel_futures=True)
-        shutil.rmtree(flags_path)
-
-    def _commit(self, staged_path: Path, target: Path, group: str) -> None:
-        files = _chunk_files(staged_path)
-        manifest = {
-            "format": MANIFEST_FORMAT,
-            "checksum": "crc32",
-            "files": {
-                rel: [stat.st_size, stat.st_mtime_ns, _crc32(staged_path / rel)]
-                for rel, stat in sorted(files.items())
-            },
-        }
-        zarr.open_group(str(staged_path), mode="r+").attrs.update({MANIFEST_ATTR: _canonical(manifest)})
+    def _commit(self, staged: Path, target: Path, group: str) -> None:
+        manifest = make_manifest(staged)
+        zarr.open_group(str(staged), mode="r+").attrs.update({MANIFEST_ATTR: canonical_json(manifest)})
         parent = "/".join(group.strip("/").split("/")[:-1])
         if parent:
             zarr.open_group(str(self.path), mode="r+").require_group(parent)
-        replaced = None
-        if target.exists():
-            replaced = self.staging_dir / f"{_stem(group)}.replaced-{uuid.uuid4().hex[:8]}"
-            os.rename(target, replaced)
-        os.rename(staged_path, target)
-        if replaced is not None:
-            shutil.rmtree(replaced)
+        replace_group(staged, target, self.staging_dir, group)
 
     def _recover_interrupted_replacements(self) -> None:
         """Put back a previous result whose replacement was interrupted between two renames.
@@ -881,7 +584,7 @@ class RunStore:
         Only when no other process writes (a live writer may be between its two renames)
         and the store is writable; otherwise the next writer does it.
         """
-        replaced = [p for d in self._staging_dirs() for p in d.iterdir() if ".replaced-" in p.name]
+        replaced = [p for d in self._staging_dirs() for p in d.iterdir() if replaced_group(p)]
         if not replaced:
             return
         try:
@@ -889,10 +592,7 @@ class RunStore:
                 for entry in replaced:
                     if not entry.exists():
                         continue
-                    if ".replaced-" not in entry.name:
-                        continue
-                    group = entry.name.split(".replaced-")[0].replace("~", "/")
-                    target = self._group_path(group)
+                    target = self._group_path(replaced_group(entry))
                     if target.exists():
                         shutil.rmtree(entry)
                     else:
@@ -920,46 +620,10 @@ class RunStore:
         self.clean()
 
 
-def _remove_tree(*paths: Path) -> None:
-    """Remove directories that chunk writes still in flight may recreate for a moment.
-
-    When one chunk of a dask-computed write fails, dask raises at once while other threads
-    may still be writing their chunks; so remove, wait a little, and remove again.
-    """
-    for _ in range(50):
-        for path in paths:
-            shutil.rmtree(path, ignore_errors=True)
-        time.sleep(0.05)
-        if not any(path.exists() for path in paths):
-            return
-
-
-def _flags_path(staged_path: Path) -> Path:
-    return staged_path.with_name(f"{staged_path.name}.done")
-
-
 def _mb(size: float) -> str:
     return f"{size / 1e6:,.1f} MB" if size >= 1e6 else f"{size / 1e3:,.1f} kB"
 
 
-def _friendly(ds: xr.Dataset) -> xr.Dataset:
-    """Dims in label order, small coordinates in memory, pixel index coordinates."""
-    for dim in list(ds.indexes):
-        index = ds.indexes[dim]
-        if dim in ds.dims and index.dtype.kind in "iuf" and not index.is_monotonic_increasing:
-            ds = ds.sortby(dim)
-    small = {
-        name: coord.load()
-        for name, coord in ds.coords.items()
-        if name not in ds.indexes and coord.chunks is not None and coord.size <= 1_000_000
-    }
-    if small:
-        ds = ds.assign_coords(small)
-    pixels = {
-        dim: np.arange(ds.sizes[dim]) for dim in ("y", "x") if dim in ds.dims and dim not in ds.coords
-    }
-    if pixels:
-        ds = ds.assign_coords(pixels)
-        for dim in pixels:
-            ds[dim].attrs.update(units="px", long_name=f"pixel {'row' if dim == 'y' else 'column'}")
-    return ds
+def open_run(path: str | os.PathLike[str]) -> RunStore:
+    """Open a run store for analysis: ``open_run("run.zarr").read("spectra")``."""
+    return RunStore.open(path)

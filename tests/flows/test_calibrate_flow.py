@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from spectralize.flows import run_flow
-from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.assembly import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
-from spectralize.schemas.store import RunStore
+from spectralize.store import RunStore
 
 GROUPS = ("raw/dark", "raw/white_reference", "raw/colour_checker", "raw/rgb")
 

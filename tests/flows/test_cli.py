@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from spectralize.schemas import RunStore
+from spectralize.store import RunStore
 
 EXE = [sys.executable, "-m", "spectralize.flows.cli"]
 
@@ -122,7 +122,7 @@ def test_usage_errors_exit_non_zero(tmp_path, argv):
 def test_a_node_that_fails_prints_one_clear_error_and_no_traceback(prefect_api, tmp_path):
     from prefect.settings import PREFECT_API_URL
 
-    from spectralize.nodes.simulation.gantry import simulate_run
+    from spectralize.nodes.simulation.assembly import simulate_run
     from spectralize.nodes.simulation.recipes import get_recipe
 
     raw_rgb = simulate_run(get_recipe("tiny"))["raw/rgb"]

@@ -16,7 +16,7 @@ from support.cubes import WAVELENGTH, cube_dataset
 from spectralize.engine import registry
 from spectralize.flows.cli import build_parser, format_value, main, parse_assignments, parse_value
 from spectralize.flows.pipelines import FLOW_DESCRIPTIONS, FLOWS
-from spectralize.schemas import RunStore
+from spectralize.store import RunStore
 
 HEAVY = ("prefect", "matplotlib", "rich", "spectralize.engine", "spectralize.flows.runtime")
 # What listing the nodes must not import (each costs 0.1-2 s): the flow runtime, reports and

@@ -18,7 +18,7 @@ import psutil
 from distributed import Client
 
 from spectralize.datasets.dark_stack import make_raw_dark
-from spectralize.schemas import RunStore
+from spectralize.store import RunStore
 
 # The CLI's own main(), with the watchdog's grace period shortened from 30 s so that the
 # test stays short; everything else (Prefect, the store, the dask client) is the real run.

@@ -8,7 +8,7 @@ from support.cubes import WAVELENGTH, cube_dataset
 
 from spectralize.flows.cli import main
 from spectralize.flows.export import ExportError, export
-from spectralize.schemas import RunStore
+from spectralize.store import RunStore
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,7 @@ import spectral
 import xarray as xr
 from support import foreign_gantry as lab
 
-from spectralize.schemas import RunStore
+from spectralize.store import RunStore
 
 SCRIPT = Path(__file__).parents[1] / "support" / "foreign_gantry.py"
 EXE = [sys.executable, "-m", "spectralize.flows.cli"]

@@ -11,9 +11,9 @@ import tifffile
 from spectralize.datasets.capture_folder import write_capture_folder, write_png
 from spectralize.flows.cli import main
 from spectralize.flows.ingest import CaptureError, capture_state, ingest, read_capture
-from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.assembly import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
-from spectralize.schemas import RunStore
+from spectralize.store import RunStore
 
 RAW = (
     "raw/rgb",

@@ -26,7 +26,7 @@ from spectralize.flows.progress import (
 )
 from spectralize.nodes.reconstruction.set_reconstruction import solve_set
 from spectralize.nodes.reconstruction.tiling import solve_set_tiled
-from spectralize.schemas import RunStore
+from spectralize.store import RunStore
 
 
 class Recorder:

@@ -13,7 +13,8 @@ from spectralize.flows.report import error_map_figures, write_report, write_run_
 from spectralize.nodes.evaluation.capture_time import capture_time
 from spectralize.nodes.evaluation.figures import nrmse_histograms
 from spectralize.nodes.evaluation.metrics import evaluate
-from spectralize.schemas import RunStore, SchemaError
+from spectralize.schemas import SchemaError
+from spectralize.store import RunStore
 
 SHAPE = colour.SpectralShape(410, 720, 10)
 

@@ -15,8 +15,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from spectralize.schemas import RunStore
-from spectralize.schemas.lock import work_dir
+from spectralize.store import RunStore, work_dir
 
 _HELPERS = Path(__file__).parents[1] / "nodes" / "reconstruction" / "test_set_reconstruction.py"
 _spec = util.spec_from_file_location("set_reconstruction_inputs", _HELPERS)

@@ -10,7 +10,8 @@ from spectralize.engine import Node, Parameters, RegisteredNode, Step
 from spectralize.engine import discovery as engine
 from spectralize.flows import run_flow
 from spectralize.flows.runtime import run_steps
-from spectralize.schemas import PipelineError, RunStore, StoreError
+from spectralize.schemas import PipelineError, StoreError
+from spectralize.store import RunStore
 
 RUNS = {"dark_average": 0, "dark_level": 0}
 

@@ -23,9 +23,8 @@ from spectralize.engine import Node, RegisteredNode, Step
 from spectralize.engine import discovery as engine
 from spectralize.flows import cli
 from spectralize.flows.runtime import run_steps
-from spectralize.schemas import RunStore, SchemaError
-from spectralize.schemas.lock import work_dir
-from spectralize.schemas.store import MANIFEST_ATTR
+from spectralize.schemas import SchemaError
+from spectralize.store import MANIFEST_ATTR, RunStore, work_dir
 
 EXE = [sys.executable, "-m", "spectralize.flows.cli"]
 
@@ -272,7 +271,7 @@ def nan_hdr(path):
 @functools.cache
 def simulated_rgb() -> xr.Dataset:
     """raw/rgb of the tiny simulated run (image, exposure, y, x, channel), 10 bit, in memory."""
-    from spectralize.nodes.simulation.gantry import simulate_run
+    from spectralize.nodes.simulation.assembly import simulate_run
     from spectralize.nodes.simulation.recipes import get_recipe
 
     return simulate_run(get_recipe("tiny"))["raw/rgb"].load()
@@ -294,7 +293,7 @@ def imported_rgb(path, *, counts=None, exposure_time=None):
     return store
 
 
-HOLDER = "import sys, time\nfrom spectralize.schemas import RunStore\nwith RunStore.open(sys.argv[1]).lock():\n    print('locked', flush=True)\n    time.sleep(300)\n"
+HOLDER = "import sys, time\nfrom spectralize.store import RunStore\nwith RunStore.open(sys.argv[1]).lock():\n    print('locked', flush=True)\n    time.sleep(300)\n"
 
 # (case, setup, command, exit status, fragments of stderr/stdout)
 CORPUS = [

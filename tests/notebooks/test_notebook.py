@@ -10,7 +10,7 @@ import pytest
 import xarray as xr
 from nbclient import NotebookClient
 
-from spectralize.schemas import RunStore, compute_fingerprint
+from spectralize.store import RunStore, compute_fingerprint
 
 NOTEBOOK = Path(__file__).resolve().parents[2] / "notebooks" / "analyse_demo_run.ipynb"
 SHAPE = colour.SpectralShape(410, 720, 10)

@@ -15,9 +15,8 @@ import pytest
 import xarray as xr
 
 from spectralize.datasets.dark_stack import make_raw_dark
-from spectralize.schemas import ChecksumError, RunStore, StoreBusyError, StoreError
-from spectralize.schemas.lock import work_dir
-from spectralize.schemas.store import MANIFEST_ATTR
+from spectralize.schemas import StoreError
+from spectralize.store import MANIFEST_ATTR, ChecksumError, RunStore, StoreBusyError, work_dir
 
 
 @pytest.fixture
@@ -100,7 +99,7 @@ def test_staging_is_per_write_invisible_to_datatree_and_cleaned(store):
 HOLDER = textwrap.dedent(
     """
     import sys, time
-    from spectralize.schemas import RunStore
+    from spectralize.store import RunStore
     with RunStore.open(sys.argv[1]).lock("holder test"):
         print("locked", flush=True)
         time.sleep(300)
@@ -273,7 +272,7 @@ KILLED_WRITER = textwrap.dedent(
     """
     import sys
     import numpy as np, xarray as xr
-    from spectralize.schemas import RunStore
+    from spectralize.store import RunStore
     store = RunStore.open(sys.argv[1])
     for i in range(10**6):
         value = float(i % 2)

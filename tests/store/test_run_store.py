@@ -10,8 +10,14 @@ import pytest
 import xarray as xr
 
 from spectralize.datasets.dark_stack import make_raw_dark
-from spectralize.schemas import RunStore, SchemaError, StoreError, compute_fingerprint
-from spectralize.schemas.store import FINGERPRINT_ATTR, MANIFEST_ATTR, PROVENANCE_ATTR
+from spectralize.schemas import SchemaError, StoreError
+from spectralize.store import (
+    FINGERPRINT_ATTR,
+    MANIFEST_ATTR,
+    PROVENANCE_ATTR,
+    RunStore,
+    compute_fingerprint,
+)
 
 
 @pytest.fixture

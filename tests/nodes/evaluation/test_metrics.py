@@ -18,8 +18,9 @@ from spectralize.nodes.evaluation.metrics import (
     representative_spectra,
     spectral_angle,
 )
-from spectralize.schemas import ParameterError, RunStore, SchemaError, validate_dataset
+from spectralize.schemas import ParameterError, SchemaError, validate_dataset
 from spectralize.schemas.run import EVALUATION
+from spectralize.store import RunStore
 
 SHAPE = colour.SpectralShape(410, 720, 10)  # the paper's 32 bands
 WAVELENGTH = SHAPE.wavelengths

@@ -18,7 +18,8 @@ from spectralize.nodes.simulation.gantry import (
     simulate_run,
 )
 from spectralize.nodes.simulation.recipes import get_recipe
-from spectralize.schemas import GROUP_SCHEMAS, RunStore, validate_dataset
+from spectralize.schemas import GROUP_SCHEMAS, validate_dataset
+from spectralize.store import RunStore
 
 # fixed-width string coords (channel, sensor, patch_name) make zarr 3 warn that their dtype
 # has no v3 spec yet; the contract asks for kind U strings (see datasets/README.md)

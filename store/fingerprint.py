@@ -1,0 +1,38 @@
+"""Fingerprints of node runs: what makes a finished group up to date.
+
+A group carries the fingerprint of the node run that made it, the sha256 of the node's name
+and version, its parameters and the fingerprints of its inputs: a step whose output already
+carries the fingerprint it would write is up to date (this is what resumes flows).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from typing import Any
+
+__all__ = ["canonical_json", "compute_fingerprint"]
+
+
+def canonical_json(value: Any) -> str:
+    """``value`` as JSON with sorted keys and no spaces: equal values give equal text."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def compute_fingerprint(
+    node: str, version: str, parameters: Mapping[str, Any], inputs: Mapping[str, str]
+) -> str:
+    """Fingerprint of one node run: sha256 of its name, version, parameters and inputs.
+
+    Parameters
+    ----------
+    node, version
+        The node's declared name and version.
+    parameters
+        JSON-serialisable parameter values.
+    inputs
+        Input group name -> that group's fingerprint.
+    """
+    payload = {"node": node, "version": version, "parameters": dict(parameters), "inputs": dict(inputs)}
+    return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
