@@ -6,9 +6,9 @@ stage (calibration, reconstruction, evaluation) imports it.
 
 from .camera_model import RGBCamera, SpectralCamera, capture, response_model
 from .exposure_plan import exposure_plan
-from .gantry import Gantry, GantryRecipe, simulate_run
+from .assembly import Gantry, simulate_run
 from .ground_truth import spectral_scene
-from .recipes import RECIPES, get_recipe
+from .recipes import RECIPES, GantryRecipe, get_recipe
 
 __all__ = [
     "RGBCamera",

@@ -410,7 +410,7 @@ def capture(
     irradiance
         ``x``: incident irradiance in relative units, any shape, finite and >= 0.
         A DataArray gives a DataArray with the same dims and coords (a dask-backed one is
-        computed: for lazy, chunk-independent frames use :mod:`spectralize.nodes.simulation.gantry`).
+        computed: for lazy, chunk-independent frames use :mod:`spectralize.nodes.simulation.rendering`).
     exposure_time
         ``t`` [s], > 0; broadcast against ``irradiance``.
     response

@@ -2,7 +2,7 @@
 
 ``spectralize run simulate run.zarr --set simulate.recipe=demo --set simulate.seed=3``
 writes every raw group of a gantry run plus the evaluation-only truth groups, lazily, chunk
-by chunk (see :mod:`spectralize.nodes.simulation.gantry` and ``datasets/README.md``).
+by chunk (see :mod:`spectralize.nodes.simulation.assembly` and ``datasets/README.md``).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pydantic import Field
 
 from spectralize.engine import Choices, Node
 from spectralize.nodes.simulation.camera_model import SimulationParameterError
-from spectralize.nodes.simulation.gantry import GROUPS, simulate_run
+from spectralize.nodes.simulation.assembly import GROUPS, simulate_run
 from spectralize.nodes.simulation.recipes import RECIPES, get_recipe
 
 __all__ = ["simulate", "SIMULATE"]
@@ -62,7 +62,7 @@ def simulate(
     -------
     dict of str to xarray.Dataset
         ``{group: Dataset}`` for every group in
-        :data:`spectralize.nodes.simulation.gantry.GROUPS`, dask-backed.
+        :data:`spectralize.nodes.simulation.assembly.GROUPS`, dask-backed.
 
     References
     ----------
@@ -86,7 +86,7 @@ def simulate(
             f"{max_gigabytes:g}); make it smaller (simulate.size, simulate.n_rotations, "
             "or 'leds' and 'rgb_camera_thetas' in simulate.overrides), raise "
             "simulate.max_gigabytes, or compute chunks of "
-            "spectralize.nodes.simulation.gantry.simulate_run(...) lazily instead."
+            "spectralize.nodes.simulation.assembly.simulate_run(...) lazily instead."
         )
     return run
 

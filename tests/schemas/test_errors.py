@@ -11,8 +11,7 @@ from spectralize.nodes.simulation.camera_model import (
     SimulationParameterError,
     check_bit_depth,
 )
-from spectralize.nodes.simulation.gantry import GantryRecipe
-from spectralize.nodes.simulation.recipes import get_recipe
+from spectralize.nodes.simulation.recipes import GantryRecipe, get_recipe
 from spectralize.schemas import (
     CalibrationError,
     NodeDeclarationError,

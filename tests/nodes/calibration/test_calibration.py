@@ -13,7 +13,7 @@ from spectralize.nodes.calibration.oecf.low_snr import recover_spectral_oecf
 from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
 from spectralize.nodes.calibration.registration import estimate_registration
 from spectralize.nodes.calibration.spectral import calibrate_spectral
-from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.assembly import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas import CalibrationError
 from spectralize.schemas.run import GROUP_SCHEMAS

@@ -6,7 +6,7 @@ import xarray as xr
 
 from spectralize.nodes.calibration.hdr import merge_hdr
 from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
-from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.assembly import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas import CalibrationError
 

@@ -8,7 +8,7 @@ from spectralize.nodes.reconstruction.set_reconstruction import (
     reconstruct_image_sets,
     reconstruct_seed_set,
 )
-from spectralize.nodes.simulation.gantry import simulate_run
+from spectralize.nodes.simulation.assembly import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas import validate_dataset
 from spectralize.schemas.run import SPECTRA, SPECTRA_SEED

@@ -1,4 +1,4 @@
-"""Tests of the BTF gantry simulator: layout, geometry, pairing, determinism, laziness."""
+"""Tests of the assembled gantry run: groups, layout, pairing, determinism, laziness."""
 
 from __future__ import annotations
 
@@ -9,15 +9,8 @@ import pytest
 from pydantic import ValidationError
 
 from spectralize.nodes.simulation.camera_model import SimulationParameterError, response_model
-from spectralize.nodes.simulation.gantry import (
-    GROUPS,
-    SCHEMAS,
-    Gantry,
-    GantryRecipe,
-    group_schema,
-    simulate_run,
-)
-from spectralize.nodes.simulation.recipes import get_recipe
+from spectralize.nodes.simulation.assembly import GROUPS, Gantry, simulate_run
+from spectralize.nodes.simulation.recipes import GantryRecipe, get_recipe
 from spectralize.schemas import GROUP_SCHEMAS, validate_dataset
 from spectralize.store import RunStore
 
@@ -35,18 +28,18 @@ def tiny():
 def test_groups_follow_the_contract(tiny, tmp_path):
     _, groups = tiny
     assert set(groups) == set(GROUPS)
-    assert set(SCHEMAS) <= set(GROUP_SCHEMAS)  # part of the contract in spectralize.schemas.run
+    assert set(GROUPS) <= set(GROUP_SCHEMAS)  # every group is part of the contract (schemas.run)
     for name, ds in groups.items():
-        assert validate_dataset(ds, group_schema(name)) == []
+        assert validate_dataset(ds, GROUP_SCHEMAS[name]) == []
         for var in ds.variables.values():
             if var.dims and var.dtype.kind in "fiu":
                 assert "units" in var.attrs and "long_name" in var.attrs, (name, var)
     store = RunStore.create(tmp_path / "run.zarr")
     for name, ds in simulate_run(get_recipe("tiny")).items():
-        store.write(name, ds, schema=group_schema(name))
-    assert store.validate() == []  # the contract's groups
-    for name in SCHEMAS:  # and the simulator's, read back from zarr
-        assert validate_dataset(store.read(name), SCHEMAS[name]) == []
+        store.write(name, ds, schema=GROUP_SCHEMAS[name])
+    assert store.validate() == []
+    for name in GROUPS:  # read back from zarr
+        assert validate_dataset(store.read(name), GROUP_SCHEMAS[name]) == []
     back = store.read("raw/rgb")
     np.testing.assert_array_equal(back.counts.values, groups["raw/rgb"].counts.values)
 
@@ -78,7 +71,7 @@ def test_sparse_mode_spreads_32_bands_over_the_led_set(tiny):
     gantry, g = tiny
     sp = g["raw/spectral"]
     for _, shots in sp.groupby(["rotation", "led_set"]):
-        assert sorted(shots.wavelength.values) == sorted(gantry.wavelength)  # each band once
+        assert sorted(shots.wavelength.values) == sorted(gantry.renderer.wavelength)  # each band once
         assert len(np.unique(shots.led)) == gantry.recipe.spectral_set_size
     # exposure times follow the plan (eq. 2), quantised to the shutter step
     plan = g["raw/exposure_plan"]
@@ -101,11 +94,11 @@ def test_sparse_mode_spreads_32_bands_over_the_led_set(tiny):
 
 
 def test_dense_mode_has_all_bands_per_led():
-    gantry = Gantry(get_recipe("tiny", spectral_mode="dense"))
-    per_rot = len(gantry.shots) // len(set(gantry.shots.rotation.tolist()))
-    assert per_rot == 32 * gantry.recipe.spectral_set_size
-    t = gantry.band_time[gantry.shots.band].sum()
-    assert float(gantry.plan.spectral_capture_time) == pytest.approx(t, abs=len(gantry.shots) * 5e-5)
+    schedule = Gantry(get_recipe("tiny", spectral_mode="dense")).schedule
+    per_rot = len(schedule.shots) // len(set(schedule.shots.rotation.tolist()))
+    assert per_rot == 32 * schedule.recipe.spectral_set_size
+    t = schedule.band_time[schedule.shots.band].sum()
+    assert float(schedule.plan.spectral_capture_time) == pytest.approx(t, abs=len(schedule.shots) * 5e-5)
 
 
 def test_spectral_shot_at_rotation_r_plus_1_sees_rgb_image_of_rotation_r(tiny):
@@ -118,7 +111,7 @@ def test_spectral_shot_at_rotation_r_plus_1_sees_rgb_image_of_rotation_r(tiny):
     for angle in ("theta_i", "phi_i", "theta_o", "phi_o"):
         np.testing.assert_allclose(sp[angle].values, img[angle].values, atol=1e-9)
     # the LED of the shot is one rotation step further round the ring
-    th, ph = gantry.led_theta, gantry.led_phi
+    th, ph = gantry.schedule.led_theta, gantry.schedule.led_phi
     np.testing.assert_allclose(th[sp.led.values], th[img.led.values])
     np.testing.assert_allclose((ph[sp.led.values] - ph[img.led.values]) % 360, 15.0)
 

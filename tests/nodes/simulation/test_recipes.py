@@ -7,7 +7,7 @@ import pytest
 
 from spectralize.nodes.simulation.camera_model import SimulationParameterError
 from spectralize.nodes.simulation.declarations import SIMULATE
-from spectralize.nodes.simulation.gantry import GROUPS, Gantry
+from spectralize.nodes.simulation.assembly import GROUPS, Gantry
 from spectralize.nodes.simulation.recipes import DESCRIPTIONS, RECIPES, get_recipe, recipe_names
 from spectralize.schemas import ParameterError
 
@@ -23,14 +23,14 @@ def test_named_recipes_with_descriptions():
 
 
 def test_paper_gantry_geometry():
-    gantry = Gantry(RECIPES["paper"])
-    assert gantry.led_theta.size == 198
-    assert len(gantry.images) == 11 * 198 * 24
-    plan = gantry.plan
+    schedule = Gantry(RECIPES["paper"]).schedule
+    assert schedule.led_theta.size == 198
+    assert len(schedule.images) == 11 * 198 * 24
+    plan = schedule.plan
     assert plan.sizes["wavelength"] == 32
     # the 226 s reference versus 7.5 s noisy capture of the paper (sec. 5, "Real Data")
     one_image = float(plan.exposure_time.sum()) + float(plan.rgb_exposure_time.sum())
-    reference = float(gantry.reference.exposure_time.sum())
+    reference = float(schedule.reference.exposure_time.sum())
     assert 15 < reference / one_image < 60
 
 
