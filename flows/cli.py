@@ -16,80 +16,20 @@ Run `spectralize COMMAND --help` for a command's options, their defaults and all
 """
 
 # Answering --help, nodes, flows, validate or export imports neither Prefect (imported by
-# flows/runtime.py when a flow runs) nor matplotlib (reports): every import of ours and of
-# heavy libraries happens inside the command that needs it.
+# flows/runtime.py when a flow runs) nor matplotlib (reports): every import of ours (but the
+# light `--set` text of flows/assignments.py) and of heavy libraries happens inside the command
+# that needs it.
 
 from __future__ import annotations
 
 import argparse
-import ast
-import json
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["main", "build_parser", "format_value", "parse_value", "parse_assignments"]
+from .assignments import parse_assignments
 
-
-def parse_value(text: str) -> Any:
-    """A ``--set`` value: JSON (``null``, ``true``, ``[0.5, 0.0]``, ``"text"``), else a Python
-    literal (``None``, ``True``, ``(0.5, 0.0)``, ``'D65'``), else the text itself (``demo``)."""
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        pass
-    try:
-        return ast.literal_eval(text)
-    except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
-        return text
-
-
-def format_value(value: Any) -> str:
-    """``value`` as ``--set`` text that :func:`parse_value` reads back: a string bare when
-    it reads back as itself (``block-jacobi-pcg``), anything else as compact JSON (``null``,
-    ``[0.05,0.5]``, ``"None"``)."""
-    if isinstance(value, str) and value and value == value.strip() and parse_value(value) == value:
-        return value
-    from pydantic_core import to_jsonable_python
-
-    return json.dumps(to_jsonable_python(value), separators=(",", ":"))
-
-
-def parse_assignments(items: Sequence[str]) -> dict[str, Any]:
-    """``--set`` items (``KEY=VALUE``) as ``{key: value}``."""
-    values = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            from spectralize.schemas import SpectralizeError
-
-            raise SpectralizeError(
-                f"--set expects KEY=VALUE (e.g. dark_average.frames_per_chunk=8), got {item!r}"
-            )
-        values[key.strip()] = parse_value(value.strip())
-    return values
-
-
-_parse_assignments = parse_assignments  # older name
-
-
-def _type_text(annotation: str) -> str:
-    """A parameter's type without constraint metadata: ``Annotated[float, Field...]`` -> ``float``."""
-    while (start := annotation.find("Annotated[")) >= 0:
-        depth, first_end, i = 0, None, start + len("Annotated[")
-        for i in range(start + len("Annotated["), len(annotation)):
-            char = annotation[i]
-            if char in "[(":
-                depth += 1
-            elif char in "])" and depth:
-                depth -= 1
-            elif char == "," and depth == 0 and first_end is None:
-                first_end = i
-            elif char == "]" and depth == 0:
-                break
-        inner = annotation[start + len("Annotated[") : first_end or i]
-        annotation = annotation[:start] + inner + annotation[i + 1 :]
-    return annotation
+__all__ = ["main", "build_parser"]
 
 
 def _cmd_nodes(args: argparse.Namespace) -> int:

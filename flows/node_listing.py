@@ -29,6 +29,8 @@ from importlib.metadata import entry_points, version
 from importlib.util import find_spec
 from pathlib import Path
 
+from .assignments import format_value, type_text
+
 __all__ = ["node_listing", "listing_key", "cache_dir"]
 
 ENTRY_POINT_GROUP = "spectralize.nodes"  # engine.discovery's; not imported from there (heavy)
@@ -95,8 +97,6 @@ def _render() -> tuple[str, bool]:
     """The listing, and whether discovery went without warnings (then it may be cached)."""
     from spectralize.engine import registry
 
-    from .cli import _type_text, format_value
-
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         nodes = registry()
@@ -119,7 +119,7 @@ def _render() -> tuple[str, bool]:
             value = "VALUE" if required else format_value(default)
             setting = shlex.quote(f"{name}.{pname}={value}")
             note = " (required)" if required else ""
-            lines.append(f"    --set {setting}  ({_type_text(ptype)}{note}) {description}".rstrip())
+            lines.append(f"    --set {setting}  ({type_text(ptype)}{note}) {description}".rstrip())
             if pname in choices:
                 lines.append(f"        one of: {', '.join(choices[pname]) or 'none'}")
     return "".join(f"{line}\n" for line in lines), not caught and bool(nodes)

@@ -14,7 +14,8 @@ import pytest
 from support.cubes import WAVELENGTH, cube_dataset
 
 from spectralize.engine import registry
-from spectralize.flows.cli import build_parser, format_value, main, parse_assignments, parse_value
+from spectralize.flows.assignments import parse_assignments
+from spectralize.flows.cli import build_parser, main
 from spectralize.flows.pipelines import FLOW_DESCRIPTIONS, FLOWS
 from spectralize.store import RunStore
 
@@ -161,41 +162,6 @@ def test_every_printed_default_parses_back_to_the_default(capsys):
         parsed = getattr(node.parse_parameters({field: value}), field)
         default = node.parameters.model_fields[field].get_default(call_default_factory=True)
         assert parsed == default, key
-
-
-@pytest.mark.parametrize(
-    "text, value",
-    [
-        ("null", None),
-        ("None", None),
-        ("[0.5,0.0]", [0.5, 0.0]),
-        ("(0.5, 0.0)", (0.5, 0.0)),
-        ('"block-jacobi-pcg"', "block-jacobi-pcg"),
-        ("block-jacobi-pcg", "block-jacobi-pcg"),
-        ("'D65'", "D65"),
-        ("true", True),
-        ("1e-06", 1e-06),
-        ('{"misregistration":[0.5,0.0]}', {"misregistration": [0.5, 0.0]}),
-        ("ISO 7589 Photoflood", "ISO 7589 Photoflood"),
-        ('"None"', "None"),
-    ],
-)
-def test_set_values(text, value):
-    assert parse_value(text) == value
-
-
-@pytest.mark.parametrize(
-    "value", [None, "demo", "None", "null", "1", "", " x", 0.001, (0.05, 1.0), {"a": [1]}]
-)
-def test_formatted_values_read_back(value):
-    back = parse_value(format_value(value))
-    assert back == (list(value) if isinstance(value, tuple) else value)
-
-
-def test_none_is_accepted_for_an_optional_parameter():
-    node = registry()["hdr_merge"].node
-    (value,) = parse_assignments(["hdr_merge.saturation=None"]).values()
-    assert node.parse_parameters({"saturation": value}).saturation is None
 
 
 def help_of(*argv):
