@@ -45,7 +45,7 @@ def write_sample_capture(
     progress: Callable[[str], None] | None = None,
 ) -> Path:
     """Write the sample capture folder unless it is there (its ``manifest.csv`` exists)."""
-    from spectralize.datasets.capture_folder import write_capture_folder
+    from spectralize.datasets.capture.sample import write_capture_folder
 
     folder = Path(folder)
     if (folder / "manifest.csv").is_file():

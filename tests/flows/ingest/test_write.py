@@ -1,16 +1,16 @@
 """Capture folders into run stores: real files (TIFF, PNG), real zarr stores, the real CLI."""
 
-import csv
 import os
-import shutil
 
 import numpy as np
 import pytest
 import tifffile
+from support.capture_folders import rows, write_rows
 
-from spectralize.datasets.capture_folder import write_capture_folder, write_png
+from spectralize.datasets.capture import CaptureError
+from spectralize.datasets.capture.write import write_png
 from spectralize.flows.cli import main
-from spectralize.flows.ingest import CaptureError, capture_state, ingest, read_capture
+from spectralize.flows.ingest import ingest
 from spectralize.nodes.simulation.assembly import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.store import RunStore
@@ -23,29 +23,6 @@ RAW = (
     "raw/colour_checker",
     "raw/registration",
 )
-
-
-@pytest.fixture(scope="module")
-def sample(tmp_path_factory):
-    """The tiny recipe as a capture folder, written once per module (copy it to change it)."""
-    return write_capture_folder(tmp_path_factory.mktemp("sample") / "capture", recipe="tiny")
-
-
-@pytest.fixture
-def capture(sample, tmp_path):
-    return shutil.copytree(sample, tmp_path / "capture", copy_function=shutil.copy2)
-
-
-def rows(folder):
-    with open(folder / "manifest.csv", newline="") as handle:
-        return list(csv.DictReader(handle))
-
-
-def write_rows(folder, table):
-    with open(folder / "manifest.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(table[0]), lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(table)
 
 
 def test_a_capture_folder_ingests_into_the_raw_groups_of_the_simulated_run(capture, tmp_path):
@@ -157,64 +134,3 @@ def test_bad_input_never_touches_an_existing_store(capture, tmp_path):
         ingest(capture, tmp_path / "run.zarr")
     assert "nothing was written" in str(error.value)
     assert {g: store.fingerprint(g) for g in store.groups()} == before
-
-
-def test_the_chart_can_be_named_instead_of_tabulated(sample, tmp_path):
-    folder = shutil.copytree(sample, tmp_path / "capture")
-    (folder / "calibration" / "colour_checker.csv").unlink()
-    with pytest.raises(CaptureError, match="colour_checker.chart"):
-        read_capture(folder)
-    config = folder / "capture.toml"
-    config.write_text(
-        config.read_text().replace(
-            "[colour_checker]\n", '[colour_checker]\nchart = "ColorChecker N Ohta"\n'
-        )
-    )
-    capture = read_capture(folder)
-    names, reflectance, chart = capture.patches
-    assert chart == "ColorChecker N Ohta" and len(names) == 24 and reflectance.shape == (24, 32)
-
-
-def test_a_folder_still_being_written_waits(capture):
-    assert capture_state(capture, settle_seconds=0).ready
-    fresh = capture_state(capture, settle_seconds=3600)
-    assert not fresh.ready and "changed" in fresh.reason
-    first = rows(capture)[0]["file"]
-    (capture / first).unlink()
-    missing = capture_state(capture, settle_seconds=0)
-    assert not missing.ready and "not present yet" in missing.reason and first in missing.reason
-
-
-def test_nightly_run_ingests_complete_capture_folders_processes_and_reports_them(
-    prefect_api, sample, tmp_path
-):
-    """The whole path a lab takes: capture folders in, btf, a report without ground truth."""
-    from spectralize.flows.export import export
-    from spectralize.flows.runtime import report_directory
-    from spectralize.flows.schedule import process_new_runs
-
-    captures = tmp_path / "captures"
-    shutil.copytree(sample, captures / "night1", copy_function=shutil.copy2)
-    growing = shutil.copytree(sample, captures / "night2", copy_function=shutil.copy2)
-    (growing / rows(growing)[-1]["file"]).unlink()  # the gantry is still writing
-    outcome = process_new_runs(
-        root=str(captures), output_root=str(tmp_path / "runs"), settle_seconds=0.0
-    )
-    assert outcome[str(captures / "night2")].startswith("waiting:")
-    assert "not present yet" in outcome[str(captures / "night2")]
-    assert not (tmp_path / "runs" / "night2.zarr").exists()
-    assert outcome[str(captures / "night1")].startswith("ingested: raw/rgb")
-    store = RunStore.open(tmp_path / "runs" / "night1.zarr")
-    assert "10 node(s) ran" in outcome[str(store.path)]  # btf without the evaluation (no truth)
-    assert {"spectra", "calibration/spectral", "registration"} <= set(store.groups())
-    page = report_directory(store.path) / "index.html"
-    assert page.is_file() and f"report {page}" in outcome[str(store.path)]
-    text = page.read_text()
-    for section in ('id="reconstruction"', 'id="calibration"', 'id="response_histograms"', 'id="oecf"'):
-        assert section in text
-    assert 'id="accuracy"' not in text  # no accuracy section without ground truth
-    (path,) = export(store, tmp_path / "night1.nc", format="netcdf")
-    import xarray as xr
-
-    with xr.open_dataset(path) as ds:
-        assert ds["radiance"].sizes["image"] == 20 and np.isfinite(ds["radiance"].values).mean() > 0.9

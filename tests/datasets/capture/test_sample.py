@@ -8,7 +8,8 @@ import numpy as np
 import png
 import tifffile
 
-from spectralize.datasets.capture_folder import MANIFEST_COLUMNS, main
+from spectralize.datasets.capture import MANIFEST_COLUMNS
+from spectralize.datasets.capture.sample import main
 
 
 def digest(folder):

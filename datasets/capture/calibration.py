@@ -1,0 +1,297 @@
+"""The calibration tables of a capture folder (``calibration/*.csv``, the patch label image).
+
+- ``illuminant.csv`` (``wavelength_nm, value``): the measured LED spectrum, relative;
+- ``white_reference.csv`` (``wavelength_nm, reflectance``): the white target's certificate;
+- ``colour_checker.csv`` (``patch, wavelength_nm, reflectance``), or a colour-science chart
+  named in ``capture.toml``, and the chart's patch label image (0 frame, ``k`` patch ``k``);
+- ``exposure_plan.csv`` (``wavelength_nm, exposure_time_s, filter_size_px``), optional.
+
+Tables are interpolated linearly onto the wavelengths of the white reference's band series
+(``bands``), which they must cover. :func:`parse_table` and :func:`on_bands` are pure (text or
+arrays in, result and problems out); :func:`read_calibration` reads the files.
+
+References
+----------
+Fast Capture of Spectral Image Series, sec. 4 (spectral calibration with a white reference
+and a colour checker).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spectralize.schemas import Problem
+
+from .images import read_image
+from .model import CALIBRATION, CONFIG, Config, capture_file
+
+__all__ = [
+    "parse_table",
+    "on_bands",
+    "patches_from_table",
+    "patches_from_chart",
+    "check_patch_index",
+    "read_calibration",
+]
+
+
+def parse_table(
+    text: str, where: str, columns: Sequence[str], *, text_columns: Sequence[str] = ()
+) -> tuple[dict[str, list] | None, list[Problem]]:
+    """Parse a calibration CSV table (header row first; blank rows are skipped).
+
+    Parameters
+    ----------
+    text
+        The file's text, line endings as stored (read with ``newline=""``).
+    where
+        The file's name in problems (``calibration/illuminant.csv``).
+    columns
+        The columns to read (more are ignored); numbers unless in ``text_columns``.
+
+    Returns
+    -------
+    table, problems
+        ``{column: values}``, or ``None`` with the problem (a missing column, a cell that is
+        not a number, no rows).
+    """
+    problems: list[Problem] = []
+    try:
+        table = [row for row in csv.reader(io.StringIO(text, newline="")) if any(c.strip() for c in row)]
+    except csv.Error as error:
+        problems.append(Problem(where, "a readable CSV file", f"{type(error).__name__}: {error}"))
+        return None, problems
+    header = [h.strip() for h in table[0]] if table else []
+    if not table or any(c not in header for c in columns):
+        problems.append(Problem(f"{where} line 1", f"the columns {', '.join(columns)}", f"{header}"))
+        return None, problems
+    out: dict[str, list] = {c: [] for c in columns}
+    for line, cells in enumerate(table[1:], start=2):
+        for c in columns:
+            cell = cells[header.index(c)].strip() if header.index(c) < len(cells) else ""
+            if c in text_columns:
+                out[c].append(cell)
+                continue
+            try:
+                out[c].append(float(cell))
+            except ValueError:
+                problems.append(Problem(f"{where} line {line}: {c}", "a number", repr(cell)))
+                return None, problems
+    if not table[1:]:
+        problems.append(Problem(where, "at least one row", "none"))
+        return None, problems
+    return out, problems
+
+
+def on_bands(
+    where: str, wavelength: np.ndarray, values: np.ndarray, bands: np.ndarray
+) -> tuple[np.ndarray | None, list[Problem]]:
+    """A tabulated spectrum interpolated linearly onto ``bands`` [nm], which it must cover."""
+    order = np.argsort(wavelength)
+    wavelength, values = wavelength[order], values[order]
+    if np.unique(wavelength).size != wavelength.size:
+        return None, [Problem(where, "each wavelength once", "duplicate wavelengths")]
+    outside = bands[(bands < wavelength[0] - 1e-6) | (bands > wavelength[-1] + 1e-6)]
+    if outside.size:
+        return None, [
+            Problem(
+                where,
+                f"values covering every band ({bands.min():g}..{bands.max():g} nm)",
+                f"{wavelength[0]:g}..{wavelength[-1]:g} nm (missing {outside.tolist()})",
+            )
+        ]
+    return np.interp(bands, wavelength, values), []
+
+
+def patches_from_table(
+    table: dict[str, list], bands: np.ndarray, chart: str
+) -> tuple[tuple[list[str], np.ndarray, str] | None, list[Problem]]:
+    """``(names, reflectance (patch, band), chart)`` of a parsed ``colour_checker.csv``.
+
+    Patches are numbered in the order they first appear in the table.
+    """
+    problems: list[Problem] = []
+    names = list(dict.fromkeys(table["patch"]))
+    rows = []
+    for name in names:
+        pick = [i for i, p in enumerate(table["patch"]) if p == name]
+        wl = np.asarray(table["wavelength_nm"])[pick]
+        rf = np.asarray(table["reflectance"])[pick]
+        row, found = on_bands(f"{CALIBRATION}/colour_checker.csv patch {name!r}", wl, rf, bands)
+        problems += found
+        rows.append(row)
+    if all(r is not None for r in rows) and bands.size:
+        return (names, np.stack(rows), chart), problems
+    return None, problems
+
+
+def patches_from_chart(
+    chart: str, bands: np.ndarray
+) -> tuple[tuple[list[str], np.ndarray, str] | None, list[Problem]]:
+    """``(names, reflectance (patch, band), chart)`` of a colour-science chart, on ``bands``."""
+    import colour
+
+    charts = colour.SDS_COLOURCHECKERS
+    if chart not in charts:
+        return None, [
+            Problem(f"{CONFIG}: colour_checker.chart", f"one of {sorted(charts)}", repr(chart))
+        ]
+    if not bands.size:
+        return None, []
+    sds = charts[chart]
+    names = list(sds)
+    rows = [np.interp(bands, sds[n].wavelengths, sds[n].values) for n in names]
+    return (names, np.clip(np.stack(rows), 0, 1), chart), []
+
+
+def check_patch_index(
+    where: str, index: np.ndarray, frame_shape: tuple[int, int] | None, n_patches: int | None
+) -> tuple[np.ndarray | None, list[Problem]]:
+    """The patch label image as ``(y, x)`` int16 patch indices, -1 on the frame.
+
+    ``index`` holds 0 on the frame and ``k`` on patch ``k`` (1-based); it must have the frames'
+    shape and no label above ``n_patches``.
+    """
+    if index.ndim != 2 or (frame_shape is not None and index.shape != frame_shape):
+        return None, [
+            Problem(
+                where, f"a monochrome image of the frames' shape {frame_shape}", f"shape {index.shape}"
+            )
+        ]
+    if n_patches is not None and int(index.max()) > n_patches:
+        return None, [
+            Problem(where, f"labels 0 (frame) .. {n_patches} (patches)", f"a label {int(index.max())}")
+        ]
+    return index.astype(np.int16) - 1, []
+
+
+def read_calibration(
+    root: Path, config: Config, bands: np.ndarray, frame_shape: tuple[int, int] | None
+) -> tuple[dict[str, Any], list[Problem]]:
+    """Read and check the calibration tables of a capture folder.
+
+    Parameters
+    ----------
+    root
+        The capture folder.
+    config
+        Its ``capture.toml``.
+    bands
+        The wavelengths of the white reference's band series [nm].
+    frame_shape
+        The frames' shape, which the patch label image must have (``None``: unknown).
+
+    Returns
+    -------
+    tables, problems
+        ``illuminant``, ``white`` (on ``bands``), ``patches`` (names, reflectance, chart),
+        ``patch_index`` and, when ``exposure_plan.csv`` exists, ``plan`` (wavelength, time,
+        filter size); every problem found.
+    """
+    problems: list[Problem] = []
+    out: dict[str, Any] = {}
+    for key, name, column, what in (
+        ("illuminant", "illuminant.csv", "value", "the measured LED spectrum"),
+        ("white", "white_reference.csv", "reflectance", "the white target's certified reflectance"),
+    ):
+        table = _read_table(root, name, ("wavelength_nm", column), problems)
+        if table is None and not _calibration_file(root, name).is_file():
+            problems.append(Problem(f"{CALIBRATION}/{name}", what, "no such file"))
+        if table is not None:
+            wl, v = np.asarray(table["wavelength_nm"]), np.asarray(table[column])
+            if (v < 0).any() or (key == "white" and (v > 1).any()):
+                problems.append(
+                    Problem(
+                        f"{CALIBRATION}/{name}",
+                        "values >= 0" + (" and <= 1" if key == "white" else ""),
+                        f"{v.min():g}..{v.max():g}",
+                    )
+                )
+            if bands.size:
+                out[key], found = on_bands(f"{CALIBRATION}/{key}", wl, v, bands)
+                problems += found
+    # the colour checker: a table or a chart of colour-science
+    if _calibration_file(root, "colour_checker.csv").is_file():
+        table = _read_table(
+            root,
+            "colour_checker.csv",
+            ("patch", "wavelength_nm", "reflectance"),
+            problems,
+            text_columns=("patch",),
+        )
+        if table is not None:
+            patches, found = patches_from_table(table, bands, config.chart or "colour_checker.csv")
+            problems += found
+            if patches is not None:
+                out["patches"] = patches
+    elif config.chart:
+        patches, found = patches_from_chart(config.chart, bands)
+        problems += found
+        if patches is not None:
+            out["patches"] = patches
+    else:
+        problems.append(
+            Problem(
+                f"{CALIBRATION}/colour_checker.csv",
+                "the patches' reflectance, or colour_checker.chart in capture.toml",
+                "neither",
+            )
+        )
+    labels = capture_file(root, config.patch_index)
+    if not labels.is_file():
+        problems.append(
+            Problem(config.patch_index, "the colour checker's patch label image", "no such file")
+        )
+    else:
+        try:
+            index = read_image(labels)
+        except Exception as error:
+            problems.append(
+                Problem(
+                    config.patch_index, "a readable TIFF or PNG file", f"{type(error).__name__}: {error}"
+                )
+            )
+        else:
+            n_patches = len(out["patches"][0]) if "patches" in out else None
+            index, found = check_patch_index(config.patch_index, index, frame_shape, n_patches)
+            problems += found
+            if index is not None:
+                out["patch_index"] = index
+    columns = ("wavelength_nm", "exposure_time_s", "filter_size_px")
+    table = _read_table(root, "exposure_plan.csv", columns, problems)
+    if table is not None:
+        out["plan"] = tuple(np.asarray(table[c]) for c in columns)
+    return out, problems
+
+
+def _calibration_file(root: Path, name: str) -> Path:
+    return capture_file(root, f"{CALIBRATION}/{name}")
+
+
+def _read_table(
+    root: Path,
+    name: str,
+    columns: Sequence[str],
+    problems: list[Problem],
+    *,
+    text_columns: Sequence[str] = (),
+) -> dict[str, list] | None:
+    """:func:`parse_table` of ``calibration/<name>``; ``None`` when it is absent or bad."""
+    path, where = _calibration_file(root, name), f"{CALIBRATION}/{name}"
+    if not path.is_file():
+        return None
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as handle:
+            text = handle.read()
+    except (OSError, UnicodeDecodeError) as error:
+        problems.append(Problem(where, "a readable CSV file", f"{type(error).__name__}: {error}"))
+        return None
+    table, found = parse_table(text, where, columns, text_columns=text_columns)
+    problems += found
+    return table

@@ -1,0 +1,135 @@
+"""The parser of ``capture.toml``: text in, a :class:`~.model.Config` and problems out.
+
+``capture.toml`` names the cameras, their bit depths, the exposure plan's constants (eq. 2
+and 3: ``t0``, ``s0``, ``omega``) and the colour chart.
+
+References
+----------
+Fast Capture of Spectral Image Series, sec. 4, eq. 2 and 3 (the exposure plan).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from typing import Any
+
+from spectralize.schemas import Problem
+
+from .model import CALIBRATION, CAPTURE_FORMAT, CONFIG, Config
+
+__all__ = ["parse_config"]
+
+
+def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Problem]]:
+    """Parse the text of ``capture.toml``.
+
+    Parameters
+    ----------
+    text
+        The file's text.
+    default_name
+        The run's name when ``name`` is absent (the capture folder's name).
+
+    Returns
+    -------
+    config, problems
+        The config, or ``None`` when any key is missing, of the wrong type or out of range;
+        one :class:`~spectralize.schemas.Problem` per such key (``capture.toml: rgb.bit_depth``).
+    """
+    where = CONFIG
+    problems: list[Problem] = []
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        problems.append(Problem(where, "a readable TOML file", f"{type(error).__name__}: {error}"))
+        return None, problems
+    if raw.get("format", CAPTURE_FORMAT) != CAPTURE_FORMAT:
+        problems.append(Problem(f"{where}: format", repr(CAPTURE_FORMAT), repr(raw.get("format"))))
+
+    def section(name: str) -> dict[str, Any]:
+        value = raw.get(name, {})
+        if not isinstance(value, dict):
+            problems.append(Problem(f"{where}: [{name}]", "a table", repr(value)))
+            return {}
+        return value
+
+    def get(table: dict, sect: str, key: str, kind: type | tuple, default: Any = ...) -> Any:
+        label = f"{where}: {sect + '.' if sect else ''}{key}"
+        if key not in table:
+            if default is ...:
+                problems.append(Problem(label, f"a {getattr(kind, '__name__', 'value')}", "nothing"))
+            return None if default is ... else default
+        value = table[key]
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, kind) or isinstance(value, bool):
+            problems.append(Problem(label, f"a {getattr(kind, '__name__', kind)}", repr(value)))
+            return None
+        return value
+
+    def depth(table: dict, sect: str) -> int | None:
+        value = get(table, sect, "bit_depth", int)
+        if value is not None and not 8 <= value <= 16:
+            problems.append(Problem(f"{where}: {sect}.bit_depth", "8..16", repr(value)))
+            return None
+        return value
+
+    rgb, spectral, plan, checker = (
+        section("rgb"),
+        section("spectral"),
+        section("exposure_plan"),
+        section("colour_checker"),
+    )
+    cameras = get(rgb, "rgb", "cameras", list)
+    if cameras is not None and (not cameras or not all(isinstance(c, str) and c for c in cameras)):
+        problems.append(Problem(f"{where}: rgb.cameras", "a list of camera names", repr(cameras)))
+        cameras = None
+    if cameras is not None and len(set(cameras)) != len(cameras):
+        problems.append(Problem(f"{where}: rgb.cameras", "distinct names", repr(cameras)))
+    paired = get(rgb, "rgb", "paired_camera", str)
+    if paired is not None and cameras is not None and paired not in cameras:
+        problems.append(Problem(f"{where}: rgb.paired_camera", f"one of {cameras}", repr(paired)))
+    channels = get(rgb, "rgb", "channels", list, ["R", "G", "B"])
+    spectral_camera = get(spectral, "spectral", "camera", str)
+    if spectral_camera is not None and cameras is not None and spectral_camera in cameras:
+        problems.append(
+            Problem(
+                f"{where}: spectral.camera", "a name that is not an RGB camera's", repr(spectral_camera)
+            )
+        )
+    values = {
+        "rgb_depth": depth(rgb, "rgb"),
+        "spectral_depth": depth(spectral, "spectral"),
+        "rotation_step": get(raw, "", "rotation_step_deg", float),
+        "tolerance": get(raw, "", "angle_tolerance_deg", float, 0.5),
+        "t0": get(plan, "exposure_plan", "t0", float),
+        "s0": get(plan, "exposure_plan", "s0", float),
+        "omega": get(plan, "exposure_plan", "omega", float),
+    }
+    for key in ("t0", "s0", "omega", "rotation_step"):
+        if values[key] is not None and not values[key] > 0:
+            problems.append(Problem(f"{where}: {key}", "a positive number", repr(values[key])))
+    chart = get(checker, "colour_checker", "chart", str, None)
+    patch_index = get(
+        checker, "colour_checker", "patch_index", str, f"{CALIBRATION}/colour_checker_patches.png"
+    )
+    if problems:
+        return None, problems
+    config = Config(
+        name=str(raw.get("name", default_name)),
+        rgb_cameras=tuple(cameras),
+        rgb_bit_depth=values["rgb_depth"],
+        paired_camera=paired,
+        channels=tuple(str(c) for c in channels),
+        spectral_camera=spectral_camera,
+        spectral_bit_depth=values["spectral_depth"],
+        rotation_step=values["rotation_step"],
+        angle_tolerance=values["tolerance"],
+        t0=values["t0"],
+        s0=values["s0"],
+        omega=values["omega"],
+        chart=chart,
+        patch_index=patch_index,
+        raw=raw,
+    )
+    return config, problems

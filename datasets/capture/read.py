@@ -1,0 +1,160 @@
+"""Read and check a whole capture folder: every problem is listed before anything is used.
+
+:func:`read_capture` reads ``capture.toml`` and ``manifest.csv`` (:mod:`.config`,
+:mod:`.manifest`), checks the rows (:mod:`.checks`), probes every image file it has not seen
+before (:mod:`.images`, in a thread pool: the decoders release the GIL) and reads the
+calibration tables (:mod:`.calibration`). It raises one :class:`~.model.CaptureError` that lists
+every problem with its file and manifest line, or returns a :class:`~.model.Capture`.
+
+References
+----------
+Fast Capture of Spectral Image Series, sec. 3 and 4 (what a gantry run captures).
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from spectralize.schemas import Problem
+
+from .calibration import read_calibration
+from .checks import calibration_bands, check_bands, check_frame_shapes, check_rows, check_structure
+from .config import parse_config
+from .images import probe
+from .manifest import parse_manifest
+from .model import CONFIG, MANIFEST, Capture, CaptureError, Config, Row, capture_file
+
+__all__ = ["read_capture"]
+
+
+def read_capture(
+    path: str | os.PathLike[str],
+    *,
+    known: dict[str, tuple[int, int]] | None = None,
+    known_shape: tuple[int, int] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Capture:
+    """Read and check a capture folder; every problem is collected before raising.
+
+    Parameters
+    ----------
+    path
+        The capture folder.
+    known
+        ``{file: (size, mtime_ns)}`` of files already ingested and unchanged since: they are
+        not decoded again.
+    known_shape
+        The frame shape of the files in ``known`` (from the store).
+    progress
+        Called with a short message now and then.
+
+    Raises
+    ------
+    CaptureError
+        Listing every problem: a missing or unreadable file, a wrong bit depth or shape,
+        duplicate or contradicting rows, an unknown kind, an exposure series with one time,
+        a band shot without a wavelength, calibration tables that do not cover the bands.
+    """
+    root = Path(path)
+    say = progress or (lambda message: None)
+    if not root.is_dir():
+        raise CaptureError.single(str(root), "a capture folder", "no such folder")
+    problems: list[Problem] = []
+    config = _read_config(root, problems)
+    rows = _read_manifest(root, problems)
+    if config is None:
+        raise CaptureError(f"cannot ingest {root}:", problems)
+    rows, found = check_rows(rows, config)
+    problems += found
+    problems += check_structure(rows, config)
+    todo = _new_files(root, rows, config, known or {})
+    say(f"checking {len(todo)} new or changed file(s) of {len(rows)}")
+    shapes: Counter[tuple[int, int]] = Counter()
+    probed = []
+    with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
+        results = pool.map(lambda item: probe(*item[1:]), todo)
+        for (row, *_), (shape, expected, found) in zip(todo, results, strict=True):
+            if expected is not None:
+                problems.append(Problem(row.where, expected, found))
+            else:
+                shapes[shape] += 1
+                probed.append((row, shape))
+    say(f"checked {len(todo)} file(s)")
+    frame_shape = shapes.most_common(1)[0][0] if shapes else None
+    frame_shape = tuple(known_shape) if known_shape is not None else frame_shape
+    problems += check_frame_shapes(probed, frame_shape)
+    bands = calibration_bands(rows)
+    calibration, found = read_calibration(root, config, bands, frame_shape)
+    problems += found
+    problems += check_bands(rows, bands)
+    if problems:
+        raise CaptureError(
+            f"cannot ingest {root}: {len(problems)} problem(s), nothing was written", problems
+        )
+    return Capture(
+        path=root,
+        config=config,
+        rows=rows,
+        frame_shape=frame_shape,
+        bands=bands,
+        illuminant=calibration["illuminant"],
+        white_reflectance=calibration["white"],
+        patches=calibration["patches"],
+        patch_index=calibration["patch_index"],
+        plan_table=calibration.get("plan"),
+    )
+
+
+def _read_config(root: Path, problems: list[Problem]) -> Config | None:
+    path = capture_file(root, CONFIG)
+    if not path.is_file():
+        problems.append(
+            Problem(CONFIG, "a capture.toml describing cameras and bit depths", "no such file")
+        )
+        return None
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        problems.append(Problem(CONFIG, "a readable TOML file", f"{type(error).__name__}: {error}"))
+        return None
+    config, found = parse_config(text, root.name)
+    problems += found
+    return config
+
+
+def _read_manifest(root: Path, problems: list[Problem]) -> list[Row]:
+    path = capture_file(root, MANIFEST)
+    if not path.is_file():
+        problems.append(Problem(MANIFEST, "one row per image file", "no such file"))
+        return []
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as handle:
+            text = handle.read()
+    except (OSError, UnicodeDecodeError) as error:
+        problems.append(Problem(MANIFEST, "a readable CSV file", f"{type(error).__name__}: {error}"))
+        return []
+    rows, found = parse_manifest(text)
+    problems += found
+    return rows
+
+
+def _new_files(
+    root: Path, rows: list[Row], config: Config, known: dict[str, tuple[int, int]]
+) -> list[tuple[Row, Path, bool, int]]:
+    """``(row, file, rgb, bit_depth)`` of every file not in ``known`` (or changed since)."""
+    todo = []
+    for row in rows:
+        file = capture_file(root, row.file)
+        try:
+            st = file.stat()
+            if known.get(row.file) == (int(st.st_size), int(st.st_mtime_ns)):
+                continue
+        except OSError:
+            pass
+        rgb = row.camera in config.rgb_cameras
+        todo.append((row, file, rgb, config.rgb_bit_depth if rgb else config.spectral_bit_depth))
+    return todo

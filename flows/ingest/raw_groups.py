@@ -1,0 +1,591 @@
+"""The raw groups of a run store, built from a checked capture folder.
+
+Each builder turns the rows of one kind (:class:`~spectralize.datasets.capture.Capture`) into
+a lazy :class:`xarray.Dataset` in the run store's layout (``schemas/README.md``): ``raw/rgb``,
+``raw/spectral``, ``raw/dark``, ``raw/white_reference``, ``raw/colour_checker``,
+``raw/registration`` and ``raw/exposure_plan``. Dask reads one file (one RGB exposure series)
+per chunk of about :data:`CHUNK_BYTES`, so memory is bounded by a chunk, not by the run.
+A frame already in the store (same file, size and modification time) is copied from there
+instead of decoded again (:class:`FrameSources`); a group's :func:`fingerprint` is made from
+its coordinates, small variables, attributes and its files' versions.
+
+References
+----------
+Fast Capture of Spectral Image Series, sec. 3 (band shots paired with RGB images seen from the
+same angles) and sec. 4, eq. 2 and 3 (exposure times and filter sizes of the exposure plan).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Any
+
+import dask
+import dask.array as da
+import numpy as np
+import xarray as xr
+import zarr
+
+from spectralize.datasets.capture import ANGLES, Capture, CaptureError, Row
+from spectralize.datasets.capture.checks import pair
+from spectralize.datasets.capture.images import read_image
+from spectralize.datasets.capture.model import rounded
+from spectralize.store import RunStore
+
+__all__ = [
+    "RAW_GROUPS",
+    "INGEST_VERSION",
+    "FILES_ATTR",
+    "CHUNK_BYTES",
+    "RawGroup",
+    "FrameSources",
+    "build_raw_groups",
+    "fingerprint",
+]
+
+RAW_GROUPS: tuple[str, ...] = (
+    "raw/rgb",
+    "raw/spectral",
+    "raw/dark",
+    "raw/white_reference",
+    "raw/colour_checker",
+    "raw/registration",
+    "raw/exposure_plan",
+)
+"""The groups ingest writes, in the order they are built (``raw/spectral`` needs ``raw/rgb``)."""
+
+#: Bumped when the groups ingest writes change: every group is then rewritten.
+INGEST_VERSION = "1"
+FILES_ATTR = "spectralize_ingest_files"  # per variable: [file, size, mtime_ns] in frame order
+
+
+@dataclass
+class RawGroup:
+    """One raw group to write: its dataset (frames lazy, from files or the store) and files."""
+
+    name: str
+    dataset: xr.Dataset
+    files: dict[str, list[list[Any]]]  # variable -> [file, size, mtime_ns] per frame, C order
+    resumable: str | None = None
+    fingerprint: str = ""
+
+
+def _load(source: tuple, frame: tuple[int, ...]) -> np.ndarray:
+    """One frame, from its file or (already ingested) from the store; shape ``(1,)*k + frame``."""
+    if source[0] == "file":
+        data = read_image(source[1])
+    else:
+        _, store, array, index = source
+        data = np.asarray(zarr.open_array(store, path=array, mode="r")[index])
+    if data.shape != frame:
+        raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", f"shape {data.shape}")
+    return data.astype(np.uint16, copy=False)
+
+
+class FrameSources:
+    """Where each frame comes from: the store's previous version of the group, or its file."""
+
+    def __init__(self, capture: Capture, store: RunStore, group: str):
+        self.capture = capture
+        self.read = 0
+        self.copied = 0
+        self.previous: dict[str, dict[tuple, tuple]] = {}
+        if store.has(group):
+            attrs = store.group_attrs(group)
+            for var, files in (attrs.get(FILES_ATTR) or {}).items():
+                meta = json.loads((store.path / group / var / "zarr.json").read_text())
+                frame = 3 if group == "raw/rgb" or var == "rgb_counts" else 2  # (y, x[, channel])
+                grid = tuple(meta["shape"][: len(meta["shape"]) - frame])
+                self.previous[var] = {
+                    tuple(entry): (str(store.path), f"{group}/{var}", np.unravel_index(k, grid))
+                    for k, entry in enumerate(files)
+                }
+
+    def frames(self, var: str, rows: list[Row], frame: tuple[int, ...]) -> tuple[list[da.Array], list]:
+        arrays, files = [], []
+        for row in rows:
+            stat = self.capture.stat(row)
+            old = self.previous.get(var, {}).get(tuple(stat))
+            if old is not None:
+                source = ("store", old[0], old[1], tuple(int(i) for i in old[2]))
+                self.copied += 1
+            else:
+                source = ("file", str(self.capture.file(row)))
+                self.read += 1
+            arrays.append(da.from_delayed(dask.delayed(_load)(source, frame), frame, dtype=np.uint16))
+            files.append(stat)
+        return arrays, files
+
+
+#: Target size of one dask chunk (and one resumable region): memory is bounded by a few.
+CHUNK_BYTES = 64 * 2**20
+
+
+def _grid(arrays: list[da.Array], shape: tuple[int, ...]) -> da.Array:
+    """Frames (C order) stacked onto a grid of ``shape``, chunked to about :data:`CHUNK_BYTES`.
+
+    The last grid dims are filled first: e.g. an RGB image's exposure series is one chunk
+    (when it fits), and as many images as fit share it.
+    """
+    stacked = _stack(arrays, shape)
+    budget = max(1, CHUNK_BYTES // max(1, int(np.prod(stacked.shape[len(shape) :])) * 2))
+    chunks = {}
+    for axis in reversed(range(len(shape))):
+        chunks[axis] = int(min(shape[axis], max(1, budget)))
+        budget //= max(1, shape[axis])
+    return stacked.rechunk(chunks)
+
+
+def _stack(arrays: list[da.Array], shape: tuple[int, ...]) -> da.Array:
+    if len(shape) == 1:
+        return da.stack(arrays)
+    step = int(np.prod(shape[1:]))
+    return da.stack([_stack(arrays[i * step : (i + 1) * step], shape[1:]) for i in range(shape[0])])
+
+
+def _attrs_counts(bits: int, long_name: str) -> dict[str, Any]:
+    return {"units": "DN", "long_name": long_name, "bit_depth": int(bits)}
+
+
+def _source_attrs(capture: Capture, title: str) -> dict[str, Any]:
+    return {
+        "title": title,
+        "source": f"capture folder {capture.path.name!r} ({capture.config.name}), "
+        "ingested by spectralize.flows.ingest",
+        "capture_folder": str(capture.path.absolute()),
+    }
+
+
+def _rgb_group(capture: Capture, sources: FrameSources) -> RawGroup:
+    config = capture.config
+    y, x = capture.frame_shape
+    series: dict[tuple, list[Row]] = defaultdict(list)
+    for row in capture.of("rgb"):
+        series[(row.rotation, row.led, config.rgb_cameras.index(row.camera))].append(row)
+    keys = sorted(series)
+    ordered = [sorted(series[k], key=lambda r: r.exposure_time) for k in keys]
+    n_img, n_exp = len(keys), len(ordered[0])
+    arrays, files = sources.frames(
+        "counts", [r for s in ordered for r in s], (y, x, len(config.channels))
+    )
+    counts = _grid(arrays, (n_img, n_exp))
+    first = [s[0] for s in ordered]
+    coords: dict[str, Any] = {
+        "image": ("image", np.arange(n_img), {"units": "1", "long_name": "image label"}),
+        "channel": ("channel", np.asarray(config.channels), {"long_name": "channel"}),
+        "exposure_time": (
+            ("image", "exposure"),
+            np.array([[r.exposure_time for r in s] for s in ordered]),
+            {"units": "s", "long_name": "exposure time"},
+        ),
+        "camera": (
+            "image",
+            np.array([k[2] for k in keys], np.int64),
+            {"units": "1", "long_name": "RGB camera index (capture.toml rgb.cameras)"},
+        ),
+        "rotation": (
+            "image",
+            np.array([k[0] for k in keys], np.int64),
+            {"units": "1", "long_name": "rotation stage position"},
+        ),
+        "led": (
+            "image",
+            np.array([k[1] for k in keys], np.int64),
+            {"units": "1", "long_name": "index of the LED"},
+        ),
+    }
+    for i, name in enumerate(ANGLES):
+        coords[name] = (
+            "image",
+            np.array([r.angles[i] for r in first]),
+            {"units": "degree", "long_name": _ANGLE_NAMES[name]},
+        )
+    ds = xr.Dataset(
+        {
+            "counts": (
+                ("image", "exposure", "y", "x", "channel"),
+                counts,
+                _attrs_counts(config.rgb_bit_depth, "raw RGB counts"),
+            )
+        },
+        coords=coords,
+        attrs=_source_attrs(capture, "LDR exposure series of the RGB cameras")
+        | {"bit_depth": config.rgb_bit_depth, "camera": "rgb", "camera_names": list(config.rgb_cameras)},
+    )
+    return RawGroup("raw/rgb", ds, {"counts": files}, resumable="image")
+
+
+_ANGLE_NAMES = {
+    "theta_i": "polar angle of the light direction (sample frame)",
+    "phi_i": "azimuth of the light direction (sample frame)",
+    "theta_o": "polar angle of the view direction (sample frame)",
+    "phi_o": "azimuth of the view direction (sample frame)",
+}
+
+
+def _filter_sizes(capture: Capture, wavelength: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Filter size per band: ``exposure_plan.csv``, else eq. 2 and 3 solved for ``s_i(t_i)``.
+
+    With ``t_i = (t0 / (Q_i L_i))**omega`` and ``s_i = s0 / (Q_i L_i t_i)``:
+    ``s_i = (s0 / t0) * t_i**(1 / omega - 1)``.
+    """
+    c = capture.config
+    sizes = (c.s0 / c.t0) * np.asarray(times, dtype=float) ** (1.0 / c.omega - 1.0)
+    if capture.plan_table is not None:
+        table = {
+            rounded(w): s for w, s in zip(capture.plan_table[0], capture.plan_table[2], strict=True)
+        }
+        sizes = np.array([table.get(rounded(w), s) for w, s in zip(wavelength, sizes, strict=True)])
+    return sizes
+
+
+def _spectral_group(capture: Capture, sources: FrameSources, image_of: dict[tuple, int]) -> RawGroup:
+    config = capture.config
+    y, x = capture.frame_shape
+    rows = sorted(capture.of("spectral"), key=lambda r: (r.rotation, r.led, r.wavelength))
+    arrays, files = sources.frames("counts", rows, (y, x))
+    paired = [
+        ((config.paired_camera, r.rotation, r.led), r)
+        for r in capture.of("rgb")
+        if r.camera == config.paired_camera
+    ]
+    pairs = [pair(r, paired, config.angle_tolerance) for r in rows]
+    wavelength = np.array([r.wavelength for r in rows])
+    times = np.array([r.exposure_time for r in rows])
+    coords: dict[str, Any] = {
+        "shot": ("shot", np.arange(len(rows)), {"units": "1", "long_name": "shot index"}),
+        "wavelength": (
+            "shot",
+            wavelength,
+            {"units": "nm", "long_name": "centre wavelength of the filter band"},
+        ),
+        "exposure_time": ("shot", times, {"units": "s", "long_name": "exposure time"}),
+        "image": (
+            "shot",
+            np.array([image_of[(p[1], p[2], config.rgb_cameras.index(p[0]))] for p in pairs], np.int64),
+            {"units": "1", "long_name": "label of the raw/rgb image this shot pairs with (same angles)"},
+        ),
+        "rotation": (
+            "shot",
+            np.array([r.rotation for r in rows], np.int64),
+            {"units": "1", "long_name": "rotation stage position"},
+        ),
+        "led": (
+            "shot",
+            np.array([r.led for r in rows], np.int64),
+            {"units": "1", "long_name": "index of the LED"},
+        ),
+        "filter_size": (
+            "shot",
+            _filter_sizes(capture, wavelength, times),
+            {"units": "px", "long_name": "Gaussian filter size s_i (eq. 3)"},
+        ),
+    }
+    for i, name in enumerate(ANGLES):
+        coords[name] = (
+            "shot",
+            np.array([r.angles[i] for r in rows]),
+            {"units": "degree", "long_name": _ANGLE_NAMES[name]},
+        )
+    ds = xr.Dataset(
+        {
+            "counts": (
+                ("shot", "y", "x"),
+                _grid(arrays, (len(rows),)),
+                _attrs_counts(config.spectral_bit_depth, "raw band counts"),
+            )
+        },
+        coords=coords,
+        attrs=_source_attrs(capture, "band-filtered frames of the spectral camera")
+        | {"bit_depth": config.spectral_bit_depth, "camera": config.spectral_camera},
+    )
+    return RawGroup("raw/spectral", ds, {"counts": files}, resumable="shot")
+
+
+def _dark_group(capture: Capture, sources: FrameSources) -> RawGroup:
+    config = capture.config
+    y, x = capture.frame_shape
+    by_time: dict[float, list[Row]] = defaultdict(list)
+    for row in capture.of("dark"):
+        by_time[rounded(row.exposure_time)].append(row)
+    times = sorted(by_time)
+    ordered = [sorted(by_time[t], key=lambda r: r.file) for t in times]
+    arrays, files = sources.frames("frames", [r for s in ordered for r in s], (y, x))
+    frames = _grid(arrays, (len(times), len(ordered[0])))
+    ds = xr.Dataset(
+        {
+            "frames": (
+                ("exposure_time", "frame", "y", "x"),
+                frames,
+                _attrs_counts(
+                    config.spectral_bit_depth, "raw dark frames of the spectral camera (closed shutter)"
+                ),
+            )
+        },
+        coords={
+            "exposure_time": (
+                "exposure_time",
+                np.array([s[0].exposure_time for s in ordered]),
+                {"units": "s", "long_name": "exposure time"},
+            )
+        },
+        attrs=_source_attrs(capture, "dark frames of the spectral camera")
+        | {"camera": config.spectral_camera, "bit_depth": config.spectral_bit_depth},
+    )
+    return RawGroup("raw/dark", ds, {"frames": files}, resumable="exposure_time")
+
+
+def _target_group(capture: Capture, sources: FrameSources, kind: str) -> RawGroup:
+    config = capture.config
+    y, x = capture.frame_shape
+    rgb_rows = sorted(capture.of(kind, config.paired_camera), key=lambda r: r.exposure_time)
+    band_rows = capture.of(kind, config.spectral_camera)
+    times = sorted({rounded(r.exposure_time) for r in band_rows})
+    grid = {(rounded(r.wavelength), rounded(r.exposure_time)): r for r in band_rows}
+    ordered = [grid[(rounded(w), t)] for w in capture.bands for t in times]
+    rgb_arrays, rgb_files = sources.frames("rgb_counts", rgb_rows, (y, x, len(config.channels)))
+    band_arrays, band_files = sources.frames("spectral_counts", ordered, (y, x))
+    ds = xr.Dataset(
+        {
+            "rgb_counts": (
+                ("rgb_exposure", "y", "x", "channel"),
+                _grid(rgb_arrays, (len(rgb_rows),)),
+                _attrs_counts(
+                    config.rgb_bit_depth,
+                    f"raw RGB counts of the paired RGB camera {config.paired_camera}",
+                ),
+            ),
+            "spectral_counts": (
+                ("wavelength", "spectral_exposure", "y", "x"),
+                _grid(band_arrays, (capture.bands.size, len(times))),
+                _attrs_counts(config.spectral_bit_depth, "raw band counts of the spectral camera"),
+            ),
+            "illuminant": (
+                "wavelength",
+                capture.illuminant,
+                {
+                    "units": "1",
+                    "long_name": "measured relative spectral radiance of the LEDs (illuminant.csv)",
+                },
+            ),
+        },
+        coords={
+            "wavelength": (
+                "wavelength",
+                capture.bands,
+                {"units": "nm", "long_name": "centre wavelength of the filter band"},
+            ),
+            "channel": ("channel", np.asarray(config.channels), {"long_name": "channel"}),
+            "rgb_exposure_time": (
+                "rgb_exposure",
+                np.array([r.exposure_time for r in rgb_rows]),
+                {"units": "s", "long_name": "exposure time of the RGB series"},
+            ),
+            "spectral_exposure_time": (
+                "spectral_exposure",
+                np.array([grid[(rounded(capture.bands[0]), t)].exposure_time for t in times]),
+                {"units": "s", "long_name": "exposure time of the band series"},
+            ),
+        },
+        attrs=_source_attrs(capture, f"{kind.replace('_', ' ')} under the LEDs")
+        | {
+            "rgb_bit_depth": config.rgb_bit_depth,
+            "spectral_bit_depth": config.spectral_bit_depth,
+            "rgb_camera": config.rgb_cameras.index(config.paired_camera),
+        },
+    )
+    if kind == "white_reference":
+        ds["target_reflectance"] = (
+            "wavelength",
+            np.clip(capture.white_reflectance, 0.0, 1.0),
+            {
+                "units": "1",
+                "long_name": "certified reflectance of the white target (white_reference.csv)",
+            },
+        )
+    else:
+        names, reflectance, chart = capture.patches
+        ds["patch_reflectance"] = (
+            ("patch", "wavelength"),
+            np.clip(reflectance, 0.0, 1.0),
+            {"units": "1", "long_name": "published reflectance of the chart patches"},
+        )
+        ds = ds.assign_coords(
+            patch=("patch", np.arange(len(names)), {"units": "1", "long_name": "patch index"}),
+            patch_name=("patch", np.asarray(names)),
+        )
+        ds["patch_index"] = (
+            ("y", "x"),
+            capture.patch_index,
+            {"units": "1", "long_name": "patch under each RGB pixel (-1: frame)"},
+        )
+        ds.attrs["chart"] = chart
+    return RawGroup(f"raw/{kind}", ds, {"rgb_counts": rgb_files, "spectral_counts": band_files})
+
+
+def _registration_group(capture: Capture, sources: FrameSources) -> RawGroup:
+    config = capture.config
+    y, x = capture.frame_shape
+    rgb_rows = sorted(capture.of("registration", config.paired_camera), key=lambda r: r.rotation)
+    mono_rows = sorted(capture.of("registration", config.spectral_camera), key=lambda r: r.rotation)
+    rgb_arrays, rgb_files = sources.frames("rgb_counts", rgb_rows, (y, x, len(config.channels)))
+    mono_arrays, mono_files = sources.frames("spectral_counts", mono_rows, (y, x))
+    rotation = np.array([r.rotation for r in rgb_rows], np.int64)
+    ds = xr.Dataset(
+        {
+            "rgb_counts": (
+                ("rotation", "y", "x", "channel"),
+                _grid(rgb_arrays, (len(rgb_rows),)),
+                _attrs_counts(config.rgb_bit_depth, f"RGB camera {config.paired_camera}"),
+            ),
+            "spectral_counts": (
+                ("rotation", "y", "x"),
+                _grid(mono_arrays, (len(mono_rows),)),
+                _attrs_counts(config.spectral_bit_depth, "spectral camera"),
+            ),
+        },
+        coords={
+            "rotation": ("rotation", rotation, {"units": "1", "long_name": "rotation stage position"}),
+            "rotation_angle": (
+                "rotation",
+                (rotation * config.rotation_step) % 360.0,
+                {"units": "degree", "long_name": "rotation of the sample"},
+            ),
+            "channel": ("channel", np.asarray(config.channels), {"long_name": "channel"}),
+            "rgb_exposure_time": (
+                (),
+                float(rgb_rows[0].exposure_time),
+                {"units": "s", "long_name": "exposure time of the RGB shots"},
+            ),
+            "spectral_exposure_time": (
+                (),
+                float(mono_rows[0].exposure_time),
+                {"units": "s", "long_name": "exposure time of the spectral shots"},
+            ),
+            "spectral_wavelength": (
+                (),
+                float(mono_rows[0].wavelength),
+                {"units": "nm", "long_name": "filter band of the spectral shots"},
+            ),
+        },
+        attrs=_source_attrs(capture, "long-exposure registration shots per rotation")
+        | {
+            "rgb_camera": config.rgb_cameras.index(config.paired_camera),
+            "rgb_bit_depth": config.rgb_bit_depth,
+            "spectral_bit_depth": config.spectral_bit_depth,
+        },
+    )
+    return RawGroup("raw/registration", ds, {"rgb_counts": rgb_files, "spectral_counts": mono_files})
+
+
+def _plan_group(capture: Capture, rgb: xr.Dataset, spectral: xr.Dataset) -> RawGroup:
+    c = capture.config
+    if capture.plan_table is not None:
+        wavelength, times, sizes = (np.asarray(v, dtype=float) for v in capture.plan_table)
+        order = np.argsort(wavelength)
+        wavelength, times, sizes = wavelength[order], times[order], sizes[order]
+    else:
+        shots = spectral[["exposure_time"]].to_dataframe().groupby(spectral["wavelength"].values).first()
+        wavelength = np.asarray(shots.index, dtype=float)
+        times = np.asarray(shots["exposure_time"], dtype=float)
+        sizes = _filter_sizes(capture, wavelength, times)
+    ds = xr.Dataset(
+        {
+            "exposure_time": ("wavelength", times, {"units": "s", "long_name": "exposure time (eq. 2)"}),
+            "filter_size": (
+                "wavelength",
+                sizes,
+                {"units": "px", "long_name": "filter size s_i (eq. 3)"},
+            ),
+            "filter_sigma": ("wavelength", sizes / 5.0, {"units": "px", "long_name": "s_i / 5"}),
+            "spectral_capture_time": (
+                (),
+                float(spectral["exposure_time"].sum()),
+                {"units": "s", "long_name": "total spectral exposure"},
+            ),
+            "rgb_capture_time": (
+                (),
+                float(rgb["exposure_time"].sum()),
+                {"units": "s", "long_name": "total RGB exposure"},
+            ),
+        },
+        coords={
+            "wavelength": (
+                "wavelength",
+                wavelength,
+                {"units": "nm", "long_name": "centre wavelength of the filter band"},
+            )
+        },
+        attrs=_source_attrs(capture, "the exposure plan (eq. 2, 3) the band shots followed")
+        | {
+            "t0": c.t0,
+            "s0": c.s0,
+            "omega": c.omega,
+            "filter_sizes_from": "calibration/exposure_plan.csv"
+            if capture.plan_table is not None
+            else "eq. 2 and 3 with t0, s0, omega of capture.toml",
+        },
+    )
+    return RawGroup("raw/exposure_plan", ds, {})
+
+
+def fingerprint(group: RawGroup) -> str:
+    """Of the group's description: coords, small variables, attrs and its files' versions."""
+    ds = group.dataset
+    payload = {
+        "ingest": INGEST_VERSION,
+        "group": group.name,
+        "attrs": {k: v for k, v in ds.attrs.items() if k != "capture_folder"},
+        "coords": {k: np.asarray(v.values).tolist() for k, v in ds.coords.items()},
+        "small": {k: np.asarray(v.values).tolist() for k, v in ds.data_vars.items() if v.chunks is None},
+        "files": group.files,
+    }
+    text = json.dumps(payload, sort_keys=True, default=str)
+    return "ingest:" + hashlib.sha256(text.encode()).hexdigest()
+
+
+def build_raw_groups(capture: Capture, store: RunStore) -> list[tuple[RawGroup, FrameSources]]:
+    """Every raw group of :data:`RAW_GROUPS`, lazy, with its fingerprint and where its frames come from.
+
+    Parameters
+    ----------
+    capture
+        A checked capture folder (:func:`~spectralize.datasets.capture.read_capture`).
+    store
+        The run store: frames of files it holds already (same size and modification time)
+        are copied from it.
+    """
+    groups: list[tuple[RawGroup, FrameSources]] = []
+    for name in RAW_GROUPS:
+        sources = FrameSources(capture, store, name)
+        if name == "raw/rgb":
+            group = _rgb_group(capture, sources)
+            rgb = group.dataset
+            image_of = {
+                (int(r), int(led), int(cam)): int(i)
+                for i, r, led, cam in zip(
+                    rgb["image"].values,
+                    rgb["rotation"].values,
+                    rgb["led"].values,
+                    rgb["camera"].values,
+                    strict=True,
+                )
+            }
+        elif name == "raw/spectral":
+            group = _spectral_group(capture, sources, image_of)
+            spectral = group.dataset
+        elif name == "raw/dark":
+            group = _dark_group(capture, sources)
+        elif name in ("raw/white_reference", "raw/colour_checker"):
+            group = _target_group(capture, sources, name.split("/")[1])
+        elif name == "raw/registration":
+            group = _registration_group(capture, sources)
+        else:
+            group = _plan_group(capture, rgb, spectral)
+        group.fingerprint = fingerprint(group)
+        group.dataset.attrs[FILES_ATTR] = group.files
+        groups.append((group, sources))
+    return groups
