@@ -4,9 +4,9 @@ Only tests, benchmarks, the sample data and the ``simulate`` node use this stage
 stage (calibration, reconstruction, evaluation) imports it.
 """
 
+from .assembly import Gantry, simulate_run
 from .camera_model import RGBCamera, SpectralCamera, capture, response_model
 from .exposure_plan import exposure_plan
-from .assembly import Gantry, simulate_run
 from .ground_truth import spectral_scene
 from .recipes import RECIPES, GantryRecipe, get_recipe
 

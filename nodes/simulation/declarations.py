@@ -13,8 +13,8 @@ import xarray as xr
 from pydantic import Field
 
 from spectralize.engine import Choices, Node
-from spectralize.nodes.simulation.camera_model import SimulationParameterError
 from spectralize.nodes.simulation.assembly import GROUPS, simulate_run
+from spectralize.nodes.simulation.camera_model import SimulationParameterError
 from spectralize.nodes.simulation.recipes import RECIPES, get_recipe
 
 __all__ = ["simulate", "SIMULATE"]

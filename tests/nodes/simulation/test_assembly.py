@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from spectralize.nodes.simulation.camera_model import SimulationParameterError, response_model
 from spectralize.nodes.simulation.assembly import GROUPS, Gantry, simulate_run
+from spectralize.nodes.simulation.camera_model import SimulationParameterError, response_model
 from spectralize.nodes.simulation.recipes import GantryRecipe, get_recipe
 from spectralize.schemas import GROUP_SCHEMAS, validate_dataset
 from spectralize.store import RunStore
@@ -91,14 +91,6 @@ def test_sparse_mode_spreads_32_bands_over_the_led_set(tiny):
     used |= set(g["raw/white_reference"].spectral_exposure_time.values.tolist())
     used.add(float(g["raw/registration"].spectral_exposure_time))
     assert used <= dark_times
-
-
-def test_dense_mode_has_all_bands_per_led():
-    schedule = Gantry(get_recipe("tiny", spectral_mode="dense")).schedule
-    per_rot = len(schedule.shots) // len(set(schedule.shots.rotation.tolist()))
-    assert per_rot == 32 * schedule.recipe.spectral_set_size
-    t = schedule.band_time[schedule.shots.band].sum()
-    assert float(schedule.plan.spectral_capture_time) == pytest.approx(t, abs=len(schedule.shots) * 5e-5)
 
 
 def test_spectral_shot_at_rotation_r_plus_1_sees_rgb_image_of_rotation_r(tiny):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from spectralize.nodes.simulation.assembly import GROUPS, Gantry
 from spectralize.nodes.simulation.camera_model import SimulationParameterError
 from spectralize.nodes.simulation.declarations import SIMULATE
-from spectralize.nodes.simulation.assembly import GROUPS, Gantry
 from spectralize.nodes.simulation.recipes import DESCRIPTIONS, RECIPES, get_recipe, recipe_names
 from spectralize.schemas import ParameterError
 
