@@ -68,13 +68,9 @@ from spectralize.nodes.evaluation.figures_calibration import (
     plot_response_histograms,
     response_histograms,
 )
-from spectralize.nodes.evaluation.metrics import (
-    DEFAULT_THRESHOLD,
-    METHOD_DIM,
-    STATISTICS,
-    compare_methods,
-    evaluate,
-)
+from spectralize.nodes.evaluation.accuracy import evaluate
+from spectralize.nodes.evaluation.comparison import METHOD_DIM, compare_methods
+from spectralize.nodes.evaluation.statistics import DEFAULT_THRESHOLD, STATISTICS
 from spectralize.schemas import ParameterError, Problem, SchemaError, SpectralizeError
 from spectralize.schemas.run import EVALUATION
 from spectralize.store import RunStore
@@ -119,7 +115,7 @@ def _check_evaluation(evaluation: xr.Dataset) -> None:
             [
                 Problem(
                     f"evaluation:{name}",
-                    "a variable made by spectralize.nodes.evaluation.metrics.evaluate",
+                    "a variable made by spectralize.nodes.evaluation.accuracy.evaluate",
                     "nothing",
                 )
                 for name in missing
@@ -714,7 +710,7 @@ def write_report(
     Parameters
     ----------
     evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (the ``evaluation``
+        Output of :func:`~spectralize.nodes.evaluation.accuracy.evaluate` (the ``evaluation``
         group); it is computed here.
     spectra, truth
         Groups ``spectra`` and ``truth/spectra`` the evaluation was made from. Images are
@@ -723,7 +719,7 @@ def write_report(
         Folder to write ``index.html`` into (created; the file is replaced atomically).
     baselines
         Comparison of methods: the output of
-        :func:`~spectralize.nodes.evaluation.metrics.compare_methods` (dim
+        :func:`~spectralize.nodes.evaluation.comparison.compare_methods` (dim
         ``reconstruction``), or what it accepts, which is then evaluated here against
         ``truth`` (with ``shots``). Left out when ``None``.
     capture
@@ -754,7 +750,7 @@ def write_report(
     ------
     SchemaError
         If ``evaluation`` lacks variables that
-        :func:`~spectralize.nodes.evaluation.metrics.evaluate` makes.
+        :func:`~spectralize.nodes.evaluation.accuracy.evaluate` makes.
     ParameterError
         If ``max_images`` is below 1.
 

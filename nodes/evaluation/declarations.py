@@ -2,7 +2,7 @@
 
 ``evaluate``: nRMSE, spectral angle and CIEDE2000 of the reconstruction against the ground
 truth, with statistics, histograms and representative spectra
-(:func:`spectralize.nodes.evaluation.metrics.evaluate`). Its parameters are the function's
+(:func:`spectralize.nodes.evaluation.accuracy.evaluate`). Its parameters are the function's
 keyword-only arguments, derived by the engine from their annotations (constraints, the
 illuminant table) and numpydoc descriptions. Registered through the entry point
 ``spectralize.nodes: evaluate = spectralize.nodes.evaluation.declarations:EVALUATE``.
@@ -11,7 +11,7 @@ illuminant table) and numpydoc descriptions. Registered through the entry point
 from __future__ import annotations
 
 from spectralize.engine import Node
-from spectralize.nodes.evaluation.metrics import evaluate
+from spectralize.nodes.evaluation.accuracy import evaluate
 
 __all__ = ["EVALUATE"]
 

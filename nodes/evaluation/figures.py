@@ -28,7 +28,7 @@ import xarray as xr
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from spectralize.nodes.evaluation.metrics import DEFAULT_THRESHOLD
+from spectralize.nodes.evaluation.statistics import DEFAULT_THRESHOLD
 
 __all__ = [
     "ERROR_COLORMAP",
@@ -53,7 +53,7 @@ def image_label(evaluation: xr.Dataset, image: int) -> str:
     Parameters
     ----------
     evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (or any group with
+        Output of :func:`~spectralize.nodes.evaluation.accuracy.evaluate` (or any group with
         an ``image`` dim); its ``image`` coordinate (the image's label in the run store),
         per-image coords ``theta_o, phi_o, theta_i, phi_i`` and variable ``has_band_shots``
         are used where present.
@@ -122,7 +122,7 @@ def plot_error_map(
     Parameters
     ----------
     evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (computed).
+        Output of :func:`~spectralize.nodes.evaluation.accuracy.evaluate` (computed).
     image
         Position of the image along ``image``.
     truth_srgb, reconstruction_srgb
@@ -173,7 +173,7 @@ def plot_spectra(evaluation: xr.Dataset, image: int) -> Figure:
     Parameters
     ----------
     evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (computed), with
+        Output of :func:`~spectralize.nodes.evaluation.accuracy.evaluate` (computed), with
         the representative pixels ``sample_*``.
     image
         Position of the image along ``image``.
@@ -236,7 +236,7 @@ def nrmse_histograms(evaluation: xr.Dataset, *, bins: int = 60) -> dict[str, dic
     Parameters
     ----------
     evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (computed): the
+        Output of :func:`~spectralize.nodes.evaluation.accuracy.evaluate` (computed): the
         ``nrmse`` maps when present, else the stored ``nrmse_histogram`` and
         ``nrmse_above_range`` (the overflow).
     bins
@@ -300,7 +300,7 @@ def plot_histograms(evaluation: xr.Dataset) -> Figure:
     Parameters
     ----------
     evaluation
-        Output of :func:`~spectralize.nodes.evaluation.metrics.evaluate` (computed); see
+        Output of :func:`~spectralize.nodes.evaluation.accuracy.evaluate` (computed); see
         :func:`nrmse_histograms`: the range covers every pixel, the last bar (hatched) is the
         overflow bin of the pixels above the range.
 

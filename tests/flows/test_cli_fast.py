@@ -127,7 +127,7 @@ def test_nodes_lists_every_node_and_parameter_without_heavy_imports(tmp_path):
 def test_the_written_out_illuminant_names_are_colour_sciences():
     import colour
 
-    from spectralize.nodes.evaluation.metrics import ILLUMINANTS
+    from spectralize.nodes.evaluation.illuminants import ILLUMINANTS
 
     assert set(ILLUMINANTS) == {"E", *colour.SDS_ILLUMINANTS}
     assert len(ILLUMINANTS) == len(set(ILLUMINANTS))

@@ -12,7 +12,7 @@ from support.cubes import cube_dataset
 from spectralize.flows.report import error_map_figures, write_report, write_run_report
 from spectralize.nodes.evaluation.capture_time import capture_time
 from spectralize.nodes.evaluation.figures import nrmse_histograms
-from spectralize.nodes.evaluation.metrics import evaluate
+from spectralize.nodes.evaluation.accuracy import evaluate
 from spectralize.schemas import SchemaError
 from spectralize.store import RunStore
 

@@ -7,6 +7,7 @@ import xarray as xr
 from matplotlib.figure import Figure
 from support.cubes import cube_dataset
 
+from spectralize.nodes.evaluation.accuracy import evaluate
 from spectralize.nodes.evaluation.capture_time import capture_time
 from spectralize.nodes.evaluation.colorimetry import render_srgb
 from spectralize.nodes.evaluation.figures import (
@@ -17,7 +18,6 @@ from spectralize.nodes.evaluation.figures import (
     plot_histograms,
     plot_spectra,
 )
-from spectralize.nodes.evaluation.metrics import evaluate
 
 
 def _cube(values):
