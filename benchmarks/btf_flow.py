@@ -64,8 +64,8 @@ def main(argv: list[str] | None = None) -> dict:
         _set_inputs,
         _wavelengths,
         reconstruct_image_sets,
-        solve_set,
     )
+    from spectralize.nodes.reconstruction.tiling import solve_set
     from spectralize.store import RunStore
 
     root = Path(tempfile.mkdtemp(prefix="btf-bench-")) if args.store is None else args.store

@@ -20,14 +20,15 @@ shots each, the default method):
   the interior tiles is solved (``--sample``, ``tiles_solved`` of ``tiles``): tiles are
   independent, so the whole set's time is the per-tile time times the tile count; the
   figure is per Mpx-image of the tiles' cores.
-- ``untiled``: the same 256^2 set solved whole and tiled (same process, same inputs):
+- ``untiled``: the same 256^2 set solved whole and by the flow's tile tasks
+  (:func:`~spectralize.nodes.reconstruction.tiling.solve_tiled`; same process, same inputs):
   ``speedup_vs_untiled`` and ``tiled_vs_untiled_nrmse_ratio`` (median and p95 nRMSE against
   the truth), and the error near tile borders vs tile interiors (seams).
 - ``today``: the 256^2 set solved whole by the code of ``--baseline-commit`` (the solver
   before this work), in a fresh process from a git worktree: ``speedup_vs_today``.
-- ``dask``: the tiles of two 256^2 sets (128 px cores; each set its own dictionary task, as
-  the sets of a run are) on a ``dask.distributed`` LocalCluster of 1 and then 2 worker
-  processes with 1 thread each: ``dask_speedup_2_workers``.
+- ``dask``: the tile tasks of two 256^2 sets (128 px cores; each set its own dictionary
+  task, as the sets of a run are) on a ``dask.distributed`` LocalCluster of 1 and then 2
+  worker processes with 1 thread each: ``dask_speedup_2_workers``.
 - ``full_run_hours_at_100_cores``: extrapolated from the 2048^2 throughput (see the README
   for the formula).
 """
@@ -167,21 +168,22 @@ def _set_endmembers(rgb, shots, camera) -> tuple[object, float]:
 
 
 def _solve_window(rgb, shots, camera, window, endmembers=None) -> tuple[float, int]:
-    """One tile as the flow's tile task solves it: with the set's endmembers and the
-    per-pixel confidence."""
-    from spectralize.nodes.reconstruction.set_reconstruction import solve_set
+    """One tile as the flow solves it (its tile task, :func:`~.tiling.solve_tile`): with the
+    set's endmembers and the per-pixel confidence; ``(seconds, iterations)``."""
+    from spectralize.nodes.reconstruction.tiling import solve_tile
 
     oy, ox = window.outer
     started = time.perf_counter()
-    _, iterations, _ = solve_set(
+    _, iterations, _ = solve_tile(
         rgb.isel(y=oy, x=ox),
         shots.isel(y=oy, x=ox),
         camera,
-        method=_method(),
-        endmembers=endmembers,
+        window.inner,
+        settings={"method": _method()},
         confidence=True,
+        endmembers=endmembers,
     )
-    return time.perf_counter() - started, int(iterations)
+    return time.perf_counter() - started, int(iterations.max())
 
 
 def case_throughput(inputs: Path, size: int, tile: int, sample: int, threads: int) -> dict:
@@ -228,17 +230,19 @@ def case_throughput(inputs: Path, size: int, tile: int, sample: int, threads: in
 
 
 def case_untiled(inputs: Path, tile: int) -> dict:
-    """The 256^2 set solved whole and tiled: time, accuracy, seams."""
-    from spectralize.nodes.reconstruction.set_reconstruction import solve_set
-    from spectralize.nodes.reconstruction.tiling import solve_set_tiled, tile_windows
+    """The 256^2 set solved whole and by the flow's tile tasks (one after the other, on the
+    synchronous scheduler): time, accuracy, seams."""
+    from spectralize.nodes.reconstruction.tiling import solve_set, solve_tiled, tile_windows
 
     rgb, shots, camera, truth = load_inputs(inputs)
     started = time.perf_counter()
-    whole, whole_iterations, _ = solve_set(rgb, shots, camera)
+    whole, whole_iterations, _ = solve_set(rgb, shots, camera, method=_method())
     whole_s = time.perf_counter() - started
     peak_whole = resident_gb()
     started = time.perf_counter()
-    tiled, tiled_iterations, _ = solve_set_tiled(rgb, shots, camera, tile=tile)
+    tiled, tiled_iterations, _ = solve_tiled(
+        rgb, shots, camera, tile=tile, confidence=True, method=_method()
+    )
     tiled_s = time.perf_counter() - started
     e_whole = nrmse(whole.transpose("image", "wavelength", "y", "x").values, truth)
     e_tiled = nrmse(tiled.transpose("image", "wavelength", "y", "x").values, truth)
@@ -313,17 +317,22 @@ def _warm_worker() -> None:
 
 
 def case_dask(inputs: Path, tile: int, workers: int, sets: int = 2) -> dict:
-    """The tiles of ``sets`` sets (the same inputs under other task keys, as a run's sets
-    are other tasks of one graph) on a LocalCluster of ``workers`` processes x 1 thread,
-    each worker warmed up first (imports and compiled kernels loaded)."""
+    """The tile tasks of ``sets`` sets (:func:`~.tiling.tile_tasks`, as the flow builds them;
+    the same inputs under other task names, as a run's sets are other tasks of one graph) on
+    a LocalCluster of ``workers`` processes x 1 thread, each worker warmed up first (imports
+    and compiled kernels loaded)."""
     import dask
     from distributed import Client, LocalCluster
 
-    from spectralize.nodes.reconstruction.tiling import default_halo, tile_windows
+    from spectralize.nodes.reconstruction.tiling import set_windows, tile_tasks
 
     rgb, shots, camera, _ = load_inputs(inputs)
-    size = rgb.sizes["y"]
-    windows = tile_windows(size, size, tile, default_halo(shots["filter_size"].values))
+    windows, _ = set_windows(shots, rgb.sizes["y"], rgb.sizes["x"], tile)
+    settings = {"method": _method()}
+    graphs = [
+        tile_tasks(rgb, shots, camera, windows, settings=settings, confidence=True, name=f"set-{i}")
+        for i in range(sets)
+    ]
     with (
         LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
@@ -332,11 +341,10 @@ def case_dask(inputs: Path, tile: int, workers: int, sets: int = 2) -> dict:
     ):
         client.run(_warm_worker)
         started = time.perf_counter()
-        tasks = []
-        for _ in range(sets):  # delayed calls are impure: every set gets its own keys
-            endmembers = dask.delayed(_set_endmembers)(rgb, shots, camera)[0]
-            tasks += [dask.delayed(_solve_window)(rgb, shots, camera, w, endmembers) for w in windows]
-        dask.compute(*tasks, scheduler=client)
+        # reduced where they are solved (the flow writes them there): no cube to gather
+        dask.compute(
+            *[(g.spectra.sum(), g.confidence.sum(), g.iterations) for g in graphs], scheduler=client
+        )
         wall = time.perf_counter() - started
     return {"workers": workers, "sets": sets, "tiles": sets * len(windows), "wall_s": round(wall, 2)}
 

@@ -5,11 +5,11 @@ One seed set is solved first from a cold start (:func:`reconstruct_seed_set`); e
 starts from spectra transported from the seed through appearance neighbourhoods
 (:mod:`~spectralize.nodes.reconstruction.warm_start`) and is solved independently, so the sets
 run in parallel on dask (:func:`reconstruct_image_sets`). Every set is solved tile by tile
-(:mod:`~spectralize.nodes.reconstruction.tiling`), one dask task per set and tile, so memory
-is bounded by tile x set; a method with an endmember dictionary (the default) gets one more
-task per set that learns it from a strided sample of the set, shared by the set's tiles
-(:func:`~.tiling.shared_endmembers`). The cube is written set by set: each set is one resumable region of
-the ``spectra`` group, so a crash loses at most the sets in flight.
+with the tasks of :func:`~spectralize.nodes.reconstruction.tiling.tile_tasks`: one dask task
+per set and tile, so memory is bounded by tile x set, and for a method with an endmember
+dictionary (the default) one more task per set that learns it from a strided sample of the
+set, shared by the set's tiles. The cube is written set by set: each set is one resumable
+region of the ``spectra`` group, so a crash loses at most the sets in flight.
 
 The node functions' keyword-only arguments are the nodes' parameters (the engine derives
 the parameter models from them; :mod:`~spectralize.nodes.reconstruction.declarations`
@@ -24,7 +24,6 @@ References
 from __future__ import annotations
 
 import math
-import time
 from typing import Annotated, Any
 
 import dask
@@ -34,27 +33,14 @@ import xarray as xr
 from pydantic import AfterValidator, Field
 
 from spectralize.engine import Choices
-from spectralize.schemas import ReconstructionError
 from spectralize.schemas.run import SPECTRA
 
-from .api import reconstruct
 from .confidence import neighbourhood_spread
-from .estimators.endmember_mixture import Endmembers
 from .image_sets import set_members
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
-from .solvers.common import counting_iterations
-from .tiling import (
-    TileWindow,
-    check_windows,
-    default_halo,
-    sample_grid,
-    shared_endmembers,
-    tile_windows,
-)
-from .warm_start import transport_spectra
+from .tiling import core_chunks, join_tiles, method_options, set_windows, solve_set, tile_tasks
 
 __all__ = [
-    "solve_set",
     "reconstruct_seed_set",
     "reconstruct_image_sets",
     "DISK_TILE",
@@ -132,38 +118,6 @@ Tile = Annotated[
 ]
 
 
-def _method_options(
-    method: str,
-    *,
-    gamma_hat: float,
-    tolerance: float | None,
-    max_iterations: int,
-    k: int | None,
-    prior: float | None,
-) -> dict[str, Any]:
-    """The settings ``method`` takes: all of them for a solver, none for a baseline.
-
-    Raises
-    ------
-    ReconstructionError
-        For an unknown method, or a ``prior`` for a method without one.
-    """
-    options = get_method(method).options
-    if prior is not None and "prior" not in options:
-        takers = [name for name, m in RECONSTRUCTION_METHODS.items() if "prior" in m.options]
-        raise ReconstructionError(
-            f"prior: method {method!r} has no prior; methods with one: {', '.join(takers)}"
-        )
-    settings = {
-        "gamma_hat": gamma_hat,
-        "tolerance": tolerance,
-        "max_iterations": max_iterations,
-        "k": k,
-        "prior": prior,
-    }
-    return {name: value for name, value in settings.items() if name in options and value is not None}
-
-
 def _set_inputs(
     hdr: xr.Dataset, bands: xr.Dataset, labels: np.ndarray
 ) -> tuple[xr.DataArray, xr.DataArray]:
@@ -171,104 +125,6 @@ def _set_inputs(
     rgb = hdr["radiance"].sel(image=labels)
     shots = bands["radiance"].isel(shot=np.flatnonzero(np.isin(bands["image"].values, labels)))
     return rgb, shots
-
-
-def solve_set(
-    rgb: xr.DataArray,
-    shots: xr.DataArray,
-    camera_matrix: xr.DataArray,
-    *,
-    initial: xr.DataArray | None = None,
-    method: str = DEFAULT_METHOD,
-    gamma_hat: float = 20.0,
-    tolerance: float | None = None,
-    max_iterations: int = 400,
-    k: int | None = None,
-    prior: float | None = None,
-    where: str | None = None,
-    endmembers: Endmembers | None = None,
-    confidence: bool = False,
-) -> tuple[xr.DataArray, int, float]:
-    """Reconstruct one image set (eq. 1 or a baseline).
-
-    Parameters
-    ----------
-    rgb, shots, camera_matrix
-        The set's HDR RGB ``(image, y, x, channel)``, its band shots ``(shot, y, x)`` and
-        ``C`` (see :func:`~spectralize.nodes.reconstruction.reconstruct`).
-    initial
-        Warm start ``(image, wavelength, y, x)`` (solvers only; ignored by a baseline).
-    method
-        A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
-    gamma_hat, tolerance, max_iterations, k, prior
-        Solver settings (a baseline takes none of them; ``prior=None``, ``k=None``: the
-        method's default).
-    where
-        Which part of the images this is (a tile's :attr:`~.tiling.TileWindow.label`), for
-        the progress display's label.
-    endmembers
-        The set's endmember dictionary (:func:`~.tiling.shared_endmembers`), for a method
-        that takes one (ignored by the others): the tiles of a set share it.
-    confidence
-        Also compute the per-pixel confidence (:func:`~.confidence.neighbourhood_spread`,
-        from the solver's own neighbourhoods where it has them), as the coordinate
-        ``confidence`` ``(image, y, x)`` of ``spectra``.
-
-    Returns
-    -------
-    tuple
-        ``(spectra, iterations, seconds)``.
-
-    Raises
-    ------
-    ReconstructionError
-        For a set without band shots, and everything :func:`reconstruct` raises.
-    """
-    if shots.sizes["shot"] == 0:
-        raise ReconstructionError(
-            "an image set without any band shot cannot be solved on its "
-            "own: it needs at least one image with bands"
-        )
-    options = _method_options(
-        method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
-    )
-    if initial is not None and "initial" in get_method(method).options:
-        options["initial"] = initial
-    if endmembers is not None and "endmembers" in get_method(method).options:
-        options["endmembers"] = endmembers
-    start = time.perf_counter()
-    # a solver's iterations, for the console's bars (nothing is reported when nobody listens)
-    from spectralize.engine import progress
-
-    # named by its images without band shots (the anchors with shots are in every set)
-    images = rgb["image"].values.tolist()
-    anchors = set(shots["image"].values.tolist())
-    named = [str(i) for i in sorted(i for i in images if i not in anchors) or images]
-    more = f" and {len(named) - 3} more" if len(named) > 3 else ""
-    label = f"images {', '.join(named[:3])}{more}" + (f", {where}" if where else "")
-    record = get_method(method)
-    solver = "callback" in record.options
-    # a solver's CG iterations, then its S >= 0 refinement's (told when it is done)
-    refinement = int(record.defaults().get("projected_iterations", 0))
-    total = max_iterations + refinement if solver else None
-    with progress.task(label, total=total) as solving:
-        if solving is not None and solver:
-            options["callback"] = counting_iterations(solving.advance)
-        result = reconstruct(
-            rgb.load(),
-            shots.load(),
-            camera_matrix,
-            method=method,
-            full_output=True,
-            confidence=confidence,
-            **options,
-        )
-        if solving is not None and solver:
-            solving.advance(int(result.iterations))
-    spectra = result.spectra
-    if confidence:
-        spectra = spectra.assign_coords(confidence=result.confidence)
-    return spectra, int(result.iterations), time.perf_counter() - start
 
 
 def _camera_matrix(calibration: xr.Dataset, wavelength: np.ndarray) -> xr.DataArray:
@@ -282,36 +138,6 @@ def _camera_matrix(calibration: xr.Dataset, wavelength: np.ndarray) -> xr.DataAr
 def _wavelengths(bands: xr.Dataset) -> np.ndarray:
     """The distinct band wavelengths [nm] of a ``bands`` group, increasing."""
     return np.unique(np.asarray(bands["wavelength"].values, dtype=float))
-
-
-def _set_windows(
-    shots: xr.DataArray, height: int, width: int, tile: int | None
-) -> tuple[list[TileWindow], int]:
-    """``(windows, halo)``: the tiles a set is solved in. One window, the whole image, when
-    ``tile`` is None or covers the image; else :func:`~.tiling.tile_windows` with the halo of
-    the set's largest filter (:func:`~.tiling.default_halo`)."""
-    if tile is None or (height <= tile and width <= tile):
-        return tile_windows(height, width, max(height, width), 0), 0
-    if shots.sizes["shot"] == 0:  # solve_set says why it cannot be solved
-        return tile_windows(height, width, tile, 0), 0
-    sizes = np.asarray(shots["filter_size"].values, dtype=np.float64)
-    halo = default_halo(sizes)
-    windows = tile_windows(height, width, tile, halo)
-    check_windows(windows, sizes)
-    return windows, halo
-
-
-def _core_chunks(windows: list[TileWindow]) -> tuple[tuple[int, ...], tuple[int, ...]]:
-    """The cores' heights (along y) and widths (along x): the dask chunks of a tiled result."""
-    ys = sorted({(w.core[0].start, w.core[0].stop) for w in windows})
-    xs = sorted({(w.core[1].start, w.core[1].stop) for w in windows})
-    return tuple(b - a for a, b in ys), tuple(b - a for a, b in xs)
-
-
-def _tiled(blocks: list[da.Array], windows: list[TileWindow]) -> da.Array:
-    """Per-tile blocks (row-major, like ``windows``) joined along their last two dims."""
-    columns = len(_core_chunks(windows)[1])
-    return da.block([blocks[i : i + columns] for i in range(0, len(blocks), columns)])
 
 
 def _recorded_settings(method: str, options: dict[str, Any]) -> dict[str, Any]:
@@ -387,10 +213,10 @@ def reconstruct_seed_set(
         "k": k,
         "prior": prior,
     }
-    options = _method_options(
+    options = method_options(
         method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
     )  # fail before any solve
-    windows, halo = _set_windows(shots, hdr.sizes["y"], hdr.sizes["x"], tile)
+    windows, halo = set_windows(shots, hdr.sizes["y"], hdr.sizes["x"], tile)
     attrs: dict[str, Any] = {
         "seed_set": seed,
         "method": method,
@@ -407,18 +233,14 @@ def reconstruct_seed_set(
         )
         count = np.full(len(members), iterations, dtype=np.int32)
     else:
-        keep = np.ones(len(members), dtype=bool)
-        cube, count, spread = _tile_tasks(
+        cube, count, spread = tile_tasks(
             rgb,
             shots,
             camera_matrix,
             windows,
-            keep,
-            None,
-            settings,
-            wavelength.size,
-            f"solve-seed-{seed}",
+            settings=settings,
             confidence=True,
+            name=f"solve-seed-{seed}",
         )
         per_image = hdr.drop_vars(list(hdr.data_vars)).sel(image=members).load()
         coords = {n: per_image[n] for n in ("image", *_PER_IMAGE) if n in per_image.coords}
@@ -437,120 +259,6 @@ def reconstruct_seed_set(
             "confidence": (("image", "y", "x"), spread, _CONFIDENCE_ATTRS),
         },
         attrs=attrs,
-    )
-
-
-def _tile_tasks(
-    rgb: xr.DataArray,
-    shots: xr.DataArray,
-    camera_matrix: xr.DataArray,
-    windows: list[TileWindow],
-    owned: np.ndarray,
-    warm: Any,
-    settings: dict,
-    n_wavelength: int,
-    name: str,
-    confidence: bool,
-) -> tuple[da.Array, da.Array, da.Array | None]:
-    """One dask task per tile of a set (:func:`_solve_tile`): the owned images' cube
-    ``(image, wavelength, y, x)``, their iterations (the most over the tiles) and confidence
-    ``(image, y, x)`` (``None`` without ``confidence``), lazy, chunked by tile."""
-    token = dask.base.tokenize(
-        rgb.data,
-        shots.data,
-        camera_matrix.values,
-        settings,
-        [w.core for w in windows],
-        getattr(warm, "key", None),
-    )
-    n_owned = int(np.count_nonzero(owned))
-    endmembers = None  # one dictionary for all tiles of the set, learnt once
-    if len(windows) > 1 and "endmembers" in get_method(settings["method"]).options:
-        grid = sample_grid(rgb)  # cut before the task: only the sample is read
-        endmembers = dask.delayed(shared_endmembers, pure=True)(
-            rgb.isel(grid),
-            shots.isel(grid),
-            camera_matrix,
-            dask_key_name=f"{name}-endmembers-{token}",
-        )
-    blocks, counts, tiles = [], [], []
-    for j, window in enumerate(windows):
-        oy, ox = window.outer
-        task = dask.delayed(_solve_tile, pure=True, nout=3)(
-            rgb.isel(y=oy, x=ox),
-            shots.isel(y=oy, x=ox),
-            camera_matrix,
-            owned,
-            warm,
-            settings,
-            window.inner,
-            confidence,
-            window.label if len(windows) > 1 else None,
-            endmembers,
-            dask_key_name=f"{name}-tile-{j}-{token}",
-        )
-        shape = (n_owned, n_wavelength, *window.core_shape)
-        blocks.append(da.from_delayed(task[0], shape=shape, dtype=np.float32))
-        counts.append(da.from_delayed(task[1], shape=shape[:1], dtype=np.int32))
-        if confidence:
-            tiles.append(da.from_delayed(task[2], shape=(n_owned, *shape[2:]), dtype=np.float32))
-    spread = _tiled(tiles, windows) if confidence else None
-    return _tiled(blocks, windows), da.stack(counts).max(axis=0), spread
-
-
-def _solve_tile(
-    rgb: xr.DataArray,
-    shots: xr.DataArray,
-    camera_matrix: xr.DataArray,
-    keep: np.ndarray,
-    warm: tuple[np.ndarray, np.ndarray] | None,
-    settings: dict,
-    inner: tuple[slice, slice],
-    confidence: bool,
-    where: str | None = None,
-    endmembers: Endmembers | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Solve one set on one tile's outer window and keep the core of the images ``keep``.
-
-    ``rgb`` and ``shots`` are the set's inputs cut to the window; ``warm`` (seed pixels'
-    ``(rgb, spectra)``) is transported to the window's pixels as the initial guess (solvers
-    only). Returns the kept images' spectra (image, wavelength, y, x) float32 on the core
-    (``inner``: the core inside the window), the set's iterations per kept image, and with
-    ``confidence`` their :func:`~.confidence.neighbourhood_spread` over the window's images,
-    cut to the core (else ``None``). ``where`` names the tile in the progress display;
-    ``endmembers`` is the set's shared dictionary (or None).
-    """
-    initial = None
-    if warm is not None and "initial" in get_method(settings["method"]).options:
-        source_rgb, source_spectra = warm
-        target = rgb.transpose("image", "y", "x", "channel").values
-        k = settings.get("k") or 3
-        moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3), k=k)
-        cube = moved.reshape(*target.shape[:3], -1)
-        initial = xr.DataArray(
-            np.moveaxis(cube, -1, 1),
-            dims=("image", "wavelength", "y", "x"),
-            coords={"wavelength": camera_matrix["wavelength"].values},
-        )
-    spectra, iterations, _ = solve_set(
-        rgb,
-        shots,
-        camera_matrix,
-        initial=initial,
-        where=where,
-        endmembers=endmembers,
-        confidence=confidence,
-        **settings,
-    )
-    cube = spectra.transpose("image", "wavelength", "y", "x").values
-    iy, ix = inner
-    spread = None
-    if confidence:
-        spread = spectra["confidence"].transpose("image", "y", "x").values[keep][:, iy, ix]
-    return (
-        np.ascontiguousarray(cube[keep][:, :, iy, ix], dtype=np.float32),
-        np.full(int(keep.sum()), iterations, dtype=np.int32),
-        spread,
     )
 
 
@@ -674,7 +382,7 @@ def reconstruct_image_sets(
         "k": k,
         "prior": prior,
     }
-    _method_options(
+    method_options(
         method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
     )  # fail before any solve
 
@@ -685,7 +393,7 @@ def reconstruct_image_sets(
             continue
         n_owned = int(owned.sum())
         rgb, shots = _set_inputs(hdr, bands, members)
-        windows, _ = _set_windows(shots, ny, nx, tile)
+        windows, _ = set_windows(shots, ny, nx, tile)
         if index == seed:
             block = (
                 spectra_seed["radiance"]
@@ -693,14 +401,14 @@ def reconstruct_image_sets(
                 .transpose("image", "wavelength", "y", "x")
                 .data
             )
-            block = da.asarray(block).astype(np.float32).rechunk((n_owned, -1, *_core_chunks(windows)))
+            block = da.asarray(block).astype(np.float32).rechunk((n_owned, -1, *core_chunks(windows)))
             count = da.asarray(seed_counts.sel(image=members[owned]).data).astype(np.int32)
             owned_rgb = hdr["radiance"].sel(image=members[owned]).transpose("image", "y", "x", "channel")
             if "confidence" in spectra_seed:  # solved with the seed set
                 kept = spectra_seed["confidence"].sel(image=members[owned]).transpose("image", "y", "x")
                 confidence = da.asarray(kept.data).astype(np.float32)
             else:  # a store written before the seed set kept its confidence
-                confidence = _tiled(
+                confidence = join_tiles(
                     [
                         da.from_delayed(
                             dask.delayed(_tile_confidence, pure=True)(
@@ -716,17 +424,16 @@ def reconstruct_image_sets(
                     windows,
                 )
         else:
-            block, count, confidence = _tile_tasks(
+            block, count, confidence = tile_tasks(
                 rgb,
                 shots,
                 camera_matrix,
                 windows,
-                owned,
-                warm_task,
-                settings,
-                wavelength.size,
-                f"solve-set-{index}",
+                settings=settings,
+                keep=owned,
+                warm=warm_task,
                 confidence=True,
+                name=f"solve-set-{index}",
             )
         pieces.append(block)
         counts.append(count)

@@ -6,27 +6,25 @@ filter constraint ``F_i`` reaches ``s_i`` pixels (a Gaussian of ``sigma_i = s_i 
 truncated at ``5 sigma_i``, paper section 3, "Filtering"), the RGB term is per pixel, and the
 appearance neighbourhoods ``N_p`` of a rectified set link a texel mostly to the same texel in
 the set's other images and to look-alikes nearby. So a set is cut into spatial tiles, each
-solved on its *outer window*: the tile's *core* plus a *halo* of at least the largest filter
-support, clipped to the image, with every image of the set (the same texel across the set's
-rectified images is in the same tile, and ``N_p`` is searched among the window's pixels of
-all of them). Only the core is kept; the cores partition the image.
+solved on its *outer window*: the tile's *core* plus a *halo* of the largest filter support
+(:func:`default_halo`), clipped to the image, with every image of the set (the same texel
+across the set's rectified images is in the same tile, and ``N_p`` is searched among the
+window's pixels of all of them). Only the core is kept; the cores partition the image.
 
-Halo: filter centres keep ``s_i`` from the borders of the solved window
-(:func:`~.operators.filter_centres`), so a window border leaves a band of ``s_i`` px that
-the filters of band ``b_i`` do not constrain; a halo of ``s_max`` keeps that band out of the
-core. Measured (:func:`default_halo`, Notes): no halo costs 23 % in median nRMSE, a halo of
-``s_max`` about 4 % on the same small tiles, and more halo little more. What remains is not at
-the borders (no seam) but in what a tile learns from its own pixels: the neighbourhoods,
-searched among its window's pixels only (fewer look-alikes to pool band data over, fewer
-distant metamers linked), and the default method's endmember dictionary. The dictionary is
-therefore learnt once per set (:func:`shared_endmembers`, on a strided sample of the whole
-set) and shared by all its tiles. Measured with the default method (``benchmarks/
-paper_scale.py``, 20 x 256^2 glossy-mosaic set, 128 px tiles): median 1.004x and p95 1.001x
-the untiled solve's nRMSE (eq. 1 before: 1.020x and 1.015x); 8-image 128^2 sets in 64 px
-tiles, every hard scene: 1.001-1.017x and 0.999-1.012x. Tiles that learnt their own
-dictionaries were 0.96-1.24x there (0.90x / 0.86x on the 256^2 set: a local dictionary can
-fit better, but not reliably). The per-scene table in :func:`default_halo`'s Notes is of
-eq. 1, before the shared dictionary.
+What a tile cannot see is the rest of the set: its neighbourhoods find fewer look-alikes,
+and a method that learns an endmember dictionary from the pixels it solves would learn a
+different one per tile (tiles disagreeing at their seams and with the whole solve). So the
+dictionary is learnt once per set from a strided sample of all its pixels
+(:func:`shared_endmembers`) and shared by the set's tiles.
+
+This module is the one tiled path. :func:`tile_tasks` builds the dask graph of a set: one
+task per tile (:func:`solve_tile`, which solves the window with :func:`solve_set`) and one
+that learns the shared dictionary; the flow's nodes
+(:mod:`~spectralize.nodes.reconstruction.set_reconstruction`) write those tasks' results
+tile by tile, and :func:`solve_tiled` computes the same tasks at once (on the synchronous
+scheduler by default) for tests and benchmarks. Dependencies go one way:
+``set_reconstruction`` imports this module, never the reverse. How close the tiled solve
+comes to the whole one: ``benchmarks/paper_scale.py``, case ``untiled``.
 
 References
 ----------
@@ -38,15 +36,25 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
+import dask
+import dask.array as da
 import numpy as np
 import xarray as xr
 
+from spectralize.engine import progress
 from spectralize.nodes.filter_size import filter_radius
 from spectralize.schemas import ReconstructionError
+
+from .api import reconstruct
+from .estimators.endmember_mixture import Endmembers, sample_stride, set_endmembers
+from .inputs import inputs_from_xarray
+from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
+from .solvers.common import counting_iterations
+from .warm_start import transport_spectra
 
 __all__ = [
     "HALO_PER_FILTER_SIZE",
@@ -54,9 +62,17 @@ __all__ = [
     "tile_windows",
     "default_halo",
     "check_windows",
-    "solve_set_tiled",
+    "set_windows",
     "sample_grid",
     "shared_endmembers",
+    "method_options",
+    "solve_set",
+    "solve_tile",
+    "TileTasks",
+    "tile_tasks",
+    "core_chunks",
+    "join_tiles",
+    "solve_tiled",
 ]
 
 HALO_PER_FILTER_SIZE: float = 1.0
@@ -215,31 +231,11 @@ def default_halo(
 
     Notes
     -----
-    Measured with ``block-jacobi-pcg`` (the default then; tolerance 1e-3) on the hard
-    scenes (:func:`~spectralize.nodes.simulation.scenes.get_scene`; ``s_i`` 6 to 25.6 px,
-    ``s_max = 25.6``): the tiled solve's median and p95 per-pixel nRMSE against the truth,
-    divided by the untiled solve's (1 = identical; < 1: tiles better)::
-
-        scene            size  images  tile  halo            median  p95
-        glossy-mosaic    128   4       64    0               1.231   1.277
-        glossy-mosaic    128   4       64    26 (1 s_max)    1.038   1.160
-        glossy-mosaic    128   4       64    40 (1.6 s_max)  1.026   1.060
-        woven-fabric     160   8       64    26 (1 s_max)    1.058   1.096
-        woven-fabric     160   8       64    52 (2 s_max)    1.044   1.061
-        woven-fabric     256   8       128   26              1.096   1.091
-        woven-fabric     384   8       256   26              1.024   1.001
-        woven-fabric     384   8       256   52 (2 s_max)    1.019   0.994
-        halftone-print   384   8       256   26              0.900   0.994
-        glossy-mosaic    384   8       256   26              1.034   0.981
-        dark-still-life  384   8       256   26              1.125   0.998
-
-    A tighter solver tolerance (1e-5) or a shared initial guess leave the ratios as they are
-    (glossy-mosaic, 96 px, 4 images, tile 64: median 1.056 and 1.055 against 1.055). The
-    differences are spread over the cores, not at their borders: the error within 4 px of an
-    internal border, relative to the untiled one there, is 0.93 to 1.04 times the same ratio
-    in the cores' interiors at 384 px. So the halo is ``s_max``: below it the truncated
-    filters show, above it each tile of 256 px costs ``((256 + 2 halo) / (256 + 2 s_max))^2``
-    more (1.37 for ``2 s_max``) for a gain that the neighbourhoods' locality swamps.
+    Why ``s_max`` and no more: below it the truncated filters show at the window borders;
+    above it every tile of ``t`` px costs ``((t + 2 halo) / (t + 2 s_max))^2`` more work for
+    little gain, because what a tiled solve still loses against the whole one lies in the
+    cores (neighbourhoods searched among the window's pixels only), not at their borders.
+    The figures: ``benchmarks/paper_scale.py``, case ``untiled``.
 
     References
     ----------
@@ -264,160 +260,6 @@ def default_halo(
     return int(math.ceil(factor * max(filter_radius(s) for s in sizes) - 1e-9))
 
 
-def _merged_attrs(attrs: list[dict]) -> dict:
-    """One record of the tiles' solver attrs: the worst residual and convergence, the most
-    iterations, summed time and filter count; other attrs kept where every tile agrees."""
-    merged: dict[str, Any] = {}
-    rules = {
-        "iterations": max,
-        "residual_history_length": max,
-        "final_relative_residual": max,
-        "converged": min,
-        "wall_time_s": sum,
-        "filter_constraints": sum,
-    }
-    for key in attrs[0]:
-        values = [a.get(key) for a in attrs]
-        if key in rules and all(v is not None for v in values):
-            merged[key] = rules[key](values)
-        elif all(_same(v, values[0]) for v in values[1:]):
-            merged[key] = values[0]
-    return merged
-
-
-def _same(a: object, b: object) -> bool:
-    try:
-        return bool(np.all(a == b))
-    except (TypeError, ValueError):
-        return False
-
-
-def solve_set_tiled(
-    rgb: xr.DataArray,
-    shots: xr.DataArray,
-    camera_matrix: xr.DataArray,
-    *,
-    tile: int = 256,
-    halo: int | None = None,
-    initial: xr.DataArray | None = None,
-    **settings: Any,
-) -> tuple[xr.DataArray, int, float]:
-    """Reconstruct one image set tile by tile (eq. 1 on each outer window, cores kept).
-
-    Each tile of :func:`tile_windows` is solved by
-    :func:`~.set_reconstruction.solve_set` with all images and band shots of the set cut to
-    its outer window (appearance neighbourhoods are searched among the window's pixels of
-    every image), and its core is copied into the result. A set no larger than one tile is
-    solved whole: the result is exactly :func:`~.set_reconstruction.solve_set`'s.
-
-    Parameters
-    ----------
-    rgb, shots, camera_matrix
-        As for :func:`~.set_reconstruction.solve_set`: HDR RGB ``(image, y, x, channel)``,
-        band shots ``(shot, y, x)`` with ``filter_size`` per shot, ``C``. Lazy (dask) inputs
-        are read one window at a time.
-    tile
-        Core size [px].
-    halo
-        Halo [px]; ``None``: :func:`default_halo` of the shots' filter sizes.
-    initial
-        Warm start ``(image, wavelength, y, x)`` of the whole image, cut per window.
-    **settings
-        ``method`` and the solver settings of :func:`~.set_reconstruction.solve_set`.
-
-    Returns
-    -------
-    tuple
-        ``(spectra, iterations, seconds)`` like :func:`~.set_reconstruction.solve_set`:
-        ``spectra`` ``(image, wavelength, y, x)`` float32 (attrs: the tiles' most
-        iterations, largest final residual, summed wall time, and ``tile``, ``halo``,
-        ``tiles``), ``iterations`` the most over the tiles, ``seconds`` the wall time.
-
-    Raises
-    ------
-    ReconstructionError
-        For a tile too small for the set's filters (a window must hold ``2 s_max + 1`` px
-        along each axis), and everything :func:`~.set_reconstruction.solve_set` raises.
-
-    References
-    ----------
-    .. [1] Fast Capture of Spectral Image Series, section 3 (eq. 1) and section 4.
-    """
-    # set_reconstruction builds its dask tasks from this module's windows, so its solver is
-    # imported here, at call time, not at import time
-    from .methods import DEFAULT_METHOD, get_method
-    from .set_reconstruction import solve_set
-
-    height, width = rgb.sizes["y"], rgb.sizes["x"]
-    tile = _check_count("tile", tile, 1)
-    if (height <= tile and width <= tile) or shots.sizes.get("shot", 0) == 0:
-        return solve_set(rgb, shots, camera_matrix, initial=initial, **settings)
-    sizes = shots["filter_size"].values
-    halo = default_halo(sizes) if halo is None else _check_count("halo", halo, 0)
-    windows = tile_windows(height, width, tile, halo)
-    check_windows(windows, sizes)
-    started = time.perf_counter()
-    if "endmembers" in get_method(settings.get("method", DEFAULT_METHOD)).options:
-        settings = {**settings, "endmembers": shared_endmembers(rgb, shots, camera_matrix)}
-    cube: np.ndarray | None = None
-    coords: dict = {}
-    records, iterations = [], 0
-    for window in windows:
-        oy, ox = window.outer
-        spectra, count, _ = solve_set(
-            rgb.isel(y=oy, x=ox),
-            shots.isel(y=oy, x=ox),
-            camera_matrix,
-            initial=None if initial is None else initial.isel(y=oy, x=ox),
-            where=window.label,
-            **settings,
-        )
-        spectra = spectra.transpose("image", "wavelength", "y", "x")
-        if cube is None:
-            cube = np.empty((*spectra.shape[:2], height, width), dtype=np.float32)
-            coords = dict(spectra.coords)
-        iy, ix = window.inner
-        cube[:, :, window.core[0], window.core[1]] = spectra.values[:, :, iy, ix]
-        records.append(dict(spectra.attrs))
-        iterations = max(iterations, int(count))
-    attrs = {**_merged_attrs(records), "tile": tile, "halo": halo, "tiles": len(windows)}
-    result = xr.DataArray(cube, dims=("image", "wavelength", "y", "x"), coords=coords, attrs=attrs)
-    return result, iterations, time.perf_counter() - started
-
-
-def sample_grid(rgb: xr.DataArray) -> dict[str, slice]:
-    """The strided ``isel`` grid of a set whose pixels a dictionary is learnt from: at most
-    :data:`~.estimators.endmember_mixture.SAMPLE_PIXELS` over all images (every pixel of a
-    smaller set)."""
-    from .estimators.endmember_mixture import sample_stride
-
-    n_image = rgb.sizes.get("image", 1)
-    stride = sample_stride(n_image, rgb.sizes["y"], rgb.sizes["x"])
-    return {"y": slice(None, None, stride), "x": slice(None, None, stride)}
-
-
-def shared_endmembers(rgb: xr.DataArray, shots: xr.DataArray, camera_matrix: xr.DataArray):
-    """The endmember dictionary of a whole set, learnt once for all its tiles.
-
-    The mixture prior of the default method pools the band shots of all pixels of a
-    material; a tile learning its own dictionary sees fewer pixels per material and other
-    endmembers than its neighbours, so tiles would disagree at their seams and with the
-    untiled solve. The dictionary is learnt from the set's pixels on :func:`sample_grid`
-    (all of them up to 2 Mpx; lazy inputs are read at the grid's pixels only: pass them
-    cut to the grid to keep the read small).
-
-    Returns
-    -------
-    ~.estimators.endmember_mixture.Endmembers
-    """
-    from .estimators.endmember_mixture import set_endmembers
-    from .inputs import inputs_from_xarray
-
-    grid = sample_grid(rgb)
-    inputs = inputs_from_xarray(rgb.isel(grid).load(), shots.isel(grid).load(), camera_matrix)
-    return set_endmembers(inputs)
-
-
 def check_windows(windows: list[TileWindow], filter_size: Sequence[float] | np.ndarray) -> None:
     """Raise :class:`ReconstructionError` when a window cannot hold a filter centre of the
     largest filter (``2 s_max + 1`` px along an axis that is cut into tiles)."""
@@ -434,3 +276,493 @@ def check_windows(windows: list[TileWindow], filter_size: Sequence[float] | np.n
                     f"window {name} of {length} px (core {window.core_shape[axis]} px plus halo); "
                     "choose a larger tile"
                 )
+
+
+def set_windows(
+    shots: xr.DataArray, height: int, width: int, tile: int | None, halo: int | None = None
+) -> tuple[list[TileWindow], int]:
+    """The tiles a set is solved in, and their halo: ``(windows, halo)``.
+
+    One window, the whole image (halo 0), when ``tile`` is None or covers the image;
+    otherwise :func:`tile_windows` with ``halo`` (None: :func:`default_halo` of the set's
+    band shots), checked by :func:`check_windows`. A set without band shots gets windows
+    without a halo: :func:`solve_set` says why it cannot be solved when its tasks run.
+
+    Parameters
+    ----------
+    shots
+        The set's band shots ``(shot, y, x)`` with ``filter_size`` per shot.
+    height, width
+        Image size [px].
+    tile
+        Core size [px], or None for the whole image.
+    halo
+        Halo [px]; None: :func:`default_halo`.
+
+    Raises
+    ------
+    ReconstructionError
+        For a tile too small for the set's filters, or a size, tile or halo out of range.
+    """
+    if tile is None or (height <= tile and width <= tile):
+        return tile_windows(height, width, max(height, width), 0), 0
+    if shots.sizes["shot"] == 0:
+        return tile_windows(height, width, tile, 0), 0
+    sizes = np.asarray(shots["filter_size"].values, dtype=np.float64)
+    halo = default_halo(sizes) if halo is None else _check_count("halo", halo, 0)
+    windows = tile_windows(height, width, tile, halo)
+    check_windows(windows, sizes)
+    return windows, halo
+
+
+# -- the set's shared dictionary -----------------------------------------------------------------
+def sample_grid(rgb: xr.DataArray) -> dict[str, slice]:
+    """The strided ``isel`` grid of a set whose pixels a dictionary is learnt from: at most
+    :data:`~.estimators.endmember_mixture.SAMPLE_PIXELS` over all images (every pixel of a
+    smaller set, so cutting a sample to its own grid leaves it as it is)."""
+    n_image = rgb.sizes.get("image", 1)
+    stride = sample_stride(n_image, rgb.sizes["y"], rgb.sizes["x"])
+    return {"y": slice(None, None, stride), "x": slice(None, None, stride)}
+
+
+def shared_endmembers(rgb: xr.DataArray, shots: xr.DataArray, camera_matrix: xr.DataArray) -> Endmembers:
+    """The endmember dictionary of a whole set, learnt once for all its tiles.
+
+    The mixture prior of the default method pools the band shots of all pixels of a
+    material; a tile learning its own dictionary sees fewer pixels per material and other
+    endmembers than its neighbours, so tiles would disagree at their seams and with the
+    untiled solve. The dictionary is learnt from the set's pixels on :func:`sample_grid`
+    (all of them up to its limit). Lazy inputs are read at the grid's pixels only; pass them
+    cut to the grid (as :func:`tile_tasks` does) to hand a task only the sample.
+
+    Parameters
+    ----------
+    rgb, shots, camera_matrix
+        The set's HDR RGB ``(image, y, x, channel)``, band shots ``(shot, y, x)`` and ``C``.
+
+    Returns
+    -------
+    ~.estimators.endmember_mixture.Endmembers
+    """
+    grid = sample_grid(rgb)
+    inputs = inputs_from_xarray(rgb.isel(grid).load(), shots.isel(grid).load(), camera_matrix)
+    return set_endmembers(inputs)
+
+
+# -- one window ----------------------------------------------------------------------------------
+def method_options(
+    method: str,
+    *,
+    gamma_hat: float,
+    tolerance: float | None,
+    max_iterations: int,
+    k: int | None,
+    prior: float | None,
+) -> dict[str, Any]:
+    """The settings ``method`` takes: all of them for a solver (those not None), none for a
+    baseline.
+
+    Raises
+    ------
+    ReconstructionError
+        For an unknown method, or a ``prior`` for a method without one.
+    """
+    options = get_method(method).options
+    if prior is not None and "prior" not in options:
+        takers = [name for name, m in RECONSTRUCTION_METHODS.items() if "prior" in m.options]
+        raise ReconstructionError(
+            f"prior: method {method!r} has no prior; methods with one: {', '.join(takers)}"
+        )
+    settings = {
+        "gamma_hat": gamma_hat,
+        "tolerance": tolerance,
+        "max_iterations": max_iterations,
+        "k": k,
+        "prior": prior,
+    }
+    return {name: value for name, value in settings.items() if name in options and value is not None}
+
+
+def solve_set(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    *,
+    initial: xr.DataArray | None = None,
+    method: str = DEFAULT_METHOD,
+    gamma_hat: float = 20.0,
+    tolerance: float | None = None,
+    max_iterations: int = 400,
+    k: int | None = None,
+    prior: float | None = None,
+    where: str | None = None,
+    endmembers: Endmembers | None = None,
+    confidence: bool = False,
+) -> tuple[xr.DataArray, int, float]:
+    """Reconstruct one image set on one window (eq. 1 or a baseline), in memory.
+
+    The window is the whole image for an untiled solve, or a tile's outer window
+    (:func:`solve_tile`). The solve reports its iterations to the progress display
+    (:func:`spectralize.engine.progress.task`), labelled by the set's images and ``where``.
+
+    Parameters
+    ----------
+    rgb, shots, camera_matrix
+        The set's HDR RGB ``(image, y, x, channel)``, its band shots ``(shot, y, x)`` and
+        ``C`` (see :func:`~spectralize.nodes.reconstruction.reconstruct`), cut to the window.
+    initial
+        Warm start ``(image, wavelength, y, x)`` (solvers only; ignored by a baseline).
+    method
+        A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
+    gamma_hat, tolerance, max_iterations, k, prior
+        Solver settings (a baseline takes none of them; ``prior=None``, ``k=None``: the
+        method's default).
+    where
+        Which part of the images this is (a tile's :attr:`TileWindow.label`), for the
+        progress display's label.
+    endmembers
+        The set's endmember dictionary (:func:`shared_endmembers`), for a method that takes
+        one (ignored by the others): the tiles of a set share it.
+    confidence
+        Also compute the per-pixel confidence (:func:`~.confidence.neighbourhood_spread`,
+        from the solver's own neighbourhoods where it has them), as the coordinate
+        ``confidence`` ``(image, y, x)`` of ``spectra``.
+
+    Returns
+    -------
+    tuple
+        ``(spectra, iterations, seconds)``.
+
+    Raises
+    ------
+    ReconstructionError
+        For a set without band shots, and everything :func:`reconstruct` raises.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3 (eq. 1) and section 4.
+    """
+    if shots.sizes["shot"] == 0:
+        raise ReconstructionError(
+            "an image set without any band shot cannot be solved on its "
+            "own: it needs at least one image with bands"
+        )
+    options = method_options(
+        method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
+    )
+    record = get_method(method)
+    if initial is not None and "initial" in record.options:
+        options["initial"] = initial
+    if endmembers is not None and "endmembers" in record.options:
+        options["endmembers"] = endmembers
+    start = time.perf_counter()
+    # named by its images without band shots (the anchors with shots are in every set)
+    images = rgb["image"].values.tolist()
+    anchors = set(shots["image"].values.tolist())
+    named = [str(i) for i in sorted(i for i in images if i not in anchors) or images]
+    more = f" and {len(named) - 3} more" if len(named) > 3 else ""
+    label = f"images {', '.join(named[:3])}{more}" + (f", {where}" if where else "")
+    solver = "callback" in record.options
+    # a solver's CG iterations, then its S >= 0 refinement's (told when it is done)
+    refinement = int(record.defaults().get("projected_iterations", 0))
+    total = max_iterations + refinement if solver else None
+    with progress.task(label, total=total) as solving:  # nothing is told when nobody listens
+        if solving is not None and solver:
+            options["callback"] = counting_iterations(solving.advance)
+        result = reconstruct(
+            rgb.load(),
+            shots.load(),
+            camera_matrix,
+            method=method,
+            full_output=True,
+            confidence=confidence,
+            **options,
+        )
+        if solving is not None and solver:
+            solving.advance(int(result.iterations))
+    spectra = result.spectra
+    if confidence:
+        spectra = spectra.assign_coords(confidence=result.confidence)
+    return spectra, int(result.iterations), time.perf_counter() - start
+
+
+# -- one tile --------------------------------------------------------------------------------------
+def _transported(
+    warm: tuple[np.ndarray, np.ndarray], rgb: xr.DataArray, camera_matrix: xr.DataArray, k: int
+) -> xr.DataArray:
+    """The warm start of a window: the seed pixels' ``(rgb, spectra)`` moved to its pixels
+    through appearance neighbourhoods (:func:`~.warm_start.transport_spectra`)."""
+    source_rgb, source_spectra = warm
+    target = rgb.transpose("image", "y", "x", "channel").values
+    moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3), k=k)
+    cube = moved.reshape(*target.shape[:3], -1)
+    return xr.DataArray(
+        np.moveaxis(cube, -1, 1),
+        dims=("image", "wavelength", "y", "x"),
+        coords={"wavelength": camera_matrix["wavelength"].values},
+    )
+
+
+def solve_tile(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    inner: tuple[slice, slice],
+    *,
+    settings: Mapping[str, Any],
+    keep: np.ndarray | None = None,
+    warm: tuple[np.ndarray, np.ndarray] | None = None,
+    confidence: bool = False,
+    where: str | None = None,
+    endmembers: Endmembers | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Solve one set on one tile's outer window (:func:`solve_set`) and keep the tile's core.
+
+    Parameters
+    ----------
+    rgb, shots, camera_matrix
+        The set's inputs cut to the window, and ``C``.
+    inner
+        The core inside the window (:attr:`TileWindow.inner`).
+    settings
+        ``method`` and the solver settings of :func:`solve_set`.
+    keep
+        Boolean mask over the set's images: those whose core is returned (None: all); the
+        others help solve the window only (a set's images owned by another set).
+    warm
+        Seed pixels' ``(rgb (n, 3), spectra (n, wavelength))``, transported to the window's
+        pixels as the initial guess (solvers only; None: a cold start).
+    confidence
+        Also return the kept images' :func:`~.confidence.neighbourhood_spread` over the
+        window, cut to the core.
+    where
+        The tile's label in the progress display.
+    endmembers
+        The set's shared dictionary (:func:`shared_endmembers`), or None.
+
+    Returns
+    -------
+    tuple
+        ``(spectra, iterations, confidence)``: the kept images' spectra ``(image,
+        wavelength, y, x)`` float32 on the core, the window's solver iterations per kept
+        image (int32), and their confidence ``(image, y, x)`` float32 (None without
+        ``confidence``).
+    """
+    keep = np.ones(rgb.sizes["image"], dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+    method = settings.get("method", DEFAULT_METHOD)
+    initial = None
+    if warm is not None and "initial" in get_method(method).options:
+        initial = _transported(warm, rgb, camera_matrix, settings.get("k") or 3)
+    spectra, iterations, _ = solve_set(
+        rgb,
+        shots,
+        camera_matrix,
+        initial=initial,
+        where=where,
+        endmembers=endmembers,
+        confidence=confidence,
+        **settings,
+    )
+    cube = spectra.transpose("image", "wavelength", "y", "x").values
+    iy, ix = inner
+    spread = None
+    if confidence:
+        spread = spectra["confidence"].transpose("image", "y", "x").values[keep][:, iy, ix]
+    return (
+        np.ascontiguousarray(cube[keep][:, :, iy, ix], dtype=np.float32),
+        np.full(int(keep.sum()), iterations, dtype=np.int32),
+        spread,
+    )
+
+
+# -- the tasks of a set --------------------------------------------------------------------------
+class TileTasks(NamedTuple):
+    """The lazy results of a set's tile tasks (:func:`tile_tasks`), chunked by tile."""
+
+    spectra: da.Array
+    """``(image, wavelength, y, x)`` float32 of the kept images; chunks (the kept images,
+    all wavelengths, a tile's core)."""
+    iterations: da.Array
+    """``(image,)`` int32: per kept image the most solver iterations over the set's tiles."""
+    confidence: da.Array | None
+    """``(image, y, x)`` float32, chunked like ``spectra``; None when not asked for."""
+
+
+def core_chunks(windows: list[TileWindow]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The cores' heights (along y) and widths (along x): the dask chunks of a tiled result."""
+    ys = sorted({(w.core[0].start, w.core[0].stop) for w in windows})
+    xs = sorted({(w.core[1].start, w.core[1].stop) for w in windows})
+    return tuple(b - a for a, b in ys), tuple(b - a for a, b in xs)
+
+
+def join_tiles(blocks: list[da.Array], windows: list[TileWindow]) -> da.Array:
+    """Per-tile blocks (row-major, like ``windows``) joined along their last two dims."""
+    columns = len(core_chunks(windows)[1])
+    return da.block([blocks[i : i + columns] for i in range(0, len(blocks), columns)])
+
+
+def tile_tasks(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    windows: list[TileWindow],
+    *,
+    settings: Mapping[str, Any],
+    keep: np.ndarray | None = None,
+    warm: Any = None,
+    confidence: bool = False,
+    name: str = "solve-set",
+) -> TileTasks:
+    """The dask graph of one set solved tile by tile: one task per tile, lazy results.
+
+    Each task is :func:`solve_tile` on its window's inputs (cut lazily, so a task reads its
+    window only). With more than one window and a method that takes an endmember
+    dictionary, one more task learns it from the set's :func:`sample_grid` sample
+    (:func:`shared_endmembers`) and every tile task takes it. Task keys are deterministic
+    (``{name}-tile-{j}-{token}``, the token hashing inputs, settings, windows and warm
+    start), so a graph built twice solves once.
+
+    Parameters
+    ----------
+    rgb, shots, camera_matrix
+        The whole set: HDR RGB ``(image, y, x, channel)``, band shots ``(shot, y, x)`` (lazy
+        or in memory) and ``C`` on the shots' wavelengths.
+    windows
+        The set's tiles (:func:`set_windows`), row-major.
+    settings
+        ``method`` and the solver settings of :func:`solve_set` (None: the method's default).
+    keep
+        Boolean mask over the set's images whose results are returned (None: all).
+    warm
+        Seed pixels' ``(rgb, spectra)`` for a warm start (:func:`solve_tile`), or a
+        :class:`dask.delayed.Delayed` of them (one task shared by a run's sets), or None.
+    confidence
+        Also return the per-pixel confidence.
+    name
+        Prefix of the task keys (the flow: ``solve-seed-{set}``, ``solve-set-{set}``).
+
+    Returns
+    -------
+    TileTasks
+    """
+    keep = np.ones(rgb.sizes["image"], dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+    settings = dict(settings)
+    token = dask.base.tokenize(
+        rgb.data,
+        shots.data,
+        camera_matrix.values,
+        settings,
+        [w.core for w in windows],
+        keep,
+        warm,
+    )
+    n_kept, n_wavelength = int(np.count_nonzero(keep)), camera_matrix.sizes["wavelength"]
+    endmembers = None  # one dictionary for all tiles of the set, learnt once
+    if len(windows) > 1 and "endmembers" in get_method(settings.get("method", DEFAULT_METHOD)).options:
+        grid = sample_grid(rgb)  # cut before the task: only the sample is read
+        endmembers = dask.delayed(shared_endmembers, pure=True)(
+            rgb.isel(grid),
+            shots.isel(grid),
+            camera_matrix,
+            dask_key_name=f"{name}-endmembers-{token}",
+        )
+    blocks, counts, spreads = [], [], []
+    for j, window in enumerate(windows):
+        oy, ox = window.outer
+        task = dask.delayed(solve_tile, pure=True, nout=3)(
+            rgb.isel(y=oy, x=ox),
+            shots.isel(y=oy, x=ox),
+            camera_matrix,
+            window.inner,
+            settings=settings,
+            keep=keep,
+            warm=warm,
+            confidence=confidence,
+            where=window.label if len(windows) > 1 else None,
+            endmembers=endmembers,
+            dask_key_name=f"{name}-tile-{j}-{token}",
+        )
+        shape = (n_kept, n_wavelength, *window.core_shape)
+        blocks.append(da.from_delayed(task[0], shape=shape, dtype=np.float32))
+        counts.append(da.from_delayed(task[1], shape=shape[:1], dtype=np.int32))
+        if confidence:
+            spreads.append(da.from_delayed(task[2], shape=(n_kept, *shape[2:]), dtype=np.float32))
+    return TileTasks(
+        spectra=join_tiles(blocks, windows),
+        iterations=da.stack(counts).max(axis=0),
+        confidence=join_tiles(spreads, windows) if confidence else None,
+    )
+
+
+def solve_tiled(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    *,
+    tile: int | None,
+    halo: int | None = None,
+    warm: tuple[np.ndarray, np.ndarray] | None = None,
+    confidence: bool = False,
+    scheduler: str | Any = "synchronous",
+    **settings: Any,
+) -> tuple[xr.DataArray, int, float]:
+    """Reconstruct one set tile by tile, now: the flow's tile tasks, computed at once.
+
+    :func:`set_windows` and :func:`tile_tasks` as the flow's nodes use them, computed with
+    ``scheduler`` (synchronous by default: one tile after the other in this thread, so a
+    test sees every tile's progress in order and a benchmark measures one core). A set
+    within one tile is one task on the whole image: the spectra of :func:`solve_set`.
+
+    Parameters
+    ----------
+    rgb, shots, camera_matrix
+        As for :func:`tile_tasks` (lazy inputs are read one window at a time).
+    tile
+        Core size [px]; None: the whole image at once.
+    halo
+        Halo [px]; None: :func:`default_halo` of the shots' filter sizes.
+    warm
+        Seed pixels' ``(rgb, spectra)`` for a warm start, or None.
+    confidence
+        Also compute the per-pixel confidence, as the coordinate ``confidence``.
+    scheduler
+        Any dask scheduler (``"synchronous"``, ``"threads"``, a distributed client).
+    **settings
+        ``method`` and the solver settings of :func:`solve_set`.
+
+    Returns
+    -------
+    tuple
+        ``(spectra, iterations, seconds)``: ``spectra`` ``(image, wavelength, y, x)``
+        float32 (attrs ``method``, ``tiles``, and ``tile`` and ``halo`` unless ``tile`` is
+        None), ``iterations`` the most
+        over the tiles, ``seconds`` the wall time.
+
+    Raises
+    ------
+    ReconstructionError
+        For a tile too small for the set's filters, and everything :func:`solve_set` raises.
+    """
+    started = time.perf_counter()
+    windows, halo = set_windows(shots, rgb.sizes["y"], rgb.sizes["x"], tile, halo)
+    tasks = tile_tasks(
+        rgb, shots, camera_matrix, windows, settings=settings, warm=warm, confidence=confidence
+    )
+    cube, iterations, spread = dask.compute(*tasks, scheduler=scheduler)
+    coords: dict[str, Any] = {n: c for n, c in rgb.coords.items() if set(c.dims) <= {"image"}}
+    wavelength = camera_matrix["wavelength"].values
+    coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
+    if confidence:
+        coords["confidence"] = (("image", "y", "x"), spread)
+    method = settings.get("method", DEFAULT_METHOD)
+    spectra = xr.DataArray(
+        cube,
+        dims=("image", "wavelength", "y", "x"),
+        coords=coords,
+        attrs={
+            "method": method,
+            "tiles": len(windows),
+            **({"tile": tile, "halo": halo} if tile else {}),
+        },
+    )
+    return spectra, int(iterations.max(initial=0)), time.perf_counter() - started

@@ -1,8 +1,10 @@
-"""Tiled set reconstruction: windows, the default halo, tiled vs untiled, seams, the nodes."""
+"""Tiled set reconstruction: windows, the default halo, the flow's tile tasks against the
+untiled solve, seams, the nodes."""
 
 from importlib import util
 from pathlib import Path
 
+import dask
 import numpy as np
 import pytest
 import xarray as xr
@@ -10,20 +12,23 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spectralize.flows.runtime import run_node
-from spectralize.nodes.evaluation.metrics import normalised_rmse
+from spectralize.nodes.evaluation.pixel_metrics import normalised_rmse
 from spectralize.nodes.reconstruction.set_reconstruction import (
     reconstruct_image_sets,
     reconstruct_seed_set,
-    solve_set,
 )
 from spectralize.nodes.reconstruction.tiling import (
     check_windows,
     default_halo,
-    solve_set_tiled,
+    set_windows,
+    solve_set,
+    solve_tiled,
+    tile_tasks,
     tile_windows,
 )
 from spectralize.nodes.simulation.scenes import get_scene
-from spectralize.schemas import ReconstructionError, RunStore
+from spectralize.schemas import ReconstructionError
+from spectralize.store import RunStore
 
 _HELPERS = Path(__file__).with_name("test_set_reconstruction.py")
 _spec = util.spec_from_file_location("set_reconstruction_inputs", _HELPERS)
@@ -104,36 +109,59 @@ def test_a_tile_too_small_for_the_filters_is_an_error_naming_it():
     check_windows(tile_windows(200, 200, 40, 26), [6.0, 26.0])  # 66 px windows hold it
 
 
-# -- solving tile by tile ----------------------------------------------------------------------
+# -- solving tile by tile: the flow's tile tasks ----------------------------------------------
 def test_a_set_within_one_tile_is_exactly_solve_set():
     scene = get_scene("glossy-mosaic", size=48, n_images=2, seed=1)
     options = {"max_iterations": 60}
     whole, iterations, _ = solve_set(scene.rgb, scene.bands, scene.camera_matrix, **options)
-    tiled, tiled_iterations, _ = solve_set_tiled(
+    tiled, tiled_iterations, _ = solve_tiled(
         scene.rgb, scene.bands, scene.camera_matrix, tile=64, **options
     )
     assert tiled_iterations == iterations > 0
+    assert tiled.dims == whole.dims == ("image", "wavelength", "y", "x")
     assert np.array_equal(tiled.values, whole.values)
-    assert tiled.dims == whole.dims
-    assert {k: v for k, v in tiled.attrs.items() if k != "wall_time_s"} == {
-        k: v for k, v in whole.attrs.items() if k != "wall_time_s"
-    }
+    assert tiled.attrs["tiles"] == 1 and tiled.attrs["halo"] == 0
+
+
+def test_tile_tasks_are_lazy_one_task_per_tile_and_keep_the_images_asked_for():
+    scene = get_scene("glossy-mosaic", size=48, n_images=3, seed=2)
+    windows, halo = set_windows(scene.bands, 48, 48, 24)
+    assert len(windows) == 4 and halo == default_halo(scene.bands["filter_size"].values)
+    keep = np.array([True, False, True])
+    settings = {"method": "block-jacobi-pcg", "max_iterations": 5}
+    tasks = tile_tasks(
+        scene.rgb, scene.bands, scene.camera_matrix, windows, settings=settings, keep=keep
+    )
+    n_wavelength = scene.camera_matrix.sizes["wavelength"]
+    assert tasks.spectra.shape == (2, n_wavelength, 48, 48)
+    assert tasks.spectra.chunks[2:] == ((24, 24), (24, 24)) and tasks.confidence is None
+    # built twice, the same keys: a graph that asks for a set twice solves it once
+    again = tile_tasks(
+        scene.rgb, scene.bands, scene.camera_matrix, windows, settings=settings, keep=keep
+    )
+    assert again.spectra.name == tasks.spectra.name
+    cube, iterations = dask.compute(tasks.spectra, tasks.iterations, scheduler="synchronous")
+    every, _, _ = solve_tiled(scene.rgb, scene.bands, scene.camera_matrix, tile=24, **settings)
+    assert np.array_equal(cube, every.values[keep])
+    assert iterations.shape == (2,) and (iterations > 0).all()
 
 
 @pytest.fixture(scope="module")
 def tiled_and_whole():
-    """A hard scene (4 images, 2 with band shots, s_i up to 25.6 px) solved whole and in
-    2 x 2 tiles of 64 px (halo 26 px: windows of 90 of its 96 px)."""
+    """A hard scene (4 images, 2 with band shots, s_i up to 25.6 px) solved whole and by the
+    flow's tile tasks in 2 x 2 tiles of 64 px (halo 26 px: windows of 90 of its 96 px)."""
     scene = get_scene("woven-fabric", size=96, n_images=4)
     whole, _, _ = solve_set(scene.rgb, scene.bands, scene.camera_matrix)
-    tiled, iterations, _ = solve_set_tiled(scene.rgb, scene.bands, scene.camera_matrix, tile=64)
+    tiled, iterations, _ = solve_tiled(
+        scene.rgb, scene.bands, scene.camera_matrix, tile=64, confidence=True
+    )
     return scene, whole, tiled, iterations
 
 
 def test_tiled_solve_stays_close_to_the_whole_solve(tiled_and_whole):
     scene, whole, tiled, iterations = tiled_and_whole
     assert tiled.attrs["tiles"] == 4 and tiled.attrs["halo"] == 26
-    assert iterations == tiled.attrs["iterations"] > 0
+    assert iterations > 0 and np.isfinite(tiled.confidence.values).all()
     assert tiled.dims == whole.dims and tiled.shape == whole.shape and tiled.dtype == np.float32
     truth = scene.truth.values
     tiled_error, whole_error = nrmse(tiled.values, truth), nrmse(whole.values, truth)
