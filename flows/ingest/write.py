@@ -44,12 +44,9 @@ class IngestReport:
     frames_copied: int = 0
     seconds: float = 0.0
 
-    @property
-    def changed(self) -> bool:
-        return any(status == "written" for status in self.groups.values())
-
 
 def _known_files(store: RunStore) -> tuple[dict[str, tuple[int, int]], tuple[int, int] | None]:
+    """The plan's input: ``{file: (size, mtime_ns)}`` of every frame in the store, its frame shape."""
     known: dict[str, tuple[int, int]] = {}
     shape = None
     for group in RAW_GROUPS:

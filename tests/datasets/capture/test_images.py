@@ -1,0 +1,43 @@
+"""Image files: read as stored, and probed against the camera that took them."""
+
+import numpy as np
+import pytest
+import tifffile
+
+from spectralize.datasets.capture.images import probe, read_image
+from spectralize.datasets.capture.write import write_png, write_tiff
+
+
+def test_16_bit_png_and_tiff_are_read_as_written(tmp_path):
+    rgb = np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1000
+    mono = np.arange(20, dtype=np.uint16).reshape(4, 5) * 3000
+    for name, image, write in (
+        ("a.png", rgb, write_png),
+        ("b.tif", mono, write_tiff),
+        ("c.png", mono, write_png),
+    ):
+        write(tmp_path / name, image)
+        data = read_image(tmp_path / name)
+        assert data.dtype == np.uint16
+        np.testing.assert_array_equal(data, image)
+    with pytest.raises(ValueError, match="unknown image format"):
+        read_image(tmp_path / "d.jpg")
+
+
+def test_a_probe_names_what_is_wrong_with_a_file(tmp_path):
+    write_tiff(tmp_path / "ok.tif", np.full((4, 5), 1023, np.uint16))
+    assert probe(tmp_path / "ok.tif", False, 10) == ((4, 5), None, None)
+    _, expected, found = probe(tmp_path / "ok.tif", True, 10)
+    assert expected == "an RGB image (y, x, 3)" and found == "shape (4, 5)"
+    write_tiff(tmp_path / "high.tif", np.full((4, 5), 1024, np.uint16))
+    assert probe(tmp_path / "high.tif", False, 10)[2] == "a value of 1024"
+    tifffile.imwrite(tmp_path / "float.tif", np.zeros((4, 5), np.float32))
+    assert probe(tmp_path / "float.tif", False, 10)[1:] == (
+        "16-bit unsigned integer pixels (10-bit camera)",
+        "float32",
+    )
+    tifffile.imwrite(tmp_path / "byte.tif", np.zeros((4, 5), np.uint8))
+    assert probe(tmp_path / "byte.tif", False, 8) == ((4, 5), None, None)  # 8-bit for 8-bit cameras
+    (tmp_path / "bad.tif").write_bytes(b"not a tiff")
+    assert probe(tmp_path / "bad.tif", False, 10)[1] == "a readable TIFF or PNG file"
+    assert probe(tmp_path / "none.tif", False, 10)[1:] == ("an image file", "no such file")
