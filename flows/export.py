@@ -199,7 +199,7 @@ def export(
         ``"envi"`` or ``"netcdf"``.
     group
         A group with ``radiance`` (image, wavelength, y, x): ``spectra`` (default),
-        ``spectra_seed``, ``truth/spectra``, ``baselines/<method>``.
+        ``spectra_seed``, ``truth/spectra``.
     images
         Image labels to export (default: all).
     per_image

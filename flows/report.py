@@ -43,12 +43,14 @@ import numpy as np
 import xarray as xr
 from matplotlib.figure import Figure
 
+from spectralize.nodes.evaluation.accuracy import evaluate
 from spectralize.nodes.evaluation.capture_time import (
     capture_time,
     capture_time_from_run,
     run_capture_time,
 )
 from spectralize.nodes.evaluation.colorimetry import render_srgb
+from spectralize.nodes.evaluation.comparison import METHOD_DIM, compare_methods
 from spectralize.nodes.evaluation.figures import (
     image_label,
     plot_capture_time,
@@ -68,24 +70,18 @@ from spectralize.nodes.evaluation.figures_calibration import (
     plot_response_histograms,
     response_histograms,
 )
-from spectralize.nodes.evaluation.accuracy import evaluate
-from spectralize.nodes.evaluation.comparison import METHOD_DIM, compare_methods
 from spectralize.nodes.evaluation.statistics import DEFAULT_THRESHOLD, STATISTICS
 from spectralize.schemas import ParameterError, Problem, SchemaError, SpectralizeError
 from spectralize.schemas.run import EVALUATION
 from spectralize.store import RunStore
 
 __all__ = [
-    "BASELINES_GROUP",
     "TEMPLATE",
     "default_pixels",
     "write_report",
     "write_run_report",
 ]
 
-#: Run-store groups ``baselines/<method>`` (spectra layout) are compared by
-#: :func:`write_run_report`.
-BASELINES_GROUP: str = "baselines"
 #: The page's Jinja2 template, in this package's ``templates`` folder.
 TEMPLATE: str = "report.html.j2"
 _DPI = 90
@@ -289,7 +285,6 @@ def _baselines_table(evaluation: xr.Dataset, table: xr.Dataset, threshold: float
 
 
 def accuracy_renders(
-    evaluation: xr.Dataset,
     spectra: xr.Dataset,
     truth: xr.Dataset,
     labels: Sequence[int],
@@ -322,7 +317,7 @@ def error_map_figures(
     """
     evaluation = _by_label(evaluation, labels)
     truth_srgb, recon_srgb = accuracy_renders(
-        evaluation, spectra, truth, labels, exposure_percentile=exposure_percentile
+        spectra, truth, labels, exposure_percentile=exposure_percentile
     )
     finite = np.asarray(evaluation["nrmse"].values, dtype=np.float64)
     finite = finite[np.isfinite(finite)]
@@ -803,8 +798,7 @@ def write_run_report(
     Sections, each when its groups exist: calibration (``raw/white_reference``, ``dark``,
     ``raw/exposure_plan``, ``calibration/*``, ``registration``), reconstruction
     (``spectra``), accuracy (``truth/spectra``: the stored ``evaluation`` group, else an
-    evaluation made now), capture time (``raw/spectral``, ``raw/rgb``, ``raw/exposure_plan``)
-    and baselines (``baselines/<method>``).
+    evaluation made now) and capture time (``raw/spectral``, ``raw/rgb``, ``raw/exposure_plan``).
 
     Parameters
     ----------
@@ -874,13 +868,11 @@ def write_run_report(
                 capture = capture_time(
                     capture_time_from_run(shots, raw_rgb), reference, evaluation=evaluation
                 )
-        prefix = BASELINES_GROUP + "/"
-        baselines = {g[len(prefix) :]: run.read(g) for g in run.groups() if g.startswith(prefix)}
         found, accuracy = _accuracy(
             evaluation,
             spectra=spectra,
             truth=truth,
-            baselines=baselines or None,
+            baselines=None,
             capture=capture,
             shots=shots,
             max_images=max_images,
