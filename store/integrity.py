@@ -162,7 +162,7 @@ class CheckedLocalStore(LocalStore):
         buffer = await super().get(key, prototype, byte_range)
         expected = self.checksums.get(key)
         if buffer is not None and byte_range is None and expected is not None:
-            found = zlib.crc32(buffer.as_numpy_array())
+            found = zlib.crc32(buffer.as_numpy_array())  # type: ignore[arg-type]  # a buffer
             if found != expected:
                 raise ChecksumError(
                     f"chunk {key} of run store {str(self.root)!r} is damaged: its bytes do not "

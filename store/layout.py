@@ -9,7 +9,7 @@ specified variable-length ``string`` type (:func:`variable_length_strings`). Rea
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from typing import Any
 
 import numpy as np
@@ -39,7 +39,7 @@ def regular_chunks(
                 f"chunks name dims {sorted(unknown)} that the dataset does not have "
                 f"(its dims: {sorted(map(str, ds.dims))})"
             )
-    sizes: dict[str, int] = {}
+    sizes: dict[Hashable, int] = {}
     for var in ds.variables.values():
         if var.chunks is None:
             continue
@@ -53,7 +53,7 @@ def regular_chunks(
         lazy = [v for v in ds.data_vars.values() if v.chunks is not None and region_dim in v.dims]
         if lazy:
             largest = max(lazy, key=lambda v: v.size)
-            regions = dict(zip(largest.dims, largest.chunks, strict=True))[region_dim]
+            regions = dict(zip(largest.dims, largest.chunks or (), strict=True))[region_dim]
             ds = ds.chunk({region_dim: regions})
     return ds.chunk(sizes) if sizes else ds
 

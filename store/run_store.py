@@ -38,7 +38,7 @@ import time
 import uuid
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import xarray as xr
 import zarr
@@ -403,7 +403,7 @@ class RunStore:
                     ds, GROUP_SCHEMAS[name], group=group, values=values and not damaged
                 )
             except ChecksumError as error:
-                problems += error.problems
+                problems += cast(list[Problem], error.problems)  # always Problems
         return problems
 
     def staging_leftovers(self) -> list[Problem]:
@@ -584,15 +584,18 @@ class RunStore:
         Only when no other process writes (a live writer may be between its two renames)
         and the store is writable; otherwise the next writer does it.
         """
-        replaced = [p for d in self._staging_dirs() for p in d.iterdir() if replaced_group(p)]
+        replaced = [
+            p for d in self._staging_dirs() for p in d.iterdir() if replaced_group(p) is not None
+        ]
         if not replaced:
             return
         try:
             with self.lock("recovering an interrupted replacement"):
                 for entry in replaced:
-                    if not entry.exists():
+                    group = replaced_group(entry)
+                    if group is None or not entry.exists():
                         continue
-                    target = self._group_path(replaced_group(entry))
+                    target = self._group_path(group)
                     if target.exists():
                         shutil.rmtree(entry)
                     else:

@@ -20,7 +20,7 @@ import os
 import shutil
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -146,7 +146,7 @@ def write_regions(
         )
     remove_partial_chunks(staged)
     remove_partial_chunks(flags_at)
-    done = flags[:]
+    done = np.asarray(flags[:], dtype=bool)
     along = [name for name, var in ds.variables.items() if dim in var.dims]
     total = len(regions)
     skipped = [i for i in range(total) if done[i]]
@@ -164,6 +164,7 @@ def write_regions(
 
     todo = [i for i in range(total) if not done[i]]
     finished = len(skipped)
+    results: Iterator[int]
     if concurrent == 1:
         results = map(write_region, todo)
     else:
