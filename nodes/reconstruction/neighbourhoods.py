@@ -55,10 +55,10 @@ def appearance_neighbours(appearance: np.ndarray, *, k: int = 3) -> np.ndarray:
     Notes
     -----
     An exact k-d tree search over all pixels (``pykdtree``, float32 features, its queries
-    on OpenMP threads: ``OMP_NUM_THREADS``, all cores by default), twice as fast as
-    :class:`scipy.spatial.cKDTree` here (1.9 M pixels of 5 features: the largest step of a
-    tile's set-up). The query asks for ``k + 1`` points and drops the pixel itself (or, when
-    ``k + 1`` duplicates tie, the last of them).
+    on OpenMP threads: ``OMP_NUM_THREADS``, all cores by default), chosen over
+    :class:`scipy.spatial.cKDTree` because this search is the largest step of a tile's
+    set-up and pykdtree's is the faster on a tile's features. The query asks for ``k + 1``
+    points and drops the pixel itself (or, when ``k + 1`` duplicates tie, the last of them).
     """
     appearance = np.ascontiguousarray(appearance, dtype=np.float32)
     n_pixels = appearance.shape[0]
@@ -130,8 +130,8 @@ def appearance_order(appearance: np.ndarray, *, bits: int = 10) -> np.ndarray:
     """Pixels sorted along a Morton (Z-order) curve through appearance space.
 
     Appearance neighbours are far apart in image order, so a pass over the neighbour term
-    jumps through memory; stored in this order, most neighbours of a pixel lie close to it
-    (measured: the neighbour Laplacian of a 20-image set 3-4x faster).
+    jumps through memory; stored in this order, most neighbours of a pixel lie close to it,
+    so the solvers' passes over the neighbour term read memory mostly in order.
 
     Parameters
     ----------
@@ -206,8 +206,9 @@ class NeighbourGraph:
         """``L = D^T D = sum over pairs (e_p - r e_n)(e_p - r e_n)^T``.
 
         The pairs' weights as a CSR matrix ``W`` with k entries per row, ``L = diag - (W +
-        W^T)``, the diagonal :attr:`degree`. No COO triplets (measured on a random
-        6-neighbour graph of 1.9 Mpx: 4.8 -> 3.9 s, process peak 1.76 -> 1.19 GB).
+        W^T)``, the diagonal :attr:`degree`: built straight from the neighbour lists (``k``
+        entries per row), without the COO triplets that would cost a tile's set-up time and
+        its peak memory.
         """
         n_pixels, k = self.neighbours.shape
         there = self.neighbours.ravel()
@@ -259,7 +260,7 @@ class NeighbourGraph:
     def laplacian(self) -> sp.csr_array:
         """``L = D^T D`` (``n_pixels x n_pixels``), built on first use: the compiled solvers
         use only the graph in their own pixel order, so the natural-order one is never
-        assembled (measured: a 20-image 308^2 tile's peak 2.75 -> 2.52 GB)."""
+        assembled for them (a tile's peak memory would hold both)."""
         if self._laplacian is None:
             self._laplacian = self._assemble_laplacian()
         return self._laplacian

@@ -54,7 +54,7 @@ from .estimators.endmember_mixture import Endmembers, sample_stride, set_endmemb
 from .inputs import inputs_from_xarray
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
 from .solvers.common import counting_iterations
-from .warm_start import transport_spectra
+from .warm_start import warm_start
 
 __all__ = [
     "HALO_PER_FILTER_SIZE",
@@ -353,9 +353,9 @@ def shared_endmembers(rgb: xr.DataArray, shots: xr.DataArray, camera_matrix: xr.
 def method_options(
     method: str,
     *,
-    gamma_hat: float,
+    gamma_hat: float | None,
     tolerance: float | None,
-    max_iterations: int,
+    max_iterations: int | None,
     k: int | None,
     prior: float | None,
 ) -> dict[str, Any]:
@@ -390,9 +390,9 @@ def solve_set(
     *,
     initial: xr.DataArray | None = None,
     method: str = DEFAULT_METHOD,
-    gamma_hat: float = 20.0,
+    gamma_hat: float | None = None,
     tolerance: float | None = None,
-    max_iterations: int = 400,
+    max_iterations: int | None = None,
     k: int | None = None,
     prior: float | None = None,
     where: str | None = None,
@@ -415,8 +415,8 @@ def solve_set(
     method
         A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
     gamma_hat, tolerance, max_iterations, k, prior
-        Solver settings (a baseline takes none of them; ``prior=None``, ``k=None``: the
-        method's default).
+        Solver settings (a baseline takes none of them); None: the method's setting
+        (:data:`~.methods.RECONSTRUCTION_METHODS`).
     where
         Which part of the images this is (a tile's :attr:`TileWindow.label`), for the
         progress display's label.
@@ -465,7 +465,8 @@ def solve_set(
     solver = "callback" in record.options
     # a solver's CG iterations, then its S >= 0 refinement's (told when it is done)
     refinement = int(record.defaults().get("projected_iterations", 0))
-    total = max_iterations + refinement if solver else None
+    limit = options.get("max_iterations", record.defaults().get("max_iterations"))
+    total = int(limit) + refinement if solver else None
     with progress.task(label, total=total) as solving:  # nothing is told when nobody listens
         if solving is not None and solver:
             options["callback"] = counting_iterations(solving.advance)
@@ -487,22 +488,6 @@ def solve_set(
 
 
 # -- one tile --------------------------------------------------------------------------------------
-def _transported(
-    warm: tuple[np.ndarray, np.ndarray], rgb: xr.DataArray, camera_matrix: xr.DataArray, k: int
-) -> xr.DataArray:
-    """The warm start of a window: the seed pixels' ``(rgb, spectra)`` moved to its pixels
-    through appearance neighbourhoods (:func:`~.warm_start.transport_spectra`)."""
-    source_rgb, source_spectra = warm
-    target = rgb.transpose("image", "y", "x", "channel").values
-    moved = transport_spectra(source_rgb, source_spectra, target.reshape(-1, 3), k=k)
-    cube = moved.reshape(*target.shape[:3], -1)
-    return xr.DataArray(
-        np.moveaxis(cube, -1, 1),
-        dims=("image", "wavelength", "y", "x"),
-        coords={"wavelength": camera_matrix["wavelength"].values},
-    )
-
-
 def solve_tile(
     rgb: xr.DataArray,
     shots: xr.DataArray,
@@ -530,8 +515,9 @@ def solve_tile(
         Boolean mask over the set's images: those whose core is returned (None: all); the
         others help solve the window only (a set's images owned by another set).
     warm
-        Seed pixels' ``(rgb (n, 3), spectra (n, wavelength))``, transported to the window's
-        pixels as the initial guess (solvers only; None: a cold start).
+        Seed pixels' ``(rgb (n, 3), spectra (n, wavelength))``, moved to the window's pixels
+        as the initial guess (:func:`~.warm_start.warm_start`; solvers only; None: a cold
+        start).
     confidence
         Also return the kept images' :func:`~.confidence.neighbourhood_spread` over the
         window, cut to the core.
@@ -552,7 +538,9 @@ def solve_tile(
     method = settings.get("method", DEFAULT_METHOD)
     initial = None
     if warm is not None and "initial" in get_method(method).options:
-        initial = _transported(warm, rgb, camera_matrix, settings.get("k") or 3)
+        source_rgb, source_spectra = warm
+        wavelength = camera_matrix["wavelength"].values
+        initial = warm_start(source_rgb, source_spectra, rgb, wavelength, k=settings.get("k") or 3)
     spectra, iterations, _ = solve_set(
         rgb,
         shots,

@@ -4,7 +4,13 @@ The spectra recovered for one image set give a much better initialisation for th
 appearance neighbourhoods between the two sets' RGB data transport the spectra from the
 solved set to the new one. Each target pixel takes the mean spectrum of its ``k`` nearest
 solved pixels in RGB space, scaled by the ratio of its RGB intensity to theirs, so shading
-carries over while the spectral shape comes from the solved set.
+carries over while the spectral shape comes from the solved set. The flow's tile tasks
+(:func:`~spectralize.nodes.reconstruction.tiling.solve_tile`) start every set but the seed
+from :func:`warm_start` of a sample of the seed set's pixels.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, section 4, "To speed up reconstruction".
 """
 
 from __future__ import annotations
@@ -74,61 +80,61 @@ def transport_spectra(
 
 
 def warm_start(
-    source_rgb: xr.DataArray,
-    source_spectra: xr.DataArray,
+    source_rgb: np.ndarray,
+    source_spectra: np.ndarray,
     target_rgb: xr.DataArray,
+    wavelength: np.ndarray,
     *,
     k: int = 3,
     max_source_pixels: int = 250_000,
 ) -> xr.DataArray:
-    """Initial spectra for a new image set from a solved one (xarray interface).
+    """Initial spectra for an image set (or a tile's window of it) from solved pixels.
+
+    The flow solves the seed set first and keeps a sample of its pixels' RGB and spectra;
+    every other set's tile starts from those spectra moved to its own pixels
+    (:func:`transport_spectra`), as the ``initial`` of
+    :func:`~spectralize.nodes.reconstruction.reconstruct`.
 
     Parameters
     ----------
-    source_rgb
-        HDR RGB of the solved set, dims (image, y, x, channel).
-    source_spectra
-        Its spectra, dims (image, wavelength, y, x).
+    source_rgb, source_spectra
+        ``(n, 3)`` RGB and ``(n, wavelengths)`` spectra of the solved pixels.
     target_rgb
-        HDR RGB of the set to initialise, dims (image, y, x, channel).
+        HDR RGB of the pixels to initialise, dims (image, y, x, channel).
+    wavelength
+        The spectra's wavelengths [nm].
     k, max_source_pixels
         See :func:`transport_spectra`.
 
     Returns
     -------
     xarray.DataArray
-        Initial spectra, dims (image, wavelength, y, x), float32, for ``reconstruct(...,
-        initial=...)``.
+        Initial spectra, dims (image, wavelength, y, x), float64, with the target's
+        per-image coordinates.
+
+    Raises
+    ------
+    ReconstructionError
+        For a target that is not (image, y, x, channel), or mismatched sources.
     """
     rgb_dims = ("image", "y", "x", "channel")
-    for name, array, dims in (
-        ("source_rgb", source_rgb, rgb_dims),
-        ("target_rgb", target_rgb, rgb_dims),
-        ("source_spectra", source_spectra, ("image", "wavelength", "y", "x")),
-    ):
-        if set(array.dims) != set(dims):
-            raise ReconstructionError(f"{name}: expected dims {dims}, found {array.dims}")
-    src = source_rgb.transpose(*rgb_dims).values.reshape(-1, source_rgb.sizes["channel"])
-    spectra = source_spectra.transpose("image", "y", "x", "wavelength").values
-    spectra = spectra.reshape(-1, source_spectra.sizes["wavelength"])
+    if set(target_rgb.dims) != set(rgb_dims):
+        raise ReconstructionError(f"target_rgb: expected dims {rgb_dims}, found {target_rgb.dims}")
     target = target_rgb.transpose(*rgb_dims)
     moved = transport_spectra(
-        src,
-        spectra,
+        source_rgb,
+        source_spectra,
         target.values.reshape(-1, target.sizes["channel"]),
         k=k,
         max_source_pixels=max_source_pixels,
     )
-    cube = moved.reshape(target.sizes["image"], target.sizes["y"], target.sizes["x"], -1)
+    cube = moved.reshape(*target.shape[:3], -1)
     return xr.DataArray(
-        np.moveaxis(cube, -1, 1).astype(np.float32),
+        np.moveaxis(cube, -1, 1),
         dims=("image", "wavelength", "y", "x"),
         coords={
-            "wavelength": source_spectra["wavelength"],
+            "wavelength": np.asarray(wavelength),
             **{name: coord for name, coord in target.coords.items() if set(coord.dims) <= {"image"}},
         },
-        attrs={
-            "units": source_spectra.attrs.get("units", "1"),
-            "long_name": "spectra transported from a solved image set (warm start)",
-        },
+        attrs={"units": "1", "long_name": "spectra transported from a solved image set (warm start)"},
     )

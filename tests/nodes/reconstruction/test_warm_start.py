@@ -36,9 +36,12 @@ def test_xarray_interface_keeps_target_coords():
         coords={"wavelength": np.arange(410, 730, 10.0)},
     )
     target = rgb.assign_coords(image=[7, 8], led=("image", [9, 10]))
-    out = warm_start(rgb, spectra, target, k=1)
+    source_rgb = rgb.values.reshape(-1, 3)  # solved pixels, as the flow samples them
+    source_spectra = spectra.transpose("image", "y", "x", "wavelength").values.reshape(-1, 32)
+    out = warm_start(source_rgb, source_spectra, target, spectra["wavelength"].values, k=1)
     assert out.dims == ("image", "wavelength", "y", "x")
     assert out["image"].values.tolist() == [7, 8] and out["led"].values.tolist() == [9, 10]
+    assert out["wavelength"].values.tolist() == spectra["wavelength"].values.tolist()
     # identical RGB, one neighbour -> the source's own spectra
     np.testing.assert_allclose(out.values, spectra.values, rtol=1e-5)
 
@@ -46,3 +49,5 @@ def test_xarray_interface_keeps_target_coords():
 def test_mismatched_inputs_are_named():
     with pytest.raises(ReconstructionError, match="source_spectra"):
         transport_spectra(np.ones((3, 3)), np.ones((2, 32)), np.ones((1, 3)))
+    with pytest.raises(ReconstructionError, match="target_rgb"):
+        warm_start(np.ones((3, 3)), np.ones((3, 32)), xr.DataArray(np.ones((4, 3))), np.arange(32))
