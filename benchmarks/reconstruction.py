@@ -47,15 +47,14 @@ from reconstruction_hard import run_suite  # noqa: E402
 from reconstruction_scene import nrmse_per_pixel, simulate_capture  # noqa: E402
 
 from spectralize.nodes.reconstruction import (  # noqa: E402
+    BASELINE_METHODS,
     DEFAULT_METHOD,
-    RECONSTRUCTION_METHODS,
     build_problem,
     inputs_from_xarray,
     reconstruct,
 )
 from spectralize.nodes.reconstruction.solvers import (  # noqa: E402
     block_jacobi_pcg,
-    guided_prior_pcg,
     paper_cg,
     projected_filtered_initial,
 )
@@ -167,7 +166,7 @@ def compare_methods(size: int, seed: int, *, ablation_size: int | None) -> dict:
     rgb, bands, c = capture.rgb, capture.bands, capture.camera_matrix
     methods: dict[str, dict] = {}
 
-    for name in [n for n, m in RECONSTRUCTION_METHODS.items() if m.kind == "baseline"]:
+    for name in BASELINE_METHODS:
         out, wall, cpu, peak = measured(reconstruct, rgb, bands, c, method=name)
         methods[name] = method_row(out.values, truth, wall, cpu, peak, 0, kind="baseline")
         log(
@@ -341,11 +340,15 @@ def solver_ablation(capture, target: float | None) -> dict:
             {"initial": initial, "ridge": 0.0},
         ),
         "+ ridge 1e-4 (eq. 1 alone)": (block_jacobi_pcg, problem32, {"initial": initial}),
-        "+ guided-filter start and prior 0.1 (guided-prior-pcg)": (guided_prior_pcg, problem32, {}),
-        "guided-prior-pcg without preconditioner": (
-            guided_prior_pcg,
+        "+ guided-filter start and prior 0.1 (guided-prior-pcg)": (
+            block_jacobi_pcg,
             problem32,
-            {"precondition": False},
+            {"prior": 0.1},
+        ),
+        "guided-prior-pcg without preconditioner": (
+            block_jacobi_pcg,
+            problem32,
+            {"prior": 0.1, "precondition": False},
         ),
     }
     rows = {"size": int(capture.truth.sizes["y"]), "target_median_nrmse": target}

@@ -17,12 +17,17 @@ import tracemalloc
 import numpy as np
 from scipy.stats import spearmanr
 
-from spectralize.nodes.reconstruction import DEFAULT_METHOD, RECONSTRUCTION_METHODS, reconstruct
+from spectralize.nodes.reconstruction import (
+    BASELINE_METHODS,
+    DEFAULT_METHOD,
+    RECONSTRUCTION_METHODS,
+    reconstruct,
+)
 from spectralize.nodes.simulation.scenes import SCENES, get_scene
 
 __all__ = ["run_suite", "BASELINES", "TARGETS"]
 
-BASELINES = tuple(name for name, m in RECONSTRUCTION_METHODS.items() if m.kind == "baseline")
+BASELINES = tuple(BASELINE_METHODS)
 
 TARGETS = {
     "single_median_max": 0.02,
@@ -147,8 +152,8 @@ def summarise(cases: list[dict]) -> dict:
             best_p95 = min(baselines.items(), key=lambda kv: kv[1][1])
             solvers = {
                 m: {k: worst(m, k) for k in ("median", "p95", "fraction_under_0.03")}
-                for m, rec in RECONSTRUCTION_METHODS.items()
-                if rec.kind in ("solver", "estimator") and worst(m, "median") is not None
+                for m in RECONSTRUCTION_METHODS
+                if worst(m, "median") is not None
             }
             row = {
                 "default": default,
@@ -188,8 +193,8 @@ def run_suite(
     size = size or (64 if quick else 128)
     set_size = set_size or (32 if quick else 48)
     names = list(SCENES)
-    single_methods = list(RECONSTRUCTION_METHODS)
-    set_methods = [m for m in RECONSTRUCTION_METHODS if paper_cg_sets or m != "paper-cg"]
+    single_methods = [*RECONSTRUCTION_METHODS, *BASELINE_METHODS]
+    set_methods = [m for m in single_methods if paper_cg_sets or m != "paper-cg"]
     cases = []
     for name in names:
         for seed in seeds:

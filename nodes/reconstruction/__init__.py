@@ -7,11 +7,13 @@ Public API::
     spectra = reconstruct(rgb, bands, camera_matrix, method="paper-cg")   # the paper's CG
     spectra = reconstruct(rgb, bands, camera_matrix, method="guided-prior-pcg", prior=0.3)
     spectra = reconstruct(rgb, bands, camera_matrix, method="wiener")     # a baseline
+    RECONSTRUCTION_METHODS["mixture-prior-pcg"].settings                 # every setting
 
-Modules: :mod:`.api` (:func:`reconstruct`, the one entry point), :mod:`.methods` (the method
-table), :mod:`.solvers`, :mod:`.estimators` and :mod:`.baselines` (one method per module),
-:mod:`.operators` (filter, RGB and neighbour terms, the problem), :mod:`.neighbourhoods` (k nearest
-neighbours in RGB space), :mod:`.weights` (eq. 4), :mod:`.inputs` (checks),
+Modules: :mod:`.api` (:func:`reconstruct`, the one entry point), :mod:`.methods` (the
+production presets and the comparison baselines, as data), :mod:`.solvers`,
+:mod:`.estimators` and :mod:`.baselines` (one method per module), :mod:`.operators`
+(filter, RGB and neighbour terms, the problem), :mod:`.neighbourhoods` (k nearest
+neighbours in appearance space), :mod:`.weights` (eq. 4), :mod:`.inputs` (checks),
 :mod:`.image_sets`, :mod:`.warm_start` and :mod:`.set_reconstruction` (a run, set by set),
 :mod:`.tiling` (a set, tile by tile), :mod:`.declarations` (the nodes).
 
@@ -22,7 +24,7 @@ References
 
 from .api import ReconstructionResult, reconstruct
 from .inputs import ReconstructionInputs, inputs_from_xarray
-from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, ReconstructionMethod
+from .methods import BASELINE_METHODS, DEFAULT_METHOD, RECONSTRUCTION_METHODS, ReconstructionMethod
 from .neighbourhoods import NeighbourGraph, appearance_neighbours
 from .operators import (
     FilterConstraints,
@@ -38,6 +40,7 @@ __all__ = [
     "reconstruct",
     "ReconstructionResult",
     "RECONSTRUCTION_METHODS",
+    "BASELINE_METHODS",
     "ReconstructionMethod",
     "DEFAULT_METHOD",
     "SolverResult",

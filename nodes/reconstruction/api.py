@@ -2,7 +2,8 @@
 
 A thin layer over the numpy numerics: it brings the input forms to one (a set of images
 with band shots), checks them (:mod:`.inputs`), validates the options against the method's
-record in :data:`~.methods.RECONSTRUCTION_METHODS` and dispatches.
+record (:data:`~.methods.RECONSTRUCTION_METHODS` or :data:`~.methods.BASELINE_METHODS`),
+lays them over the record's settings and dispatches.
 
 References
 ----------
@@ -24,7 +25,13 @@ from spectralize.schemas.errors import ReconstructionError
 
 from .confidence import CONFIDENCE_NEIGHBOURS, neighbourhood_spread
 from .inputs import ReconstructionInputs, inputs_from_xarray
-from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, SETUP_OPTIONS, get_method
+from .methods import (
+    BASELINE_METHODS,
+    DEFAULT_METHOD,
+    RECONSTRUCTION_METHODS,
+    SETUP_OPTIONS,
+    get_method,
+)
 from .operators import ReconstructionProblem, build_problem
 from .weights import default_gamma_hat
 
@@ -169,9 +176,8 @@ def _checked_options(method: str, options: dict[str, Any]) -> dict[str, Any]:
     known = record.options
     unknown = sorted(set(options) - set(known))
     if unknown:
-        takers = {
-            name: [m for m, r in RECONSTRUCTION_METHODS.items() if name in r.options] for name in unknown
-        }
+        every = {**RECONSTRUCTION_METHODS, **BASELINE_METHODS}
+        takers = {name: [m for m, r in every.items() if name in r.options] for name in unknown}
         hints = "; ".join(f"{name!r} is an option of {', '.join(t)}" for name, t in takers.items() if t)
         raise ReconstructionError(
             f"method {method!r}: unknown option(s) {unknown}; its options are: "
@@ -296,18 +302,15 @@ def reconstruct(
         every band's wavelength (within 0.01 nm); a wider grid is restricted to the bands'
         wavelengths, on which the spectra are reconstructed.
     method
-        A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`:
-        the solvers ``"mixture-prior-pcg"`` (the default: ``"spectral-prior-pcg"`` with its
-        prior learnt from and centred on the ``"endmember-mixture"`` estimate),
-        ``"spectral-prior-pcg"`` (``"material-prior-pcg"`` plus a
-        soft per-pixel spectral prior), ``"block-jacobi-pcg"`` (eq. 1 alone, the paper's
-        method, fast), ``"guided-prior-pcg"`` (eq. 1 plus a prior towards the RGB-guided
-        filtered bands, weight ``prior``), ``"material-prior-pcg"`` (that prior plus
-        neighbourhoods in chromaticity and position, scale-invariant coupling and
-        ``S >= 0``) and ``"paper-cg"`` (the paper's CG); the baselines
-        ``"pseudo-inverse"``, ``"wiener"``, ``"mallett2019"``, ``"filtered-bands"``,
-        ``"filtered-projected"``, ``"guided-projected"``; the estimator
-        ``"endmember-mixture"`` (non-iterative, about 3x faster than the default).
+        A production method of
+        :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`: the
+        solvers ``"mixture-prior-pcg"`` (the default), ``"spectral-prior-pcg"``,
+        ``"guided-prior-pcg"``, ``"block-jacobi-pcg"`` (eq. 1 alone, the paper's model,
+        fast) and ``"paper-cg"`` (the paper's CG), the estimator ``"endmember-mixture"``
+        (non-iterative); or a comparison baseline of
+        :data:`~spectralize.nodes.reconstruction.methods.BASELINE_METHODS`
+        (``"pseudo-inverse"``, ``"wiener"``, ``"mallett2019"``, ``"filtered-bands"``,
+        ``"filtered-projected"``, ``"guided-projected"``).
     filter_size
         ``s_i`` [px] of the bands of a ``(y, x, wavelength)`` band cube: one number, or one
         per wavelength.
@@ -318,16 +321,17 @@ def reconstruct(
         With ``full_output``: compute the per-pixel confidence (False: leave it ``None``;
         it costs about a tenth of the default's solve).
     **method_options
-        The method's options (``RECONSTRUCTION_METHODS[method].options``). Every solver
+        Options that replace the method's settings
+        (``RECONSTRUCTION_METHODS[method].settings``, which hold every one). Every solver
         takes the set-up of eq. 1:
 
         ``alpha_hat, beta_hat, gamma_hat``
             relative weights of the filter, RGB and neighbour terms (eq. 4);
             ``gamma_hat=None`` is 1 for one image and 20 for a set, as in the paper;
         ``k``
-            appearance neighbours per pixel (paper: 3; the material and spectral priors: 6);
+            appearance neighbours per pixel;
         ``centre_spacing``
-            ``d``: filter centres are at most this many pixels apart (paper: 2.5);
+            ``d``: filter centres are at most this many pixels apart;
         ``normalize_camera_matrix``
             measure the RGB term in band units (divide ``C`` and ``R`` by the mean row sum
             of ``|C|``), so the result does not depend on the gain of ``C``;
@@ -337,15 +341,12 @@ def reconstruct(
             couple neighbours as ``S(p) - (b_p / b_n) S(n)`` (``b``: RGB brightness);
 
         and its own: ``tolerance`` (stop when ``||A^T b - A^T A S|| / ||A^T b||`` is below
-        it; default 1e-3, 3e-3 for ``"mixture-prior-pcg"``), ``max_iterations`` (default
-        2000), ``initial`` (a warm start, dims ``(image, wavelength, y, x)``, e.g. spectra
-        transported from a previous image set, paper section 4),
-        ``callback(iteration, cube)``; the PCG solvers also
-        ``dtype``, ``ridge``, ``prior`` (the guided prior's weight: 0.1 for
-        ``"guided-prior-pcg"`` and the material and spectral priors, 0 for
-        ``"block-jacobi-pcg"``) and ``precondition``.
-        Baselines: ``"wiener"`` takes ``relative_noise``, ``"guided-projected"``
-        ``window_scale`` and ``epsilon``.
+        it), ``max_iterations``, ``initial`` (a warm start, dims ``(image, wavelength, y,
+        x)``, e.g. spectra transported from a previous image set, paper section 4),
+        ``callback(iteration, cube)``; the PCG solvers also ``dtype``, ``ridge``, ``prior``
+        (the guided prior's weight) and ``precondition``, the prior PCG the spectral
+        prior's settings (:func:`~.solvers.prior_pcg.prior_pcg`). Baselines: ``"wiener"``
+        takes ``relative_noise``, ``"guided-projected"`` ``window_scale`` and ``epsilon``.
 
     Returns
     -------
@@ -371,6 +372,7 @@ def reconstruct(
     >>> spectra = reconstruct(hdr.radiance, bands.radiance, camera_matrix)  # doctest: +SKIP
     >>> reconstruct(rgb, band_cube, camera_matrix, filter_size=3.0,
     ...             method="guided-prior-pcg", prior=0.3)  # doctest: +SKIP
+    >>> reconstruct(rgb, bands, camera_matrix, method="wiener")  # a baseline  # doctest: +SKIP
     """
     started = time.perf_counter()
     record = get_method(method)
@@ -381,16 +383,14 @@ def reconstruct(
     used = {**record.defaults(), **options}
     problem = None
     if record.kind == "solver":
-        setup = {name: options.pop(name) for name in SETUP_OPTIONS if name in options}
-        setup = {**record.setup_defaults, **setup}
-        if "k" in setup:
-            setup["k"] = int(setup["k"])
-        if "max_iterations" in options:
-            options["max_iterations"] = int(options["max_iterations"])
-        options["initial"] = _initial_cube(options.get("initial"), inputs)
-        problem = build_problem(inputs, **setup, dtype=options.get("dtype", record.dtype))
+        setup = {name: used[name] for name in SETUP_OPTIONS}
+        setup["k"] = int(setup["k"])
+        own = {name: used[name] for name in record.options if name not in SETUP_OPTIONS}
+        own["max_iterations"] = int(own["max_iterations"])
+        own["initial"] = _initial_cube(own["initial"], inputs)
+        problem = build_problem(inputs, **setup, dtype=used.get("dtype", record.dtype))
         setup_time = time.perf_counter() - started
-        solved = record.function(problem, **options)
+        solved = record.function(problem, **own)
         cube, iterations, history, converged = (
             solved.cube,
             int(solved.iterations),
@@ -415,7 +415,7 @@ def reconstruct(
             **_recorded(used),
         }
     else:
-        cube = record.function(inputs, **options)
+        cube = record.function(inputs, **used)
         iterations, history, converged = 0, np.zeros(0), True
         wall_time = setup_time = time.perf_counter() - started
         attrs = {"method": method, "wall_time_s": float(wall_time), **_recorded(used)}

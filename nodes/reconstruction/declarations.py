@@ -2,9 +2,10 @@
 
 The science lives beside this module (:mod:`.image_sets`, :mod:`.set_reconstruction`); each
 node's parameters are its function's keyword-only arguments, from which the engine derives
-the frozen parameter model (``method`` takes exactly the names of
+the frozen parameter model (``method`` takes exactly the production methods of
 :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`, checked when the
-graph is checked). The engine also checks every input group against its schema before a
+graph is checked; the comparison baselines are not the nodes'; a solver setting left None
+is the method's). The engine also checks every input group against its schema before a
 node runs.
 
 References
@@ -34,8 +35,9 @@ SELECT_IMAGE_SETS = Node(
 RECONSTRUCT_SEED_SET = Node(
     name="reconstruct_seed_set",
     # 2: tiled (parameter ``tile``), iterations per image instead of an attr; 3: confidence;
-    # 4: the mixture's band-noise estimate robust to texture, brightness-weighted prior
-    version="4",
+    # 4: the mixture's band-noise estimate robust to texture, brightness-weighted prior;
+    # 5: gamma_hat and max_iterations default to the method's settings, no baselines
+    version="5",
     function=reconstruct_seed_set,
     inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix", "image_sets": "image_sets"},
     outputs=("spectra_seed",),
@@ -46,8 +48,8 @@ RECONSTRUCT_SEED_SET = Node(
 RECONSTRUCT_IMAGE_SETS = Node(
     name="reconstruct_image_sets",
     # 2: tiled (parameter ``tile``), warm start from a strided seed sample; 3: as the seed
-    # set's version 4
-    version="3",
+    # set's version 4; 4: as the seed set's version 5
+    version="4",
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",

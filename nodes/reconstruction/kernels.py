@@ -318,7 +318,7 @@ def mixture_abundances(projected, near, rgb, ridge, out):  # pragma: no cover - 
 
 
 @njit(**_JIT)
-def mixture_gram(near, weights, n_atoms, gram):  # pragma: no cover - compiled
+def mixture_gram(near, weights, gram):  # pragma: no cover - compiled
     """``gram[a, c] += sum_p w_pa w_pc`` over the pixels, atoms scattered by ``near``."""
     n_pixels, k = near.shape
     for p in range(n_pixels):

@@ -1,13 +1,18 @@
-"""The one table of reconstruction methods: every solver of eq. 1 and every baseline.
+"""The reconstruction methods as data: production presets and comparison baselines.
 
-:data:`RECONSTRUCTION_METHODS` maps a method name to a :class:`ReconstructionMethod` record
-(its kind, function, working dtype and options), as colour-science's ``XYZ_TO_SD_METHODS``
-does; :func:`~spectralize.nodes.reconstruction.api.reconstruct` dispatches on it, and the
-set-reconstruction nodes accept exactly its names.
+:data:`RECONSTRUCTION_METHODS` holds the production methods, the values the set nodes'
+``method`` takes; :data:`BASELINE_METHODS` the published methods this project compares
+against (benchmarks and evaluation). Both map a name to a :class:`ReconstructionMethod`
+record (its kind, function, working dtype and settings), as colour-science's
+``XYZ_TO_SD_METHODS`` does; :func:`~spectralize.nodes.reconstruction.api.reconstruct`
+dispatches on either.
 
-A method's options are the keyword-only arguments of its function: for a solver, the
-problem set-up of :func:`~spectralize.nodes.reconstruction.operators.build_problem` (eq. 4
-weights, neighbours, filter placement) plus the solver's own; for a baseline, its own.
+A production preset is one of three solver implementations (:mod:`.solvers`) or the
+estimator (:mod:`.estimators`) with one dict of *every* setting: for a solver the problem
+set-up of :func:`~spectralize.nodes.reconstruction.operators.build_problem` (eq. 4 weights,
+neighbours, filter placement) and the solver's own settings. The API and the nodes start
+from that dict, so a preset's settings are read here and nowhere else; an option given by
+the caller replaces its setting. The run-time inputs :data:`RUN_INPUTS` are no settings.
 
 References
 ----------
@@ -18,7 +23,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -36,24 +41,21 @@ from .baselines import (
 )
 from .estimators import endmember_mixture
 from .operators import build_problem
-from .solvers import (
-    block_jacobi_pcg,
-    guided_prior_pcg,
-    material_prior_pcg,
-    mixture_prior_pcg,
-    paper_cg,
-    spectral_prior_pcg,
-)
-from .solvers.material_prior_pcg import SETUP_DEFAULTS as MATERIAL_SETUP_DEFAULTS
-from .solvers.spectral_prior_pcg import SETUP_DEFAULTS as SPECTRAL_SETUP_DEFAULTS
+from .solvers import block_jacobi_pcg, paper_cg, prior_pcg
 
 __all__ = [
     "ReconstructionMethod",
     "RECONSTRUCTION_METHODS",
+    "BASELINE_METHODS",
     "DEFAULT_METHOD",
-    "get_method",
+    "RUN_INPUTS",
     "SETUP_OPTIONS",
+    "get_method",
 ]
+
+RUN_INPUTS = ("initial", "callback", "endmembers")
+"""Keyword arguments that are inputs of one run, not settings of a method: a warm start,
+an iteration callback, a set's endmember dictionary."""
 
 
 def _keyword_options(
@@ -71,33 +73,33 @@ SETUP_OPTIONS: Mapping[str, inspect.Parameter] = MappingProxyType(
 )
 """Options every solver takes for setting up eq. 1 (:func:`~.operators.build_problem`):
 ``alpha_hat``, ``beta_hat``, ``gamma_hat``, ``k``, ``centre_spacing``,
-``normalize_camera_matrix``."""
+``normalize_camera_matrix``, ``appearance``, ``scale_invariant``."""
 
 
 @dataclass(frozen=True)
 class ReconstructionMethod:
-    """One reconstruction method of :data:`RECONSTRUCTION_METHODS`.
+    """One method of :data:`RECONSTRUCTION_METHODS` or :data:`BASELINE_METHODS`.
 
     Attributes
     ----------
     name
-        Its key in the table (``"block-jacobi-pcg"``).
+        Its key in the table (``"mixture-prior-pcg"``).
     kind
-        ``"solver"``: ``function(problem, **options) -> SolverResult`` solves eq. 1 set up by
-        :func:`~.operators.build_problem`; ``"baseline"`` (a published method, for
-        comparison) and ``"estimator"`` (this project's own, :mod:`.estimators`):
-        ``function(inputs, **options) -> cube`` maps the checked inputs straight to a cube
+        ``"solver"``: ``function(problem, **settings) -> SolverResult`` solves eq. 1 set up
+        by :func:`~.operators.build_problem`; ``"estimator"`` (this project's own,
+        :mod:`.estimators`) and ``"baseline"`` (a published method, for comparison):
+        ``function(inputs, **settings) -> cube`` maps the checked inputs straight to a cube
         ``(wavelength, image, y, x)``.
     function
         The implementation.
     dtype
-        Floating dtype the method works in (a solver's problem is set up in it directly,
-        unless the ``dtype`` option says otherwise).
+        Floating dtype the method works in (a solver's problem is set up in it, unless the
+        ``dtype`` setting says otherwise).
     description
         One line for tables and messages.
-    setup_defaults
-        A solver's own defaults for set-up options of :data:`SETUP_OPTIONS` (e.g. its
-        appearance space); empty for eq. 1 as the paper sets it up.
+    settings
+        Every setting, by name: for a solver the set-up options of :data:`SETUP_OPTIONS`
+        and the function's own keyword arguments, :data:`RUN_INPUTS` left out.
     """
 
     name: str
@@ -105,19 +107,19 @@ class ReconstructionMethod:
     function: Callable[..., Any]
     dtype: np.dtype
     description: str
-    setup_defaults: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    settings: Mapping[str, Any]
 
     @property
     def options(self) -> dict[str, inspect.Parameter]:
         """Every option :func:`~spectralize.nodes.reconstruction.reconstruct` takes for this
-        method, by name, with its default (set-up options first for a solver)."""
+        method, by name (set-up options first for a solver)."""
         own = _keyword_options(self.function)
         return {**SETUP_OPTIONS, **own} if self.kind == "solver" else own
 
     def defaults(self) -> dict[str, Any]:
-        """Option name -> default value."""
-        defaults = {name: parameter.default for name, parameter in self.options.items()}
-        return {**defaults, **self.setup_defaults}
+        """Option name -> the value a run uses unless the caller gives one: the settings,
+        and None for the run-time inputs."""
+        return {name: self.settings.get(name) for name in self.options}
 
 
 def _method(
@@ -126,10 +128,16 @@ def _method(
     function: Callable[..., Any],
     dtype: type,
     description: str,
-    setup_defaults: Mapping[str, Any] | None = None,
+    settings: Mapping[str, Any] | None = None,
 ) -> ReconstructionMethod:
+    """A record; without ``settings``, the function's own keyword defaults are its settings."""
+    if settings is None:
+        settings = {
+            name: parameter.default
+            for name, parameter in _keyword_options(function, leave_out=RUN_INPUTS).items()
+        }
     return ReconstructionMethod(
-        name, kind, function, np.dtype(dtype), description, MappingProxyType(dict(setup_defaults or {}))
+        name, kind, function, np.dtype(dtype), description, MappingProxyType(dict(settings))
     )
 
 
@@ -141,38 +149,107 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             "solver",
             block_jacobi_pcg,
             np.float32,
-            "eq. 1 alone: block-Jacobi preconditioned CG, float32, warm-started",
+            "eq. 1 alone, as the paper sets it up: block-Jacobi preconditioned CG, float32",
+            {
+                "alpha_hat": 1.0,
+                "beta_hat": 1.0,
+                "gamma_hat": None,
+                "k": 3,
+                "centre_spacing": 2.5,
+                "normalize_camera_matrix": True,
+                "appearance": "rgb",
+                "scale_invariant": False,
+                "prior": 0.0,
+                "ridge": 1e-4,
+                "tolerance": 1e-3,
+                "max_iterations": 2000,
+                "precondition": True,
+                "dtype": np.float32,
+            },
         ),
         _method(
             "guided-prior-pcg",
             "solver",
-            guided_prior_pcg,
+            block_jacobi_pcg,
             np.float32,
-            "eq. 1 plus a prior towards the RGB-guided filtered bands (weight: prior)",
-        ),
-        _method(
-            "material-prior-pcg",
-            "solver",
-            material_prior_pcg,
-            np.float32,
-            "eq. 1, chromaticity+position neighbours, scale-invariant coupling, guided prior, S >= 0",
-            MATERIAL_SETUP_DEFAULTS,
+            "eq. 1 as the paper sets it up plus a prior towards the RGB-guided filtered bands",
+            {
+                "alpha_hat": 1.0,
+                "beta_hat": 1.0,
+                "gamma_hat": None,
+                "k": 3,
+                "centre_spacing": 2.5,
+                "normalize_camera_matrix": True,
+                "appearance": "rgb",
+                "scale_invariant": False,
+                "prior": 0.1,
+                "ridge": 1e-4,
+                "tolerance": 1e-3,
+                "max_iterations": 2000,
+                "precondition": True,
+                "dtype": np.float32,
+            },
         ),
         _method(
             "spectral-prior-pcg",
             "solver",
-            spectral_prior_pcg,
+            prior_pcg,
             np.float32,
-            "material-prior-pcg plus a Gaussian spectral prior learnt from the guided estimate",
-            SPECTRAL_SETUP_DEFAULTS,
+            "eq. 1 on material neighbourhoods, the guided prior and a spectral prior learnt "
+            "from the scene's guided estimate, then S >= 0",
+            {
+                "alpha_hat": 1.0,
+                "beta_hat": 1.0,
+                "gamma_hat": None,
+                "k": 6,
+                "centre_spacing": 2.5,
+                "normalize_camera_matrix": True,
+                "appearance": "chromaticity-spatial",
+                "scale_invariant": True,
+                "prior": 0.1,
+                "prior_weighting": "uniform",
+                "spectral_prior": 0.003,
+                "prior_source": "scene",
+                "covariance_floor": 1e-2,
+                "ridge": 1e-4,
+                "tolerance": 1e-3,
+                "max_iterations": 2000,
+                "projected_iterations": 40,
+                "precondition": True,
+                "dtype": np.float32,
+            },
         ),
         _method(
             "mixture-prior-pcg",
             "solver",
-            mixture_prior_pcg,
+            prior_pcg,
             np.float32,
-            "spectral-prior-pcg with its prior learnt from and centred on endmember-mixture",
-            SPECTRAL_SETUP_DEFAULTS,
+            "eq. 1 on material neighbourhoods, a brightness-weighted guided prior and a "
+            "spectral prior centred on the endmember mixture, then S >= 0",
+            {
+                # the problem (eq. 4 and neighbourhoods that separate materials)
+                "alpha_hat": 1.0,
+                "beta_hat": 1.0,
+                "gamma_hat": None,
+                "k": 6,
+                "centre_spacing": 2.5,
+                "normalize_camera_matrix": True,
+                "appearance": "chromaticity-spatial",
+                "scale_invariant": True,
+                # the priors
+                "prior": 0.3,
+                "prior_weighting": "brightness",
+                "spectral_prior": 0.003,
+                "prior_source": "mixture",
+                "covariance_floor": 1e-2,
+                "ridge": 1e-4,
+                # the solve
+                "tolerance": 3e-3,
+                "max_iterations": 2000,
+                "projected_iterations": 10,
+                "precondition": True,
+                "dtype": np.float32,
+            },
         ),
         _method(
             "endmember-mixture",
@@ -186,8 +263,48 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             "solver",
             paper_cg,
             np.float64,
-            "the paper's CG on the normal equations (CGNR), float64, from zero",
+            "eq. 1 by the paper's CG on the normal equations (CGNR), float64, from zero",
+            {
+                "alpha_hat": 1.0,
+                "beta_hat": 1.0,
+                "gamma_hat": None,
+                "k": 3,
+                "centre_spacing": 2.5,
+                "normalize_camera_matrix": True,
+                "appearance": "rgb",
+                "scale_invariant": False,
+                "tolerance": 1e-3,
+                "max_iterations": 2000,
+            },
         ),
+    )
+}
+"""The production methods by name: what the set nodes' ``method`` takes. Each stays for a
+reason:
+
+``"mixture-prior-pcg"``
+    The default (:data:`DEFAULT_METHOD`).
+``"spectral-prior-pcg"``
+    The same solver with a spectral prior learnt from the scene's guided estimate: lower
+    medians than the default on some scenes with every band shot in one image.
+``"guided-prior-pcg"``
+    Eq. 1 as the paper sets it up plus the guided prior: more accurate than the default on
+    a real scene whose RGB neighbourhoods are reliable, and the fastest of the priors.
+``"block-jacobi-pcg"``
+    Eq. 1 alone, the paper's model, solved fast: the reference for what the priors add.
+``"paper-cg"``
+    The paper's own solver, the reference for the fast solvers' accuracy and speed.
+``"endmember-mixture"``
+    The default's spectral prior on its own: non-iterative, several times faster, close
+    to the default at the median.
+
+Retired: ``"material-prior-pcg"``, the prior PCG without the spectral prior, never best on
+the benchmark; it is ``method="spectral-prior-pcg", spectral_prior=0``. The figures are in
+``benchmarks/results/reconstruction.json``."""
+
+BASELINE_METHODS: dict[str, ReconstructionMethod] = {
+    method.name: method
+    for method in (
         _method("pseudo-inverse", "baseline", pseudo_inverse, np.float64, "S = C^+ R (Imai and Berns)"),
         _method(
             "wiener",
@@ -226,28 +343,29 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
         ),
     )
 }
-"""Every reconstruction method by name; see :class:`ReconstructionMethod`. A plugin adds a
-method by adding a record."""
+"""The comparison baselines by name (published methods, and the estimates the solvers start
+from): :func:`~spectralize.nodes.reconstruction.reconstruct` runs them for benchmarks and
+evaluation; the nodes do not take them."""
 
 DEFAULT_METHOD = "mixture-prior-pcg"
-"""Eq. 1 with neighbourhoods that separate materials, coupled scale-invariantly, the guided
-prior, a spectral prior centred on the endmember-mixture estimate, and ``S >= 0``
-(:mod:`~.solvers.mixture_prior_pcg`). Measured (``benchmarks/reconstruction.py``, README):
-against the previous default ``"spectral-prior-pcg"`` a lower p95 on six and a lower median
-on five of the eight hard scene x mode rows, and more accurate on the earlier scene; eq. 1
-alone (``"block-jacobi-pcg"``, the paper's method) stays selectable."""
+"""The default preset: eq. 1 with neighbourhoods that separate materials, coupled
+scale-invariantly, a guided prior weighted by brightness and a spectral prior, both centred
+on the endmember-mixture estimate, and ``S >= 0`` (:func:`~.solvers.prior_pcg.prior_pcg`);
+its settings are ``RECONSTRUCTION_METHODS[DEFAULT_METHOD].settings``."""
 
 
 def get_method(name: str) -> ReconstructionMethod:
-    """The record of method ``name``.
+    """The record of method ``name``, production or baseline.
 
     Raises
     ------
     ReconstructionError
         For an unknown name, listing the known ones.
     """
-    if name not in RECONSTRUCTION_METHODS:
+    record = RECONSTRUCTION_METHODS.get(name) or BASELINE_METHODS.get(name)
+    if record is None:
         raise ReconstructionError(
-            f"unknown method {name!r}; known methods: {', '.join(sorted(RECONSTRUCTION_METHODS))}"
+            f"unknown method {name!r}; methods: {', '.join(RECONSTRUCTION_METHODS)}; "
+            f"baselines: {', '.join(BASELINE_METHODS)}"
         )
-    return RECONSTRUCTION_METHODS[name]
+    return record

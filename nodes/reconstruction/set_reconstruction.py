@@ -53,38 +53,40 @@ _PER_IMAGE = ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o
 Method = Annotated[
     str,
     Choices(RECONSTRUCTION_METHODS, "reconstruction method"),
-    Field(description="reconstruction method: a solver of eq. 1 or a baseline"),
+    Field(description="reconstruction method: a production preset (methods.RECONSTRUCTION_METHODS)"),
 ]
 GammaHat = Annotated[
-    float,
+    float | None,
     Field(
-        ge=0, description="neighbour-term weight (eq. 4; paper: 20 for multi-image sets); solvers only"
+        ge=0,
+        description="neighbour-term weight (eq. 4; None: the method's, 20 for a set and 1 for "
+        "one image as in the paper); solvers only",
     ),
 ]
 Tolerance = Annotated[
     float | None,
     Field(
         gt=0,
-        description="relative normal-equation residual to stop at (None: the method's, 1e-3 "
-        "for eq. 1, 3e-3 for the mixture prior); solvers only",
+        description="relative normal-equation residual to stop at (None: the method's); solvers only",
     ),
 ]
-MaxIterations = Annotated[int, Field(ge=1, description="iteration limit per set; solvers only")]
+MaxIterations = Annotated[
+    int | None,
+    Field(ge=1, description="iteration limit per set (None: the method's); solvers only"),
+]
 Neighbours = Annotated[
     int | None,
     Field(
         ge=1,
         description="appearance neighbours per pixel (None: the method's, 3 for eq. 1 as in "
-        "the paper, 6 for the material and spectral priors); solvers only",
+        "the paper, 6 for the prior PCG); solvers only",
     ),
 ]
 Prior = Annotated[
     float | None,
     Field(
         ge=0,
-        description="weight of the guided prior (None: the method's default, 0.1 for "
-        "guided-prior-pcg, material-prior-pcg and spectral-prior-pcg, 0 for "
-        "block-jacobi-pcg); only methods with a prior",
+        description="weight of the guided prior (None: the method's); only methods with a prior",
     ),
 ]
 WarmStartPixels = Annotated[
@@ -159,9 +161,9 @@ def reconstruct_seed_set(
     image_sets: xr.Dataset,
     *,
     method: Method = DEFAULT_METHOD,
-    gamma_hat: GammaHat = 20.0,
+    gamma_hat: GammaHat = None,
     tolerance: Tolerance = None,
-    max_iterations: MaxIterations = 400,
+    max_iterations: MaxIterations = None,
     k: Neighbours = None,
     prior: Prior = None,
     tile: Tile = DISK_TILE,
@@ -317,9 +319,9 @@ def reconstruct_image_sets(
     spectra_seed: xr.Dataset,
     *,
     method: Method = DEFAULT_METHOD,
-    gamma_hat: GammaHat = 20.0,
+    gamma_hat: GammaHat = None,
     tolerance: Tolerance = None,
-    max_iterations: MaxIterations = 400,
+    max_iterations: MaxIterations = None,
     k: Neighbours = None,
     prior: Prior = None,
     warm_start_pixels: WarmStartPixels = 200_000,
@@ -470,7 +472,7 @@ def reconstruct_image_sets(
         attrs={
             "seed_set": seed,
             "method": method,
-            "gamma_hat": gamma_hat,
+            **({} if gamma_hat is None else {"gamma_hat": gamma_hat}),
             **({} if prior is None else {"prior": prior}),
             "seed_iterations": seed_iterations,
             **({} if tile is None else {"tile": tile}),

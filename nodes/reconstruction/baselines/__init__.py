@@ -2,8 +2,9 @@
 
 Every baseline takes a :class:`~spectralize.nodes.reconstruction.inputs.ReconstructionInputs`
 and returns a cube ``(n_wavelength, n_image, height, width)``; one method per module, all
-of them listed in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`
-and run through :func:`~spectralize.nodes.reconstruction.reconstruct`:
+of them listed in :data:`~spectralize.nodes.reconstruction.methods.BASELINE_METHODS` (for
+benchmarks and evaluation, not the production nodes) and run through
+:func:`~spectralize.nodes.reconstruction.reconstruct`:
 
 ``"pseudo-inverse"`` (:mod:`.pseudo_inverse`)
     ``S = C^+ R`` (Imai and Berns): the minimum-norm spectrum with the measured RGB.
@@ -19,11 +20,11 @@ and run through :func:`~spectralize.nodes.reconstruction.reconstruct`:
     has no shot of is predicted from its RGB by a linear fit on the images that have it.
 ``"filtered-projected"`` (:mod:`.filtered_bands`)
     ``filtered-bands`` projected per pixel onto the RGB constraint ``C S = R``
-    (:mod:`.projection`): ``S = B + C^T (C C^T)^-1 (R - C B)``.
+    (:mod:`.projection`): ``S = B + C^T (C C^T)^-1 (R - C B)``. Eq. 1's start.
 ``"guided-projected"`` (:mod:`.guided_filter`)
     Every band image filtered with the RGB image as guide (He et al.'s guided filter with
-    Gaussian windows), then projected onto ``C S = R``. The ``"guided-prior-pcg"`` solver's
-    initial guess and prior.
+    Gaussian windows), then projected onto ``C S = R``. The PCG solvers' guided estimate
+    ``S_0`` (start and prior centre, :mod:`..solvers.guided_estimate`).
 
 References
 ----------

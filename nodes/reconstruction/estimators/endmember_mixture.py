@@ -34,8 +34,8 @@ together, where the noise of single pixels (band SNR at or below 1) averages out
 
 In a set, images share the endmembers (the same materials under other light and view), so
 an image without band shots gets spectra from the bands of the others through its RGB.
-The estimate is the centre and the covariance source of ``"mixture-prior-pcg"``
-(:mod:`~..solvers.mixture_prior_pcg`), which then adds eq. 1's filter and neighbour terms.
+The estimate is the centre and the covariance source of the preset ``"mixture-prior-pcg"``
+(:mod:`~..solvers.prior_pcg`), which then adds eq. 1's filter and neighbour terms.
 
 References
 ----------
@@ -318,7 +318,7 @@ def _update_atoms(
             here = slice(m * per_image, (m + 1) * per_image)
             if m not in grams:
                 grams[m] = np.zeros((n_atoms, n_atoms))
-                mixture_gram(near[here], weights[here], n_atoms, grams[m])
+                mixture_gram(near[here], weights[here], grams[m])
             gram += grams[m]
             mixture_rhs(near[here], weights[here], inputs.band_data[i].ravel().astype(np.float64), rhs)
         ridge = DICTIONARY_RIDGE * max(float(np.trace(gram)) / n_atoms, 1e-300)

@@ -1,30 +1,20 @@
-"""Solvers of the normal equations ``A^T A S = A^T b`` of eq. 1, one method per module.
+"""Solvers of eq. 1: three implementations, one method per module.
 
-All of them are listed in
-:data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS` and run through
-:func:`~spectralize.nodes.reconstruction.reconstruct`:
+``paper_cg`` (:mod:`.paper_cg`)
+    The paper's solver, kept as the reference: CGNR, float64, started from zero.
+``block_jacobi_pcg`` (:mod:`.block_jacobi_pcg`)
+    Eq. 1, plus an optional guided prior, by block-Jacobi preconditioned CG on ``A^T A``
+    in float32.
+``prior_pcg`` (:mod:`.prior_pcg`)
+    The same PCG on eq. 1 plus the guided and spectral priors (scene, mixture or training
+    samples), then the non-negativity refinement.
 
-``"paper-cg"`` (:mod:`.paper_cg`)
-    The paper's solver, kept as the reference mode: CGNR, float64, started from zero.
-``"block-jacobi-pcg"`` (:mod:`.block_jacobi_pcg`)
-    Eq. 1 alone, solved fast: block-Jacobi preconditioned CG on ``A^T A``, float32,
-    started from the filtered bands projected onto ``C S = R``.
-``"guided-prior-pcg"`` (:mod:`.guided_prior_pcg`)
-    The same solver on eq. 1 plus a prior towards the RGB-guided filtered bands.
-
-``"material-prior-pcg"`` (:mod:`.material_prior_pcg`)
-    Eq. 1 with neighbourhoods in chromaticity and position, scale-invariant coupling, the
-    guided prior and non-negativity.
-``"spectral-prior-pcg"`` (:mod:`.spectral_prior_pcg`)
-    ``material-prior-pcg`` plus a soft Gaussian spectral prior from colour-science's
-    reflectances, centred on the Wiener estimate and scaled by each pixel's brightness.
-``"mixture-prior-pcg"`` (:mod:`.mixture_prior_pcg`)
-    The same with the prior learnt from, and centred on, the endmember-mixture estimate
-    (:mod:`..estimators`). The default.
-
-All stop when the relative residual of the normal equations ``||A^T b - A^T A S|| /
-||A^T b||`` falls below ``tolerance``, or after ``max_iterations``
-(:mod:`.common`).
+The named presets that run them (``"mixture-prior-pcg"``, the default, and the others)
+are data in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
+Shared parts: :mod:`.common` (result record, the PCG loop and its pixel-major run),
+:mod:`.preconditioner` (block Jacobi), :mod:`.guided_estimate` (starts and the guided
+prior's centre), :mod:`.spectral_prior` (the spectral prior term) and
+:mod:`.projected_refinement` (``S >= 0``).
 
 References
 ----------
@@ -32,33 +22,28 @@ References
 .. [2] Saad, Y. (2003). Iterative Methods for Sparse Linear Systems, 2nd ed., SIAM.
 """
 
-from .block_jacobi_pcg import (
-    DEFAULT_RIDGE,
-    BlockJacobiPreconditioner,
-    block_jacobi_pcg,
-    guided_initial,
-    projected_filtered_initial,
-)
-from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, SolverResult
-from .guided_prior_pcg import DEFAULT_PRIOR, guided_prior_pcg
-from .material_prior_pcg import material_prior_pcg
-from .mixture_prior_pcg import mixture_prior_pcg
+from .block_jacobi_pcg import block_jacobi_pcg
+from .common import SolverResult, counting_iterations
+from .guided_estimate import guided_initial, projected_filtered_initial, shot_mask
 from .paper_cg import paper_cg
-from .spectral_prior_pcg import spectral_prior_pcg
+from .preconditioner import BlockJacobiPreconditioner, normal_mean_diagonal
+from .prior_pcg import prior_pcg
+from .projected_refinement import projected_refinement
+from .spectral_prior import SpectralPrior, prior_brightness, spectral_prior_term
 
 __all__ = [
     "SolverResult",
-    "DEFAULT_TOLERANCE",
-    "DEFAULT_MAX_ITERATIONS",
-    "DEFAULT_RIDGE",
-    "DEFAULT_PRIOR",
+    "counting_iterations",
     "paper_cg",
     "block_jacobi_pcg",
-    "guided_prior_pcg",
-    "material_prior_pcg",
-    "spectral_prior_pcg",
-    "mixture_prior_pcg",
+    "prior_pcg",
     "BlockJacobiPreconditioner",
+    "normal_mean_diagonal",
+    "shot_mask",
     "projected_filtered_initial",
     "guided_initial",
+    "projected_refinement",
+    "SpectralPrior",
+    "spectral_prior_term",
+    "prior_brightness",
 ]

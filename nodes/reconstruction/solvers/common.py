@@ -1,36 +1,41 @@
-"""What every solver of eq. 1 shares: its result record, defaults, a dot product and the PCG loop.
+"""What every solver of eq. 1 shares: its result record, callbacks, the vector updates,
+the PCG loop and the pixel-major PCG run that both block-Jacobi solvers are.
+
+All solvers stop when the relative residual of the normal equations ``||A^T b - A^T A S|| /
+||A^T b||`` falls below ``tolerance``, or after ``max_iterations``.
 
 References
 ----------
 .. [1] Fast Capture of Spectral Image Series, section 3, "Optimization".
+.. [2] Saad, Y. (2003). Iterative Methods for Sparse Linear Systems, 2nd ed., SIAM
+   (preconditioned CG, algorithm 9.1).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..operators import PixelOrder
+    from .preconditioner import BlockJacobiPreconditioner
 
 __all__ = [
     "SolverResult",
     "Callback",
     "counting_iterations",
     "needs_cube",
-    "DEFAULT_TOLERANCE",
-    "DEFAULT_MAX_ITERATIONS",
     "vdot",
     "VectorOps",
     "NUMPY",
     "COMPILED",
     "preconditioned_cg",
+    "PixelOperator",
+    "pixel_pcg",
 ]
-
-DEFAULT_TOLERANCE = 1e-3
-"""Stop when the relative normal-equation residual ``||A^T b - A^T A S|| / ||A^T b||`` is below it."""
-
-DEFAULT_MAX_ITERATIONS = 2000
-"""Iteration limit of every solver."""
 
 Callback = Callable[[int, np.ndarray], None]
 """``callback(iteration, cube)``, called after every iteration (benchmarks' convergence curves).
@@ -71,10 +76,10 @@ class SolverResult:
     wall_time
         Seconds spent in the solver (set-up of its preconditioner and initial guess included).
     method
-        Name of the method in
-        :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
+        The implementation that solved it (its function's name, e.g. ``"prior_pcg"``); the
+        preset's name is the caller's (:data:`~..methods.RECONSTRUCTION_METHODS`).
     info
-        Method-specific settings the solve used (``ridge``, ``prior``, ``precondition``).
+        Implementation-specific settings the solve used (``ridge``, ``prior``, ``precondition``).
     """
 
     cube: np.ndarray
@@ -204,3 +209,95 @@ def preconditioned_cg(
         vectors.direction(p, z, dtype.type(rz_new / rz))
         rz = rz_new
     return x, history, iterations
+
+
+PixelOperator = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""``operator(vector, out) -> out``: the regularised normal operator ``H`` applied to a
+pixel-major vector ``(n_pixels, n_wavelength)``, written into ``out``."""
+
+
+def pixel_pcg(
+    operator: PixelOperator,
+    x: np.ndarray,
+    rhs: np.ndarray,
+    preconditioner: BlockJacobiPreconditioner,
+    order: PixelOrder,
+    *,
+    precondition: bool | str,
+    tolerance: float,
+    max_iterations: int,
+    callback: Callback | None,
+) -> tuple[np.ndarray, list[float], int]:
+    """Block-Jacobi preconditioned CG on ``H x = rhs`` for pixel-major vectors, in place.
+
+    The run both PCG solvers share (:func:`~.block_jacobi_pcg.block_jacobi_pcg` and
+    :func:`~.prior_pcg.prior_pcg`); they differ only in the terms of ``H``, ``rhs`` and the
+    preconditioner's diagonal. Vectors are pixel-major in ``order`` (the layout of the
+    compiled passes, :mod:`..kernels`), the vector updates compiled (:data:`COMPILED`); the
+    operator and the preconditioner write into one shared buffer (CG uses up ``H p`` before
+    it asks for ``M^-1 r`` and that before the next ``H p``).
+
+    Parameters
+    ----------
+    operator
+        ``H``, see :data:`PixelOperator`.
+    x
+        Start, pixel-major in ``order``; overwritten with the solution.
+    rhs
+        Right-hand side, same layout (not changed).
+    preconditioner
+        Its block-Jacobi preconditioner, built in ``order``.
+    order
+        The pixel order of the vectors (the callback gets band-major cubes).
+    precondition
+        ``True``: block Jacobi; ``"jacobi"``: its scalar diagonal; ``False``: none (the
+        last two for measurements).
+    tolerance, max_iterations, callback
+        As for :func:`preconditioned_cg`; ``callback`` gets the cube ``(w, m, y, x)`` (or
+        None, see :func:`counting_iterations`).
+
+    Returns
+    -------
+    x, history, iterations
+        As :func:`preconditioned_cg` (``x`` still pixel-major).
+    """
+    buffer = np.empty_like(x)
+
+    def apply_operator(direction: np.ndarray) -> np.ndarray:
+        return operator(direction, buffer)
+
+    rhs_norm = np.sqrt(COMPILED.dot(rhs, rhs)) or 1.0
+    r = rhs - operator(x, buffer)
+    if precondition == "jacobi":
+        scalar = preconditioner.inverse_scalar_diagonal_pixels()
+
+        def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
+            return residual * scalar
+
+    elif precondition:
+
+        def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
+            return preconditioner.apply_pixels(residual, out=buffer)
+
+    else:
+
+        def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
+            return residual.copy()
+
+    cube_wanted = needs_cube(callback)
+
+    def band_major_callback(iteration: int, vector: np.ndarray) -> None:
+        callback(iteration, order.to_cube(vector) if cube_wanted else None)
+
+    return preconditioned_cg(
+        apply_operator,
+        x,
+        r,
+        rhs_norm,
+        apply_preconditioner,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        dtype=x.dtype,
+        callback=None if callback is None else band_major_callback,
+        vectors=COMPILED,
+    )

@@ -1,4 +1,4 @@
-"""Solver ``"paper-cg"``: the paper's conjugate gradients on the normal equations (CGNR).
+"""The paper's conjugate gradients on the normal equations (CGNR), preset ``"paper-cg"``.
 
 Kept as the reference mode: ``A`` and ``A^T`` applied as two functions, float64, started
 from zero, no preconditioner.
@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from ..operators import ReconstructionProblem
-from .common import DEFAULT_MAX_ITERATIONS, DEFAULT_TOLERANCE, Callback, SolverResult, vdot
+from .common import Callback, SolverResult, vdot
 
 __all__ = ["paper_cg"]
 
@@ -26,8 +26,8 @@ def paper_cg(
     problem: ReconstructionProblem,
     *,
     initial: np.ndarray | None = None,
-    tolerance: float = DEFAULT_TOLERANCE,
-    max_iterations: int = DEFAULT_MAX_ITERATIONS,
+    tolerance: float = 1e-3,
+    max_iterations: int = 2000,
     callback: Callback | None = None,
 ) -> SolverResult:
     """The paper's solver: CG on ``A^T A S = A^T b`` with ``A``, ``A^T`` as functions.
@@ -50,7 +50,7 @@ def paper_cg(
     Returns
     -------
     SolverResult
-        ``method="paper-cg"``; the cube is float64.
+        ``method="paper_cg"``; the cube is float64.
 
     References
     ----------
@@ -99,5 +99,5 @@ def paper_cg(
         np.asarray(history),
         history[-1] <= tolerance,
         time.perf_counter() - started,
-        "paper-cg",
+        "paper_cg",
     )

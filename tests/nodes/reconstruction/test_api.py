@@ -6,8 +6,16 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spectralize.nodes.reconstruction import DEFAULT_METHOD, RECONSTRUCTION_METHODS, reconstruct
+from spectralize.nodes.reconstruction import (
+    BASELINE_METHODS,
+    DEFAULT_METHOD,
+    RECONSTRUCTION_METHODS,
+    reconstruct,
+)
+from spectralize.nodes.reconstruction.methods import RUN_INPUTS, SETUP_OPTIONS, get_method
 from spectralize.schemas.errors import ReconstructionError, SpectralizeError
+
+EVERY_METHOD = {**RECONSTRUCTION_METHODS, **BASELINE_METHODS}
 
 
 @pytest.fixture
@@ -92,9 +100,9 @@ def test_result_scales_with_radiance_and_ignores_the_gain_of_c(scene):
     )
 
 
-@pytest.mark.parametrize("method", sorted(RECONSTRUCTION_METHODS))
-def test_every_method_of_the_table_runs_through_reconstruct(scene, method):
-    record = RECONSTRUCTION_METHODS[method]
+@pytest.mark.parametrize("method", sorted(EVERY_METHOD))
+def test_every_method_of_the_tables_runs_through_reconstruct(scene, method):
+    record = get_method(method)
     assert record.name == method and record.kind in ("solver", "baseline", "estimator")
     result = reconstruct(scene.rgb, scene.bands, scene.camera_matrix, method=method, full_output=True)
     out = result.spectra
@@ -110,16 +118,37 @@ def test_every_method_of_the_table_runs_through_reconstruct(scene, method):
         assert out.attrs["tolerance"] == (3e-3 if method == "mixture-prior-pcg" else 1e-3)
     else:
         assert result.iterations == 0 and result.problem is None
-    # every option of the method is reachable and recorded with its default
+    # every setting of the method is reachable and recorded
     for name, default in record.defaults().items():
         if isinstance(default, int | float | str) and name != "gamma_hat":
             assert out.attrs[name] == default, name
 
 
-def test_option_defaults_are_the_functions_defaults():
-    record = RECONSTRUCTION_METHODS["guided-prior-pcg"]
-    assert record.defaults()["prior"] == 0.1
-    assert RECONSTRUCTION_METHODS["block-jacobi-pcg"].defaults()["prior"] == 0.0
+@pytest.mark.parametrize("method", sorted(EVERY_METHOD))
+def test_every_preset_holds_every_setting(method):
+    """One dict per method holds all its settings: a run never falls back on a function's
+    own keyword default (only the run-time inputs are no settings)."""
+    record = get_method(method)
+    assert set(record.settings) == set(record.options) - set(RUN_INPUTS)
+    if record.kind == "solver":
+        assert set(SETUP_OPTIONS) <= set(record.settings)
+    assert record.defaults() == {name: record.settings.get(name) for name in record.options}
+
+
+def test_the_presets_settings():
+    assert RECONSTRUCTION_METHODS["guided-prior-pcg"].settings["prior"] == 0.1
+    assert RECONSTRUCTION_METHODS["block-jacobi-pcg"].settings["prior"] == 0.0
+    # the two presets of eq. 1's PCG differ in the prior alone, the prior PCG's in its priors
+    # and the solve's stopping
+    for pair, differ in (
+        (("guided-prior-pcg", "block-jacobi-pcg"), {"prior"}),
+        (
+            ("mixture-prior-pcg", "spectral-prior-pcg"),
+            {"prior", "prior_weighting", "prior_source", "tolerance", "projected_iterations"},
+        ),
+    ):
+        a, b = (RECONSTRUCTION_METHODS[name].settings for name in pair)
+        assert {name for name in a if a[name] != b[name]} == differ
     assert {
         "alpha_hat",
         "beta_hat",
@@ -132,9 +161,17 @@ def test_option_defaults_are_the_functions_defaults():
         "initial",
         "callback",
     } <= set(RECONSTRUCTION_METHODS["paper-cg"].options)
-    assert set(RECONSTRUCTION_METHODS["guided-projected"].options) == {"window_scale", "epsilon"}
-    assert set(RECONSTRUCTION_METHODS["wiener"].options) == {"relative_noise"}
-    assert RECONSTRUCTION_METHODS["pseudo-inverse"].options == {}
+    assert set(BASELINE_METHODS["guided-projected"].options) == {"window_scale", "epsilon"}
+    assert set(BASELINE_METHODS["wiener"].options) == {"relative_noise"}
+    assert BASELINE_METHODS["pseudo-inverse"].options == {}
+
+
+def test_production_methods_and_baselines_are_apart():
+    assert not set(RECONSTRUCTION_METHODS) & set(BASELINE_METHODS)
+    assert {record.kind for record in BASELINE_METHODS.values()} == {"baseline"}
+    assert {record.kind for record in RECONSTRUCTION_METHODS.values()} == {"solver", "estimator"}
+    assert DEFAULT_METHOD in RECONSTRUCTION_METHODS
+    assert "material-prior-pcg" not in EVERY_METHOD  # retired: spectral-prior-pcg, spectral_prior=0
 
 
 # -- bad input ------------------------------------------------------------------------------
@@ -149,7 +186,7 @@ def test_unknown_method_lists_the_known_ones(scene):
     message = _raises(
         "unknown method 'multigrid'", scene.rgb, scene.bands, scene.camera_matrix, method="multigrid"
     )
-    for name in RECONSTRUCTION_METHODS:  # solvers and baselines
+    for name in EVERY_METHOD:  # production methods and baselines
         assert name in message
 
 

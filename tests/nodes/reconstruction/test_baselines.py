@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spectralize.nodes.reconstruction import RECONSTRUCTION_METHODS, inputs_from_xarray
+from spectralize.nodes.reconstruction import BASELINE_METHODS, inputs_from_xarray
 from spectralize.nodes.reconstruction.baselines import (
     filtered_bands,
     guided_filtered_bands,
@@ -35,13 +35,13 @@ def _rgb_of(cube, inputs):
     "method", ["pseudo-inverse", "mallett2019", "filtered-projected", "guided-projected"]
 )
 def test_rgb_consistent_baselines_reproduce_the_rgb(inputs, method):
-    cube = RECONSTRUCTION_METHODS[method].function(inputs)
+    cube = BASELINE_METHODS[method].function(inputs)
     assert cube.shape == inputs.cube_shape
     np.testing.assert_allclose(_rgb_of(cube, inputs), inputs.rgb, rtol=1e-8, atol=1e-10)
 
 
 def test_wiener_nearly_reproduces_the_rgb_and_is_linear_in_it(inputs):
-    cube = RECONSTRUCTION_METHODS["wiener"].function(inputs)
+    cube = BASELINE_METHODS["wiener"].function(inputs)
     np.testing.assert_allclose(
         _rgb_of(cube, inputs), inputs.rgb, rtol=1e-2, atol=1e-3 * np.abs(inputs.rgb).max()
     )
@@ -53,7 +53,7 @@ def test_wiener_nearly_reproduces_the_rgb_and_is_linear_in_it(inputs):
 
 
 def test_pseudo_inverse_is_the_minimum_norm_rgb_solution(inputs):
-    cube = RECONSTRUCTION_METHODS["pseudo-inverse"].function(inputs)
+    cube = BASELINE_METHODS["pseudo-inverse"].function(inputs)
     null = np.linalg.svd(inputs.camera_matrix)[2][3:]  # basis of null(C)
     # no component in the null space of C
     assert np.abs(null @ cube.reshape(cube.shape[0], -1)).max() < 1e-10

@@ -1,5 +1,6 @@
 """Tests of the material-separating terms: chromaticity-spatial neighbourhoods, the
-scale-invariant coupling, ``material-prior-pcg`` (S >= 0) and the confidence output."""
+scale-invariant coupling, the prior PCG on them without the spectral prior (S >= 0) and the
+confidence output."""
 
 from __future__ import annotations
 
@@ -22,6 +23,10 @@ from .conftest import camera_matrix_for, smooth_spectra
 
 WAVELENGTH = np.arange(420.0, 701.0, 20.0)
 C = camera_matrix_for(WAVELENGTH)
+
+MATERIAL_PRIOR = {"method": "spectral-prior-pcg", "spectral_prior": 0.0}
+"""The prior PCG on material neighbourhoods with the guided prior alone (the retired
+``material-prior-pcg``)."""
 
 
 def _arrays(truth: np.ndarray, with_bands: list[int], filter_size: float = 3.0):
@@ -81,7 +86,7 @@ def test_exact_recovery_when_the_constraints_determine_the_answer():
         (1, WAVELENGTH.size, 20, 20),
     ).copy()
     rgb, bands, c = _arrays(truth, [0])
-    out = reconstruct(rgb, bands, c, method="material-prior-pcg", tolerance=1e-6)
+    out = reconstruct(rgb, bands, c, **MATERIAL_PRIOR, tolerance=1e-6)
     np.testing.assert_allclose(out.values, truth, rtol=2e-3, atol=2e-4)
 
 
@@ -97,16 +102,16 @@ def test_metamers_placed_apart_are_separated():
     truth[0, :, :, 12:] = b[:, None, None]
     rgb, bands, c = _arrays(truth, [0], filter_size=2.5)
     errors = {}
-    for method, options in (
-        ("material-prior-pcg", {}),
-        (DEFAULT_METHOD, {}),
-        ("block-jacobi-pcg", {"k": 6, "gamma_hat": 5.0}),
+    for name, options in (
+        ("material prior", MATERIAL_PRIOR),
+        (DEFAULT_METHOD, {"method": DEFAULT_METHOD}),
+        ("block-jacobi-pcg", {"method": "block-jacobi-pcg", "k": 6, "gamma_hat": 5.0}),
     ):
-        out = reconstruct(rgb, bands, c, method=method, **options).values
+        out = reconstruct(rgb, bands, c, **options).values
         inner = np.r_[0:4, 20:24]  # away from the boundary, beyond any filter's reach
-        errors[method] = np.abs(out[0][:, :, inner] - truth[0][:, :, inner]).max() / np.abs(a - b).max()
-    assert errors["material-prior-pcg"] < 0.1 and errors[DEFAULT_METHOD] < 0.1
-    assert errors["block-jacobi-pcg"] > 2 * errors["material-prior-pcg"]  # RGB neighbours mix them
+        errors[name] = np.abs(out[0][:, :, inner] - truth[0][:, :, inner]).max() / np.abs(a - b).max()
+    assert errors["material prior"] < 0.1 and errors[DEFAULT_METHOD] < 0.1
+    assert errors["block-jacobi-pcg"] > 2 * errors["material prior"]  # RGB neighbours mix them
 
 
 def test_texel_shape_carried_to_an_image_without_bands_at_another_brightness():
@@ -116,7 +121,7 @@ def test_texel_shape_carried_to_an_image_without_bands_at_another_brightness():
     base = spectra[label].transpose(2, 0, 1)
     truth = np.stack([base, 0.3 * base])  # image 1: the same texels, 0.3 x as bright
     rgb, bands, c = _arrays(truth, [0])
-    out = reconstruct(rgb, bands, c, method="material-prior-pcg", tolerance=1e-5).values
+    out = reconstruct(rgb, bands, c, **MATERIAL_PRIOR, tolerance=1e-5).values
     error = np.abs(out[1] - truth[1]) / truth[1].max()
     assert error.max() < 0.05 and error.mean() < 0.01
     assert out.min() >= 0

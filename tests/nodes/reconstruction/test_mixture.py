@@ -27,9 +27,7 @@ from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
     sample_stride,
     set_endmembers,
 )
-from spectralize.nodes.reconstruction.solvers.spectral_prior_pcg import (
-    spectral_prior_term,
-)
+from spectralize.nodes.reconstruction.solvers.spectral_prior import spectral_prior_term
 from spectralize.schemas import ReconstructionError
 
 from .conftest import smooth_spectra
@@ -139,8 +137,8 @@ def test_images_without_bands_get_the_shared_endmembers_at_their_brightness():
 def test_the_mixture_prior_exists_for_a_sparse_set_and_is_centred_on_the_estimate():
     _, problem = sparse_set(_blocks(6, n_image=3, size=24))
     inputs = problem.extras["inputs"]
-    assert spectral_prior_term(problem, 0.01, 1.0, source="scene") is None
-    term = spectral_prior_term(problem, 0.01, 1.0, source="mixture")
+    assert spectral_prior_term(problem, 0.01, 1.0, covariance_floor=1e-2, source="scene") is None
+    term = spectral_prior_term(problem, 0.01, 1.0, covariance_floor=1e-2, source="mixture")
     assert term is not None
     np.testing.assert_allclose(term.centre, endmember_mixture(inputs).reshape(problem.shape))
     assert np.linalg.eigvalsh(term.precision).min() > 0

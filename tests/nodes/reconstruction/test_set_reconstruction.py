@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spectralize.nodes.evaluation.metrics import normalised_rmse
+from spectralize.nodes.evaluation.pixel_metrics import normalised_rmse
 from spectralize.nodes.reconstruction.image_sets import select_image_sets
 from spectralize.nodes.reconstruction.set_reconstruction import (
     reconstruct_image_sets,
@@ -87,7 +87,7 @@ def test_images_with_and_without_bands_are_reconstructed(solved):
 
 def test_method_takes_exactly_the_table_and_fails_at_graph_check():
     from spectralize.engine import Step, check_graph
-    from spectralize.nodes.reconstruction import RECONSTRUCTION_METHODS
+    from spectralize.nodes.reconstruction import BASELINE_METHODS, RECONSTRUCTION_METHODS
     from spectralize.nodes.reconstruction.declarations import (
         RECONSTRUCT_IMAGE_SETS,
         RECONSTRUCT_SEED_SET,
@@ -95,7 +95,9 @@ def test_method_takes_exactly_the_table_and_fails_at_graph_check():
     from spectralize.schemas import PipelineError
 
     for node in (RECONSTRUCT_SEED_SET, RECONSTRUCT_IMAGE_SETS):
+        # the production methods; the comparison baselines are not the nodes'
         assert set(node.parameter_choices()["method"]) == set(RECONSTRUCTION_METHODS)
+        assert not set(node.parameter_choices()["method"]) & set(BASELINE_METHODS)
         for method in RECONSTRUCTION_METHODS:
             assert node.parse_parameters({"method": method}).method == method
         assert node.parse_parameters({"prior": 0.3}).prior == 0.3

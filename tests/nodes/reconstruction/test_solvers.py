@@ -13,13 +13,13 @@ from spectralize.nodes.reconstruction import (
 )
 from spectralize.nodes.reconstruction.baselines import guided_filtered_projected
 from spectralize.nodes.reconstruction.solvers import (
-    DEFAULT_PRIOR,
-    DEFAULT_RIDGE,
     BlockJacobiPreconditioner,
     block_jacobi_pcg,
-    guided_prior_pcg,
     paper_cg,
 )
+
+GUIDED = RECONSTRUCTION_METHODS["guided-prior-pcg"].settings
+"""The guided-prior preset: eq. 1's PCG with its prior."""
 
 
 def _problem(scene, **options):
@@ -183,11 +183,15 @@ def test_default_prior_pulls_towards_the_guided_estimate_and_helps(scene_factory
     truth = np.moveaxis(scene.truth, 1, 0)
     guided = guided_filtered_projected(problem.extras["inputs"])
     plain = block_jacobi_pcg(problem, prior=0.0, tolerance=1e-8, max_iterations=3000, dtype=np.float64)
-    with_prior = guided_prior_pcg(problem, tolerance=1e-8, max_iterations=3000, dtype=np.float64)
-    assert with_prior.info["prior"] == DEFAULT_PRIOR
+    with_prior = block_jacobi_pcg(
+        problem, prior=GUIDED["prior"], tolerance=1e-8, max_iterations=3000, dtype=np.float64
+    )
+    assert with_prior.info["prior"] == GUIDED["prior"] > 0
     assert problem.energy(plain.cube) <= problem.energy(with_prior.cube)
     # stationary point of E(S) + epsilon ||S - S_0||^2 (every band has a shot here)
-    epsilon = BlockJacobiPreconditioner(problem, np.float64, ridge=DEFAULT_RIDGE + DEFAULT_PRIOR).ridge
+    epsilon = BlockJacobiPreconditioner(
+        problem, np.float64, ridge=GUIDED["ridge"] + GUIDED["prior"]
+    ).ridge
     gradient = (
         problem.normal(with_prior.cube) - problem.normal_rhs() + epsilon * (with_prior.cube - guided)
     )
@@ -203,13 +207,13 @@ def test_prior_centre_stays_the_guided_estimate_under_a_warm_start(scene_factory
     )
     problem = _problem(scene)
     options = {"tolerance": 1e-9, "max_iterations": 4000, "dtype": np.float64, "ridge": 0.0}
-    cold = guided_prior_pcg(problem, **options)
-    warm = guided_prior_pcg(problem, initial=np.zeros(problem.shape), **options)
-    assert warm.method == cold.method == "guided-prior-pcg"
+    cold = block_jacobi_pcg(problem, prior=GUIDED["prior"], **options)
+    warm = block_jacobi_pcg(problem, prior=GUIDED["prior"], initial=np.zeros(problem.shape), **options)
+    assert warm.method == cold.method == "block_jacobi_pcg"
     np.testing.assert_allclose(
         warm.cube, cold.cube, rtol=1e-5, atol=1e-6 * float(np.abs(cold.cube).max())
     )
-    plain = block_jacobi_pcg(problem, initial=np.zeros(problem.shape), **options)
+    plain = block_jacobi_pcg(problem, prior=0.0, initial=np.zeros(problem.shape), **options)
     assert _relative_error(plain.cube, cold.cube) > 1e-3  # the prior did change the answer
 
 

@@ -1,5 +1,5 @@
-"""Tests of ``spectral-prior-pcg``: the per-pixel Gaussian spectral prior term and the
-solver that adds it to ``material-prior-pcg``."""
+"""Tests of the spectral prior: the per-pixel Gaussian spectral prior term and the prior
+PCG that adds it (preset ``spectral-prior-pcg``)."""
 
 from __future__ import annotations
 
@@ -12,19 +12,28 @@ from spectralize.nodes.reconstruction import (
     inputs_from_xarray,
     reconstruct,
 )
-from spectralize.nodes.reconstruction.solvers import BlockJacobiPreconditioner
-from spectralize.nodes.reconstruction.solvers.block_jacobi_pcg import guided_initial
-from spectralize.nodes.reconstruction.solvers.spectral_prior_pcg import (
+from spectralize.nodes.reconstruction.solvers import (
+    BlockJacobiPreconditioner,
+    guided_initial,
+    prior_pcg,
+)
+from spectralize.nodes.reconstruction.solvers.spectral_prior import (
     MAX_BRIGHTNESS,
     MIN_BRIGHTNESS,
-    SETUP_DEFAULTS,
     prior_brightness,
-    spectral_prior_pcg,
     spectral_prior_term,
 )
 
 from .conftest import smooth_spectra
 from .test_material_prior import WAVELENGTH, _arrays
+
+SPECTRAL = RECONSTRUCTION_METHODS["spectral-prior-pcg"].settings
+"""The spectral-prior preset."""
+
+SETUP_DEFAULTS = {name: SPECTRAL[name] for name in ("appearance", "scale_invariant", "k")}
+"""Its problem set-up: neighbourhoods that separate materials."""
+
+FLOOR = SPECTRAL["covariance_floor"]
 
 
 def _mixed_truth(seed: int, n_image: int = 1, size: int = 16) -> np.ndarray:
@@ -49,7 +58,7 @@ def _problem(truth: np.ndarray, with_bands: list[int], noise: float = 0.0):
 @pytest.mark.parametrize("source", ["scene", "training", "mixture"])
 def test_prior_term_is_symmetric_positive_and_zero_at_its_centre(source):
     _, problem = _problem(_mixed_truth(0), [0])
-    term = spectral_prior_term(problem, 0.01, 2.0, source=source)
+    term = spectral_prior_term(problem, 0.01, 2.0, covariance_floor=FLOOR, source=source)
     assert term is not None
     rng = np.random.default_rng(2)
     x, y = rng.normal(size=(2,) + problem.shape)
@@ -66,25 +75,22 @@ def test_prior_term_is_symmetric_positive_and_zero_at_its_centre(source):
     order = np.argsort(brightness.ravel())
     assert term.weight.ravel()[order[0]] > term.weight.ravel()[order[-1]]
     with pytest.raises(ValueError, match="prior source"):
-        spectral_prior_term(problem, 0.01, 2.0, source="pca")
+        spectral_prior_term(problem, 0.01, 2.0, covariance_floor=FLOOR, source="pca")
 
 
 def test_solution_solves_the_regularised_normal_equations():
     _, problem = _problem(_mixed_truth(4), [0], noise=0.05)
     options = {"dtype": np.float64, "ridge": 0.0, "prior": 0.0, "projected_iterations": 0}
-    result = spectral_prior_pcg(
-        problem, tolerance=1e-10, max_iterations=5000, spectral_prior=0.05, **options
-    )
+    options |= {"covariance_floor": FLOOR, "prior_source": "scene"}
+    result = prior_pcg(problem, tolerance=1e-10, max_iterations=5000, spectral_prior=0.05, **options)
     mean_diagonal = BlockJacobiPreconditioner(problem, np.float64).mean_diagonal
-    term = spectral_prior_term(problem, 0.05, mean_diagonal)
+    term = spectral_prior_term(problem, 0.05, mean_diagonal, covariance_floor=FLOOR, source="scene")
     x = result.cube
     residual = problem.normal(x) + term.apply(x) - problem.normal_rhs() - term.rhs()
     rhs = problem.normal_rhs() + term.rhs()
     assert np.linalg.norm(residual) / np.linalg.norm(rhs) < 1e-7
     # the term is active: without it the solution differs
-    plain = spectral_prior_pcg(
-        problem, tolerance=1e-10, max_iterations=5000, spectral_prior=0.0, **options
-    )
+    plain = prior_pcg(problem, tolerance=1e-10, max_iterations=5000, spectral_prior=0.0, **options)
     assert np.abs(plain.cube - x).max() > 1e-3 * np.abs(x).max()
 
 
@@ -103,7 +109,7 @@ def test_brightness_weighted_prior_solves_its_normal_equations():
         "spectral_prior": 0.0,
         "projected_iterations": 0,
     }
-    result = spectral_prior_pcg(problem, prior_weighting="brightness", **exact)
+    result = prior_pcg(problem, prior_weighting="brightness", **exact)
     mean_diagonal = BlockJacobiPreconditioner(problem, np.float64).mean_diagonal
     weight = prior * mean_diagonal * prior_brightness(rgb.values)[None]  # every band has a shot
     centre = guided_initial(problem)
@@ -111,7 +117,7 @@ def test_brightness_weighted_prior_solves_its_normal_equations():
     rhs = problem.normal_rhs() + weight * centre
     residual = problem.normal(x) + weight * x - rhs
     assert np.linalg.norm(residual) / np.linalg.norm(rhs) < 1e-7
-    uniform = spectral_prior_pcg(problem, **exact)
+    uniform = prior_pcg(problem, **exact)
     # the brightest pixels are held closer to the centre than with a uniform weight
     brightness = prior_brightness(rgb.values).ravel()
     bright = brightness >= np.quantile(brightness, 0.9)
@@ -121,7 +127,7 @@ def test_brightness_weighted_prior_solves_its_normal_equations():
     }
     assert moved["brightness"] < 0.9 * moved["uniform"]
     with pytest.raises(ValueError, match="prior_weighting: expected one of"):
-        spectral_prior_pcg(problem, prior_weighting="luminance")
+        prior_pcg(problem, prior_weighting="luminance")
 
 
 def test_prior_brightness_has_mean_one_and_is_clipped():
@@ -159,11 +165,13 @@ def sparse_set(truth: np.ndarray):
     return (rgb, sparse, c), build_problem(inputs, **SETUP_DEFAULTS)
 
 
-def test_sparse_set_gets_no_scene_prior_and_matches_material_prior():
+def test_sparse_set_gets_no_scene_prior_and_matches_the_prior_pcg_without_it():
     (rgb, sparse, c), problem = sparse_set(_mixed_truth(6, n_image=3))
-    assert spectral_prior_term(problem, 0.01, 1.0, source="scene") is None
+    assert spectral_prior_term(problem, 0.01, 1.0, covariance_floor=FLOOR, source="scene") is None
     ours = reconstruct(rgb, sparse, c, method="spectral-prior-pcg", tolerance=1e-6).values
-    theirs = reconstruct(rgb, sparse, c, method="material-prior-pcg", tolerance=1e-6).values
+    theirs = reconstruct(
+        rgb, sparse, c, method="spectral-prior-pcg", spectral_prior=0.0, tolerance=1e-6
+    ).values
     np.testing.assert_allclose(ours, theirs, atol=1e-3 * np.abs(theirs).max())
     assert ours.min() >= 0
 

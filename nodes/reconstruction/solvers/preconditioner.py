@@ -1,0 +1,141 @@
+"""The block-Jacobi preconditioner of the normal equations of eq. 1.
+
+The exact inverse of the per-pixel ``n_wavelength x n_wavelength`` diagonal blocks of
+``A^T A`` plus a ridge (the priors' diagonals), applied in closed form with a 3 x 3 Woodbury
+solve per pixel: the filter and neighbour terms are diagonal in the wavelength, the RGB
+term is a rank-3 block. Both PCG solvers (:mod:`.block_jacobi_pcg`, :mod:`.prior_pcg`) and
+the non-negativity refinement (its scalar diagonal, :mod:`.projected_refinement`) use it.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, section 3, "Optimization", and section 6
+   (convergence speed with large filters as the main limitation).
+.. [2] Saad, Y. (2003). Iterative Methods for Sparse Linear Systems, 2nd ed., SIAM
+   (block Jacobi, section 10.2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..operators import PixelOrder, ReconstructionProblem
+
+__all__ = ["BlockJacobiPreconditioner", "normal_mean_diagonal"]
+
+_CHUNK = 1 << 16
+"""Pixels per chunk of the preconditioner's 3 x 3 inverses (bounds their float64 temporaries)."""
+
+
+def normal_mean_diagonal(problem: ReconstructionProblem) -> float:
+    """The mean of the diagonal of ``A^T A`` (the unit of relative ridges and priors), from
+    sums of its terms: ``alpha F^T F`` (separable filters), ``gamma L`` (the degrees) and
+    ``beta C^T C``."""
+    w = problem.weights
+    n_wavelength = problem.shape[0]
+    degree = problem.neighbours.degree
+    c = problem.camera_matrix.astype(np.float64)
+    total = w.alpha * problem.filters.normal_diagonal_total()
+    total += w.gamma * n_wavelength * float(degree.sum(dtype=np.float64))
+    return total / (n_wavelength * degree.size) + w.beta * float(np.sum(c * c)) / n_wavelength
+
+
+class BlockJacobiPreconditioner:
+    """Exact inverse of the per-pixel diagonal blocks of ``A^T A + epsilon I``.
+
+    The block of pixel ``p`` is ``diag(a_p) + beta C^T C`` with
+    ``a_p(b) = alpha (F^T F)_{pp,b} + gamma L_pp + epsilon`` (filter and neighbour terms are
+    diagonal in the wavelength). Its inverse follows from the Woodbury identity with one
+    3 x 3 solve per pixel: ``M^-1 r = u - a^-1 C^T (I / beta + C a^-1 C^T)^-1 C u`` with
+    ``u = r / a``.
+
+    Parameters
+    ----------
+    problem
+        The problem whose normal operator is preconditioned.
+    dtype
+        Floating dtype of the application.
+    ridge
+        ``epsilon`` relative to the mean diagonal of ``A^T A``: a number, or an array that
+        broadcasts to the cube's shape (per band and image, or per pixel); the absolute
+        value is :attr:`ridge` after construction (``None`` for a per-pixel ridge, which is
+        not kept: a cube).
+    order
+        Pixel-major storage order of the residuals :meth:`apply_pixels` takes (default: the
+        problem's ``"natural"`` order).
+    """
+
+    def __init__(
+        self,
+        problem: ReconstructionProblem,
+        dtype: np.dtype | type = np.float32,
+        ridge: float = 0.0,
+        order: PixelOrder | None = None,
+    ):
+        # Built pixel-major in ``dtype`` and in chunks: about 1.2 vectors of the cube beside
+        # what it keeps (a dense float64 diagonal cube and its permuted copies were 7).
+        w = problem.weights
+        n_wavelength, n_image = problem.shape[:2]
+        self.dtype = np.dtype(dtype)
+        self.order = problem.pixel_order("natural") if order is None else order
+        self.shape = problem.shape
+        c = problem.camera_matrix.astype(np.float64)
+        degree = problem.neighbours.degree
+        n_pixels = degree.size
+        mean_diagonal = normal_mean_diagonal(problem)
+        #: mean of the diagonal of ``A^T A``, the unit of relative ridges
+        self.mean_diagonal = mean_diagonal
+        # the ridge, or a far tinier one, keeps blocks without filter and neighbours invertible
+        floor = max(1e-9 * mean_diagonal, 1e-300)
+        ridge_shape = np.shape(ridge)
+        if not ridge_shape or ridge_shape[-2:] == (1, 1):  # per band and image
+            #: ``epsilon`` of a ridge ``epsilon I`` added to ``A^T A`` (absolute); None for a
+            #: per-pixel ridge (a cube, not kept)
+            self.ridge = np.asarray(ridge, dtype=np.float64) * mean_diagonal
+            table = np.broadcast_to(self.ridge, (n_wavelength, n_image, 1, 1))[:, :, 0, 0]
+            diagonal = np.maximum(table, floor).T.astype(self.dtype)[self.order.image]
+        else:  # per pixel, in the working dtype (no float64 cube)
+            self.ridge = None
+            per_pixel = np.broadcast_to(np.asarray(ridge, dtype=self.dtype), problem.shape)
+            diagonal = self.order.to_pixels(per_pixel)  # a new pixel-major array
+            diagonal *= self.dtype.type(mean_diagonal)
+            np.maximum(diagonal, self.dtype.type(floor), out=diagonal)
+        # a_p(b) = alpha (F^T F)_pp,b + gamma L_pp + epsilon, pixel-major in ``order``
+        diagonal += (w.gamma * degree[self.order.order]).astype(self.dtype)[:, None]
+        problem.filters.add_normal_diagonal(diagonal, w.alpha, self.order.positions)
+        self.inverse_diagonal = np.divide(1.0, diagonal, out=diagonal)
+        # (I / beta + C a^-1 C^T)^-1 per pixel, (n_pixels, 3, 3), in float64 chunks
+        self.small_inverse = np.empty((n_pixels, 3, 3), dtype=self.dtype)
+        identity = np.eye(3) / max(w.beta, 1e-300)
+        for start in range(0, n_pixels, _CHUNK):
+            inverse = self.inverse_diagonal[start : start + _CHUNK].astype(np.float64)
+            small = np.einsum("cw,pw,dw->pcd", c, inverse, c, optimize=True) + identity
+            self.small_inverse[start : start + _CHUNK] = np.linalg.inv(small)
+        self.camera_matrix = np.ascontiguousarray(c.astype(self.dtype))
+        self._beta = w.beta
+
+    def inverse_scalar_diagonal_pixels(self) -> np.ndarray:
+        """``1 / diag(A^T A + epsilon)``, pixel-major ``(n_pixels, n_wavelength)`` in
+        :attr:`order` (plain Jacobi scaling of the compiled solvers)."""
+        c = self.camera_matrix.astype(np.float64)
+        full = np.divide(1.0, self.inverse_diagonal, dtype=self.dtype)  # one buffer, in place
+        full += (self._beta * np.sum(c * c, axis=0)).astype(self.dtype)[None, :]
+        return np.divide(1.0, full, out=full)
+
+    def ridge_of(self, relative: float) -> float:
+        """Absolute ``epsilon`` of a ridge given relative to the mean diagonal of ``A^T A``."""
+        return float(relative) * self.mean_diagonal
+
+    def apply_pixels(self, residual: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``M^-1 r`` on a pixel-major residual ``(n_pixels, n_wavelength)`` in :attr:`order`,
+        one compiled pass (:func:`~..kernels.block_jacobi_pixels`)."""
+        from ..kernels import block_jacobi_pixels
+
+        if out is None:
+            out = np.empty_like(residual)
+        block_jacobi_pixels(residual, self.inverse_diagonal, self.camera_matrix, self.small_inverse, out)
+        return out
+
+    def __call__(self, residual: np.ndarray) -> np.ndarray:
+        """``M^-1 r`` for a residual of the problem's :attr:`shape`."""
+        pixels = self.order.to_pixels(np.asarray(residual, dtype=self.dtype).reshape(self.shape))
+        return self.order.to_cube(self.apply_pixels(pixels))
