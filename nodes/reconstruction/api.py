@@ -319,7 +319,7 @@ def reconstruct(
         timings, the problem, the confidence) instead of the spectra alone.
     confidence
         With ``full_output``: compute the per-pixel confidence (False: leave it ``None``;
-        it costs about a tenth of the default's solve).
+        it costs a neighbour search and a pass over the spectra).
     **method_options
         Options that replace the method's settings
         (``RECONSTRUCTION_METHODS[method].settings``, which hold every one). Every solver

@@ -62,8 +62,8 @@ def _einsum(subscripts: str, *operands: np.ndarray) -> np.ndarray:
     """Products with the 3 x n_wavelength camera matrix without BLAS.
 
     numpy's own single-threaded einsum loops are as fast here as BLAS and avoid the
-    oversubscription of a threaded BLAS that waits for cores other work holds (measured
-    2 to 5 times slower per iteration on a busy 2-core machine).
+    oversubscription of a threaded BLAS that waits for cores other work holds (tiles and
+    sets are solved side by side).
     """
     return np.einsum(subscripts, *operands, optimize=False)
 

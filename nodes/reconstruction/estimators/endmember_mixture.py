@@ -116,8 +116,8 @@ of the shot's filter ``sigma``; see :func:`local_correction`."""
 LOCAL_DETAIL_THRESHOLD = 5.0
 """``lambda`` of the detail layer's shrinkage ``max(0, 1 - lambda <v> / <d^2>)``: keeps a
 detail only where its local power is several times its noise's (with ``lambda = 1`` the
-windows' own scatter lets noise through: single-image medians 0.06 -> 0.08-0.12 on the hard
-scenes); chosen over 1, 3, 5, 10 on the four hard scenes (README)."""
+windows' own scatter lets noise through); chosen on the hard scenes of
+``benchmarks/reconstruction.py``."""
 
 PROJECTION_ROUNDS = 5
 """Alternating projections onto ``C S = R`` and ``S >= 0``."""
@@ -332,8 +332,8 @@ def band_noise_sigma(inputs: ReconstructionInputs) -> np.ndarray:
     8/9 of its variance there) less what the high-pass part of its RGB image explains (one
     least-squares fit per shot: fine texture, print dots and edges are in the RGB too, the
     band noise is not), by the median absolute deviation (robust to the edges that one
-    linear fit leaves). The high-pass part alone takes texture for noise: on the hard
-    scenes it overestimated the noise 3-5x where materials mix below a pixel.
+    linear fit leaves). The high-pass part alone takes texture for noise: it overestimates
+    the noise where materials mix below a pixel.
     """
     from scipy import ndimage
 
