@@ -1,9 +1,10 @@
+"""The run-store API: create and open, write and read back, schemas enforced before writing, group names, content fingerprints of imported groups, values checked on disk, full and read-only disks."""
+
 import json
 import os
 import shutil
-import warnings
+import subprocess
 
-import dask
 import dask.array as da
 import numpy as np
 import pytest
@@ -13,16 +14,10 @@ from spectralize.datasets.dark_stack import make_raw_dark
 from spectralize.schemas import SchemaError, StoreError
 from spectralize.store import (
     FINGERPRINT_ATTR,
-    MANIFEST_ATTR,
     PROVENANCE_ATTR,
     RunStore,
     compute_fingerprint,
 )
-
-
-@pytest.fixture
-def store(tmp_path):
-    return RunStore.create(tmp_path / "run.zarr")
 
 
 def small_raw_dark(seed=0):
@@ -76,144 +71,12 @@ def test_write_read_round_trip_with_explicit_chunks_and_fingerprint(store):
     assert store.validate() == []
 
 
-def test_fingerprint_depends_on_every_ingredient():
-    base = compute_fingerprint("n", "1", {"a": 1}, {"raw/dark": "x"})
-    assert base == compute_fingerprint("n", "1", {"a": 1}, {"raw/dark": "x"})
-    assert base != compute_fingerprint("m", "1", {"a": 1}, {"raw/dark": "x"})
-    assert base != compute_fingerprint("n", "2", {"a": 1}, {"raw/dark": "x"})
-    assert base != compute_fingerprint("n", "1", {"a": 2}, {"raw/dark": "x"})
-    assert base != compute_fingerprint("n", "1", {"a": 1}, {"raw/dark": "y"})
-
-
 def test_schema_violation_writes_nothing(store):
     bad = small_raw_dark().drop_attrs()
     with pytest.raises(SchemaError, match="refusing to write group 'raw/dark'"):
         store.write("raw/dark", bad)
     assert store.groups() == []
     assert not (store.path / "raw" / "dark").exists()
-
-
-def _failing_after(ds, good_chunks):
-    """A copy of ``ds`` whose dask graph raises after ``good_chunks`` chunks were computed."""
-    counter = {"n": 0}
-
-    def maybe_fail(block):
-        counter["n"] += 1
-        if counter["n"] > good_chunks:
-            raise RuntimeError("simulated crash inside the writer")
-        return block
-
-    frames = ds.frames.data.map_blocks(maybe_fail, dtype=ds.frames.dtype)
-    return ds.assign(frames=(ds.frames.dims, frames, ds.frames.attrs))
-
-
-def test_crash_inside_writer_keeps_previous_result_and_nothing_looks_finished(store):
-    first = small_raw_dark(seed=1)
-    store.write("raw/dark", first, fingerprint="first")
-    replacement = _failing_after(small_raw_dark(seed=2), good_chunks=1)
-    with dask.config.set(scheduler="synchronous"), pytest.raises(RuntimeError, match="crash"):
-        store.write("raw/dark", replacement, fingerprint="second")
-    assert store.fingerprint("raw/dark") == "first"
-    xr.testing.assert_identical(
-        store.read("raw/dark", friendly=False).frames.compute(), first.frames.compute()
-    )
-    assert store.groups() == ["raw/dark"]
-    # a write that cannot be resumed removes its own staged copy
-    assert store.staging_leftovers() == [] and store.validate() == []
-
-
-def test_crash_of_a_first_write_leaves_no_group(store):
-    with dask.config.set(scheduler="synchronous"), pytest.raises(RuntimeError):
-        store.write("raw/dark", _failing_after(small_raw_dark(), 0), fingerprint="x")
-    assert store.groups() == [] and store.fingerprint("raw/dark") is None
-
-
-def test_successful_rewrite_replaces_the_group(store):
-    store.write("raw/dark", small_raw_dark(seed=1), fingerprint="first")
-    second = small_raw_dark(seed=2)
-    store.write("raw/dark", second, fingerprint="second")
-    assert store.fingerprint("raw/dark") == "second"
-    xr.testing.assert_identical(
-        store.read("raw/dark", friendly=False).frames.compute(), second.frames.compute()
-    )
-    assert list(store.staging_dir.iterdir()) == []
-
-
-def test_interrupted_replacement_is_recovered_on_open(store):
-    store.write("raw/dark", small_raw_dark(), fingerprint="kept")
-    # crash between the two renames: the old group was moved aside, the new one not yet in
-    os.rename(store.path / "raw" / "dark", store.staging_dir / "raw~dark.replaced-deadbeef")
-    reopened = RunStore.open(store.path)
-    assert reopened.fingerprint("raw/dark") == "kept"
-
-
-def test_missing_or_truncated_chunk_is_reported_never_read(store):
-    store.write("raw/dark", small_raw_dark(), fingerprint="x", chunks={"frame": 4})
-    manifest = json.loads(store.group_attrs("raw/dark")[MANIFEST_ATTR])["files"]
-    chunk = sorted(k for k in manifest if k.startswith("frames/"))[0]
-    os.remove(store.path / "raw" / "dark" / chunk)
-    problems = store.verify("raw/dark")
-    assert [p.where for p in problems] == [f"raw/dark/{chunk}"]
-    assert "a missing file" in str(problems[0])
-    with pytest.raises(StoreError, match="damaged and was not read"):
-        store.read("raw/dark")
-
-
-def test_resumable_write_resumes_only_unfinished_regions(store):
-    calls = []
-
-    def lazy_cube(fail_at=None):
-        def block(i):
-            calls.append(i)
-            if i == fail_at:
-                raise RuntimeError(f"crash in region {i}")
-            return np.full((1, 4, 4), i, np.float32)
-
-        pieces = [da.from_delayed(dask.delayed(block)(i), (1, 4, 4), np.float32) for i in range(4)]
-        return xr.Dataset({"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})})
-
-    with pytest.raises(RuntimeError, match="region 2"):
-        store.write("cube", lazy_cube(fail_at=2), fingerprint="fp", resumable_along="image")
-    assert not store.has("cube")
-    assert sorted(calls) == [0, 1, 2]
-    calls.clear()
-    messages = []
-    store.write("cube", lazy_cube(), fingerprint="fp", resumable_along="image", progress=messages.append)
-    assert sorted(calls) == [2, 3]  # regions 0 and 1 were not recomputed
-    assert "2/4 region(s) of image already written, resuming" in messages
-    values = store.read("cube").v.values
-    assert [float(values[i, 0, 0]) for i in range(4)] == [0, 1, 2, 3]
-    assert list(store.staging_dir.iterdir()) == []
-
-
-def test_chunks_half_written_by_a_killed_writer_are_dropped_on_resume(store):
-    def cube(fail):
-        def block(i):
-            if fail and i == 1:
-                raise RuntimeError("killed")
-            return np.full((1, 3, 3), i, np.float32)
-
-        pieces = [da.from_delayed(dask.delayed(block)(i), (1, 3, 3), np.float32) for i in range(3)]
-        return xr.Dataset({"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})})
-
-    with pytest.raises(RuntimeError, match="killed"):
-        store.write("cube", cube(fail=True), fingerprint="fp", resumable_along="image")
-    staged = next(
-        p
-        for p in store.staging_dir.iterdir()
-        if p.name.startswith("cube.") and not p.name.endswith(".done")
-    )
-    # what zarr's local store leaves when SIGKILL lands between writing and renaming a chunk
-    chunk_dir = staged / "v" / "c" / "1" / "0"
-    chunk_dir.mkdir(parents=True, exist_ok=True)
-    (chunk_dir / "0.0123abcd.partial").write_bytes(b"half")
-    store.write("cube", cube(fail=False), fingerprint="fp", resumable_along="image")
-    final = store.path / "cube"
-    assert not list(final.rglob("*.partial"))
-    manifest = json.loads(json.loads((final / "zarr.json").read_text())["attributes"][MANIFEST_ATTR])
-    assert manifest["files"] and not any(name.endswith(".partial") for name in manifest["files"])
-    store.verify("cube")
-    assert store.read("cube").v.values[:, 0, 0].tolist() == [0, 1, 2]
 
 
 def test_imported_group_gets_a_content_fingerprint(store):
@@ -233,64 +96,97 @@ def test_invalid_group_names_are_rejected(store):
             store.write(name, small_raw_dark())
 
 
-def test_resumable_regions_may_differ_in_size_and_run_concurrently(store):
-    sizes = (3, 1, 2)
-    pieces = [
-        da.full((n, 4, 6), float(i), dtype=np.float32, chunks=(n, 4, 6)) for i, n in enumerate(sizes)
-    ]
-    cube = xr.Dataset(
-        {"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})},
-        coords={"image": np.arange(6)},
+def hdr_with_nan():
+    """A lazy ``hdr`` group following its contract but for two NaN pixels of image 1."""
+    radiance = np.ones((2, 3, 3, 3), np.float32)
+    radiance[1, 0, :2, 0] = np.nan
+    per_image = {name: ("image", [0, 1]) for name in ("camera", "rotation", "led")}
+    angles = {
+        name: ("image", [10.0, 20.0], {"units": "degree"})
+        for name in ("theta_i", "phi_i", "theta_o", "phi_o")
+    }
+    return xr.Dataset(
+        {"radiance": (("image", "y", "x", "channel"), da.from_array(radiance), {"units": "1"})},
+        coords={"channel": ["R", "G", "B"], **per_image, **angles},
     )
-    messages = []
-    store.write(
-        "cube",
-        cube,
-        fingerprint="fp",
-        resumable_along="image",
-        chunks={"x": 3},
-        concurrent_regions=2,
-        progress=messages.append,
+
+
+def test_validate_checks_values_on_disk_and_required_groups(tmp_path):
+    store = RunStore.create(tmp_path / "run.zarr")
+    raw = make_raw_dark(frames=4, shape=(4, 4), exposure_times=(0.1, 0.2, 0.3))
+    raw = raw.assign_coords(exposure_time=("exposure_time", [0.1, -0.2, np.nan], {"units": "s"}))
+    raw.to_zarr(store.path, group="raw/dark", zarr_format=3, consolidated=False)  # an importer
+    store.write("hdr", hdr_with_nan(), fingerprint="h")  # lazy: not value-checked on write
+    text = "\n".join(map(str, store.validate(required=["raw/rgb"])))
+    assert "raw/rgb: expected a finished group (the flow reads it), found nothing" in text
+    assert (
+        "raw/dark:exposure_time: expected finite values, found 1 NaN/inf value(s) (first at exposure_time=2"
+        in text
     )
-    back = store.read("cube")
-    assert back.v.encoding["chunks"] == (1, 4, 3)
-    np.testing.assert_array_equal(back.v.values[:, 0, 0], [0, 0, 0, 1, 2, 2])
-    assert sum("written" in m for m in messages) == 3
-    assert messages[-1].endswith("(3/3 done)")
+    assert (
+        "raw/dark:exposure_time: expected values in [0, 10000], found range [-0.2, 0.1] (1 value(s) outside, first at exposure_time=1: -0.2)"
+        in text
+    )
+    assert (
+        "hdr:radiance: expected finite values, found 2 NaN/inf value(s) (first at image=1, y=0, x=0, channel=0"
+        in text
+    )
 
 
-def test_region_by_region_write_keeps_memory_bounded_by_the_region_not_the_cube(store):
-    import tracemalloc
-
-    regions, shape = 24, (1, 32, 256, 256)  # 8.4 MB per region, 200 MB in all
-    region_bytes = int(np.prod(shape)) * 4
-    pieces = [
-        da.from_delayed(dask.delayed(np.full)(shape, float(i), np.float32), shape, np.float32)
-        for i in range(regions)
-    ]
-    cube = xr.Dataset({"v": (("image", "wavelength", "y", "x"), da.concatenate(pieces), {"units": "1"})})
-    tracemalloc.start()
+@pytest.fixture
+def small_filesystem(tmp_path):
+    """A 3 MB tmpfs: a real file system that fills up and can be made read-only."""
+    mount = tmp_path / "small"
+    mount.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(mount)], check=True)
     try:
-        store.write("cube", cube, fingerprint="m", resumable_along="image", concurrent_regions=2)
-        _, peak = tracemalloc.get_traced_memory()
+        yield mount
     finally:
-        tracemalloc.stop()
-    assert peak < 8 * region_bytes, f"peak {peak / 1e6:.0f} MB for {region_bytes / 1e6:.0f} MB regions"
-    assert float(store.read("cube").v[regions - 1, 0, 0, 0]) == regions - 1
+        subprocess.run(["umount", "-l", str(mount)], check=True)
 
 
-def test_text_is_stored_with_a_specified_zarr_type_and_read_back_equal(store):
-    lazy_labels = da.from_array(np.array(["red", "green", "blue"]), chunks=2)
-    ds = xr.Dataset(
-        {"label": (("image",), lazy_labels)},
-        coords={"camera": ("image", np.array(["cam00", "cam01", "cam02"]))},
-    )
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # e.g. zarr's UnstableSpecificationWarning for <U
-        store.write("text", ds, fingerprint="t")
-    for name in ("label", "camera"):
-        meta = json.loads((store.path / "text" / name / "zarr.json").read_text())
-        assert meta["data_type"] == "string", (name, meta["data_type"])
-    back = store.read("text")
-    assert back.label.values.tolist() == ["red", "green", "blue"]
-    assert back.camera.values.tolist() == ["cam00", "cam01", "cam02"]
+def cube(shape, fill=None):
+    """A float32 cube whose computation can fill the disk first (a concurrent writer)."""
+
+    def block(b, block_info=None):
+        if fill is not None and block_info[0]["chunk-location"][0] == 1:
+            with open(fill, "wb") as f:  # someone else takes the rest of the disk
+                try:
+                    while True:
+                        f.write(b"\0" * 65536)
+                except OSError:
+                    pass
+        return np.random.default_rng(block_info[0]["chunk-location"][0]).random(
+            b.shape, dtype=np.float32
+        )
+
+    data = da.zeros(shape, dtype=np.float32, chunks=(1,) + shape[1:]).map_blocks(block, dtype=np.float32)
+    return xr.Dataset({"v": (("image", "y", "x"), data, {"units": "1"})})
+
+
+def test_full_disk_and_read_only_store_fail_clearly_and_lose_nothing(small_filesystem):
+    store = RunStore.create(small_filesystem / "run.zarr")
+    store.write("kept", cube((2, 64, 64)), fingerprint="kept")
+    before = store.read("kept").v.values
+    # more than the disk has: refused before anything is written
+    with pytest.raises(StoreError, match=r"not enough free space .* group 'big': it needs up to 8.4 MB"):
+        store.write("big", cube((2, 1024, 1024)), fingerprint="big")
+    # fits when it starts, but the disk fills up while it is written
+    filler = small_filesystem / "filler"
+    for resumable in (None, "image"):
+        with pytest.raises(
+            StoreError, match="disk full while writing group 'late' .* staged copy was removed"
+        ):
+            store.write(
+                "late", cube((4, 128, 128), fill=filler), fingerprint="late", resumable_along=resumable
+            )
+        filler.unlink()
+        assert store.staging_leftovers() == [] and not store.has("late")
+    np.testing.assert_array_equal(store.read("kept").v.values, before)
+    assert store.validate(deep=True) == []
+
+    subprocess.run(["mount", "-o", "remount,ro", str(small_filesystem)], check=True)
+    with pytest.raises(StoreError, match=r"cannot write to run store .*: Read-only file system"):
+        store.write("late", cube((1, 8, 8)), fingerprint="x")
+    assert RunStore.open(store.path).validate(deep=True) == []  # read-only commands work
+    np.testing.assert_array_equal(store.read("kept").v.values, before)
