@@ -165,11 +165,11 @@ def test_tiled_solve_stays_close_to_the_whole_solve(tiled_and_whole):
     assert tiled.dims == whole.dims and tiled.shape == whole.shape and tiled.dtype == np.float32
     truth = scene.truth.values
     tiled_error, whole_error = nrmse(tiled.values, truth), nrmse(whole.values, truth)
-    # measured 0.998 (median) and 0.995 (p95) with the set's endmembers shared by its tiles
-    # (1.015 and 1.020 when every tile learnt its own; glossy-mosaic: 1.001 and 1.008)
+    # the production path within 1 % of the whole solve (measured: 0.999 median, 1.002 p95;
+    # glossy-mosaic 0.997 and 1.002); tiles that learnt their own endmembers were 1.5-2 % off
     for statistic in (np.median, lambda e: np.percentile(e, 95)):
         ratio = statistic(tiled_error) / statistic(whole_error)
-        assert abs(ratio - 1) < 0.015, ratio
+        assert abs(ratio - 1) < 0.01, ratio
 
 
 def test_tile_borders_leave_no_seam(tiled_and_whole):
