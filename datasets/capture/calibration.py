@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,7 @@ import numpy as np
 from spectralize.schemas import Problem
 
 from .images import read_image
-from .model import CALIBRATION, CONFIG, Config, capture_file
+from .model import CALIBRATION, CONFIG, Config, contained_path
 
 __all__ = [
     "parse_table",
@@ -62,27 +63,34 @@ def parse_table(
         not a number, no rows).
     """
     problems: list[Problem] = []
+    table: list[tuple[int, list[str]]] = []  # (line in the file, cells), blank rows left out
     try:
-        table = [row for row in csv.reader(io.StringIO(text, newline="")) if any(c.strip() for c in row)]
+        reader = csv.reader(io.StringIO(text, newline=""))
+        for cells in reader:
+            if any(c.strip() for c in cells):
+                table.append((reader.line_num, cells))
     except csv.Error as error:
         problems.append(Problem(where, "a readable CSV file", f"{type(error).__name__}: {error}"))
         return None, problems
-    header = [h.strip() for h in table[0]] if table else []
+    header = [h.strip() for h in table[0][1]] if table else []
     if not table or any(c not in header for c in columns):
         problems.append(Problem(f"{where} line 1", f"the columns {', '.join(columns)}", f"{header}"))
         return None, problems
     out: dict[str, list] = {c: [] for c in columns}
-    for line, cells in enumerate(table[1:], start=2):
+    for line, cells in table[1:]:
         for c in columns:
             cell = cells[header.index(c)].strip() if header.index(c) < len(cells) else ""
             if c in text_columns:
                 out[c].append(cell)
                 continue
             try:
-                out[c].append(float(cell))
+                value = float(cell)
             except ValueError:
-                problems.append(Problem(f"{where} line {line}: {c}", "a number", repr(cell)))
+                value = math.nan
+            if not math.isfinite(value):
+                problems.append(Problem(f"{where} line {line}: {c}", "a finite number", repr(cell)))
                 return None, problems
+            out[c].append(value)
     if not table[1:]:
         problems.append(Problem(where, "at least one row", "none"))
         return None, problems
@@ -200,8 +208,8 @@ def read_calibration(
         ("illuminant", "illuminant.csv", "value", "the measured LED spectrum"),
         ("white", "white_reference.csv", "reflectance", "the white target's certified reflectance"),
     ):
-        table = _read_table(root, name, ("wavelength_nm", column), problems)
-        if table is None and not _calibration_file(root, name).is_file():
+        table = _read_table(root, name, ("wavelength_nm", column), problems, config=config)
+        if table is None and not _is_file(root, name, config):
             problems.append(Problem(f"{CALIBRATION}/{name}", what, "no such file"))
         if table is not None:
             wl, v = np.asarray(table["wavelength_nm"]), np.asarray(table[column])
@@ -217,12 +225,13 @@ def read_calibration(
                 out[key], found = on_bands(f"{CALIBRATION}/{key}", wl, v, bands)
                 problems += found
     # the colour checker: a table or a chart of colour-science
-    if _calibration_file(root, "colour_checker.csv").is_file():
+    if _is_file(root, "colour_checker.csv", config):
         table = _read_table(
             root,
             "colour_checker.csv",
             ("patch", "wavelength_nm", "reflectance"),
             problems,
+            config=config,
             text_columns=("patch",),
         )
         if table is not None:
@@ -243,8 +252,10 @@ def read_calibration(
                 "neither",
             )
         )
-    labels = capture_file(root, config.patch_index)
-    if not labels.is_file():
+    labels, why = contained_path(root, config.patch_index, follow_symlinks=config.follow_symlinks)
+    if labels is None:
+        problems.append(Problem(config.patch_index, "a file inside the capture folder", why))
+    elif not labels.is_file():
         problems.append(
             Problem(config.patch_index, "the colour checker's patch label image", "no such file")
         )
@@ -264,14 +275,16 @@ def read_calibration(
             if index is not None:
                 out["patch_index"] = index
     columns = ("wavelength_nm", "exposure_time_s", "filter_size_px")
-    table = _read_table(root, "exposure_plan.csv", columns, problems)
+    table = _read_table(root, "exposure_plan.csv", columns, problems, config=config)
     if table is not None:
         out["plan"] = tuple(np.asarray(table[c]) for c in columns)
     return out, problems
 
 
-def _calibration_file(root: Path, name: str) -> Path:
-    return capture_file(root, f"{CALIBRATION}/{name}")
+def _is_file(root: Path, name: str, config: Config) -> bool:
+    """Whether ``calibration/<name>`` is a file inside the folder (refusals: :func:`_read_table`)."""
+    path, _ = contained_path(root, f"{CALIBRATION}/{name}", follow_symlinks=config.follow_symlinks)
+    return path is not None and path.is_file()
 
 
 def _read_table(
@@ -280,10 +293,15 @@ def _read_table(
     columns: Sequence[str],
     problems: list[Problem],
     *,
+    config: Config,
     text_columns: Sequence[str] = (),
 ) -> dict[str, list] | None:
-    """:func:`parse_table` of ``calibration/<name>``; ``None`` when it is absent or bad."""
-    path, where = _calibration_file(root, name), f"{CALIBRATION}/{name}"
+    """:func:`parse_table` of ``calibration/<name>``; ``None`` when it is absent, outside or bad."""
+    where = f"{CALIBRATION}/{name}"
+    path, why = contained_path(root, where, follow_symlinks=config.follow_symlinks)
+    if path is None:
+        problems.append(Problem(where, "a file inside the capture folder", why))
+        return None
     if not path.is_file():
         return None
     try:

@@ -40,7 +40,7 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
     problems: list[Problem] = []
     try:
         raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
+    except (tomllib.TOMLDecodeError, RecursionError) as error:
         problems.append(Problem(where, "a readable TOML file", f"{type(error).__name__}: {error}"))
         return None, problems
     if raw.get("format", CAPTURE_FORMAT) != CAPTURE_FORMAT:
@@ -62,7 +62,7 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
         value = table[key]
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
-        if not isinstance(value, kind) or isinstance(value, bool):
+        if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
             problems.append(Problem(label, f"a {getattr(kind, '__name__', kind)}", repr(value)))
             return None
         return value
@@ -113,6 +113,7 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
     patch_index = get(
         checker, "colour_checker", "patch_index", str, f"{CALIBRATION}/colour_checker_patches.png"
     )
+    follow = get(raw, "", "follow_symlinks", bool, False)
     if problems:
         return None, problems
     config = Config(
@@ -130,6 +131,7 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
         omega=values["omega"],
         chart=chart,
         patch_index=patch_index,
+        follow_symlinks=bool(follow),
         raw=raw,
     )
     return config, problems

@@ -15,7 +15,7 @@ Fast Capture of Spectral Image Series, sec. 3 (the gantry and its two kinds of c
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
 import numpy as np
@@ -36,6 +36,7 @@ __all__ = [
     "Config",
     "Capture",
     "capture_file",
+    "contained_path",
     "rounded",
 ]
 
@@ -116,6 +117,7 @@ class Config:
     omega: float
     chart: str | None
     patch_index: str
+    follow_symlinks: bool = False  # follow symbolic links whose target is inside the folder
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
 
 
@@ -139,8 +141,8 @@ class Capture:
         return [r for r in self.rows if r.kind == kind and (camera is None or r.camera == camera)]
 
     def file(self, row: Row) -> Path:
-        """The image file of a row."""
-        return capture_file(self.path, row.file)
+        """The image file of a row (inside the folder: :func:`capture_file`)."""
+        return capture_file(self.path, row.file, follow_symlinks=self.config.follow_symlinks)
 
     def stat(self, row: Row) -> list[Any]:
         """``[file, size, mtime_ns]``: what identifies the version of a frame's file."""
@@ -148,12 +150,58 @@ class Capture:
         return [row.file, int(st.st_size), int(st.st_mtime_ns)]
 
 
-def capture_file(root: Path, name: str) -> Path:
-    """The path of a file a capture folder names (manifest ``file``, ``patch_index``).
+def capture_file(root: Path, name: str, *, follow_symlinks: bool = False) -> Path:
+    """The path of a file a capture folder names (manifest ``file``, ``patch_index``, tables).
 
-    Every file a manifest or ``capture.toml`` names is resolved here, relative to the folder.
+    Every file a manifest or ``capture.toml`` names becomes a path here, and only if it stays
+    inside the folder: ingest reads nothing else (a nightly ``serve`` ingests whatever lands
+    under its root). Refused: an absolute path, a path that leaves the folder (``..``), a NUL
+    character, and a symbolic link (a file or a folder on the way) unless ``capture.toml``
+    says ``follow_symlinks = true`` *and* the link's target is inside the folder.
+
+    Raises
+    ------
+    CaptureError
+        With one problem naming ``name`` and why it was refused (:func:`contained_path`).
     """
-    return root / name
+    path, why = contained_path(root, name, follow_symlinks=follow_symlinks)
+    if path is None:
+        raise CaptureError.single(name, "a path inside the capture folder", why)
+    return path
+
+
+def contained_path(root: Path, name: str, *, follow_symlinks: bool = False) -> tuple[Path | None, str]:
+    """``(path, "")`` for a name that stays inside the capture folder ``root``, else ``(None, why)``.
+
+    The name is taken as a relative POSIX path. Without ``follow_symlinks`` no part of it may
+    be a symbolic link (checked with ``lstat``, so what is checked is what is opened); with it,
+    the fully resolved path must lie inside the resolved folder.
+    """
+    if "\x00" in name:
+        return None, "a name with a NUL character"
+    if not name or name.startswith(("/", "\\")) or PureWindowsPath(name).drive:
+        return None, f"an absolute path {name!r}" if name else "an empty name"
+    parts = PurePosixPath(name).parts
+    if ".." in parts:
+        return None, f"a path that leaves the capture folder ({name!r} has '..')"
+    path = root.joinpath(*parts)
+    if follow_symlinks:
+        try:
+            target, base = path.resolve(), root.resolve()
+        except (OSError, RuntimeError) as error:  # a symlink loop
+            return None, f"a path that cannot be resolved ({type(error).__name__}: {error})"
+        if not target.is_relative_to(base):
+            return None, f"a symbolic link to {str(target)!r}, outside the capture folder"
+        return path, ""
+    here = root
+    for part in parts:
+        here = here / part
+        if here.is_symlink():
+            link = (
+                "a symbolic link" if here == path else f"in a symbolically linked folder {here.name!r}"
+            )
+            return None, f"{link} (not followed: capture.toml has no follow_symlinks = true)"
+    return path, ""
 
 
 def rounded(value: float) -> float:

@@ -26,7 +26,7 @@ from .checks import calibration_bands, check_bands, check_frame_shapes, check_ro
 from .config import parse_config
 from .images import probe
 from .manifest import parse_manifest
-from .model import CONFIG, MANIFEST, Capture, CaptureError, Config, Row, capture_file
+from .model import CONFIG, MANIFEST, Capture, CaptureError, Config, Row, capture_file, contained_path
 
 __all__ = ["read_capture"]
 
@@ -65,27 +65,39 @@ def read_capture(
         raise CaptureError.single(str(root), "a capture folder", "no such folder")
     problems: list[Problem] = []
     config = _read_config(root, problems)
-    rows = _read_manifest(root, problems)
+    rows = _read_manifest(root, config, problems)
     if config is None:
         raise CaptureError(f"cannot ingest {root}:", problems)
     rows, found = check_rows(rows, config)
     problems += found
+    rows, found = _contained(root, rows, config)
+    problems += found
     problems += check_structure(rows, config)
     todo = _new_files(root, rows, config, known or {})
     say(f"checking {len(todo)} new or changed file(s) of {len(rows)}")
-    shapes: Counter[tuple[int, int]] = Counter()
-    probed = []
+    # headers first (nothing decoded): the run's frame shape, then only frames of that shape
+    # and of a bounded size are decoded to check their values
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
-        results = pool.map(lambda item: probe(*item[1:]), todo)
-        for (row, *_), (shape, expected, found) in zip(todo, results, strict=True):
-            if expected is not None:
-                problems.append(Problem(row.where, expected, found))
-            else:
-                shapes[shape] += 1
-                probed.append((row, shape))
+        headers = list(pool.map(lambda item: probe(*item[1:], decode=False), todo))
+        shapes = Counter(shape for shape, expected, _ in headers if expected is None)
+        frame_shape = shapes.most_common(1)[0][0] if shapes else None
+        frame_shape = tuple(known_shape) if known_shape is not None else frame_shape
+        good = [item for item, (_, expected, _) in zip(todo, headers, strict=True) if expected is None]
+        results = dict(
+            zip(
+                (item[0].line for item in good),
+                pool.map(lambda item: probe(*item[1:], frame_shape=frame_shape), good),
+                strict=True,
+            )
+        )
+    probed = []
+    for (row, *_), header in zip(todo, headers, strict=True):
+        shape, expected, found = results.get(row.line, header)
+        if expected is not None:
+            problems.append(Problem(row.where, expected, found))
+        else:
+            probed.append((row, shape))
     say(f"checked {len(todo)} file(s)")
-    frame_shape = shapes.most_common(1)[0][0] if shapes else None
-    frame_shape = tuple(known_shape) if known_shape is not None else frame_shape
     problems += check_frame_shapes(probed, frame_shape)
     bands = calibration_bands(rows)
     calibration, found = read_calibration(root, config, bands, frame_shape)
@@ -109,8 +121,23 @@ def read_capture(
     )
 
 
+def _contained(root: Path, rows: list[Row], config: Config) -> tuple[list[Row], list[Problem]]:
+    """The rows whose file stays inside the folder, and a problem for each that does not."""
+    kept, problems = [], []
+    for row in rows:
+        path, why = contained_path(root, row.file, follow_symlinks=config.follow_symlinks)
+        if path is None:
+            problems.append(Problem(row.where, "a file inside the capture folder", why))
+        else:
+            kept.append(row)
+    return kept, problems
+
+
 def _read_config(root: Path, problems: list[Problem]) -> Config | None:
-    path = capture_file(root, CONFIG)
+    path, why = contained_path(root, CONFIG, follow_symlinks=True)  # its own rule is inside it
+    if path is None:
+        problems.append(Problem(CONFIG, "a file inside the capture folder", why))
+        return None
     if not path.is_file():
         problems.append(
             Problem(CONFIG, "a capture.toml describing cameras and bit depths", "no such file")
@@ -126,8 +153,12 @@ def _read_config(root: Path, problems: list[Problem]) -> Config | None:
     return config
 
 
-def _read_manifest(root: Path, problems: list[Problem]) -> list[Row]:
-    path = capture_file(root, MANIFEST)
+def _read_manifest(root: Path, config: Config | None, problems: list[Problem]) -> list[Row]:
+    follow = config is not None and config.follow_symlinks
+    path, why = contained_path(root, MANIFEST, follow_symlinks=follow)
+    if path is None:
+        problems.append(Problem(MANIFEST, "a file inside the capture folder", why))
+        return []
     if not path.is_file():
         problems.append(Problem(MANIFEST, "one row per image file", "no such file"))
         return []
@@ -148,7 +179,7 @@ def _new_files(
     """``(row, file, rgb, bit_depth)`` of every file not in ``known`` (or changed since)."""
     todo = []
     for row in rows:
-        file = capture_file(root, row.file)
+        file = capture_file(root, row.file, follow_symlinks=config.follow_symlinks)
         try:
             st = file.stat()
             if known.get(row.file) == (int(st.st_size), int(st.st_mtime_ns)):

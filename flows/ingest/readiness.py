@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spectralize.datasets.capture import CALIBRATION, CONFIG, MANIFEST
-from spectralize.datasets.capture.model import capture_file
+from spectralize.datasets.capture.model import contained_path
 
 __all__ = ["CaptureState", "capture_state"]
 
@@ -52,7 +52,9 @@ def capture_state(path: str | os.PathLike[str], *, settle_seconds: float = 300.0
             files = [row.get("file", "").strip() for row in reader]
     except (OSError, UnicodeDecodeError, csv.Error) as error:
         return CaptureState(root, False, f"{MANIFEST} is not readable yet ({error})")
-    missing = [f for f in files if f and not capture_file(root, f).is_file()]
+    # a name outside the folder counts as present: ingest refuses it and says why
+    inside = [path for f in files if f and (path := contained_path(root, f, follow_symlinks=True)[0])]
+    missing = [str(p.relative_to(root)) for p in inside if not p.is_file()]
     if missing:
         return CaptureState(
             root,
@@ -61,11 +63,7 @@ def capture_state(path: str | os.PathLike[str], *, settle_seconds: float = 300.0
             f"(e.g. {missing[0]})",
         )
     newest = max(
-        (
-            p.stat().st_mtime
-            for p in [manifest, root / CONFIG, *(capture_file(root, f) for f in files if f)]
-            if p.exists()
-        ),
+        (p.stat().st_mtime for p in [manifest, root / CONFIG, *inside] if p.exists()),
         default=0.0,
     )
     calibration = root / CALIBRATION
