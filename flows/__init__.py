@@ -60,6 +60,7 @@ def run_flow(
     parameters=None,
     retries: int = 0,
     dask_address: str | None = None,
+    verify: bool = False,
 ) -> "RunReport":
     """Run the named flow (see ``spectralize flows``) against ``store``.
 
@@ -75,6 +76,8 @@ def run_flow(
         Prefect task retries per node.
     dask_address
         Address of an existing ``dask.distributed`` scheduler; local threads by default.
+    verify
+        Recompute every checksum of the groups the flow reads or writes before trusting them.
     """
     from .pipelines import get_flow, step_parameters
     from .runtime import run_steps
@@ -90,4 +93,5 @@ def run_flow(
         retries=retries,
         dask_address=dask_address,
         report=definition.report,
+        verify=verify,
     )

@@ -29,6 +29,8 @@ import xarray as xr
 from spectralize.schemas import SpectralizeError
 from spectralize.store import RunStore
 
+from .signals import sigterm_as_interrupt
+
 __all__ = ["FORMATS", "ExportError", "export", "select_images"]
 
 FORMATS: tuple[str, ...] = ("envi", "netcdf")
@@ -216,7 +218,50 @@ def export(
     ------
     ExportError
         For an unknown format, group or image label (nothing is written).
+
+    On any failure or interruption (a damaged chunk, a full disk, Ctrl-C or SIGTERM) the
+    files this call wrote, finished or partial, are removed: no half export is left behind.
     """
+    written: list[Path] = []
+    created: list[Path] = []
+    try:
+        with sigterm_as_interrupt():
+            return _export(store, out, format, group, images, per_image, progress, written, created)
+    except BaseException:
+        _remove_output(written, created)
+        raise
+
+
+def _remove_output(written: list[Path], created: list[Path]) -> None:
+    """Remove the files of a failed export, its ``.partial`` files and the folders it created."""
+    folders = {path.parent for path in written} | set(created)
+    for path in written:
+        path.unlink(missing_ok=True)
+        path.with_name(path.name + ".partial").unlink(missing_ok=True)
+    for folder in sorted(folders, key=lambda f: len(f.parts), reverse=True):
+        if folder in created and folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+
+
+def _mkdir(folder: Path, created: list[Path]) -> None:
+    """Create ``folder`` (and parents), remembering which did not exist."""
+    missing = [f for f in (folder, *folder.parents) if not f.exists()]
+    folder.mkdir(parents=True, exist_ok=True)
+    created += missing
+
+
+def _export(
+    store: RunStore | str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    format: str,
+    group: str,
+    images: Sequence[int] | None,
+    per_image: bool,
+    progress: Callable[[str], None] | None,
+    written: list[Path],
+    created: list[Path],
+) -> list[Path]:
+    """:func:`export`; appends every file it starts (``.partial`` first) to ``written``."""
     if format not in FORMATS:
         raise ExportError.single("--format", f"one of {', '.join(FORMATS)}", repr(format))
     run = store if isinstance(store, RunStore) else RunStore.open(store)
@@ -224,9 +269,8 @@ def export(
     say = progress or (lambda message: None)
     out = Path(out)
     stem = _safe(f"{run.path.stem}_{group.replace('/', '-')}")
-    written: list[Path] = []
     if format == "envi":
-        out.mkdir(parents=True, exist_ok=True)
+        _mkdir(out, created)
         wavelength = np.asarray(ds["wavelength"].values, dtype=float)
         for position, label in enumerate(_labels(ds)):
             one = ds.isel(image=position)
@@ -241,23 +285,25 @@ def export(
             for name in _PER_IMAGE:
                 if name in one.coords:
                     header[f"spectralize {name}"] = one[name].values.item()
-            written += _write_envi(one["radiance"], out / f"{stem}_image{label}", header)
+            base = out / f"{stem}_image{label}"
+            written += [base.with_suffix(".hdr"), base.with_suffix(".img")]
+            _write_envi(one["radiance"], base, header)
             say(f"{written[-2].name}: image {label} ({position + 1}/{ds.sizes['image']})")
         return written
     cf = _netcdf_dataset(ds, run, group)
     if per_image:
-        out.mkdir(parents=True, exist_ok=True)
+        _mkdir(out, created)
         targets = [
             (cf.isel(image=[p]), out / f"{stem}_image{label}.nc") for p, label in enumerate(_labels(ds))
         ]
     else:
         target = out / f"{stem}.nc" if out.is_dir() else out
-        target.parent.mkdir(parents=True, exist_ok=True)
+        _mkdir(target.parent, created)
         targets = [(cf, target)]
     for data, target in targets:
         partial = target.with_name(target.name + ".partial")
+        written.append(target)
         data.to_netcdf(partial, engine="h5netcdf", format="NETCDF4")
         os.replace(partial, target)
-        written.append(target)
         say(f"{target.name}: {data.sizes['image']} image(s)")
     return written

@@ -7,11 +7,20 @@ that fingerprint, so the node and everything downstream run again. This survives
 (the fingerprints live in the store) and node code changes (the node version is part of the
 fingerprint).
 
-Nothing damaged or stale is trusted: "up to date" also needs the step's input and output
-groups to pass the store's cheap check (sizes, times, checksums of changed files). A damaged
-output is recomputed with a warning, and the steps that read it run again; a damaged input
-that no step of the flow makes (raw data) is an error naming the file. Input values are
-checked against the contract (NaN/inf, ranges) before a node's numerics start.
+Nothing damaged or stale is trusted. How much is verified, and when:
+
+- before a step is skipped as up to date, its input and output groups pass the store's cheap
+  check (sizes, times, the checksums of files whose time changed, no damage mark);
+- every chunk a step (or the report) reads is checked against its CRC-32 as it is read; a
+  chunk that fails marks its group damaged (:meth:`RunStore.mark_damaged`): a group this flow
+  makes is recomputed, with a warning naming the chunk, and so is everything that depends on
+  it; a raw group is an error naming the chunk and the capture files its frames came from;
+- ``verify=True`` (``spectralize run --verify``) first recomputes the checksum of every file
+  of every group the flow reads or would skip (bit rot that kept the times, in groups no step
+  reads this time), with the same outcome per group. It costs one read of those groups.
+
+Input values are checked against the contract (NaN/inf, ranges) before a node's numerics
+start. SIGTERM stops a run as Ctrl-C does (:mod:`.signals`).
 
 One flow writes a store at a time (the store's lock, held for the whole run). A run whose
 steps are all up to date answers before Prefect's API is started. The embedded Prefect
@@ -46,7 +55,16 @@ from spectralize.flows.pipelines import (  # noqa: F401  (re-exported: older imp
     step_parameters,
 )
 from spectralize.schemas import GROUP_SCHEMAS, PipelineError, Problem, StoreError, validate_values
-from spectralize.store import SCHEMA_ATTR, LockHolder, RunStore, StoreLock, compute_fingerprint
+from spectralize.store import (
+    SCHEMA_ATTR,
+    ChecksumError,
+    LockHolder,
+    RunStore,
+    StoreLock,
+    compute_fingerprint,
+)
+
+from .signals import sigterm_as_interrupt
 
 __all__ = ["StepReport", "RunReport", "run_steps", "output_fingerprint", "flow_inputs"]
 
@@ -244,6 +262,85 @@ def _damaged_input_error(store: RunStore, node: str, damaged: dict[str, list[Pro
     )
 
 
+def _checksum_error(error: BaseException) -> ChecksumError | None:
+    """The :class:`ChecksumError` that caused ``error`` (itself, or along its chain)."""
+    seen: set[int] = set()
+    current: BaseException | None = error
+    while current is not None and id(current) not in seen:
+        if isinstance(current, ChecksumError):
+            return current
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return None
+
+
+def _made_by(planned: Sequence[PlannedStep]) -> set[str]:
+    """The groups the steps of a flow write."""
+    return {group for item in planned for group in item.outputs.values()}
+
+
+def _handle_damage(store: RunStore, group: str, where: str, why: str, made: set[str]) -> None:
+    """Mark a damaged group; a group the flow makes is then recomputed, raw data is an error.
+
+    ``where`` names the damaged chunk or file, ``why`` what is wrong with it.
+    """
+    store.mark_damaged(group, f"{where}: {why}")
+    if group in made:
+        _warn(f"{group} is damaged ({where}: {why}); recomputing it and the groups that depend on it")
+        return
+    files: list[str] = []
+    if group.startswith("raw/"):
+        from spectralize.flows.ingest.raw_groups import capture_files_of_chunk
+
+        files = capture_files_of_chunk(store, where)
+    source = ""
+    if files:
+        more = f" and {len(files) - 3} more" if len(files) > 3 else ""
+        source = f"; its frames came from capture file(s) {', '.join(files[:3])}{more}"
+    folder = (store.attrs.get("capture") or {}).get("folder")
+    fix = (
+        f"ingest the capture folder again (`spectralize ingest {folder} {store.path}` rewrites "
+        "the group from its files)"
+        if folder
+        else "restore it from its source, or import the run again"
+    )
+    raise StoreError(
+        f"group {group!r} of run store {str(store.path)!r} is damaged and no step of this flow "
+        f"can recompute it: {where} ({why}){source}",
+        [Problem(where, "the bytes written at commit", why, fix)],
+    )
+
+
+def _repair_chunk(store: RunStore, error: ChecksumError, made: set[str], marked: set[str]) -> None:
+    """A chunk failed its checksum when read: mark its group damaged (see :func:`_handle_damage`).
+
+    Raises the error itself when its group is unknown or was already repaired once in this
+    run (a group that is damaged again right after its rewrite is a failing disk, not rot).
+    """
+    group = store.group_of(error.key) if error.key else None
+    if group is None or group in marked:
+        raise error
+    marked.add(group)
+    found = error.problems[0].found if error.problems else "bytes that do not match"
+    _handle_damage(store, group, error.key, f"its checksum does not match ({found})", made)
+
+
+def _verify_deep(store: RunStore, planned: Sequence[PlannedStep], log: Callable[[str], None]) -> None:
+    """``--verify``: every checksum of every group the flow reads or writes, before trusting it."""
+    groups = sorted({g for item in planned for g in (*item.inputs.values(), *item.outputs.values())})
+    made = _made_by(planned)
+    start, size = time.perf_counter(), 0
+    for group in groups:
+        if not store.has(group):
+            continue
+        size += store.size_on_disk(group)
+        problems = store.verify(group, deep=True)
+        if problems:
+            _handle_damage(store, group, problems[0].where, problems[0].found, made)
+    seconds = time.perf_counter() - start
+    log(f"verified {len(groups)} group(s), {size / 1e6:,.1f} MB, in {seconds:.2f} s")
+
+
 _VALUES_CHECKED: dict[tuple[str, str, str], None] = {}  # (store, group, fingerprint) checked
 
 
@@ -402,6 +499,7 @@ def run_steps(
     retry_delay_seconds: float = 10.0,
     dask_address: str | None = None,
     report: bool = False,
+    verify: bool = False,
 ) -> RunReport:
     """Run ``steps`` against the store at ``store_path`` as one Prefect flow run.
 
@@ -412,8 +510,34 @@ def run_steps(
 
     The store's lock is held for the whole run (a second writer gets
     :class:`~spectralize.store.StoreBusyError`). When every step is up to date the answer
-    comes without starting Prefect.
+    comes without starting Prefect. ``verify``: recompute the checksums of every group the
+    flow reads or writes first (see the module's docstring). SIGTERM is handled like Ctrl-C.
     """
+    with sigterm_as_interrupt():
+        return _run_steps(
+            store_path,
+            steps,
+            flow_name,
+            problems,
+            retries,
+            retry_delay_seconds,
+            dask_address,
+            report,
+            verify,
+        )
+
+
+def _run_steps(
+    store_path: str | Path,
+    steps: Sequence[Step],
+    flow_name: str,
+    problems: Sequence[Any],
+    retries: int,
+    retry_delay_seconds: float,
+    dask_address: str | None,
+    report: bool,
+    verify: bool,
+) -> RunReport:
     path = Path(store_path).absolute()
     if not path.exists():
         _require_store_or_first_steps_without_inputs(path, steps, flow_name)
@@ -430,7 +554,16 @@ def run_steps(
     with store.lock(f"spectralize run {flow_name}") as lock:
         if lock.previous is not None:
             _mark_crashed(lock.previous, path)
-        up_to_date = _up_to_date_report(store, flow_name, planned, report)
+        if verify:
+            _verify_deep(store, planned, print)
+        try:
+            up_to_date = _up_to_date_report(store, flow_name, planned, report)
+        except Exception as error:  # the report read a damaged chunk: repair, then run
+            found = _checksum_error(error)
+            if found is None:
+                raise
+            _repair_chunk(store, found, _made_by(planned), set())
+            up_to_date = None
         if up_to_date is not None:
             return up_to_date
         _embedded_server_dies_with_us()
@@ -618,10 +751,34 @@ def _graph_flow(
 ) -> RunReport:
     from prefect.runtime import flow_run
 
-    log = get_run_logger()
     StoreLock(store_path).note(flow_run_id=str(flow_run.id))
     planned = plan(store_path, [Step(**s) for s in steps], create=False)
     store = RunStore.open(store_path)
+    made, marked = _made_by(planned), set[str]()
+    while True:  # a chunk that fails its checksum when read: its group is recomputed
+        try:
+            return _run_planned(
+                store, flow_name, planned, retries, retry_delay_seconds, dask_address, report
+            )
+        except Exception as error:
+            found = _checksum_error(error)
+            if found is None:
+                raise
+            _repair_chunk(store, found, made, marked)
+
+
+def _run_planned(
+    store: RunStore,
+    flow_name: str,
+    planned: Sequence[PlannedStep],
+    retries: int,
+    retry_delay_seconds: float,
+    dask_address: str | None,
+    report: bool,
+) -> RunReport:
+    """The steps of a flow run in order (up-to-date ones skipped), then its report."""
+    log = get_run_logger()
+    store_path = str(store.path)
     run_report = RunReport(store_path, flow_name)
     fingerprints: dict[str, str] = {}
     repaired: set[str] = set()  # groups recomputed because they were damaged, or made from such

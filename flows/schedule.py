@@ -36,6 +36,7 @@ __all__ = [
     "ingest_captures",
     "process_new_runs",
     "serve_nightly",
+    "failure_line",
 ]
 
 
@@ -148,8 +149,26 @@ def process_new_runs(
         log.info(f"{store.name}: {outcome[str(store)]}")
     failed = [name for name, result in outcome.items() if result.startswith("failed")]
     if failed:
-        raise SpectralizeError(f"{len(failed)} of {len(stores)} run(s) failed: {failed}")
+        raise SpectralizeError(failure_line(outcome, set(map(str, stores))))
     return outcome
+
+
+def failure_line(outcome: dict[str, str], stores: set[str]) -> str:
+    """``"1 of 3 capture folder(s) and 1 of 2 run store(s) failed: [...]"``: each counted apart.
+
+    ``outcome`` holds both the capture folders ingested and the run stores processed;
+    ``stores`` names the latter.
+    """
+    parts = []
+    for what, names in (
+        ("capture folder(s)", [n for n in outcome if n not in stores]),
+        ("run store(s)", [n for n in outcome if n in stores]),
+    ):
+        bad = [n for n in names if outcome[n].startswith("failed")]
+        if names and (bad or what == "run store(s)"):
+            parts.append(f"{len(bad)} of {len(names)} {what}")
+    failed = [n for n, result in outcome.items() if result.startswith("failed")]
+    return f"{' and '.join(parts)} failed: {failed}"
 
 
 def serve_nightly(

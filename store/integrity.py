@@ -39,7 +39,13 @@ PARTIAL_SUFFIX = ".partial"  # zarr's local store writes a chunk to NAME.<uuid>.
 
 
 class ChecksumError(StoreError):
-    """A chunk whose bytes do not match the checksum recorded when its group was committed."""
+    """A chunk whose bytes do not match the checksum recorded when its group was committed.
+
+    ``key`` is the chunk's store key (``"hdr/radiance/c/0/0/0/0"``): the group it belongs to
+    is what a flow recomputes (a derived group) or reports (a raw one).
+    """
+
+    key: str = ""
 
 
 def is_group_dir(path: Path) -> bool:
@@ -164,9 +170,11 @@ class CheckedLocalStore(LocalStore):
         if buffer is not None and byte_range is None and expected is not None:
             found = zlib.crc32(buffer.as_numpy_array())  # type: ignore[arg-type]  # a buffer
             if found != expected:
-                raise ChecksumError(
+                error = ChecksumError(
                     f"chunk {key} of run store {str(self.root)!r} is damaged: its bytes do not "
                     "match the checksum recorded when it was written",
                     [Problem(key, f"CRC-32 {expected:08x}", f"CRC-32 {found:08x}")],
                 )
+                error.key = key
+                raise error
         return buffer

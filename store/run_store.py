@@ -34,6 +34,7 @@ import hashlib
 import json
 import os
 import shutil
+import socket
 import time
 import uuid
 from collections.abc import Callable, Mapping, Sequence
@@ -83,6 +84,7 @@ __all__ = [
     "PROVENANCE_ATTR",
     "SCHEMA_ATTR",
     "MANIFEST_ATTR",
+    "DAMAGED_ATTR",
 ]
 
 STORE_FORMAT = "spectralize-run-store"
@@ -91,7 +93,8 @@ FINGERPRINT_ATTR = "spectralize_fingerprint"
 PROVENANCE_ATTR = "spectralize_provenance"
 SCHEMA_ATTR = "spectralize_schema"
 MANIFEST_ATTR = "spectralize_manifest"
-_BOOKKEEPING = (FINGERPRINT_ATTR, PROVENANCE_ATTR, SCHEMA_ATTR, MANIFEST_ATTR)
+DAMAGED_ATTR = "spectralize_damaged"  # why a group is not to be trusted (set by mark_damaged)
+_BOOKKEEPING = (FINGERPRINT_ATTR, PROVENANCE_ATTR, SCHEMA_ATTR, MANIFEST_ATTR, DAMAGED_ATTR)
 _JSON_ATTRS = (PROVENANCE_ATTR, MANIFEST_ATTR)
 _NO_SPACE = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 _READ_ONLY = {errno.EROFS, errno.EACCES, errno.EPERM}
@@ -361,13 +364,46 @@ class RunStore:
 
         The cheap check (default) compares sizes and modification times and recomputes the
         checksum of every file whose time changed; ``deep=True`` recomputes every checksum
-        (finds bit rot that left the time alone). Groups imported by other means have no
-        manifest and always pass.
+        (finds bit rot that left the time alone). A group marked damaged
+        (:meth:`mark_damaged`: a chunk failed its checksum when it was read) fails either
+        check until it is written again. Groups imported by other means have no manifest and
+        always pass.
         """
-        manifest = read_manifest(self.group_attrs(group).get(MANIFEST_ATTR))
-        if not manifest:
-            return []
-        return verify_files(self._group_path(group), manifest, group, deep=deep)
+        attrs = self.group_attrs(group)
+        problems = []
+        if attrs.get(DAMAGED_ATTR):
+            problems.append(Problem(group, "an undamaged group", str(attrs[DAMAGED_ATTR])))
+        manifest = read_manifest(attrs.get(MANIFEST_ATTR))
+        if manifest:
+            problems += verify_files(self._group_path(group), manifest, group, deep=deep)
+        return problems
+
+    def mark_damaged(self, group: str, reason: str) -> None:
+        """Mark ``group`` damaged (``reason``: which chunk failed and how), holding the lock.
+
+        Only the group's own ``zarr.json`` changes (it is not in the manifest); from now on
+        :meth:`verify` fails for it, so nothing trusts it as up to date and a flow recomputes
+        it, until a write replaces it.
+        """
+        path = self._group_path(group) / "zarr.json"
+        with self.lock(f"mark {group} damaged"):
+            meta = json.loads(path.read_text())
+            meta.setdefault("attributes", {})[DAMAGED_ATTR] = reason
+            temporary = path.with_name(f"zarr.json.{os.getpid()}.tmp")
+            temporary.write_text(json.dumps(meta, indent=2))
+            os.replace(temporary, path)
+
+    def group_of(self, key: str) -> str | None:
+        """The finished group a store key (``"hdr/radiance/c/0/0/0/0"``) belongs to."""
+        parts = key.strip("/").split("/")
+        for end in range(len(parts) - 1, 0, -1):
+            group = "/".join(parts[:end])
+            try:
+                if self.has(group):
+                    return group
+            except StoreError:
+                continue
+        return None
 
     def validate(
         self, *, deep: bool = False, values: bool = True, required: Sequence[str] = ()
@@ -407,15 +443,23 @@ class RunStore:
         return problems
 
     def staging_leftovers(self) -> list[Problem]:
-        """Unfinished writes in :attr:`staging_dir` (warnings: a rerun resumes or replaces them,
-        ``spectralize clean`` removes them)."""
+        """Unfinished writes in :attr:`staging_dir`, told apart by whether their writer lives.
+
+        While a process on this host that is alive holds the store's lock (its side file says
+        which), the staging is that live run's work in progress; otherwise it is a dead run's
+        leftover (harmless: a rerun resumes or replaces it, ``spectralize clean`` removes it).
+        """
+        holder = StoreLock(self.path).holder()
+        live = holder is not None and _alive(holder.pid, holder.host)
+        found = (
+            f"the work in progress of a live run ({holder.describe()}"
+            f"{f', {holder.command}' if holder.command else ''}); leave it"
+            if live and holder is not None
+            else "an unfinished or interrupted write (harmless; a rerun resumes or replaces it, "
+            "`spectralize clean` removes it)"
+        )
         return [
-            Problem(
-                str(entry),
-                "no unfinished writes",
-                "an unfinished or interrupted write (harmless; a rerun resumes or replaces it, "
-                "`spectralize clean` removes it)",
-            )
+            Problem(str(entry), "no unfinished writes", found)
             for staging in self._staging_dirs()
             for entry in sorted(staging.iterdir())
             if entry.name != "zarr.json"
@@ -621,6 +665,21 @@ class RunStore:
     def discard_staging(self) -> None:
         """Remove every unfinished write (they would otherwise be resumed)."""
         self.clean()
+
+
+def _alive(pid: int | None, host: str) -> bool:
+    """Whether the process ``pid`` of ``host`` lives (another host's: assumed alive)."""
+    if pid is None:
+        return False
+    if host != socket.gethostname():
+        return True
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True
+    return True
 
 
 def _mb(size: float) -> str:

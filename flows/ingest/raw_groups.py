@@ -18,6 +18,7 @@ same angles) and sec. 4, eq. 2 and 3 (exposure times and filter sizes of the exp
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 from collections import defaultdict
 from dataclasses import dataclass
@@ -33,7 +34,8 @@ from spectralize.datasets.capture import ANGLES, Capture, CaptureError, Row
 from spectralize.datasets.capture.checks import pair
 from spectralize.datasets.capture.images import read_image
 from spectralize.datasets.capture.model import rounded
-from spectralize.store import RunStore
+from spectralize.store import MANIFEST_ATTR, RunStore
+from spectralize.store.integrity import CheckedLocalStore, ChecksumError, read_manifest
 
 __all__ = [
     "RAW_GROUPS",
@@ -44,6 +46,7 @@ __all__ = [
     "FrameSources",
     "build_raw_groups",
     "fingerprint",
+    "capture_files_of_chunk",
 ]
 
 RAW_GROUPS: tuple[str, ...] = (
@@ -74,33 +77,59 @@ class RawGroup:
 
 
 def _load(source: tuple, frame: tuple[int, ...]) -> np.ndarray:
-    """One frame, from its file or (already ingested) from the store; shape ``(1,)*k + frame``."""
+    """One frame, from its file or (already ingested) from the store; shape ``(1,)*k + frame``.
+
+    A file's header is checked against ``frame`` before it is decoded (a file replaced by a
+    larger one since it was probed is refused, not decoded). A frame copied from the store is
+    checked against its chunk's checksum; a damaged chunk is not copied: the frame is read
+    from its file again.
+    """
+    if source[0] == "store":
+        _, store, array, index, checksums, file = source
+        try:
+            checked = CheckedLocalStore(store, read_only=True, checksums=checksums)
+            data = np.asarray(zarr.open_array(checked, path=array, mode="r")[index])
+        except ChecksumError:
+            source = ("file", file)
     if source[0] == "file":
-        data = read_image(source[1])
-    else:
-        _, store, array, index = source
-        data = np.asarray(zarr.open_array(store, path=array, mode="r")[index])
+        try:
+            data = read_image(source[1], shape=frame)
+        except ValueError as error:
+            raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", str(error)) from None
     if data.shape != frame:
         raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", f"shape {data.shape}")
     return data.astype(np.uint16, copy=False)
 
 
 class FrameSources:
-    """Where each frame comes from: the store's previous version of the group, or its file."""
+    """Where each frame comes from: the store's previous version of the group, or its file.
+
+    A previous version that fails the store's cheap check (or was marked damaged) is not
+    copied from: its frames are read from their files again.
+    """
 
     def __init__(self, capture: Capture, store: RunStore, group: str):
         self.capture = capture
         self.read = 0
         self.copied = 0
         self.previous: dict[str, dict[tuple, tuple]] = {}
-        if store.has(group):
+        if store.has(group) and not store.verify(group):
             attrs = store.group_attrs(group)
+            manifest = read_manifest(attrs.get(MANIFEST_ATTR)) or {}
+            checksums = {
+                f"{group}/{rel}": crc for rel, (_, _, crc) in manifest.items() if crc is not None
+            }
             for var, files in (attrs.get(FILES_ATTR) or {}).items():
                 meta = json.loads((store.path / group / var / "zarr.json").read_text())
                 frame = 3 if group == "raw/rgb" or var == "rgb_counts" else 2  # (y, x[, channel])
                 grid = tuple(meta["shape"][: len(meta["shape"]) - frame])
                 self.previous[var] = {
-                    tuple(entry): (str(store.path), f"{group}/{var}", np.unravel_index(k, grid))
+                    tuple(entry): (
+                        str(store.path),
+                        f"{group}/{var}",
+                        np.unravel_index(k, grid),
+                        checksums,
+                    )
                     for k, entry in enumerate(files)
                 }
 
@@ -109,11 +138,12 @@ class FrameSources:
         for row in rows:
             stat = self.capture.stat(row)
             old = self.previous.get(var, {}).get(tuple(stat))
+            file = str(self.capture.file(row))
             if old is not None:
-                source = ("store", old[0], old[1], tuple(int(i) for i in old[2]))
+                source = ("store", old[0], old[1], tuple(int(i) for i in old[2]), old[3], file)
                 self.copied += 1
             else:
-                source = ("file", str(self.capture.file(row)))
+                source = ("file", file)
                 self.read += 1
             arrays.append(da.from_delayed(dask.delayed(_load)(source, frame), frame, dtype=np.uint16))
             files.append(stat)
@@ -589,3 +619,33 @@ def build_raw_groups(capture: Capture, store: RunStore) -> list[tuple[RawGroup, 
         group.dataset.attrs[FILES_ATTR] = group.files
         groups.append((group, sources))
     return groups
+
+
+def capture_files_of_chunk(store: RunStore, key: str) -> list[str]:
+    """The capture files whose frames the chunk ``key`` of a raw group holds, in frame order.
+
+    ``key`` is a store key such as ``raw/rgb/counts/c/0/1/0/0/0`` (what a
+    :class:`~spectralize.store.ChecksumError` names); the files come from the group's
+    ``spectralize_ingest_files`` (one ``[file, size, mtime_ns]`` per frame, C order). An empty
+    list for keys that are not chunks of a frame variable written by ingest.
+    """
+    parts = key.strip("/").split("/")
+    if len(parts) < 5 or parts[3] != "c" or "/".join(parts[:2]) not in RAW_GROUPS:
+        return []
+    group, var = "/".join(parts[:2]), parts[2]
+    try:
+        files = (store.group_attrs(group).get(FILES_ATTR) or {}).get(var) or []
+        meta = json.loads((store.path / group / var / "zarr.json").read_text())
+        shape, chunk = meta["shape"], meta["chunk_grid"]["configuration"]["chunk_shape"]
+        index = [int(i) for i in parts[4:]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    frame = 3 if group == "raw/rgb" or var == "rgb_counts" else 2  # (y, x[, channel])
+    grid = shape[: len(shape) - frame]
+    ranges = [range(i * c, min((i + 1) * c, n)) for i, c, n in zip(index, chunk, grid, strict=False)]
+    out = []
+    for position in itertools.product(*ranges):
+        k = int(np.ravel_multi_index(position, grid)) if grid else 0
+        if k < len(files):
+            out.append(str(files[k][0]))
+    return out

@@ -136,7 +136,7 @@ def _write_groups(
     capture_dir = capture.path
     groups = build_raw_groups(capture, store)
     for group, sources in groups:
-        if store.fingerprint(group.name) == group.fingerprint:
+        if store.fingerprint(group.name) == group.fingerprint and not store.verify(group.name):
             report.groups[group.name] = "up to date"
             say(f"{group.name}: up to date")
             continue
