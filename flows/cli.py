@@ -111,6 +111,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             parameters=parameters,
             retries=args.retries,
             dask_address=args.dask_address,
+            verify=args.verify,
         )
     _print_report(report)
     return 0
@@ -316,6 +317,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--dask-address",
         default=None,
         help="address of an existing dask.distributed scheduler (default: local threads)",
+    )
+    run.add_argument(
+        "--verify",
+        action="store_true",
+        help="recompute every checksum of the groups the flow reads or writes before trusting "
+        "them (one read of those groups); by default every chunk is checked as it is read",
     )
     run.set_defaults(handler=_cmd_run)
     serve = commands.add_parser("serve", help="serve scheduled processing of a folder of runs")
