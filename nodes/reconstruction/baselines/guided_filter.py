@@ -1,7 +1,7 @@
 """Baseline ``"guided-projected"``: band images filtered with the RGB image as guide.
 
 He et al.'s guided filter with Gaussian-like windows (three box filters of the Gaussian's
-variance from 2 px on, :func:`_gaussian_window`): per window the band is the affine function
+variance from 2 px on, :func:`gaussian_window`): per window the band is the affine function
 of RGB that best fits the noisy band, ``S_b(p) = a(p)^T R(p) + c(p)``; then projected onto
 ``C S = R``. The ``"guided-prior-pcg"`` solver's initial guess and prior centre.
 
@@ -25,6 +25,8 @@ __all__ = [
     "guided_filtered_bands",
     "guided_filtered_stacks",
     "guided_filtered_projected",
+    "window_sigma",
+    "gaussian_window",
     "GUIDED_WINDOW_SCALE",
     "GUIDED_EPSILON",
     "GUIDED_WINDOW_STEP",
@@ -55,7 +57,10 @@ BOX_WINDOW_SIGMA = 2.0
 """Windows at least this wide [px, sigma] are three box filters instead of a Gaussian."""
 
 
-def _window_sigma(filter_size: float, window_scale: float) -> float:
+def window_sigma(filter_size: float, window_scale: float) -> float:
+    """The guided filter's window ``sigma`` [px] for a band of filter size ``s_i``:
+    ``window_scale`` times the filter's own sigma, rounded to the grid of
+    :data:`GUIDED_WINDOW_STEP` (bands of nearly the same size share a window)."""
     sigma = filter_sigma(filter_size) * window_scale
     step = np.log(GUIDED_WINDOW_STEP)
     return float(np.exp(np.round(np.log(sigma) / step) * step))
@@ -73,7 +78,7 @@ def _box_widths(sigma: float, passes: int = 3) -> list[int]:
     return [low if i < m else low + 2 for i in range(passes)]
 
 
-def _gaussian_window(planes: np.ndarray, sigma: float) -> np.ndarray:
+def gaussian_window(planes: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian-weighted local mean over the last two axes (reflecting borders).
 
     From :data:`BOX_WINDOW_SIGMA` on, three box filters of the same variance (a quadratic
@@ -174,16 +179,16 @@ def guided_filtered_stacks(
     rgb = np.moveaxis(inputs.rgb, -1, 1).astype(np.float32)  # (n_image, 3, height, width)
     outputs = [np.empty(stack.shape, dtype=np.float32) for stack in stacks]
     upper = np.triu_indices(3)
-    sigmas = [_window_sigma(float(size), window_scale) for size in inputs.filter_size]
+    sigmas = [window_sigma(float(size), window_scale) for size in inputs.filter_size]
     statistics: tuple[tuple[int, float], np.ndarray, np.ndarray] | None = None
     # shots in order of image and window, so that one window's statistics serve them all
     for i in sorted(range(len(inputs.band)), key=lambda i: (inputs.image[i], sigmas[i])):
         m, sigma = inputs.image[i], sigmas[i]
         if statistics is None or statistics[0] != (m, sigma):
             guide = rgb[m]
-            mean = _gaussian_window(guide, sigma)
+            mean = gaussian_window(guide, sigma)
             # the 6 distinct second moments of the symmetric 3 x 3 covariance
-            second = _gaussian_window(guide[upper[0]] * guide[upper[1]], sigma)
+            second = gaussian_window(guide[upper[0]] * guide[upper[1]], sigma)
             covariance = np.empty((3, 3) + guide.shape[1:], dtype=np.float64)
             for n, (c, d) in enumerate(zip(*upper, strict=True)):
                 covariance[c, d] = covariance[d, c] = second[n] - mean[c] * mean[d]
@@ -195,11 +200,11 @@ def guided_filtered_stacks(
         guide = rgb[m]
         for out, stack in zip(outputs, stacks, strict=True):
             band = stack[i].astype(np.float32)
-            band_mean = _gaussian_window(band, sigma)
-            cross = _gaussian_window(guide * band[None], sigma) - mean * band_mean[None]
+            band_mean = gaussian_window(band, sigma)
+            cross = gaussian_window(guide * band[None], sigma) - mean * band_mean[None]
             slope = np.einsum("yxcd,dyx->cyx", inverse, cross)
             offset = band_mean - np.sum(slope * mean, axis=0)
-            coefficients = _gaussian_window(np.concatenate([slope, offset[None]]), sigma)
+            coefficients = gaussian_window(np.concatenate([slope, offset[None]]), sigma)
             out[i] = np.sum(coefficients[:3] * guide, axis=0) + coefficients[3]
     return outputs
 

@@ -397,7 +397,7 @@ def local_correction(
     draws, seed
         Noise draws for the variances, and their seed.
     """
-    from ..baselines.guided_filter import _window_sigma, guided_filtered_stacks
+    from ..baselines.guided_filter import guided_filtered_stacks, window_sigma
 
     residual = inputs.band_data.astype(np.float64) - cube[inputs.band, inputs.image]
     sigma = band_noise_sigma(inputs)
@@ -411,13 +411,13 @@ def local_correction(
     for i, (b, m) in enumerate(zip(inputs.band, inputs.image, strict=True)):
         coarse = correction[i].astype(np.float64)
         variance = sum(p[i].astype(np.float64) ** 2 for p in pure) / len(pure)
-        window = _window_sigma(float(inputs.filter_size[i]), window_scale)
+        window = window_sigma(float(inputs.filter_size[i]), window_scale)
         step = coarse * _shrinkage(variance, coarse, window)
         if fine is not None:
             detail = fine[i] - coarse
             pairs = zip(pure_fine, pure, strict=True)
             variance = sum((f[i] - p[i].astype(np.float64)) ** 2 for f, p in pairs) / len(pure)
-            window = _window_sigma(float(inputs.filter_size[i]), float(detail_scale))
+            window = window_sigma(float(inputs.filter_size[i]), float(detail_scale))
             step += detail * _shrinkage(float(detail_threshold) * variance, detail, window)
         cube[b, m] += step / np.count_nonzero((inputs.band == b) & (inputs.image == m))
     return cube
@@ -426,10 +426,10 @@ def local_correction(
 def _shrinkage(noise_variance: np.ndarray, signal: np.ndarray, window: float) -> np.ndarray:
     """``max(0, 1 - <v> / <s^2>)`` clipped to ``[0, 1]``, ``<>`` the local mean over the
     Gaussian window ``window`` [px, sigma]."""
-    from ..baselines.guided_filter import _gaussian_window
+    from ..baselines.guided_filter import gaussian_window
 
-    power = _gaussian_window(signal**2, window)
-    return np.clip(1.0 - _gaussian_window(noise_variance, window) / np.maximum(power, 1e-300), 0.0, 1.0)
+    power = gaussian_window(signal**2, window)
+    return np.clip(1.0 - gaussian_window(noise_variance, window) / np.maximum(power, 1e-300), 0.0, 1.0)
 
 
 def neighbourhood_candidates(

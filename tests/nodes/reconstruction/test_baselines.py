@@ -128,14 +128,14 @@ def test_guided_filter_fills_bands_without_a_shot_like_the_filtered_bands(inputs
 
 @pytest.mark.parametrize("sigma", [2.0, 3.3, 7.5, 15.0])
 def test_box_windows_have_the_gaussian_variance_and_keep_the_mass(sigma):
-    from spectralize.nodes.reconstruction.baselines.guided_filter import _box_widths, _gaussian_window
+    from spectralize.nodes.reconstruction.baselines.guided_filter import _box_widths, gaussian_window
 
     widths = _box_widths(sigma)
     assert all(w % 2 == 1 for w in widths)
     assert np.sqrt(sum((w * w - 1) / 12 for w in widths)) == pytest.approx(sigma, rel=0.1)
     impulse = np.zeros((1, 121, 121))
     impulse[0, 60, 60] = 1.0
-    window = _gaussian_window(impulse, sigma)[0]
+    window = gaussian_window(impulse, sigma)[0]
     assert window.sum() == pytest.approx(1.0)
     np.testing.assert_allclose(window, window[::-1, ::-1], atol=1e-12)  # symmetric
     y = np.arange(121) - 60
