@@ -118,6 +118,25 @@ def test_method_takes_exactly_the_table_and_fails_at_graph_check():
         assert repr(method) in message
 
 
+def test_the_nodes_solver_settings_default_to_the_methods_preset():
+    """The nodes and ``reconstruct`` read one dict: a solver setting the node leaves None is
+    the method's (no iteration limit or neighbour weight of the node's own)."""
+    from spectralize.nodes.reconstruction import DEFAULT_METHOD
+    from spectralize.nodes.reconstruction.declarations import (
+        RECONSTRUCT_IMAGE_SETS,
+        RECONSTRUCT_SEED_SET,
+    )
+    from spectralize.nodes.reconstruction.tiling import method_options
+
+    for node in (RECONSTRUCT_SEED_SET, RECONSTRUCT_IMAGE_SETS):
+        parameters = node.parse_parameters({})
+        assert parameters.method == DEFAULT_METHOD
+        for name in ("gamma_hat", "tolerance", "max_iterations", "k", "prior"):
+            assert getattr(parameters, name) is None, name
+    unset = dict.fromkeys(("gamma_hat", "tolerance", "max_iterations", "k", "prior"))
+    assert method_options(DEFAULT_METHOD, **unset) == {}  # reconstruct takes the preset's
+
+
 def test_prior_is_a_set_parameter_and_checked_against_the_method():
     from spectralize.schemas import ReconstructionError
 
