@@ -285,11 +285,11 @@ reason:
 ``"mixture-prior-pcg"``
     The default (:data:`DEFAULT_METHOD`).
 ``"spectral-prior-pcg"``
-    The same solver with a spectral prior learnt from the scene's guided estimate: lower
-    medians than the default on some scenes with every band shot in one image.
+    The same solver with a spectral prior learnt from the scene's guided estimate: a lower
+    median than the default on some of the hard scenes.
 ``"guided-prior-pcg"``
     Eq. 1 as the paper sets it up plus the guided prior: more accurate than the default on
-    a real scene whose RGB neighbourhoods are reliable, and the fastest of the priors.
+    one of the real measured scenes, and the fastest of the priors.
 ``"block-jacobi-pcg"``
     Eq. 1 alone, the paper's model, solved fast: the reference for what the priors add.
 ``"paper-cg"``
