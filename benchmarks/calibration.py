@@ -399,11 +399,230 @@ def run_true_response(data: dict, usable: np.ndarray) -> dict:
     }
 
 
+# -- camera matrix C: shape error per channel (issue 25, item 2) ---------------------------------
+CM_RESULTS = Path(__file__).resolve().parent / "results" / "calibration_camera_matrix.json"
+CM_BANDS = np.arange(410.0, 721.0, 10.0)
+CM_FINE = np.arange(380.0, 781.0, 1.0)  # the RGB camera integrates 380-780 nm, beyond the bands
+CM_TUNED = ("gaussian-lobes", "Nikon 5100 (NPL)")
+CM_HELD_OUT = ("Sigma SDMerill (NPL)",)  # never looked at while choosing the method's settings
+CM_ILLUMINANTS = ("led-blue-peak", "D65", "A")
+CM_CHARTS = ("ColorChecker N Ohta", "smooth-18")
+CM_NOISE = 0.01  # relative noise of a patch's mean RGB
+
+
+def _gauss(wl: np.ndarray, centre: float, width: float) -> np.ndarray:
+    return np.exp(-0.5 * ((wl - centre) / width) ** 2)
+
+
+def cm_camera(name: str, wl: np.ndarray) -> np.ndarray:
+    """(3, wavelength) relative sensitivities: measured (colour-science) or Gaussian lobes."""
+    import colour
+
+    if name == "gaussian-lobes":
+        return np.stack(
+            [
+                _gauss(wl, 602.0, 36.0) + 0.06 * _gauss(wl, 445.0, 18.0),
+                _gauss(wl, 535.0, 38.0),
+                _gauss(wl, 458.0, 27.0),
+            ]
+        )
+    msds = colour.MSDS_CAMERA_SENSITIVITIES[name]
+    values = np.stack(
+        [np.interp(wl, msds.wavelengths, msds.values[:, k], left=0.0, right=0.0) for k in range(3)]
+    )
+    values = np.clip(values, 0.0, None)
+    return values / values.max()
+
+
+def cm_illuminant(name: str, wl: np.ndarray) -> np.ndarray:
+    """Relative illuminant: a phosphor LED whose 410 nm band gets ~1 % of its peak, or CIE D65 / A."""
+    import colour
+
+    if name == "led-blue-peak":
+        return (
+            _gauss(wl, 450.0, 9.0)
+            + 0.55 * _gauss(wl, 565.0, 45.0)
+            + 0.18 * _gauss(wl, 640.0, 40.0)
+            + 1e-3
+        )
+    sd = colour.SDS_ILLUMINANTS[name]
+    values = np.interp(wl, sd.wavelengths, sd.values)
+    return values / values.max()
+
+
+def cm_chart(name: str, wl: np.ndarray) -> np.ndarray:
+    """(patch, wavelength) reflectances: the ColorChecker (colour-science) or 18 smooth patches."""
+    import colour
+
+    if name == "smooth-18":
+        rng = np.random.default_rng(1234)
+        patches = []
+        for _ in range(14):
+            centre, width = rng.uniform(420.0, 700.0), rng.uniform(25.0, 80.0)
+            edge, slope = rng.uniform(450.0, 680.0), rng.uniform(8.0, 30.0)
+            patches.append(
+                0.04
+                + rng.uniform(0.2, 0.6) * _gauss(wl, centre, width)
+                + rng.uniform(0.0, 0.5) / (1.0 + np.exp(-(wl - edge) / slope))
+            )
+        patches += [np.full(wl.shape, v) for v in (0.9, 0.55, 0.2, 0.04)]
+        return np.clip(np.stack(patches), 0.01, 0.95)
+    sds = colour.SDS_COLOURCHECKERS[name]
+    return np.stack([np.interp(wl, sd.wavelengths, sd.values) for sd in sds.values()])
+
+
+def cm_case(
+    camera: str, light: str, chart: str, seed: int
+) -> tuple[xr.DataArray, xr.DataArray, np.ndarray]:
+    """Patch spectra on the bands and patch RGB integrated at 1 nm (a white reference last)."""
+    rng = np.random.default_rng(seed)
+    fine = np.vstack([cm_chart(chart, CM_FINE), np.full(CM_FINE.size, 0.97)])
+    bands = np.vstack([cm_chart(chart, CM_BANDS), np.full(CM_BANDS.size, 0.97)])
+    rgb = (fine * cm_illuminant(light, CM_FINE)) @ cm_camera(camera, CM_FINE).T / 10.0
+    rgb *= 1.0 + CM_NOISE * rng.standard_normal(rgb.shape)
+    spectra = xr.DataArray(
+        bands * cm_illuminant(light, CM_BANDS),
+        dims=("patch", "wavelength"),
+        coords={"wavelength": CM_BANDS},
+    )
+    return spectra, xr.DataArray(rgb, dims=("patch", "channel")), cm_camera(camera, CM_BANDS)
+
+
+def c_shape_error(c: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Per channel: RMS over wavelength of ``s c - truth`` relative to the channel's peak, ``s``
+    the least-squares scale of the channel (C is known up to a scale per channel)."""
+    scale = (c * truth).sum(1) / np.maximum((c * c).sum(1), 1e-300)
+    return np.sqrt(np.mean((scale[:, None] * c - truth) ** 2, axis=1)) / truth.max(1)
+
+
+def cm_fit(method: str, rgb: xr.DataArray, spectra: xr.DataArray) -> tuple[np.ndarray, dict]:
+    from spectralize.nodes.calibration import camera_lobes, spectral
+
+    if method == "lobes":
+        fitted = camera_lobes.lobe_camera_matrix(rgb, spectra)
+        return fitted["camera_matrix"].values, {"ridge": fitted["ridge"].values.tolist()}
+    mu, _ = spectral.cross_validated_smoothness(rgb, spectra)
+    return spectral.camera_matrix(rgb, spectra, smoothness=mu)["camera_matrix"].values, {
+        "smoothness": mu
+    }
+
+
+def cm_leave_one_out(
+    method: str, settings: dict, rgb: xr.DataArray, spectra: xr.DataArray
+) -> np.ndarray:
+    """Relative RGB error of every patch predicted by C fitted to the others (settings kept)."""
+    from spectralize.nodes.calibration import camera_lobes, spectral
+
+    n = rgb.sizes["patch"]
+    errors = np.empty(n)
+    for p in range(n):
+        keep = np.arange(n) != p
+        if method == "lobes":
+            c = camera_lobes.lobe_camera_matrix(
+                rgb.isel(patch=keep), spectra.isel(patch=keep), ridge=settings["ridge"]
+            )["camera_matrix"].values
+        else:
+            c = spectral.camera_matrix(
+                rgb.isel(patch=keep), spectra.isel(patch=keep), smoothness=settings["smoothness"]
+            )["camera_matrix"].values
+        measured = rgb.values[p]
+        errors[p] = np.linalg.norm(c @ spectra.values[p] - measured) / np.linalg.norm(measured)
+    return errors
+
+
+def run_camera_matrix(seeds: int) -> dict:
+    """C's shape error per channel and the chart's leave-one-patch-out error, per configuration."""
+    rows = []
+    for camera in CM_TUNED + CM_HELD_OUT:
+        for light in CM_ILLUMINANTS:
+            for chart in CM_CHARTS:
+                for seed in range(seeds):
+                    spectra, rgb, truth = cm_case(camera, light, chart, seed)
+                    for method in ("smooth", "lobes"):
+                        start = time.perf_counter()
+                        c, settings = cm_fit(method, rgb, spectra)
+                        seconds = time.perf_counter() - start
+                        loo = cm_leave_one_out(method, settings, rgb, spectra)
+                        rows.append(
+                            {
+                                "camera": camera,
+                                "held_out": camera in CM_HELD_OUT,
+                                "illuminant": light,
+                                "chart": chart,
+                                "seed": seed,
+                                "method": method,
+                                "c_error_rgb": c_shape_error(c, truth).tolist(),
+                                "nonnegative": bool(np.all(c >= 0)),
+                                "chart_loo_mean": float(loo.mean()),
+                                "chart_loo_max": float(loo.max()),
+                                "settings": settings,
+                                "fit_seconds": seconds,
+                            }
+                        )
+    summary = {}
+    for method in ("smooth", "lobes"):
+        for camera in CM_TUNED + CM_HELD_OUT:
+            mine = [r for r in rows if r["method"] == method and r["camera"] == camera]
+            errors = np.array([r["c_error_rgb"] for r in mine])
+            summary[f"{method} / {camera}"] = {
+                "held_out": camera in CM_HELD_OUT,
+                "c_error_mean_rgb": errors.mean(0).round(4).tolist(),
+                "c_error_max_rgb": errors.max(0).round(4).tolist(),
+                "share_of_cases_all_channels_within_5pct": float(np.mean(errors.max(1) < 0.05)),
+                "chart_loo_mean": float(np.mean([r["chart_loo_mean"] for r in mine])),
+                "chart_loo_max": float(np.max([r["chart_loo_max"] for r in mine])),
+            }
+    return {"summary": summary, "cases": rows}
+
+
+def main_camera_matrix(args) -> dict:
+    start = time.perf_counter()
+    result = {
+        "benchmark": "calibration_camera_matrix",
+        "setup": {
+            "bands_nm": [float(CM_BANDS[0]), float(CM_BANDS[-1]), 10.0],
+            "rgb_integration_nm": [float(CM_FINE[0]), float(CM_FINE[-1]), 1.0],
+            "patch_rgb_noise": CM_NOISE,
+            "white_reference_as_patch": True,
+            "cameras_tuned_on": list(CM_TUNED),
+            "cameras_held_out": list(CM_HELD_OUT),
+            "illuminants": list(CM_ILLUMINANTS),
+            "charts": list(CM_CHARTS),
+            "seeds": args.seeds,
+            "c_error": "per channel RMS over wavelength of (s C - truth) / max(truth), s per channel",
+            "chart_loo": "|C s_p - R_p| / |R_p| with C fitted to the other patches, settings kept",
+        },
+        "machine": {"python": platform.python_version(), "cpu_count": _cpus(), "numpy": np.__version__},
+        **run_camera_matrix(args.seeds),
+        "seconds_total": time.perf_counter() - start,
+    }
+    head = f"{'method / camera':40s} {'C err mean R,G,B':>22s} {'C err max R,G,B':>22s}"
+    print(f"{head} {'loo mean':>9s} {'loo max':>8s}")
+    for name, s in result["summary"].items():
+        mean = ",".join(f"{v:.3f}" for v in s["c_error_mean_rgb"])
+        worst = ",".join(f"{v:.3f}" for v in s["c_error_max_rgb"])
+        tag = " (held out)" if s["held_out"] else ""
+        loo = f"{s['chart_loo_mean']:9.4f} {s['chart_loo_max']:8.4f}"
+        print(f"{name + tag:40s} {mean:>22s} {worst:>22s} {loo}")
+    if not args.quick:
+        CM_RESULTS.parent.mkdir(parents=True, exist_ok=True)
+        CM_RESULTS.write_text(json.dumps(result, indent=2) + "\n")
+    return result
+
+
 # -- main ---------------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="256 px, results not saved")
+    parser.add_argument(
+        "--camera-matrix",
+        action="store_true",
+        help="only the camera matrix C: shape error per channel and chart cross-validation",
+    )
+    parser.add_argument("--seeds", type=int, default=2, help="--camera-matrix: noise draws per case")
     args = parser.parse_args(argv)
+    if args.camera_matrix:
+        return main_camera_matrix(args)
     side = 256 if args.quick else 512
     filter_size = 20.0 if args.quick else 40.0
 

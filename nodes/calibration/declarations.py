@@ -137,7 +137,7 @@ RECOVER_SPECTRAL_OECF = Node(
 
 CALIBRATE_SPECTRAL = Node(
     name="calibrate_spectral",
-    version="1",
+    version="2",
     function=calibrate_spectral,
     inputs={
         "white_reference": "raw/white_reference",

@@ -30,6 +30,8 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 
+from spectralize.engine import Choices
+from spectralize.nodes.calibration.camera_lobes import lobe_camera_matrix
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import (
     check_bit_depth,
@@ -52,6 +54,7 @@ __all__ = [
     "predict_rgb",
     "cross_validate",
     "calibrate_spectral",
+    "CAMERA_MATRIX_METHODS",
 ]
 
 
@@ -524,6 +527,15 @@ def cross_validated_smoothness(
     return float(candidates[best]), curve
 
 
+CAMERA_MATRIX_METHODS = {
+    "lobes": lobe_camera_matrix,
+    "smooth": camera_matrix,
+}
+"""How :func:`calibrate_spectral` fits ``C``: a non-negative sum of smooth lobes
+(:func:`~spectralize.nodes.calibration.camera_lobes.lobe_camera_matrix`, the default) or
+second-difference-penalised non-negative least squares (:func:`camera_matrix`)."""
+
+
 # -- patches, prediction and cross-validation ---------------------------------------------------
 def patch_means(
     data: xr.DataArray,
@@ -761,6 +773,45 @@ def _eroded_labels(labels: np.ndarray, margin: int) -> np.ndarray:
     return out
 
 
+def _white_rgb(
+    white_reference: xr.Dataset, response: xr.DataArray, attrs: Mapping, group: str, margin: float = 0.1
+) -> xr.DataArray:
+    """HDR RGB (channel,) of the white reference: median over the frame less a border of
+    ``margin`` of its size (hot pixels and the target's edge do not move a median)."""
+    raw = _rgb_series(white_reference, group).drop_vars("camera")
+    hdr = merge_hdr(raw, response.assign_attrs(dict(attrs) | response.attrs))["radiance"].isel(image=0)
+    ny, nx = hdr.sizes["y"], hdr.sizes["x"]
+    dy, dx = int(margin * ny), int(margin * nx)
+    centre = hdr.isel(y=slice(dy, ny - dy), x=slice(dx, nx - dx))
+    return (
+        centre.median(("y", "x"))
+        .compute()
+        .drop_vars([c for c in centre.coords if c != "channel"], errors="ignore")
+    )
+
+
+def _bare(data: xr.DataArray, keep: str) -> xr.DataArray:
+    """``data`` without coords other than ``keep``."""
+    return data.drop_vars([c for c in data.coords if c != keep])
+
+
+def _method_settings(method, cm, smoothness, ridge, cv_scores, nonnegative) -> dict:
+    """The chosen settings of C's fit, for the group's attrs."""
+    if method == "lobes":
+        return {
+            "ridge": [float(v) for v in cm["ridge"].values],
+            "ridge_choice": "given" if ridge is not None else "leave-one-patch-out cross-validation",
+            "lobe_widths_nm": cm.attrs["widths"],
+        }
+    return {
+        "smoothness": float(smoothness),
+        "smoothness_choice": "leave-one-patch-out cross-validation"
+        if cv_scores is not None
+        else "given",
+        "nonnegative": bool(nonnegative),
+    }
+
+
 def calibrate_spectral(
     white_reference: xr.Dataset,
     colour_checker: xr.Dataset,
@@ -768,15 +819,38 @@ def calibrate_spectral(
     oecf_rgb: xr.Dataset,
     oecf_spectral: xr.Dataset,
     *,
+    camera_matrix_method: Annotated[
+        str,
+        Choices(CAMERA_MATRIX_METHODS, "camera matrix method"),
+        Field(
+            description="how C is fitted: 'lobes' (non-negative sum of smooth lobes) or "
+            "'smooth' (non-negative second-difference-penalised least squares)"
+        ),
+    ] = "lobes",
+    ridge: Annotated[
+        float | None,
+        Field(
+            ge=0,
+            description="'lobes': relative ridge weight on the lobe amplitudes; "
+            "None: chosen per channel by leaving each patch out in turn",
+        ),
+    ] = None,
     smoothness: Annotated[
         float | None,
         Field(
             ge=0,
-            description="relative weight of the second-difference penalty of C; "
+            description="'smooth': relative weight of the second-difference penalty of C; "
             "None: chosen by leaving each patch out in turn",
         ),
     ] = None,
-    nonnegative: Annotated[bool, Field(description="constrain C >= 0")] = True,
+    nonnegative: Annotated[bool, Field(description="'smooth': constrain C >= 0")] = True,
+    white_patch: Annotated[
+        bool,
+        Field(
+            description="fit C to the white reference's RGB as one more patch "
+            "(reflectance times illuminant) beside the chart's"
+        ),
+    ] = True,
     patch_margin: Annotated[
         int,
         Field(
@@ -798,9 +872,14 @@ def calibrate_spectral(
       times the measured illuminant (:func:`quantum_efficiency`).
     - ``C``: the colour checker's RGB exposure series merged to HDR with the RGB response
       (:func:`~spectralize.nodes.calibration.hdr.merge_hdr`), patch means, against patch
-      reflectance times the measured illuminant (:func:`camera_matrix`, non-negative,
-      smooth; the smoothness chosen by leaving each patch out in turn,
-      :func:`cross_validated_smoothness`, unless given).
+      reflectance times the measured illuminant; with ``white_patch`` the white reference's
+      HDR RGB (median over the frame less a 10 % border) against its reflectance times the
+      illuminant is one more patch, the one spectrum a chart of pigments lacks (flat). By
+      default ``C`` is a non-negative sum of smooth lobes
+      (:func:`~spectralize.nodes.calibration.camera_lobes.lobe_camera_matrix`, the ridge
+      chosen per channel by leaving each patch out in turn): a second-difference penalty
+      (``camera_matrix_method="smooth"``, :func:`camera_matrix`) extrapolates linearly where
+      the light is weak and lets a row keep rising to the end of the bands.
     - Cross-validation: the spectral camera's capture of the checker (longest unsaturated
       exposure per band, band signal / Q, patch means) through ``C`` against the measured
       HDR RGB (:func:`cross_validate`).
@@ -812,9 +891,11 @@ def calibrate_spectral(
         ``camera_matrix`` (channel, wavelength) [1], ``measured_rgb`` / ``predicted_rgb``
         (patch, channel) [1], ``relative_error`` (patch) [1], ``patch_spectra`` (patch,
         wavelength) [1] (from the spectral camera), ``qe_snr`` (wavelength) [1],
-        ``smoothness_cv`` (smoothness) [1] (the cross-validation scores, when chosen).
-        Attrs ``mean_relative_error``, ``max_relative_error``, ``worst_patch``,
-        ``c_relative_rms_residual``.
+        ``ridge_cv`` (ridge_candidate, channel) or ``smoothness_cv`` (smoothness) [1] (the
+        cross-validation scores, when chosen). Attrs ``mean_relative_error``,
+        ``max_relative_error``, ``worst_patch``, ``c_relative_rms_residual`` and the chosen
+        settings: ``camera_matrix_method``, ``white_patch``, ``ridge`` (per channel) and
+        ``lobe_widths_nm``, or ``smoothness`` and ``nonnegative``.
 
     Raises
     ------
@@ -866,10 +947,29 @@ def calibrate_spectral(
     spectra = (colour_checker["patch_reflectance"] * colour_checker["illuminant"]).load()
     spectra = spectra.assign_coords(patch=measured["patch"].values)
     spectra = spectra.transpose("patch", "wavelength")
+    fit_rgb, fit_spectra = measured, spectra
+    if white_patch:
+        white_rgb = _white_rgb(white_reference, response, oecf_rgb.attrs, "raw/white_reference")
+        white_spectrum = (white_reference["target_reflectance"] * white_reference["illuminant"]).load()
+        white_spectrum = white_spectrum.interp(wavelength=spectra["wavelength"].values)
+        n = measured.sizes["patch"] + 1
+        fit_rgb = xr.concat(
+            [_bare(measured, "channel"), _bare(white_rgb, "channel").expand_dims(patch=1)], dim="patch"
+        ).assign_coords(patch=np.arange(n))
+        fit_spectra = xr.concat(
+            [_bare(spectra, "wavelength"), _bare(white_spectrum, "wavelength").expand_dims(patch=1)],
+            dim="patch",
+        ).assign_coords(patch=np.arange(n))
+        fit_spectra = fit_spectra.transpose("patch", "wavelength")
     cv_scores = None
-    if smoothness is None:
-        smoothness, cv_scores = cross_validated_smoothness(measured, spectra, nonnegative=nonnegative)
-    cm = camera_matrix(measured, spectra, smoothness=smoothness, nonnegative=nonnegative)
+    if camera_matrix_method == "lobes":
+        cm = lobe_camera_matrix(fit_rgb, fit_spectra, ridge=ridge)
+    else:
+        if smoothness is None:
+            smoothness, cv_scores = cross_validated_smoothness(
+                fit_rgb, fit_spectra, nonnegative=nonnegative
+            )
+        cm = camera_matrix(fit_rgb, fit_spectra, smoothness=smoothness, nonnegative=nonnegative)
 
     # -- cross-validation: the spectral camera's capture of the checker through C
     checker_counts, cdepth = target_spectral_series(colour_checker, group)
@@ -917,11 +1017,9 @@ def calibrate_spectral(
             "max_relative_error": table.attrs["max_relative_error"],
             "worst_patch": table.attrs["worst_patch"],
             "c_relative_rms_residual": cm.attrs["relative_rms_residual"],
-            "smoothness": float(smoothness),
-            "smoothness_choice": "leave-one-patch-out cross-validation"
-            if cv_scores is not None
-            else "given",
-            "nonnegative": bool(nonnegative),
+            "camera_matrix_method": camera_matrix_method,
+            **_method_settings(camera_matrix_method, cm, smoothness, ridge, cv_scores, nonnegative),
+            "white_patch": bool(white_patch),
             "patch_margin": int(patch_margin),
             "rgb_camera": camera,
             "units_note": "band radiance relative to the measured illuminant; C maps it to "
@@ -930,8 +1028,14 @@ def calibrate_spectral(
     )
     if cv_scores is not None:
         out["smoothness_cv"] = cv_scores
+    if "ridge_cv" in cm:
+        out["ridge_cv"] = cm["ridge_cv"]
     out = out.drop_vars(
-        [c for c in out.coords if c not in ("wavelength", "channel", "patch", "smoothness")]
+        [
+            c
+            for c in out.coords
+            if c not in ("wavelength", "channel", "patch", "smoothness", "ridge_candidate")
+        ]
     )
     if names is not None:
         out = out.assign_coords(patch_name=("patch", names))
