@@ -165,9 +165,9 @@ def _one_form(
 
 
 # -- options -------------------------------------------------------------------------------
-_POSITIVE = ("alpha_hat", "beta_hat", "centre_spacing", "tolerance", "window_scale")
-_NON_NEGATIVE = ("gamma_hat", "prior", "ridge", "relative_noise", "epsilon")
-_INTEGER = {"k": 1, "max_iterations": 0}
+_POSITIVE = ("alpha_hat", "beta_hat", "centre_spacing", "tolerance", "window_scale", "covariance_floor")
+_NON_NEGATIVE = ("gamma_hat", "prior", "spectral_prior", "ridge", "relative_noise", "epsilon")
+_INTEGER = {"k": 1, "max_iterations": 0, "projected_iterations": 0}
 
 
 def _checked_options(method: str, options: dict[str, Any]) -> dict[str, Any]:

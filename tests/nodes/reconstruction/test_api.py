@@ -339,6 +339,10 @@ def test_bad_options_and_initial(scene):
         alpha_hat=-1.0,
     )
     _raises("k: expected an integer >= 1", scene.rgb, scene.bands, scene.camera_matrix, k=0)
+    data = (scene.rgb, scene.bands, scene.camera_matrix)
+    _raises("spectral_prior: expected a finite number >= 0", *data, spectral_prior=-0.1)
+    _raises("covariance_floor: expected a finite number > 0", *data, covariance_floor=0.0)
+    _raises("projected_iterations: expected an integer >= 0", *data, projected_iterations=2.5)
     wrong = xr.zeros_like(scene.rgb.isel(channel=0)).expand_dims(wavelength=3)
     _raises(
         "initial: expected shape",
