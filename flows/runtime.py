@@ -336,7 +336,8 @@ def _verify_deep(store: RunStore, planned: Sequence[PlannedStep], log: Callable[
         size += store.size_on_disk(group)
         problems = store.verify(group, deep=True)
         if problems:
-            _handle_damage(store, group, problems[0].where, problems[0].found, made)
+            first = problems[0]
+            _handle_damage(store, group, first.where, f"{first.found}, expected {first.expected}", made)
     seconds = time.perf_counter() - start
     log(f"verified {len(groups)} group(s), {size / 1e6:,.1f} MB, in {seconds:.2f} s")
 
