@@ -6,8 +6,8 @@ the tasks into bars under the running node's line)::
 
     from spectralize.engine import progress
 
-    with progress.task("images 4, 5, 6", total=max_iterations) as solving:
-        callback = None if solving is None else lambda iteration, cube: solving.advance(iteration)
+    with progress.task("images 4, 5, 6", total=max_iterations, tolerance=tolerance) as solving:
+        callback = None if solving is None else counting_iterations(solving.advance, residual=True)
         result = reconstruct(..., callback=callback)
 
 Without a listener :func:`task` yields ``None``: nothing is reported and the node passes no
@@ -22,20 +22,44 @@ solver iteration can take less than a millisecond). A listener that raises is dr
 one line on stderr; the task goes on. Work in another process (a ``dask.distributed``
 worker) reports to that process's listeners, normally none.
 
+What a display is told of a task is an :class:`Estimate`: the share of its work done and
+the seconds left, measured, never read off an iteration limit. A solver that reports its
+residual (``advance(done, residual)``) and was given its ``tolerance`` is estimated from the
+convergence rate it shows: with the relative residual ``r_k`` falling by a factor ``rho`` per
+iteration (the mean of the rates over all iterations so far and over their second half: CG's
+fast start makes the first optimistic, a plateau the second pessimistic; measured from
+:data:`MIN_ITERATIONS` on), ``log(r_k / tolerance) / -log(rho)`` iterations are left, plus the ``fixed``
+iterations that always follow (the ``S >= 0`` refinement); each costs the mean time per
+iteration measured so far. A task without a tolerance counts ``total`` steps exactly.
+
 Standard library only, so any node may import it.
+
+References
+----------
+Fast Capture of Spectral Image Series, sec. 3 (the iterative solve of eq. 1).
 """
 
 from __future__ import annotations
 
 import contextlib
 import itertools
+import math
 import sys
 import threading
 import time
 from collections.abc import Iterator
-from typing import Protocol, TypeVar
+from typing import NamedTuple, Protocol, TypeVar
 
-__all__ = ["Listeners", "TaskListener", "Task", "listening", "listened", "task"]
+__all__ = [
+    "Estimate",
+    "Listeners",
+    "TaskListener",
+    "Task",
+    "convergence_estimate",
+    "listening",
+    "listened",
+    "task",
+]
 
 L = TypeVar("L")
 
@@ -48,9 +72,70 @@ class TaskListener(Protocol):
 
     def task_started(self, key: int, label: str, total: int | None) -> None: ...
 
-    def task_advanced(self, key: int, done: int) -> None: ...
+    def task_advanced(self, key: int, done: int, estimate: Estimate | None) -> None: ...
 
     def task_finished(self, key: int, done: int) -> None: ...
+
+
+class Estimate(NamedTuple):
+    """How far a task is, measured.
+
+    Attributes
+    ----------
+    fraction
+        Share of the task's work done, 0 to 1, in time: the time since the task started
+        (its set-up included) over that plus the time left. A bar of it moves at the rate
+        the work is done.
+    seconds_left
+        Time left [s] at the measured rate.
+    """
+
+    fraction: float
+    seconds_left: float
+
+
+#: Iterations a solver's convergence rate is measured over before it is trusted (CG's first
+#: iterations fall irregularly).
+MIN_ITERATIONS = 10
+
+
+def convergence_estimate(
+    residuals: list[tuple[int, float]], tolerance: float, fixed: int = 0
+) -> tuple[float, float] | None:
+    """Iterations done and iterations left of a solver converging to ``tolerance``.
+
+    Parameters
+    ----------
+    residuals
+        ``(iteration, relative residual)`` after each iteration so far, in order.
+    tolerance
+        The relative residual the solver stops at.
+    fixed
+        Iterations that always follow convergence (a refinement of fixed length).
+
+    Returns
+    -------
+    tuple of float or None
+        ``(done, left)`` in iterations; ``None`` while the rate is not measurable yet (fewer
+        than :data:`MIN_ITERATIONS` iterations, or no decrease).
+    """
+    if len(residuals) < 2 or residuals[-1][0] < MIN_ITERATIONS or tolerance <= 0:
+        return None
+    done, last = residuals[-1]
+    if last <= tolerance:
+        return float(done), float(fixed)
+    # the rate over all iterations (CG's fast start makes it optimistic) and over the second
+    # half (a plateau makes it pessimistic), averaged
+    rates = []
+    for since in (0, done // 2):
+        index = next(i for i, (k, _) in enumerate(residuals) if k >= since)
+        start, first = residuals[min(index, len(residuals) - 2)]
+        if done > start and 0 < last < first:
+            rates.append((math.log(first) - math.log(last)) / (done - start))
+    if not rates:
+        return None
+    rate = sum(rates) / len(rates)  # per iteration
+    return float(done), math.log(last / tolerance) / rate + fixed
 
 
 class Listeners:
@@ -124,7 +209,7 @@ _emit = _LISTENERS.emit
 
 
 class Task:
-    """One reported task; :meth:`advance` reports how far it is.
+    """One reported task; :meth:`advance` reports how far it is, with an :class:`Estimate`.
 
     Attributes
     ----------
@@ -133,34 +218,101 @@ class Task:
     label
         What the task is (``"images 4, 5, 6"``).
     total
-        The number of steps it takes at most (a solver's iteration limit); ``None`` if unknown.
+        Steps it takes: exactly (without ``tolerance``) or at most (a solver's iteration
+        limit, with ``tolerance``); ``None`` if unknown.
+    tolerance
+        The relative residual a solver stops at (its convergence is then measured).
+    fixed
+        Steps that always follow convergence.
     done
         The last value given to :meth:`advance`.
     interval
         Least time [s] between two reports of :meth:`advance` to the listeners.
     """
 
-    __slots__ = ("key", "label", "total", "done", "interval", "_told")
+    __slots__ = (
+        "key",
+        "label",
+        "total",
+        "tolerance",
+        "fixed",
+        "done",
+        "interval",
+        "_told",
+        "_created",
+        "_started",
+        "_residuals",
+    )
 
-    def __init__(self, key: int, label: str, total: int | None, interval: float) -> None:
+    def __init__(
+        self,
+        key: int,
+        label: str,
+        total: int | None,
+        interval: float,
+        tolerance: float | None = None,
+        fixed: int = 0,
+    ) -> None:
         self.key = key
         self.label = label
         self.total = total
+        self.tolerance = tolerance
+        self.fixed = int(fixed)
         self.done = 0
         self.interval = interval
         self._told = -float("inf")
+        self._created = time.monotonic()  # the set-up before the first step is work too
+        self._started: tuple[float, int] | None = None  # time and count of the first advance
+        self._residuals: list[tuple[int, float]] = []
 
-    def advance(self, done: int) -> None:
-        """``done`` steps are done; the listeners hear of it unless they did within ``interval``."""
+    def advance(self, done: int, residual: float | None = None) -> None:
+        """``done`` steps are done (a solver: with its relative ``residual``); the listeners
+        hear of it, with the :meth:`estimate`, unless they did within ``interval``."""
         self.done = done
         now = time.monotonic()
+        if self._started is None:
+            self._started = (now, done)
+        if residual is not None and math.isfinite(residual):
+            self._residuals.append((int(done), float(residual)))
         if now - self._told >= self.interval:
             self._told = now
-            _emit("task_advanced", self.key, done)
+            _emit("task_advanced", self.key, done, self.estimate(now))
+
+    def estimate(self, now: float | None = None) -> Estimate | None:
+        """The share done and the seconds left, measured; ``None`` until measurable (the
+        time per step needs two reports; a solver's rate needs two residuals)."""
+        now = time.monotonic() if now is None else now
+        if self._started is None:
+            return None
+        since, first = self._started
+        if self.done <= first or now <= since:
+            return None
+        per_step = (now - since) / (self.done - first)
+        if self.tolerance is not None:
+            found = convergence_estimate(self._residuals, self.tolerance, self.fixed)
+            if found is None:
+                return None
+            done, left = found
+            if self.total is not None:
+                left = min(left, max(0.0, self.total - done))
+        elif self.total is not None:
+            done, left = float(self.done), max(0.0, float(self.total - self.done))
+        else:
+            return None
+        seconds_left = left * per_step
+        spent = now - self._created
+        return Estimate(spent / (spent + seconds_left) if seconds_left > 0 else 1.0, seconds_left)
 
 
 @contextlib.contextmanager
-def task(label: str, total: int | None = None, *, interval: float = 0.1) -> Iterator[Task | None]:
+def task(
+    label: str,
+    total: int | None = None,
+    *,
+    tolerance: float | None = None,
+    fixed: int = 0,
+    interval: float = 0.1,
+) -> Iterator[Task | None]:
     """Report one long task (e.g. a solver run) to the listeners for the duration of the block.
 
     Parameters
@@ -168,7 +320,13 @@ def task(label: str, total: int | None = None, *, interval: float = 0.1) -> Iter
     label
         What the task is, for the display (``"images 4, 5, 6"``).
     total
-        Steps it takes at most (a solver's iteration limit), or ``None`` if unknown.
+        Steps it takes (exactly; with ``tolerance``: at most, a solver's iteration limit), or
+        ``None`` if unknown.
+    tolerance
+        A solver's stopping residual: its progress is then estimated from the convergence
+        rate it shows (:func:`convergence_estimate`), not from ``total``.
+    fixed
+        Steps that always follow convergence (a refinement of fixed length).
     interval
         Least time [s] between two reports of :meth:`Task.advance`.
 
@@ -191,7 +349,7 @@ def task(label: str, total: int | None = None, *, interval: float = 0.1) -> Iter
     if not _LISTENERS:  # the common case costs one list check
         yield None
         return
-    reported = Task(next(_KEYS), str(label), total, interval)
+    reported = Task(next(_KEYS), str(label), total, interval, tolerance, fixed)
     _emit("task_started", reported.key, reported.label, total)
     try:
         yield reported

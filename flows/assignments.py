@@ -45,9 +45,9 @@ def parse_assignments(items: Sequence[str]) -> dict[str, Any]:
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            from spectralize.schemas import SpectralizeError
+            from .command_checks import UsageError
 
-            raise SpectralizeError(
+            raise UsageError(
                 f"--set expects KEY=VALUE (e.g. dark_average.frames_per_chunk=8), got {item!r}"
             )
         values[key.strip()] = parse_value(value.strip())

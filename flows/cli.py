@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from .assignments import parse_assignments
+from .command_checks import UsageError, check_run, check_store
 
 __all__ = ["main", "build_parser"]
 
@@ -53,6 +54,7 @@ def _cmd_flows(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
+    check_store(args.store)
     from spectralize.store import RunStore
 
     store = RunStore.open(args.store)
@@ -78,6 +80,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_clean(args: argparse.Namespace) -> int:
+    check_store(args.store)
     from spectralize.store import RunStore
 
     store = RunStore.open(args.store)
@@ -100,10 +103,11 @@ def _print_report(report) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    parameters = parse_assignments(args.set)
+    check_run(args.flow, args.store, parameters, dask_address=args.dask_address)
     from spectralize.flows import run_flow
     from spectralize.flows.progress import console_progress
 
-    parameters = parse_assignments(args.set)
     with console_progress(verbose=args.verbose):
         report = run_flow(
             args.flow,
@@ -118,10 +122,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    parameters = parse_assignments(args.set)
+    check_run("btf" if args.capture else "demo", None, parameters)
     from spectralize.flows.demo import DEMO_STORE, run_capture_demo, run_demo
     from spectralize.flows.progress import console_progress
 
-    parameters = parse_assignments(args.set)
     with console_progress(verbose=args.verbose):
         if args.capture:
             store, report, _ = run_capture_demo(
@@ -181,6 +186,7 @@ def _cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    check_store(args.store)
     from spectralize.flows.pipelines import report_directory
     from spectralize.flows.report import write_run_report
 
@@ -196,6 +202,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
+    check_store(args.store)
     from spectralize.flows.export import export
 
     files = export(
@@ -411,8 +418,10 @@ _ANYWHERE = {"--debug": "debug", "-v": "verbose", "--verbose": "verbose"}
 
 
 def _is_ours(error: BaseException) -> bool:
-    """Whether ``error`` is a :class:`SpectralizeError` (not imported for it: if the errors
-    module was never imported, none of its errors can have been raised)."""
+    """Whether ``error`` is a :class:`UsageError` or a :class:`SpectralizeError` (not imported
+    for it: if the errors module was never imported, none of its errors can have been raised)."""
+    if isinstance(error, UsageError):
+        return True
     errors = sys.modules.get("spectralize.schemas.errors")
     return errors is not None and isinstance(error, errors.SpectralizeError)
 

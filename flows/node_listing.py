@@ -20,6 +20,7 @@ else ``~/.cache/spectralize``; a cache that cannot be written is skipped.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import shlex
 import sys
@@ -28,10 +29,11 @@ from collections.abc import Iterable, Iterator
 from importlib.metadata import entry_points, version
 from importlib.util import find_spec
 from pathlib import Path
+from typing import Any
 
 from .assignments import format_value, type_text
 
-__all__ = ["node_listing", "listing_key", "cache_dir"]
+__all__ = ["node_listing", "node_catalogue", "listing_key", "cache_dir"]
 
 ENTRY_POINT_GROUP = "spectralize.nodes"  # engine.discovery's; not imported from there (heavy)
 # Sources that decide the listing besides the nodes' own packages
@@ -93,8 +95,9 @@ def listing_key(modules: Iterable[str] | None = None) -> str:
     return digest.hexdigest()[:32]
 
 
-def _render() -> tuple[str, bool]:
-    """The listing, and whether discovery went without warnings (then it may be cached)."""
+def _registry() -> tuple[dict, bool]:
+    """The installed nodes, and whether discovery went without warnings (then what is
+    rendered from them may be cached); the warnings are shown again."""
     from spectralize.engine import registry
 
     with warnings.catch_warnings(record=True) as caught:
@@ -102,6 +105,12 @@ def _render() -> tuple[str, bool]:
         nodes = registry()
     for warning in caught:
         warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    return nodes, not caught and bool(nodes)
+
+
+def _render() -> tuple[str, bool]:
+    """The listing, and whether discovery went without warnings (then it may be cached)."""
+    nodes, cacheable = _registry()
     lines = []
     for name, entry in sorted(nodes.items()):
         node = entry.node
@@ -122,27 +131,88 @@ def _render() -> tuple[str, bool]:
             lines.append(f"    --set {setting}  ({type_text(ptype)}{note}) {description}".rstrip())
             if pname in choices:
                 lines.append(f"        one of: {', '.join(choices[pname]) or 'none'}")
-    return "".join(f"{line}\n" for line in lines), not caught and bool(nodes)
+    return "".join(f"{line}\n" for line in lines), cacheable
+
+
+def _parameter_schemas(node) -> dict[str, Any]:
+    """Parameter name -> its JSON schema (type, bounds, enum), ``{}`` where pydantic cannot
+    write one (then only the name is checked early)."""
+    try:
+        properties = node.parameters.model_json_schema().get("properties", {})
+    except Exception:  # a parameter type without a JSON schema: the engine checks it later
+        properties = {}
+    found = {}
+    for name, field in node.parameters.model_fields.items():
+        schema = dict(properties.get(name, {}))
+        schema.pop("description", None)
+        schema.pop("title", None)
+        schema["required"] = field.is_required()
+        found[name] = schema
+    return found
+
+
+def _render_catalogue() -> tuple[dict[str, Any], bool]:
+    """What the command line checks before it loads the engine: every node's input groups
+    and parameter schemas, every flow's nodes and the groups it reads from the store."""
+    from spectralize.flows.pipelines import FLOWS, external_inputs
+
+    nodes, cacheable = _registry()
+    catalogue: dict[str, Any] = {
+        "nodes": {
+            name: {
+                "inputs": sorted(set(entry.node.inputs.values())),
+                "parameters": _parameter_schemas(entry.node),
+            }
+            for name, entry in sorted(nodes.items())
+        },
+        "flows": {
+            name: {
+                "nodes": [step.node for step in flow.steps],
+                "inputs": external_inputs(flow.steps),
+            }
+            for name, flow in sorted(FLOWS.items())
+        },
+    }
+    return catalogue, cacheable
+
+
+def _cached(name: str, suffix: str, render, *, use_cache: bool, encode, decode):
+    """``render()``'s result, from the cache file ``<name>-<key><suffix>`` when it is there."""
+    path = cache_dir() / f"{name}-{listing_key()}{suffix}" if use_cache else None
+    if path is not None:
+        try:
+            return decode(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            pass
+    value, cacheable = render()
+    if path is not None and cacheable:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            for old in path.parent.glob(f"{name}-*{suffix}"):  # of older sources
+                old.unlink(missing_ok=True)
+            partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+            partial.write_text(encode(value), encoding="utf-8")
+            os.replace(partial, path)
+        except OSError:
+            pass
+    return value
 
 
 def node_listing(*, use_cache: bool = True) -> str:
     """The text ``spectralize nodes`` prints (empty when no node is installed): from the
     cache when its key matches, else rendered from the registry and cached."""
-    path = cache_dir() / f"nodes-{listing_key()}.txt" if use_cache else None
-    if path is not None:
-        try:
-            return path.read_text(encoding="utf-8")
-        except OSError:
-            pass
-    text, cacheable = _render()
-    if path is not None and cacheable:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            for old in path.parent.glob("nodes-*.txt"):  # listings of older sources
-                old.unlink(missing_ok=True)
-            partial = path.with_suffix(f".{os.getpid()}.tmp")
-            partial.write_text(text, encoding="utf-8")
-            os.replace(partial, path)
-        except OSError:
-            pass
-    return text
+    return _cached("nodes", ".txt", _render, use_cache=use_cache, encode=str, decode=str)
+
+
+def node_catalogue(*, use_cache: bool = True) -> dict[str, Any]:
+    """Nodes (input groups, parameter JSON schemas) and flows (nodes, groups read from the
+    store) as plain data, cached like the listing: what ``spectralize run`` checks in
+    milliseconds before Prefect and the engine load (:mod:`.command_checks`)."""
+    return _cached(
+        "catalogue",
+        ".json",
+        _render_catalogue,
+        use_cache=use_cache,
+        encode=json.dumps,
+        decode=json.loads,
+    )

@@ -1,5 +1,5 @@
 """Progress of a flow run on the console: which node runs, a bar with ETA per image set, and
-one per solver run.
+one per solver run; every ETA measured, never read off an iteration limit.
 
 The runtime (:mod:`.runtime`) reports what happens through :func:`notify`; whoever wants to
 show it (the command line) registers a listener with :func:`listening`. Without a listener
@@ -8,14 +8,22 @@ flow's threads, including the store's region-writing threads and dask's worker t
 
 Work inside a node (a solver run on one image set) is reported by the node through
 :mod:`spectralize.engine.progress`, which knows nothing of flows; while a node runs,
-:func:`node_tasks` passes those tasks on to the listeners here as ``task_*`` calls.
+:func:`node_tasks` passes those tasks on to the listeners here as ``task_*`` calls, each
+advance with the engine's :class:`~spectralize.engine.progress.Estimate` (share of the
+solver's work done and seconds left, from its measured convergence rate and time per
+iteration).
 
-Two displays:
+How the time left of a node's image sets is measured (:class:`SetClock`): the work done is
+the sets written plus the share done of every set being solved (a set solved but not yet
+written counts as done); the rate is that work over the time since the first set started;
+the time left is the work left at that rate. So the bar moves as the work is done, not in
+jumps when sets finish, and the estimate exists before the first set is written.
+
+Two displays, with the same numbers:
 
 - :class:`RichProgress` (a terminal): one line per running node with its stage and elapsed
-  time, for a resumable write a bar of the regions (image sets) written, with the ETA, and
-  under it a bar per running solver (iterations of the limit; its ETA is an upper bound,
-  a solver that converges stops earlier); a finished node leaves one line.
+  time, for a resumable write a bar of the image sets (work done) with the ETA, and under it
+  a bar per running solver (share of its work) with its ETA; a finished node leaves one line.
 - :class:`PlainProgress` (a pipe or a file): the same as plain lines, with the ETA in words;
   a solver run gets a line at most every 10 s (none when it takes less) and one when it ends.
 
@@ -48,6 +56,7 @@ __all__ = [
     "quiet_prefect",
     "console_progress",
     "format_seconds",
+    "SetClock",
 ]
 
 
@@ -67,7 +76,7 @@ class Listener(Protocol):
 
     def task_started(self, node: str, key: int, label: str, total: int | None) -> None: ...
 
-    def task_advanced(self, node: str, key: int, done: int) -> None: ...
+    def task_advanced(self, node: str, key: int, done: int, estimate: Any) -> None: ...
 
     def task_finished(self, node: str, key: int, done: int) -> None: ...
 
@@ -108,8 +117,8 @@ class _NodeTasks:
     def task_started(self, key: int, label: str, total: int | None) -> None:
         notify("task_started", self.node, key, label, total)
 
-    def task_advanced(self, key: int, done: int) -> None:
-        notify("task_advanced", self.node, key, done)
+    def task_advanced(self, key: int, done: int, estimate: Any) -> None:
+        notify("task_advanced", self.node, key, done, estimate)
 
     def task_finished(self, key: int, done: int) -> None:
         notify("task_finished", self.node, key, done)
@@ -169,17 +178,97 @@ def format_seconds(seconds: float) -> str:
     return f"{hours} h {minutes:02d} min"
 
 
+class SetClock:
+    """The work done on a node's image sets and the time left, measured (see the module
+    docstring). Not thread-safe: the displays call it under their lock."""
+
+    def __init__(self) -> None:
+        self._start: dict[str, float] = {}  # node -> when its first set started
+        self._first: dict[str, float] = {}  # node -> when its first region was written
+        # (node, key) -> [start, share done by the solver's estimate, or None before it has one]
+        self._running: dict[tuple[str, int], list[Any]] = {}
+        self._took: dict[str, list[float]] = {}  # node -> seconds each finished set took
+        self._solved: dict[str, int] = {}  # node -> sets solved, not yet written
+        self._regions: dict[str, tuple[int, int, int]] = {}  # node -> (done, total, resumed)
+
+    def task_started(self, node: str, key: int, now: float) -> None:
+        if node not in self._start:  # sets written before the first solve are not its work
+            self._start[node] = now
+            if node in self._regions:
+                done, total, _ = self._regions[node]
+                self._regions[node] = (done, total, done)
+        self._running[(node, key)] = [now, None]
+
+    def task_advanced(self, node: str, key: int, estimate: Any) -> None:
+        if (node, key) in self._running and estimate is not None:
+            self._running[(node, key)][1] = min(1.0, max(0.0, float(estimate.fraction)))
+
+    def task_finished(self, node: str, key: int, now: float) -> None:
+        state = self._running.pop((node, key), None)
+        if state is not None:
+            self._took.setdefault(node, []).append(now - state[0])
+            if node in self._regions:
+                self._solved[node] = self._solved.get(node, 0) + 1
+
+    def _share(self, node: str, state: list[Any], now: float) -> float:
+        """A running set's share done: its solver's estimate, else (during its set-up and
+        first iterations) its time so far over the mean time a finished set took."""
+        if state[1] is not None:
+            return state[1]
+        took = self._took.get(node)
+        return min(0.9, (now - state[0]) / (sum(took) / len(took))) if took else 0.0
+
+    def regions(self, node: str, done: int, total: int, resumed: int, now: float) -> None:
+        previous, _, base = self._regions.get(node, (resumed, total, resumed))
+        if node not in self._start and node not in self._first:
+            # measured from here (a node without solver tasks) or from its first solve
+            base = done
+            self._first[node] = now
+        self._regions[node] = (done, total, max(base, resumed))
+        self._solved[node] = max(0, self._solved.get(node, 0) - max(0, done - previous))
+
+    def estimate(self, node: str, now: float) -> tuple[float, float | None]:
+        """``(sets done, seconds left)``: sets done counts the share of sets in progress;
+        the seconds left are ``None`` until some work is measured."""
+        if node not in self._regions:
+            return 0.0, None
+        done, total, resumed = self._regions[node]
+        running = sum(self._share(node, st, now) for (n, _), st in self._running.items() if n == node)
+        work = min(float(total - resumed), done - resumed + self._solved.get(node, 0) + running)
+        elapsed = now - self._start.get(node, self._first.get(node, now))
+        if work <= 0 or elapsed <= 0:
+            return resumed + max(work, 0.0), None
+        return resumed + work, elapsed / work * (total - resumed - work)
+
+    def forget(self, node: str) -> None:
+        for table in (self._start, self._first, self._took, self._solved, self._regions):
+            table.pop(node, None)
+        for key in [k for k in self._running if k[0] == node]:
+            del self._running[key]
+
+
+def _solver_text(done: int, estimate: Any) -> str:
+    """``iteration 12 (40 % of its work), about 8 s left`` (without an estimate: the count)."""
+    if estimate is None:
+        return f"iteration {done}"
+    return (
+        f"iteration {done} ({100 * estimate.fraction:.0f} % of its work), "
+        f"about {format_seconds(estimate.seconds_left)} left"
+    )
+
+
 class PlainProgress:
     """Progress as plain lines (for logs and pipes): node starts and stages, every region
-    written with the time left, a running solver's iteration at most every ``task_interval``
-    seconds (and its end, if it printed), node ends."""
+    written with the time left (:class:`SetClock`), a running solver's iteration with its
+    share done and time left at most every ``task_interval`` seconds (and its end, if it
+    printed), node ends."""
 
     def __init__(self, stream: IO[str] | None = None, clock=time.monotonic, task_interval: float = 10.0):
         self.stream = stream
         self.clock = clock
         self.task_interval = task_interval
-        self._started: dict[tuple[str, str], tuple[float, int]] = {}
-        # (node, key) -> [label, total, start time, time of the last line or None]
+        self.sets = SetClock()
+        # (node, key) -> [label, start time, time of the last line or None]
         self._tasks: dict[tuple[str, int], list[Any]] = {}
         self._lock = threading.Lock()
 
@@ -193,58 +282,53 @@ class PlainProgress:
         self._print(f"    {node}: {text}")
 
     def regions(self, node: str, group: str, done: int, total: int, resumed: int) -> None:
-        # the rate is measured from the first message on (the time before it, spent on the
-        # first region, is not known here)
         with self._lock:
             now = self.clock()
-            start, first = self._started.setdefault((node, group), (now, done))
+            self.sets.regions(node, done, total, resumed, now)
+            _, left = self.sets.estimate(node, now)
         line = f"    {node}: {group}: {done}/{total} image set(s) written"
         if resumed and done == resumed:
             self._print(f"{line} by an earlier run, resuming")
             return
-        written, left = done - first, total - done
-        if written > 0 and left > 0 and now > start:
-            line += f", about {format_seconds((now - start) / written * left)} left"
+        if left is not None and done < total:
+            line += f", about {format_seconds(left)} left"
         self._print(line)
 
     def task_started(self, node: str, key: int, label: str, total: int | None) -> None:
         with self._lock:
-            self._tasks[(node, key)] = [label, total, self.clock(), None]
+            now = self.clock()
+            self.sets.task_started(node, key, now)
+            self._tasks[(node, key)] = [label, now, None]
 
-    def task_advanced(self, node: str, key: int, done: int) -> None:
+    def task_advanced(self, node: str, key: int, done: int, estimate: Any = None) -> None:
         # a line only after task_interval without one (since the start), so a solver run
         # shorter than that prints nothing and many in parallel do not flood the log
         with self._lock:
+            self.sets.task_advanced(node, key, estimate)
             state = self._tasks.get((node, key))
             if state is None:
                 return
-            label, total, start, last = state
+            label, start, last = state
             now = self.clock()
             if now - (start if last is None else last) < self.task_interval:
                 return
-            state[3] = now
-        line = f"    {node}: {label}: iteration {done}"
-        if total:
-            line += f"/{total}"
-            if 0 < done < total and now > start:
-                left = (now - start) / done * (total - done)
-                line += f", at most about {format_seconds(left)} left"
-        self._print(line)
+            state[2] = now
+        self._print(f"    {node}: {label}: {_solver_text(done, estimate)}")
 
     def task_finished(self, node: str, key: int, done: int) -> None:
         with self._lock:
-            state = self._tasks.pop((node, key), None)
             now = self.clock()
-        if state is not None and state[3] is not None:  # it printed: say that it ended
+            self.sets.task_finished(node, key, now)
+            state = self._tasks.pop((node, key), None)
+        if state is not None and state[2] is not None:  # it printed: say that it ended
             self._print(
                 f"    {node}: {state[0]}: done after {done} iteration(s) in "
-                f"{format_seconds(now - state[2])}"
+                f"{format_seconds(now - state[1])}"
             )
 
     def step_finished(self, node: str, status: str, seconds: float) -> None:
         with self._lock:
-            for key in [k for k in self._started if k[0] == node]:
-                del self._started[key]
+            self.sets.forget(node)
             for key in [k for k in self._tasks if k[0] == node]:
                 del self._tasks[key]
         if status == "ran":
@@ -255,14 +339,14 @@ class PlainProgress:
 
 class RichProgress:
     """A live display on a terminal (rich): the running node with its stage and elapsed
-    time, per resumable write a bar of image sets with the ETA, and per running solver a bar
-    of its iterations with the ETA at the iteration limit (``ETA <= ...``)."""
+    time, per resumable write a bar of the image sets' work done (:class:`SetClock`) with
+    its ETA, and per running solver a bar of its share of work done with its ETA (from its
+    measured convergence rate and time per iteration)."""
 
-    def __init__(self, console: Any = None):
+    def __init__(self, console: Any = None, clock=time.monotonic):
         from rich.console import Console
         from rich.progress import (
             BarColumn,
-            MofNCompleteColumn,
             Progress,
             ProgressColumn,
             SpinnerColumn,
@@ -272,7 +356,7 @@ class RichProgress:
         from rich.text import Text
 
         class WithTotal(ProgressColumn):
-            """A column shown only for tasks that have a total (the region bars)."""
+            """A column shown only for tasks that have a total (the bars)."""
 
             def __init__(self, column: ProgressColumn):
                 super().__init__()
@@ -281,30 +365,36 @@ class RichProgress:
             def render(self, task):  # noqa: ANN001 (rich's Task)
                 return self.column.render(task) if task.total is not None else Text("")
 
+        class Count(ProgressColumn):
+            """``3/9`` image sets written, or a solver's ``iteration 12``."""
+
+            def render(self, task):  # noqa: ANN001
+                return Text(task.fields.get("count", ""))
+
         class Eta(ProgressColumn):
+            """The measured time left (the ``eta`` field), ``ETA …`` until it is measured."""
+
             max_refresh = 0.5
 
             def render(self, task):  # noqa: ANN001
                 if task.total is None or task.finished:
                     return Text("")
-                remaining = task.time_remaining
-                # a solver's total is its iteration limit: it may stop earlier
-                eta = "ETA <=" if task.fields.get("at_most") else "ETA"
-                return Text(
-                    f"{eta} {format_seconds(remaining)}" if remaining is not None else f"{eta} …"
-                )
+                left = task.fields.get("eta")
+                return Text(f"ETA {format_seconds(left)}" if left is not None else "ETA …")
 
+        self.clock = clock
         self.console = console or Console(stderr=True)
         self.progress = Progress(
             SpinnerColumn(),
             TextColumn("{task.description}"),
             WithTotal(BarColumn()),
-            WithTotal(MofNCompleteColumn()),
+            Count(),
             TimeElapsedColumn(),
             Eta(),
             console=self.console,
             transient=True,
         )
+        self.sets = SetClock()
         self._steps: dict[str, Any] = {}  # node -> task id
         self._labels: dict[str, str] = {}
         self._bars: dict[tuple[str, str], Any] = {}
@@ -328,34 +418,53 @@ class RichProgress:
             if node in self._steps:
                 self.progress.update(self._steps[node], description=f"{self._labels[node]}: {text}")
 
+    def _update_sets(self, node: str) -> None:
+        """Move the node's image-set bars to the work done, with the time left."""
+        work, left = self.sets.estimate(node, self.clock())
+        for (owner, _), bar in self._bars.items():
+            if owner == node:
+                self.progress.update(bar, completed=work, eta=left)
+
     def regions(self, node: str, group: str, done: int, total: int, resumed: int) -> None:
         with self._lock:
+            self.sets.regions(node, done, total, resumed, self.clock())
             key = (node, group)
             if key not in self._bars:
-                # the bar's speed (and so its ETA) counts only regions written by this run
                 self._bars[key] = self.progress.add_task(
                     f"    {group}: image sets", total=total, completed=resumed
                 )
-            self.progress.update(self._bars[key], completed=done, total=total)
+            self.progress.update(self._bars[key], total=total, count=f"{done}/{total}")
+            self._update_sets(node)
 
     def task_started(self, node: str, key: int, label: str, total: int | None) -> None:
         with self._lock:
+            self.sets.task_started(node, key, self.clock())
             self._tasks[(node, key)] = self.progress.add_task(
-                f"    {label}: iterations" if total else f"    {label}", total=total, at_most=True
+                f"    {label}", total=1.0 if total else None, count=""
             )
 
-    def task_advanced(self, node: str, key: int, done: int) -> None:
+    def task_advanced(self, node: str, key: int, done: int, estimate: Any = None) -> None:
         with self._lock:
+            self.sets.task_advanced(node, key, estimate)
             if (node, key) in self._tasks:
-                self.progress.update(self._tasks[(node, key)], completed=done)
+                self.progress.update(
+                    self._tasks[(node, key)],
+                    completed=estimate.fraction if estimate is not None else 0.0,
+                    eta=estimate.seconds_left if estimate is not None else None,
+                    count=f"iteration {done}",
+                )
+            self._update_sets(node)
 
     def task_finished(self, node: str, key: int, done: int) -> None:
         with self._lock:
+            self.sets.task_finished(node, key, self.clock())
             if (node, key) in self._tasks:
                 self.progress.remove_task(self._tasks.pop((node, key)))
+            self._update_sets(node)
 
     def step_finished(self, node: str, status: str, seconds: float) -> None:
         with self._lock:
+            self.sets.forget(node)
             for key in [k for k in self._tasks if k[0] == node]:
                 self.progress.remove_task(self._tasks.pop(key))
             for key in [k for k in self._bars if k[0] == node]:

@@ -467,9 +467,13 @@ def solve_set(
     refinement = int(record.defaults().get("projected_iterations", 0))
     limit = options.get("max_iterations", record.defaults().get("max_iterations"))
     total = int(limit) + refinement if solver else None
-    with progress.task(label, total=total) as solving:  # nothing is told when nobody listens
+    stop = (options.get("tolerance") or record.defaults().get("tolerance")) if solver else None
+    # the display estimates the time left from the convergence rate (residual per iteration)
+    with progress.task(
+        label, total=total, tolerance=stop, fixed=refinement if solver else 0
+    ) as solving:  # nothing is told when nobody listens
         if solving is not None and solver:
-            options["callback"] = counting_iterations(solving.advance)
+            options["callback"] = counting_iterations(solving.advance, residual=True)
         result = reconstruct(
             rgb.load(),
             shots.load(),

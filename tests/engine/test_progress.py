@@ -17,9 +17,10 @@ class Recorder:
         with self.lock:
             self.calls.append(("started", key, label, total))
 
-    def task_advanced(self, key, done):
+    def task_advanced(self, key, done, estimate=None):
         with self.lock:
             self.calls.append(("advanced", key, done))
+            self.estimates = [*getattr(self, "estimates", []), estimate]
 
     def task_finished(self, key, done):
         with self.lock:
@@ -98,7 +99,7 @@ def test_tasks_in_worker_threads_reach_a_listener_registered_elsewhere():
 
 def test_a_failing_listener_is_dropped_and_the_task_goes_on(capsys):
     class Broken(Recorder):
-        def task_advanced(self, key, done):
+        def task_advanced(self, key, done, estimate=None):
             raise ValueError("display broke")
 
     broken, healthy = Broken(), Recorder()
@@ -118,3 +119,30 @@ def test_invalid_totals_and_intervals_are_refused(total, interval):
     with pytest.raises(ValueError, match="task 'set'"):
         with progress.task("set", total=total, interval=interval):
             pass
+
+
+def test_the_convergence_estimate_reads_the_rate_off_the_residuals():
+    # r_k = 0.5^k: log(2^-10 / 2^-30) / log 2 = 20 iterations left, plus 5 fixed ones
+    residuals = [(k, 0.5**k) for k in range(1, 11)]
+    done, left = progress.convergence_estimate(residuals, 2.0**-30, fixed=5)
+    assert done == 10 and left == pytest.approx(25.0)
+    assert progress.convergence_estimate(residuals[:1], 1e-9) is None  # no rate yet
+    assert progress.convergence_estimate([(10, 0.1), (11, 0.2)], 1e-9) is None  # no decrease
+    assert progress.convergence_estimate([(10, 0.1), (11, 1e-10)], 1e-9) == (11.0, 0.0)
+
+
+def test_a_solver_task_is_estimated_from_its_convergence_not_its_limit(monkeypatch):
+    now = [0.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: now[0])
+    recorder = Recorder()
+    with progress.listening(recorder):
+        with progress.task("set", total=1000, tolerance=2.0**-30, interval=0.0) as task:
+            for k in range(1, 11):  # 2 s per iteration, residual halves each time
+                now[0] = 2.0 * k
+                task.advance(k, 0.5**k)
+    fraction, seconds = recorder.estimates[-1]
+    # 20 iterations left at 2 s each (measured since the first), not 990 of the limit; the
+    # share done in time: 20 s spent of 60 s
+    assert seconds == pytest.approx(40.0) and fraction == pytest.approx(1 / 3)
+    assert recorder.estimates[0] is None  # one report: no rate yet
+    assert recorder.estimates[8] is None  # 9 iterations: not trusted yet

@@ -5,7 +5,7 @@ import pytest
 
 from spectralize.engine import registry
 from spectralize.flows.assignments import format_value, parse_assignments, parse_value, type_text
-from spectralize.schemas import SpectralizeError
+from spectralize.flows.command_checks import UsageError
 
 
 @pytest.mark.parametrize(
@@ -44,7 +44,7 @@ def test_none_is_accepted_for_an_optional_parameter():
 
 
 def test_an_item_without_equals_sign_is_refused():
-    with pytest.raises(SpectralizeError, match="KEY=VALUE"):
+    with pytest.raises(UsageError, match="KEY=VALUE"):
         parse_assignments(["dark_average.frames_per_chunk"])
 
 

@@ -27,6 +27,7 @@ __all__ = [
     "SolverResult",
     "Callback",
     "counting_iterations",
+    "wants_residual",
     "needs_cube",
     "vdot",
     "VectorOps",
@@ -44,14 +45,22 @@ A callback made by :func:`counting_iterations` gets ``cube=None``: a solver that
 another layout then skips building the cube each iteration."""
 
 
-def counting_iterations(count: Callable[[int], None]) -> Callback:
-    """A :data:`Callback` that only wants the iteration number (e.g. a progress bar)."""
+def counting_iterations(count: Callable[..., None], *, residual: bool = False) -> Callback:
+    """A :data:`Callback` that only wants the iteration number (e.g. a progress bar); with
+    ``residual``, ``count(iteration, residual)`` also gets the relative residual after the
+    iteration (the convergence rate a progress display estimates the time left from)."""
 
-    def callback(iteration: int, cube: np.ndarray | None) -> None:
-        count(iteration)
+    def callback(iteration: int, cube: np.ndarray | None, *relative: float) -> None:
+        count(iteration, *relative[:1]) if residual else count(iteration)
 
     callback.needs_cube = False  # type: ignore[attr-defined]
+    callback.wants_residual = residual  # type: ignore[attr-defined]
     return callback
+
+
+def wants_residual(callback: Callback | None) -> bool:
+    """Whether ``callback`` takes the relative residual as a third argument."""
+    return callback is not None and getattr(callback, "wants_residual", False)
 
 
 def needs_cube(callback: Callback | None) -> bool:
@@ -201,7 +210,7 @@ def preconditioned_cg(
         iterations += 1
         history.append(np.sqrt(max(rr, 0.0)) / rhs_norm)
         if callback is not None:
-            callback(iterations, x)
+            callback(iterations, x, *history[-1:] if wants_residual(callback) else ())
         if history[-1] <= tolerance:
             break
         z = apply_preconditioner(r)
@@ -286,8 +295,10 @@ def pixel_pcg(
 
     cube_wanted = needs_cube(callback)
 
-    def band_major_callback(iteration: int, vector: np.ndarray) -> None:
-        callback(iteration, order.to_cube(vector) if cube_wanted else None)
+    def band_major_callback(iteration: int, vector: np.ndarray, *relative: float) -> None:
+        callback(iteration, order.to_cube(vector) if cube_wanted else None, *relative)
+
+    band_major_callback.wants_residual = wants_residual(callback)  # type: ignore[attr-defined]
 
     return preconditioned_cg(
         apply_operator,

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from ..operators import ReconstructionProblem
-from .common import Callback, SolverResult, vdot
+from .common import Callback, SolverResult, vdot, wants_residual
 
 __all__ = ["paper_cg"]
 
@@ -92,7 +92,7 @@ def paper_cg(
         iterations += 1
         history.append(np.sqrt(rr) / rhs_norm)
         if callback is not None:
-            callback(iterations, x)
+            callback(iterations, x, *history[-1:] if wants_residual(callback) else ())
     return SolverResult(
         x,
         iterations,
