@@ -43,13 +43,13 @@ ROTATION_STEP = 15.0  # [degree]; the spectral camera sits this far in azimuth f
 MISREGISTRATION = (0.4, -0.7)  # spectral camera content shift (dy, dx) [px]
 RGB_MAX = MONO_MAX = 4095  # 12-bit cameras
 SESSION = "session_2026-11-20"
-RGB_CAMERAS = {"cam-top": (10.0, 0.0), "cam-45": (45.0, 0.0)}  # name: (theta_o, azimuth)
 PAIRED = "cam-45"
 MONO = "vis-mono"
 LED_THETA = 35.0
 LED_AZIMUTHS = [150.0 + 15.0 * k for k in range(6)]  # LED 100 + k
 T0, S0, OMEGA = 0.03, 0.25, 0.8  # eq. 2 and 3 constants of this lab's exposure plan
 RGB_TIMES = [0.002, 0.004, 0.012, 0.024, 0.072]  # ratios 2, 3, 2, 3 [s]
+LAB: dict = {}  # what this lab's gantry is made of (:func:`default_lab`), set by write_capture
 
 
 def series(first: float, count: int) -> list[float]:
@@ -65,13 +65,23 @@ def gauss(wl: np.ndarray, centre: float, width: float) -> np.ndarray:
     return np.exp(-0.5 * ((wl - centre) / width) ** 2)
 
 
-def illuminant(wl: np.ndarray) -> np.ndarray:
+def phosphor_led(wl: np.ndarray) -> np.ndarray:
     """A phosphor-white LED: narrow blue peak plus broad phosphor band (relative)."""
     return 0.95 * gauss(wl, 452.0, 10.0) + 0.7 * gauss(wl, 565.0, 55.0) + 0.03
 
 
-def rgb_sensitivity(wl: np.ndarray) -> np.ndarray:
-    """(3, wavelength) R, G, B sensitivities (relative)."""
+def illuminant(wl: np.ndarray) -> np.ndarray:
+    """The lab's LED (relative)."""
+    return LAB["illuminant"](wl)
+
+
+def rgb_sensitivity(wl: np.ndarray, camera: str = "cam-45") -> np.ndarray:
+    """(3, wavelength) R, G, B sensitivities (relative) of an RGB camera's model."""
+    return LAB["models"][LAB["rgb_cameras"][camera][2]]["sensitivity"](wl)
+
+
+def gaussian_sensitivity(wl: np.ndarray) -> np.ndarray:
+    """(3, wavelength) this lab's first camera model: Gaussian lobes (relative)."""
     return np.stack(
         [
             gauss(wl, 602.0, 36.0) + 0.06 * gauss(wl, 445.0, 18.0),
@@ -91,6 +101,16 @@ def sigmoid(wl: np.ndarray, edge: float, width: float) -> np.ndarray:
 
 
 def material_reflectances(wl: np.ndarray) -> np.ndarray:
+    """(6, wavelength) reflectances of the sample's six materials."""
+    return LAB["materials"](wl)
+
+
+def chart_reflectances(wl: np.ndarray) -> np.ndarray:
+    """(patch, wavelength) reflectances of the lab's chart."""
+    return LAB["chart"](wl)
+
+
+def smooth_materials(wl: np.ndarray) -> np.ndarray:
     """(6, wavelength) reflectances: red, green, blue, yellow, grey, brown."""
     return np.stack(
         [
@@ -104,7 +124,7 @@ def material_reflectances(wl: np.ndarray) -> np.ndarray:
     )
 
 
-def chart_reflectances(wl: np.ndarray) -> np.ndarray:
+def smooth_chart(wl: np.ndarray) -> np.ndarray:
     """(18, wavelength) this lab's own chart: varied smooth spectra and greys."""
     rng = np.random.default_rng(1234)
     patches = []
@@ -171,11 +191,19 @@ RGB_SCALE = 150.0  # y = RGB_SCALE * t * (S . L) ; DN = 16 + 4079 * y ** 0.82
 MONO_GAIN = 1100.0  # DN per second per unit of Q * L
 
 
-def rgb_counts(rng, rad: np.ndarray, t: float) -> np.ndarray:
-    signal = np.einsum("cw,wyx->yxc", rgb_sensitivity(WAVELENGTHS), rad) / WAVELENGTHS.size
+def power_oecf(y: np.ndarray) -> np.ndarray:
+    """The first model's compressive response: 0..1 over 0..1 exposure, rising beyond."""
+    return y**0.82
+
+
+def rgb_counts(rng, rad: np.ndarray, t: float, camera: str = "cam-45") -> np.ndarray:
+    model = LAB["models"][LAB["rgb_cameras"][camera][2]]
+    signal = np.einsum("cw,wyx->yxc", model["sensitivity"](WAVELENGTHS), rad) / WAVELENGTHS.size
     y = RGB_SCALE * t * signal
     y = y + rng.normal(0.0, 1.0, y.shape) * np.sqrt(y / 5000.0 + 1e-7)
-    dn = 16.0 + 4079.0 * np.clip(y, 0.0, None) ** 0.82 + rng.normal(0.0, 1.2, y.shape)
+    black = model["black"]
+    response = model["oecf"](np.clip(y, 0.0, None))  # 1 at full scale, above it saturated
+    dn = black + (RGB_MAX - black) * response + rng.normal(0.0, 1.2, y.shape)
     return np.clip(np.round(dn), 0, RGB_MAX).astype(np.uint16)
 
 
@@ -248,7 +276,27 @@ def sample_frame_angles(camera_azimuth: float, theta_o: float, led: int, rotatio
     }
 
 
-def write_capture(root: Path, truth: Path | None = None) -> Path:
+def default_lab() -> dict:
+    """This lab's gantry: two RGB cameras of one model (Gaussian sensitivities, a compressive
+    response, black 16 DN), the phosphor LED, six smooth materials and an 18-patch chart."""
+    return {
+        "name": "bumpy stripes, night of 2026-11-20",
+        "illuminant": phosphor_led,
+        "materials": smooth_materials,
+        "chart": smooth_chart,
+        "rgb_cameras": {"cam-top": (10.0, 0.0, "gauss"), "cam-45": (45.0, 0.0, "gauss")},
+        "models": {"gauss": {"sensitivity": gaussian_sensitivity, "black": 16.0, "oecf": power_oecf}},
+        "led_power": {},  # LED number: relative power (1 when absent)
+    }
+
+
+def write_capture(root: Path, truth: Path | None = None, lab: dict | None = None) -> Path:
+    """Write the capture folder (and the truth beside it); ``lab`` (default
+    :func:`default_lab`) says what the gantry is made of."""
+    LAB.clear()
+    LAB.update(lab or default_lab())
+    cameras = LAB["rgb_cameras"]
+    power = LAB["led_power"]
     rng = np.random.default_rng(20261120)
     root.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
@@ -267,14 +315,14 @@ def write_capture(root: Path, truth: Path | None = None) -> Path:
     # RGB images: 2 rotations x 6 LEDs x 2 cameras, an exposure series each
     for rotation in (0, 1):
         for led in range(100, 106):
-            for camera, (theta_o, azimuth) in RGB_CAMERAS.items():
+            for camera, (theta_o, azimuth, _) in cameras.items():
                 angles = sample_frame_angles(azimuth, theta_o, led, rotation)
-                rad = radiance(angles["theta_i"], angles["phi_i"])
+                rad = power.get(led, 1.0) * radiance(angles["theta_i"], angles["phi_i"])
                 for e, t in enumerate(RGB_TIMES):
                     name = save(
                         root,
                         f"{SESSION}/rgb/{camera}/r{rotation}_led{led}_e{e}.tif",
-                        rgb_counts(rng, rad, t),
+                        rgb_counts(rng, rad, t, camera),
                         compress=e % 2 == 0,
                     )
                     add(
@@ -290,10 +338,10 @@ def write_capture(root: Path, truth: Path | None = None) -> Path:
     # band shots: the spectral camera at rotation 1 sees what cam-45 saw at rotation 0 with
     # the LED one step (15 degree) before; 32 bands spread over LEDs 101..105
     times = band_exposure_times()
-    spectral_azimuth = RGB_CAMERAS[PAIRED][1] + ROTATION_STEP
+    spectral_azimuth = cameras[PAIRED][1] + ROTATION_STEP
     for k, led in enumerate(range(101, 106)):
         angles = sample_frame_angles(spectral_azimuth, 45.0, led, rotation=1)
-        rad = radiance(angles["theta_i"], angles["phi_i"], shift=MISREGISTRATION)
+        rad = power.get(led, 1.0) * radiance(angles["theta_i"], angles["phi_i"], shift=MISREGISTRATION)
         for b in range(k, WAVELENGTHS.size, 5):
             wl = float(WAVELENGTHS[b])
             name = save(
@@ -316,7 +364,8 @@ def write_capture(root: Path, truth: Path | None = None) -> Path:
     wl_white = np.full(WAVELENGTHS.shape, 0.97)
     chart = chart_reflectances(WAVELENGTHS)
     patches = np.zeros((HEIGHT, WIDTH), np.uint16)  # 0 frame, k patch k (cam-45 pixels)
-    rows_of, cols_of = 3, 6
+    cols_of = 6
+    rows_of = -(-chart.shape[0] // cols_of)
     ph, pw = HEIGHT // rows_of, WIDTH // cols_of
     for p in range(chart.shape[0]):
         r, c = divmod(p, cols_of)
@@ -415,11 +464,11 @@ def write_capture(root: Path, truth: Path | None = None) -> Path:
         "\n".join(
             [
                 "# written by the gantry control software of another lab",
-                'name = "bumpy stripes, night of 2026-11-20"',
+                f'name = "{LAB["name"]}"',
                 f"rotation_step_deg = {ROTATION_STEP}",
                 "",
                 "[rgb]",
-                f"cameras = [{', '.join(repr(c).replace(chr(39), chr(34)) for c in RGB_CAMERAS)}]",
+                f"cameras = [{', '.join(repr(c).replace(chr(39), chr(34)) for c in cameras)}]",
                 "bit_depth = 12",
                 f'paired_camera = "{PAIRED}"',
                 "",
@@ -447,6 +496,10 @@ def write_capture(root: Path, truth: Path | None = None) -> Path:
             reflectance=material_reflectances(WAVELENGTHS),
             illuminant=illuminant(WAVELENGTHS),
             wavelength=WAVELENGTHS,
+            cameras=np.array(list(cameras)),
+            sensitivity=np.stack([rgb_sensitivity(WAVELENGTHS, c) for c in cameras]),
+            camera_model=np.array([cameras[c][2] for c in cameras]),
+            led_power=np.array([power.get(led, 1.0) for led in range(100, 106)]),
         )
     return root
 
@@ -457,6 +510,9 @@ def write_table(path: Path, header: list[str], rows) -> None:
         writer.writerow(header)
         for row in rows:
             writer.writerow([f"{v:.6g}" if isinstance(v, float | np.floating) else v for v in row])
+
+
+LAB.update(default_lab())
 
 
 def main(argv: list[str] | None = None) -> int:
