@@ -279,10 +279,21 @@ def _made_by(planned: Sequence[PlannedStep]) -> set[str]:
     return {group for item in planned for group in item.outputs.values()}
 
 
-def _handle_damage(store: RunStore, group: str, where: str, why: str, made: set[str]) -> None:
+def _handle_damage(
+    store: RunStore,
+    group: str,
+    where: str,
+    why: str,
+    made: set[str],
+    *,
+    key: str = "",
+    cause: BaseException | None = None,
+) -> None:
     """Mark a damaged group; a group the flow makes is then recomputed, raw data is an error.
 
-    ``where`` names the damaged chunk or file, ``why`` what is wrong with it.
+    ``where`` names the damaged chunk or file, ``why`` what is wrong with it, ``key`` the
+    chunk's store key (for the capture files of a raw chunk); the error keeps the notes of
+    ``cause`` (which node read it).
     """
     store.mark_damaged(group, f"{where}: {why}")
     if group in made:
@@ -292,7 +303,7 @@ def _handle_damage(store: RunStore, group: str, where: str, why: str, made: set[
     if group.startswith("raw/"):
         from spectralize.flows.ingest.raw_groups import capture_files_of_chunk
 
-        files = capture_files_of_chunk(store, where)
+        files = capture_files_of_chunk(store, key or where)
     source = ""
     if files:
         more = f" and {len(files) - 3} more" if len(files) > 3 else ""
@@ -304,11 +315,14 @@ def _handle_damage(store: RunStore, group: str, where: str, why: str, made: set[
         if folder
         else "restore it from its source, or import the run again"
     )
-    raise StoreError(
+    error = StoreError(
         f"group {group!r} of run store {str(store.path)!r} is damaged and no step of this flow "
-        f"can recompute it: {where} ({why}){source}",
+        f"can recompute it: {where}: {why}{source}",
         [Problem(where, "the bytes written at commit", why, fix)],
     )
+    for note in getattr(cause, "__notes__", ()):
+        error.add_note(note)
+    raise error from cause
 
 
 def _repair_chunk(store: RunStore, error: ChecksumError, made: set[str], marked: set[str]) -> None:
@@ -321,8 +335,9 @@ def _repair_chunk(store: RunStore, error: ChecksumError, made: set[str], marked:
     if group is None or group in marked:
         raise error
     marked.add(group)
-    found = error.problems[0].found if error.problems else "bytes that do not match"
-    _handle_damage(store, group, error.key, f"its checksum does not match ({found})", made)
+    found = error.problems[0].found if error.problems else "other bytes"
+    why = f"its bytes do not match the checksum recorded when it was written ({found})"
+    _handle_damage(store, group, f"chunk {error.key}", why, made, key=error.key, cause=error)
 
 
 def _verify_deep(store: RunStore, planned: Sequence[PlannedStep], log: Callable[[str], None]) -> None:

@@ -292,7 +292,7 @@ def test_a_rotten_derived_chunk_read_by_a_step_is_recomputed_with_its_dependants
     report = run_steps(store.path, chain)
     assert [s.status for s in report.steps] == ["ran", "ran"]
     assert report.steps[0].reason.startswith(
-        f"damaged output dark (dark: expected an undamaged group, found {key}"
+        f"damaged output dark (dark: expected an undamaged group, found chunk {key}: its bytes do not match"
     )
     assert report.steps[1].reason == "input dark was recomputed"
     np.testing.assert_array_equal(store.read("dark")["mean"].values, want)
@@ -328,7 +328,7 @@ def test_a_rotten_raw_chunk_names_the_chunk_and_its_capture_files_and_ingest_rep
         run_steps(store_path, [Step("dark_average")])
     text = str(info.value)
     assert (
-        f"group 'raw/dark' of run store {str(store_path)!r} is damaged and no step of this flow can recompute it: {key}"
+        f"group 'raw/dark' of run store {str(store_path)!r} is damaged and no step of this flow can recompute it: chunk {key}: its bytes do not match the checksum"
         in text
     )
     assert f"its frames came from capture file(s) {files[0]}" in text
@@ -347,7 +347,7 @@ def test_verify_names_a_rotten_raw_chunk_before_anything_runs(prefect_api, chain
     run_steps(store.path, chain)
     key = rot(store, "raw/dark", "frames")
     assert [s.status for s in run_steps(store.path, chain).steps] == ["skipped", "skipped"]
-    with pytest.raises(StoreError, match=f"group 'raw/dark' .* is damaged .*: {key}"):
+    with pytest.raises(StoreError, match=f"group 'raw/dark' .* is damaged .*: {key}: CRC-32"):
         run_steps(store.path, chain, verify=True)
 
 

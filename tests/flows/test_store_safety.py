@@ -411,7 +411,12 @@ CORPUS = [
         lambda p: flipped(p, keep_time=True),
         ["run", "dark", "{store}"],
         2,
-        ["chunk raw/dark/frames/c/", "do not match the checksum", "in node 'dark_average'"],
+        [
+            "group 'raw/dark'",
+            "is damaged and no step of this flow can recompute it: chunk raw/dark/frames/c/",
+            "do not match the checksum",
+            "in node 'dark_average'",
+        ],
     ),
     (
         "bit rot in a raw chunk (validate --deep)",
