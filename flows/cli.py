@@ -65,6 +65,10 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
         required = flow_inputs(args.flow)
     problems = store.validate(deep=args.deep, required=required)
+    if args.flow and not problems:  # the value checks the flow's nodes make before computing
+        from spectralize.flows.preflight import flow_value_problems
+
+        problems = flow_value_problems(store, args.flow)
     leftovers = store.staging_leftovers()
     print(f"{store.path}: {len(groups)} group(s): {', '.join(groups) or 'none'}")
     for warning in leftovers:
@@ -214,7 +218,11 @@ def _cmd_export(args: argparse.Namespace) -> int:
         per_image=args.per_image,
         progress=print,
     )
-    print(f"{len(files)} file(s) written under {args.out}")
+    if len(files) <= 4:
+        for path in files:
+            print(f"wrote {path}")
+    else:
+        print(f"wrote {len(files)} files to {files[0].parent}")
     return 0
 
 

@@ -4,12 +4,14 @@
   ``OUT/<store>_<group>_image<label>.hdr``. The header carries the wavelengths in nm, band
   names, the image's BTF angles, camera, rotation and LED; readable by Spectral Python
   (``spectral.open_image``), ENVI and GDAL.
-- **netCDF** (CF-1.10, netCDF4/HDF5 through h5netcdf): one file ``OUT`` (or, with
-  ``per_image``, one file per image in the folder ``OUT``) with ``radiance`` (image,
+- **netCDF** (CF-1.10, netCDF4/HDF5 through h5netcdf): one file ``OUT`` (a folder, or a
+  name without suffix: ``OUT/<store>_<group>.nc``; with ``per_image``, one file per image in
+  the folder ``OUT``) with ``radiance`` (image,
   wavelength, y, x) and the per-image coordinates; readable by ``xarray.open_dataset``.
 
 Data are streamed chunk by chunk from the store: memory is bounded by one chunk (ENVI: one
-band of one image), not by the run. Radiance is relative (units ``"1"``: relative to the
+band of one image), not by the run. ENVI files hold pixels without a value as
+:data:`ENVI_IGNORE` (their ``data ignore value``). Radiance is relative (units ``"1"``: relative to the
 measured illuminant, see the ``calibration/spectral`` group), stated in the files.
 """
 
@@ -31,10 +33,13 @@ from spectralize.store import RunStore
 
 from .signals import sigterm_as_interrupt
 
-__all__ = ["FORMATS", "ExportError", "export", "select_images"]
+__all__ = ["FORMATS", "ENVI_IGNORE", "ExportError", "export", "label_ranges", "select_images"]
 
 FORMATS: tuple[str, ...] = ("envi", "netcdf")
 _PER_IMAGE = ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
+#: ENVI's ``data ignore value``: pixels without a value (NaN in the store) are written as this
+#: number, which every ENVI reader (Spectral Python, ENVI, GDAL) reads as a number.
+ENVI_IGNORE = -9999.0
 _UNITS_NOTE = (
     "relative spectral radiance (dimensionless): band radiance relative to the measured "
     "illuminant, as calibrated by spectralize (paper sec. 4)"
@@ -59,16 +64,41 @@ def select_images(ds: xr.Dataset, images: Sequence[int] | None) -> xr.Dataset:
     missing = [int(i) for i in images if int(i) not in set(labels.tolist())]
     if missing:
         raise ExportError.single(
-            "--image", f"image labels of the group: {labels.tolist()}", f"{missing}"
+            "--image",
+            f"image labels of the group: {label_ranges(labels.tolist())} ({labels.size} images)",
+            f"{missing}",
         )
     positions = [int(np.flatnonzero(labels == int(i))[0]) for i in images]
     return ds.isel(image=positions)
 
 
+def label_ranges(labels: Sequence[int]) -> str:
+    """Labels as runs: ``0-98`` or ``0-3, 7, 9-12`` (a run's hundreds of labels in a line)."""
+    runs: list[list[int]] = []
+    for label in sorted(set(int(v) for v in labels)):
+        if runs and label == runs[-1][1] + 1:
+            runs[-1][1] = label
+        else:
+            runs.append([label, label])
+    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in runs) or "none"
+
+
+def _cube_groups(store: RunStore) -> list[str]:
+    """The finished groups holding a ``radiance`` cube (found from the files, nothing read)."""
+    return [g for g in store.groups() if (store.path / g / "radiance" / "zarr.json").is_file()]
+
+
 def _open(store: RunStore, group: str) -> xr.Dataset:
     if not store.has(group):
+        import difflib
+
+        cubes = _cube_groups(store)
+        near = difflib.get_close_matches(group, cubes, n=1, cutoff=0.5)
+        hint = f"; did you mean {near[0]!r}?" if near else ""
         raise ExportError.single(
-            "group", f"a finished spectral-cube group of {store.path.name}: {store.groups()}", group
+            "--group",
+            f"a spectral-cube group of {store.path.name}: {', '.join(cubes) or 'none'}",
+            group + hint,
         )
     ds = store.read(group)
     if "radiance" not in ds or set(ds["radiance"].dims) != {"image", "wavelength", "y", "x"}:
@@ -107,6 +137,7 @@ def _write_envi(cube: xr.DataArray, path: Path, header: dict[str, Any]) -> tuple
     with open(partial, "wb") as out:
         for start in range(0, n_bands, step):
             block = np.asarray(cube.isel(wavelength=slice(start, start + step)).values, dtype="<f4")
+            block = np.where(np.isnan(block), np.float32(ENVI_IGNORE), block)
             out.write(block.tobytes(order="C"))
     os.replace(partial, image)
     fields = {
@@ -144,7 +175,7 @@ def _netcdf_dataset(ds: xr.Dataset, store: RunStore, group: str) -> xr.Dataset:
     for dim in ("y", "x"):
         if dim not in out.coords:
             out = out.assign_coords({dim: np.arange(out.sizes[dim])})
-        out[dim].attrs = {"long_name": f"pixel {'row' if dim == 'y' else 'column'}", "units": "1"}
+        out[dim].attrs = {"long_name": f"pixel {'row' if dim == 'y' else 'column'}", "units": "px"}
     if "image" not in out.coords:
         out = out.assign_coords(image=np.arange(out.sizes["image"]))
     out["image"].attrs = {"long_name": "image label of the run store"}
@@ -279,7 +310,7 @@ def _export(
                 "wavelength units": "Nanometers",
                 "wavelength": wavelength.tolist(),
                 "band names": [f"{w:g} nm" for w in wavelength],
-                "data ignore value": "NaN",
+                "data ignore value": ENVI_IGNORE,
                 "spectralize image": label,
             }
             for name in _PER_IMAGE:
@@ -297,7 +328,8 @@ def _export(
             (cf.isel(image=[p]), out / f"{stem}_image{label}.nc") for p, label in enumerate(_labels(ds))
         ]
     else:
-        target = out / f"{stem}.nc" if out.is_dir() else out
+        # a folder (existing, or a name without a suffix): a .nc file in it
+        target = out / f"{stem}.nc" if out.is_dir() or not out.suffix else out
         _mkdir(target.parent, created)
         targets = [(cf, target)]
     for data, target in targets:

@@ -7,7 +7,7 @@ import xarray as xr
 from support.cubes import WAVELENGTH, cube_dataset
 
 from spectralize.flows.cli import main
-from spectralize.flows.export import ExportError, export
+from spectralize.flows.export import ENVI_IGNORE, ExportError, export, label_ranges
 from spectralize.store import RunStore
 
 
@@ -23,7 +23,6 @@ def store(tmp_path_factory):
     return run, cube
 
 
-@pytest.mark.filterwarnings("ignore::spectral.io.spyfile.NaNValueWarning")
 def test_envi_opens_in_spectral_python_per_image_with_wavelengths(store, tmp_path):
     run, cube = store
     files = export(run, tmp_path / "envi", format="envi", images=[0, 2])
@@ -35,6 +34,7 @@ def test_envi_opens_in_spectral_python_per_image_with_wavelengths(store, tmp_pat
         np.testing.assert_allclose(image.bands.centers, WAVELENGTH)
         assert image.bands.band_unit == "Nanometers"
         expected = cube["radiance"].sel(image=label).transpose("y", "x", "wavelength").values
+        expected = np.where(np.isnan(expected), ENVI_IGNORE, expected)  # no value: the ignore value
         np.testing.assert_array_equal(np.asarray(image.load()), expected)  # by label, not position
         assert image.metadata["spectralize image"] == str(label)
         assert float(image.metadata["spectralize phi_o"]) == float(cube["phi_o"].sel(image=label))
@@ -79,10 +79,43 @@ def test_netcdf_per_image_and_a_selection_from_the_command_line(store, tmp_path,
 
 def test_unknown_labels_groups_and_formats_are_errors_and_write_nothing(store, tmp_path):
     run, _ = store
-    with pytest.raises(ExportError, match=r"image labels of the group: \[\d, \d, \d\], found \[7\]"):
+    with pytest.raises(ExportError, match=r"image labels of the group: 0-2 \(3 images\), found \[7\]"):
         export(run, tmp_path / "out", format="envi", images=[7])
     with pytest.raises(ExportError, match="truth/spectra"):
         export(run, tmp_path / "out", format="envi", group="truth/spectra")
     with pytest.raises(ExportError, match="one of envi, netcdf"):
         export(run, tmp_path / "out", format="tiff")
     assert not (tmp_path / "out").exists()
+
+
+def test_envi_ignore_value_is_a_number_and_nan_pixels_carry_it(tmp_path):
+    values = np.random.default_rng(2).uniform(0.0, 1.0, (1, WAVELENGTH.size, 3, 4))
+    values[0, :, 1, 2] = np.nan  # a pixel without a value
+    run = RunStore.create(tmp_path / "run.zarr")
+    run.write("spectra", cube_dataset(values), fingerprint="spectra-fp")
+    (header, _) = export(run, tmp_path / "envi", format="envi")
+    image = spectral.open_image(str(header))
+    ignore = float(image.metadata["data ignore value"])
+    assert ignore == ENVI_IGNORE
+    loaded = np.asarray(image.load())
+    assert (loaded[1, 2] == ignore).all() and np.isfinite(loaded).all()
+
+
+def test_netcdf_into_a_folder_name_writes_a_nc_file_and_says_where(store, tmp_path, capsys):
+    run, _ = store
+    assert main(["export", str(run.path), str(tmp_path / "nc_dir"), "--format", "netcdf"]) == 0
+    (path,) = (tmp_path / "nc_dir").iterdir()
+    assert path.suffix == ".nc"
+    assert f"wrote {path}" in capsys.readouterr().out
+    with xr.open_dataset(path) as ds:  # pixel coordinates in px, as in the store
+        assert ds["y"].attrs["units"] == ds["x"].attrs["units"] == "px"
+
+
+def test_a_mistyped_group_gets_the_closest_cube_group_and_only_cube_groups(store, tmp_path):
+    run, _ = store
+    with pytest.raises(
+        ExportError,
+        match=r"spectral-cube group of run.zarr: spectra, found spectr; did you mean 'spectra'\?",
+    ):
+        export(run, tmp_path / "out", format="envi", group="spectr")
+    assert label_ranges([0, 1, 2, 3, 7, 9, 10, 11]) == "0-3, 7, 9-11"
