@@ -3,6 +3,7 @@ decodes nothing before it checks the header; damage is repaired, not repeated; s
 commands leave nothing behind. Real files, real symbolic links, a real decompression bomb,
 real processes and signals."""
 
+import functools
 import json
 import os
 import shutil
@@ -11,6 +12,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,7 @@ import pytest
 import tifffile
 import xarray as xr
 from support.capture_folders import rows, sample, write_rows  # noqa: F401  (sample: a fixture)
+from zarr.errors import UnstableSpecificationWarning
 
 from spectralize.datasets.dark_stack import make_raw_dark
 from spectralize.engine import Node, RegisteredNode, Step
@@ -531,3 +534,73 @@ def test_the_nightly_flow_reports_three_folders_and_two_stores(prefect_api, capt
     with pytest.raises(SpectralizeError) as info:
         process_new_runs(str(captures), flow_name="dark", output_root=str(runs), settle_seconds=60)
     assert str(info.value).startswith("3 of 3 capture folder(s) and 1 of 2 run store(s) failed: ")
+
+
+# -- 4. one rule set: validate --flow runs the nodes' checks -----------------------------------
+@functools.cache
+def simulated_rgb() -> xr.Dataset:
+    """raw/rgb of the tiny simulated run (image, exposure, y, x, channel), 10 bit, in memory."""
+    from spectralize.nodes.simulation.assembly import simulate_run
+    from spectralize.nodes.simulation.recipes import get_recipe
+
+    return simulate_run(get_recipe("tiny"))["raw/rgb"].load()
+
+
+def rgb_store(path, edit):
+    """A store whose raw/rgb a lab's importer wrote (no spectralize checks), edited by ``edit``."""
+    store = RunStore.create(path)
+    rgb = edit(simulated_rgb().copy(deep=True))
+    with warnings.catch_warnings():  # the channel names: str arrays are not in zarr v3's spec
+        warnings.simplefilter("ignore", UnstableSpecificationWarning)
+        rgb.to_zarr(store.path, group="raw/rgb", zarr_format=3, consolidated=False)
+    return store
+
+
+def saturate(image=None, exposure=None):
+    def edit(rgb):
+        pick = {k: v for k, v in (("image", image), ("exposure", exposure)) if v is not None}
+        rgb["counts"][pick] = 1023
+        return rgb
+
+    return edit
+
+
+def exposure_time(value):
+    def edit(rgb):
+        times = rgb["exposure_time"].values.copy()
+        times[1, 2] = value  # image 1, exposure 2 (0.01 s), after 0.003 s
+        return rgb.assign_coords(exposure_time=(rgb["exposure_time"].dims, times, {"units": "s"}))
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    "edit, fragment",
+    [
+        (saturate(), "is entirely saturated (>= saturation = 1023)"),
+        (saturate(image=2, exposure=1), "frame image=2, exposure=1, channel=0 (exposure_time 0.003 s)"),
+        (exposure_time(0.002), "found unsorted values 0.003 then 0.002"),
+        (exposure_time(0.003), "found duplicate values 0.003 then 0.003"),
+    ],
+    ids=["all saturated", "partly saturated", "unsorted times", "duplicate times"],
+)
+def test_validate_flow_refuses_what_the_flow_refuses(prefect_api, tmp_path, capsys, edit, fragment):
+    from spectralize.flows.preflight import flow_value_problems
+
+    assert flow_value_problems(rgb_store(tmp_path / "clean.zarr", lambda rgb: rgb), "btf") == []
+    store = rgb_store(tmp_path / "run.zarr", edit)
+    validate = cli.main(["validate", str(store.path), "--flow", "recover_rgb_oecf"])
+    checked = capsys.readouterr().err
+    run = cli.main(["run", "recover_rgb_oecf", str(store.path)])
+    ran = capsys.readouterr().err
+    assert run == 2 and "recover_rgb_oecf" in ran, ran
+    assert validate == 1, checked
+    if fragment.startswith("frame "):  # the problem lists name the same frame
+        key = "recover_rgb_oecf: raw/rgb:counts[image=2, exposure=1, channel=0]: expected a frame"
+        assert key in checked and key in ran, (checked, ran)
+    elif "saturated" in fragment:
+        key = "raw/rgb:counts[image=0, exposure=0, channel=0]: expected a frame with some values below"
+        assert key in checked and key in ran and fragment in ran, (checked, ran)
+    else:
+        assert fragment in checked and fragment in ran, (checked, ran)
+    assert not store.has("calibration/oecf_rgb")
