@@ -2,7 +2,8 @@
 
 :func:`read_capture` reads ``capture.toml`` and ``manifest.csv`` (:mod:`.config`,
 :mod:`.manifest`), checks the rows (:mod:`.checks`), probes every image file it has not seen
-before (:mod:`.images`, in a thread pool: the decoders release the GIL) and reads the
+before (:mod:`.images`, in a thread pool: the decoders release the GIL; every header first,
+then the pixels of the frames whose header passed) and reads the
 calibration tables (:mod:`.calibration`). It raises one :class:`~.model.CaptureError` that lists
 every problem with its file and manifest line, or returns a :class:`~.model.Capture`.
 
@@ -55,9 +56,12 @@ def read_capture(
     Raises
     ------
     CaptureError
-        Listing every problem: a missing or unreadable file, a wrong bit depth or shape,
-        duplicate or contradicting rows, an unknown kind, an exposure series with one time,
-        a band shot without a wavelength, calibration tables that do not cover the bands.
+        Listing every problem: a missing or unreadable file, a path outside the folder
+        (absolute, ``..``, a symbolic link: :func:`~.model.contained_path`), a frame whose
+        header declares more than :data:`~.images.MAX_FRAME_BYTES` or another frame size (not
+        decoded), a wrong bit depth or shape, duplicate or contradicting rows, an unknown kind,
+        an exposure series with one time, a band shot without a wavelength, calibration tables
+        that do not cover the bands.
     """
     root = Path(path)
     say = progress or (lambda message: None)

@@ -23,6 +23,10 @@ def test_a_table_is_read_by_column_name_blank_rows_skipped():
         ("wavelength_nm\n400\n", f"{WHERE} line 1", "['wavelength_nm']"),
         ("", f"{WHERE} line 1", "[]"),
         ("wavelength_nm,value\n", WHERE, "none"),
+        # lines are the file's: blank rows count (line 5 below, not 4)
+        ("wavelength_nm,value\n400,1\n\n\n500,x\n", f"{WHERE} line 5: value", "'x'"),
+        ("wavelength_nm,value\n400,nan\n", f"{WHERE} line 2: value", "'nan'"),
+        ("wavelength_nm,value\n1e999,1\n", f"{WHERE} line 2: wavelength_nm", "'1e999'"),
     ],
 )
 def test_a_bad_table_is_one_problem(text, where, found):
