@@ -41,3 +41,22 @@ def test_a_probe_names_what_is_wrong_with_a_file(tmp_path):
     (tmp_path / "bad.tif").write_bytes(b"not a tiff")
     assert probe(tmp_path / "bad.tif", False, 10)[1] == "a readable TIFF or PNG file"
     assert probe(tmp_path / "none.tif", False, 10)[1:] == ("an image file", "no such file")
+
+
+def test_the_header_is_checked_before_any_pixel_is_decoded(tmp_path):
+    from spectralize.datasets.capture.images import read_header
+
+    write_tiff(tmp_path / "a.tif", np.full((4, 5), 7, np.uint16))
+    write_png(tmp_path / "b.png", np.full((4, 5, 3), 7, np.uint16))
+    assert read_header(tmp_path / "a.tif").shape == (4, 5)
+    assert read_header(tmp_path / "b.png").shape == (4, 5, 3)
+    with pytest.raises(ValueError, match=r"a frame of shape \(5, 4\); the file declares shape \(4, 5\)"):
+        read_image(tmp_path / "a.tif", shape=(5, 4))
+    with pytest.raises(ValueError, match="more than 0 MiB, not decoded"):
+        read_image(tmp_path / "b.png", max_bytes=100)
+    assert probe(tmp_path / "a.tif", False, 10, frame_shape=(8, 8)) == (
+        None,
+        "frames of 8 x 8 px like the others",
+        "4 x 5 px (declared in its header, not decoded)",
+    )
+    assert probe(tmp_path / "a.tif", False, 10, max_bytes=16)[1] == "a frame of at most 0 MiB"
