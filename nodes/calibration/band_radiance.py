@@ -18,8 +18,9 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 
+from spectralize.nodes.calibration.matched_level_qe import matched_quantum_efficiency
 from spectralize.nodes.calibration.registration import register_frames
-from spectralize.nodes.calibration.spectral import band_signal
+from spectralize.nodes.calibration.spectral import band_signal, shot_levels
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
 
@@ -44,10 +45,15 @@ def calibrate_bands(
     """Band radiance of every shot: ``band_signal / Q(lambda_shot)``, registered to RGB.
 
     ``L_shot(p) = f(I_shot(p + shift) - dark_t) / (t Q_lambda)`` (eq. 5 solved for the
-    radiance ``x``). Dark subtracted (negative values kept, never clipped), linearised with the spectral
-    response, per second, divided by the quantum efficiency at the shot's wavelength (so in
-    units of the measured illuminant, matching ``C``) and resampled onto the RGB pixel grid
-    with :func:`~spectralize.nodes.calibration.registration.register_frames`. Lazy (dask).
+    radiance ``x``), ``Q_lambda`` of the white-reference exposure at the shot's own mean level
+    where ``calibration/spectral`` has it
+    (:mod:`~spectralize.nodes.calibration.matched_level_qe`: the response's level-dependent
+    error cancels instead of rippling from band to band). Dark subtracted (negative values
+    kept, never clipped), linearised with the spectral response, per second, divided by the
+    quantum efficiency at the shot's wavelength (so in units of the measured illuminant,
+    matching ``C``) and resampled onto the RGB pixel grid with
+    :func:`~spectralize.nodes.calibration.registration.register_frames`. Lazy (dask), after
+    one pass over the shots for their mean levels.
 
     Parameters
     ----------
@@ -125,6 +131,17 @@ def calibrate_bands(
         counts = counts.chunk({"shot": 8})
     counts = counts.chunk({"y": -1, "x": -1})
     signal = band_signal(raw_spectral.assign(counts=counts), dark, response=oecf_spectral)
+    matched = "qe_by_level" in spectral and spectral.attrs.get("matched_levels", True)
+    if matched:  # Q of the white reference at each shot's own level (one pass over the shots)
+        q_shot = xr.DataArray(
+            matched_quantum_efficiency(
+                spectral[["qe_by_level", "qe_level"]].load(),
+                wavelengths,
+                shot_levels(signal),
+                q_shot.values,
+            ),
+            dims="shot",
+        )
     radiance = (signal / q_shot).astype(np.float32)
     if radiance.chunks is not None:
         radiance = radiance.chunk({"y": -1, "x": -1})
@@ -146,6 +163,7 @@ def calibrate_bands(
         {"radiance": radiance},
         coords=coords,
         attrs={
+            "quantum_efficiency": "white reference at the shot's own level" if matched else "per band",
             "registration_shift_px": [float(v) for v in registration["shift"].values],
             "negative_values": "kept (noise below the dark level)",
         },

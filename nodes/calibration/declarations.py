@@ -161,7 +161,7 @@ HDR_MERGE = Node(
 
 CALIBRATE_BANDS = Node(
     name="calibrate_bands",
-    version="1",
+    version="2",
     function=calibrate_bands,
     inputs={
         "raw_spectral": "raw/spectral",

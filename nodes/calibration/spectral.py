@@ -40,6 +40,7 @@ from spectralize.nodes.calibration.exposure_series import (
     target_spectral_series,
 )
 from spectralize.nodes.calibration.hdr import merge_hdr
+from spectralize.nodes.calibration.matched_level_qe import level_table, matched_quantum_efficiency
 from spectralize.nodes.calibration.oecf.response import apply_response
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
@@ -55,6 +56,7 @@ __all__ = [
     "cross_validate",
     "calibrate_spectral",
     "CAMERA_MATRIX_METHODS",
+    "shot_levels",
 ]
 
 
@@ -790,6 +792,44 @@ def _white_rgb(
     )
 
 
+def _white_levels(
+    counts: xr.DataArray,
+    depth: int,
+    dark: xr.Dataset,
+    response: xr.Dataset,
+    light: np.ndarray,
+    group: str,
+    min_snr: float = 10.0,
+) -> xr.Dataset:
+    """:func:`~spectralize.nodes.calibration.matched_level_qe.level_table` of the white
+    reference's whole exposure series (exposures without dark frames left out)."""
+    top = ~saturated_frames(counts, depth)  # (wavelength, exposure)
+    n_bands, n_exposures = top.shape
+    signal = np.full(top.shape, np.nan)
+    usable = np.zeros(top.shape, dtype=bool)
+    for e in range(n_exposures):
+        shots = _shot_frames(counts, np.full(n_bands, e), depth, group)
+        try:
+            mean, std = _dark_for_shots(dark, shots, group)
+        except CalibrationError:
+            continue
+        above = np.asarray((shots.astype(np.float64) - mean).mean(("y", "x")).values)
+        noise = (
+            np.asarray(std.mean(("y", "x")).values)
+            if std is not None
+            else np.asarray((shots.astype(np.float64) - mean).std(("y", "x")).values)
+        )
+        signal[:, e] = np.asarray(_linearise(shots, mean, response, group).mean(("y", "x")).values)
+        usable[:, e] = top[:, e] & (above >= min_snr * np.maximum(noise, 1e-12)) & (signal[:, e] > 0)
+    times = np.asarray(counts["spectral_exposure_time"].values, dtype=np.float64)
+    return level_table(signal, times, usable, light, np.asarray(counts["wavelength"].values, float))
+
+
+def shot_levels(signal: xr.DataArray) -> np.ndarray:
+    """(shot,) mean linearised level ``f(I - dark)`` of band shots, from :func:`band_signal`."""
+    return np.asarray((signal * signal["exposure_time"]).mean(("y", "x")).values, dtype=np.float64)
+
+
 def _bare(data: xr.DataArray, keep: str) -> xr.DataArray:
     """``data`` without coords other than ``keep``."""
     return data.drop_vars([c for c in data.coords if c != keep])
@@ -849,6 +889,14 @@ def calibrate_spectral(
         Field(
             description="fit C to the white reference's RGB as one more patch "
             "(reflectance times illuminant) beside the chart's"
+        ),
+    ] = True,
+    matched_levels: Annotated[
+        bool,
+        Field(
+            description="divide band shots by the Q of the white-reference exposure at their "
+            "own signal level (the response's level-dependent error cancels), not by the Q of "
+            "the longest unsaturated exposure"
         ),
     ] = True,
     patch_margin: Annotated[
@@ -925,6 +973,12 @@ def calibrate_spectral(
     except CalibrationError as error:
         raise CalibrationError(f"raw/white_reference:spectral_counts: {error}") from None
     q = qe["quantum_efficiency"]
+    light = (white_reference["target_reflectance"] * illuminant).sel(
+        wavelength=white_counts["wavelength"].values
+    )
+    levels = _white_levels(
+        white_counts, depth, dark, oecf_spectral, np.asarray(light.values, float), "raw/white_reference"
+    )
 
     # -- C from the colour checker's HDR RGB
     group = "raw/colour_checker"
@@ -980,6 +1034,10 @@ def calibrate_spectral(
     except CalibrationError as error:
         raise CalibrationError(f"{group}:spectral_counts: {error}") from None
     q_shot = q.sel(wavelength=cshots["wavelength"].values).values
+    if matched_levels:
+        q_shot = matched_quantum_efficiency(
+            levels, cshots["wavelength"].values, shot_levels(signal), q_shot
+        )
     band_radiance = (signal / xr.DataArray(q_shot, dims="shot")).compute()
     band_radiance = band_radiance.swap_dims(shot="wavelength").drop_vars(
         [c for c in band_radiance.coords if c != "wavelength"]
@@ -1020,12 +1078,15 @@ def calibrate_spectral(
             "camera_matrix_method": camera_matrix_method,
             **_method_settings(camera_matrix_method, cm, smoothness, ridge, cv_scores, nonnegative),
             "white_patch": bool(white_patch),
+            "matched_levels": bool(matched_levels),
             "patch_margin": int(patch_margin),
             "rgb_camera": camera,
             "units_note": "band radiance relative to the measured illuminant; C maps it to "
             "HDR units (RGB = C @ spectrum)",
         },
     )
+    out["qe_by_level"] = levels["qe_by_level"]
+    out["qe_level"] = levels["qe_level"]
     if cv_scores is not None:
         out["smoothness_cv"] = cv_scores
     if "ridge_cv" in cm:

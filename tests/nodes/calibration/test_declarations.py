@@ -31,6 +31,7 @@ DEFAULTS = {
         "smoothness": None,
         "nonnegative": True,
         "white_patch": True,
+        "matched_levels": True,
         "patch_margin": 2,
         "min_snr": 1.0,
     },
