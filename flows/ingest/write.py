@@ -28,6 +28,7 @@ from pathlib import Path
 from spectralize.datasets.capture import Capture, read_capture
 from spectralize.store import RunStore
 
+from ..signals import sigterm_as_interrupt
 from .raw_groups import FILES_ATTR, INGEST_VERSION, RAW_GROUPS, build_raw_groups
 
 __all__ = ["IngestReport", "ingest"]
@@ -112,9 +113,13 @@ def ingest(
     StoreError
         If ``store_path`` exists and is not a run store.
     """
+    with sigterm_as_interrupt():  # stopped like Ctrl-C: finished regions are kept, it resumes
+        return _ingest(Path(capture_dir), Path(store_path), progress)
+
+
+def _ingest(capture_dir: Path, store_path: Path, progress: Callable[[str], None] | None) -> IngestReport:
     start = time.perf_counter()
     say = progress or (lambda message: None)
-    capture_dir, store_path = Path(capture_dir), Path(store_path)
     existing = RunStore.open(store_path) if store_path.exists() else None
     known, shape = _known_files(existing) if existing is not None else ({}, None)
     capture = read_capture(capture_dir, known=known, known_shape=shape, progress=say)
