@@ -53,21 +53,23 @@ from spectralize.nodes.evaluation.colorimetry import render_srgb
 from spectralize.nodes.evaluation.comparison import METHOD_DIM, compare_methods
 from spectralize.nodes.evaluation.figures import (
     image_label,
+    plot_camera_spectra,
     plot_capture_time,
-    plot_confidence,
     plot_error_map,
     plot_histograms,
     plot_pixel_spectra,
-    plot_renders,
     plot_spectra,
+    representative_pixels,
 )
 from spectralize.nodes.evaluation.figures_calibration import (
+    patch_names,
     plot_cross_validation,
     plot_exposure_plan,
     plot_oecf,
     plot_quantum_efficiency,
     plot_registration,
     plot_response_histograms,
+    registration_precision,
     response_histograms,
 )
 from spectralize.nodes.evaluation.statistics import DEFAULT_THRESHOLD, STATISTICS
@@ -77,7 +79,6 @@ from spectralize.store import RunStore
 
 __all__ = [
     "TEMPLATE",
-    "default_pixels",
     "write_report",
     "write_run_report",
 ]
@@ -456,14 +457,12 @@ def _read(store: RunStore, group: str) -> xr.Dataset | None:
 def _cross_validation(calibration: xr.Dataset) -> list[dict[str, Any]]:
     checked = calibration[["measured_rgb", "predicted_rgb", "relative_error"]].compute()
     error = np.asarray(checked["relative_error"].values, dtype=float)
-    rows = [
-        [str(patch), _fmt(float(e))] for patch, e in zip(checked["patch"].values, error, strict=True)
-    ]
+    names = patch_names(checked["relative_error"])
+    rows = [[name, _percent(e)] for name, e in zip(names, error, strict=True)]
     table = _table(
         "cross-validation",
-        "RGB of the colour-checker patches predicted through C "
-        "from the spectral camera's capture vs measured: relative error per patch "
-        f"(mean {_fmt(float(np.nanmean(error)))})",
+        "Colour checker: RGB predicted through C from the spectral camera's capture against "
+        f"the RGB measured, relative error per patch (mean {_percent(np.nanmean(error))}).",
         ["patch", "relative error"],
         rows,
     )
@@ -478,6 +477,11 @@ def _cross_validation(calibration: xr.Dataset) -> list[dict[str, Any]]:
         "(c) their difference scaled 10x, (d) relative error per patch.",
     )
     return [table, figure]
+
+
+def _percent(fraction: float) -> str:
+    """``2.31 %`` (``—`` when not finite)."""
+    return f"{100 * float(fraction):.2f} %" if np.isfinite(fraction) else "—"
 
 
 def _response_histograms(store: RunStore) -> dict[str, Any] | None:
@@ -564,19 +568,23 @@ def _calibration(store: RunStore) -> tuple[list[tuple[str, str]], list[dict[str,
     if registration is not None:
         shift = np.asarray(registration["shift"].values, dtype=float)
         residual = np.asarray(registration["residual"].values, dtype=float)
+        step = registration_precision(registration)
+        largest = float(np.nanmax(residual)) if residual.size else 0.0
+        agreement = (
+            f"the rotation pairs agree within the estimate's precision ({step:g} px)"
+            if step and largest <= step
+            else f"the rotation pairs differ from it by up to {largest:.2f} px"
+        )
         headline.append(
-            (
-                "misregistration (dy, dx)",
-                f"({shift[0]:+.2f}, {shift[1]:+.2f}) px, residual max "
-                f"{(np.nanmax(residual) if residual.size else 0.0):.2f} px",
-            )
+            ("misregistration (dy, dx)", f"({shift[0]:+.2f}, {shift[1]:+.2f}) px; {agreement}")
         )
         blocks.append(
             _figure(
                 plot_registration(registration),
                 "registration",
                 "Misregistration of the spectral camera to its RGB camera per rotation pair "
-                "(phase correlation) and the residuals from the run's shift.",
+                "(phase correlation) and each pair's residual from the run's shift, against "
+                "the precision of the estimate (1 / its upsampling factor).",
             )
         )
     blocks = [b for b in blocks if b]
@@ -584,15 +592,135 @@ def _calibration(store: RunStore) -> tuple[list[tuple[str, str]], list[dict[str,
 
 
 # -- reconstruction (no ground truth needed) -------------------------------------------------
-def default_pixels(height: int, width: int) -> list[tuple[int, int]]:
-    """The centre and the centres of the four quadrants."""
+#: Percentiles of the confidence that span its colour scale (a few outliers do not set it).
+CONFIDENCE_PERCENTILES: tuple[float, float] = (2.0, 98.0)
+#: The estimated nRMSE above which a pixel is flagged: the paper's Figure 7 level.
+CONFIDENCE_FLAG = DEFAULT_THRESHOLD
+
+
+def _png(pixels: np.ndarray) -> str:
+    """A ``(y, x, 3 or 4)`` uint8 image as a PNG data URI (no matplotlib: milliseconds)."""
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(pixels)).save(buffer, format="PNG", compress_level=1)
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def _gallery(gallery_id: str, caption: str, items: list[tuple[str, str]], legend: str = "") -> dict:
+    """Thumbnails with a caption each: ``items`` of (PNG data URI, caption)."""
+    return {
+        "kind": "gallery",
+        "id": gallery_id,
+        "caption": caption,
+        "legend": legend,
+        "items": [{"src": src, "caption": text} for src, text in items],
+    }
+
+
+def _thumbnail_caption(ds: xr.Dataset, position: int) -> str:
+    """``image 7 · camera 1 · view θo 45°, φo 15° · light θi 30°, φi 0°``."""
+    coords = ds.coords
+    label = int(coords["image"].values[position]) if "image" in coords else position
+    parts = [f"image {label}"]
+    if "camera" in coords and coords["camera"].dims == ("image",):
+        parts.append(f"camera {coords['camera'].values[position]}")
+    if "theta_o" in coords and "phi_o" in coords:
+        parts.append(
+            f"view θo {float(coords['theta_o'][position]):.0f}°, "
+            f"φo {float(coords['phi_o'][position]):.0f}°"
+        )
+    if "theta_i" in coords and "phi_i" in coords:
+        parts.append(
+            f"light θi {float(coords['theta_i'][position]):.0f}°, "
+            f"φi {float(coords['phi_i'][position]):.0f}°"
+        )
+    return " · ".join(parts)
+
+
+def _confidence_headline(confidence: xr.DataArray) -> list[tuple[str, str]]:
+    """Reconstruction quality without ground truth: the estimated nRMSE's median and 95th
+    percentile over all pixels, and the share flagged (above :data:`CONFIDENCE_FLAG`)."""
+    values = np.asarray(confidence.values, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return []
+    median, p95 = np.percentile(values, [50, 95])
+    flagged = float(np.mean(values > CONFIDENCE_FLAG))
     return [
-        (height // 2, width // 2),
-        (height // 4, width // 4),
-        (height // 4, 3 * width // 4),
-        (3 * height // 4, width // 4),
-        (3 * height // 4, 3 * width // 4),
+        (
+            "reconstruction quality (no ground truth)",
+            f"estimated nRMSE median {median:.4f}, 95th percentile {p95:.4f}; "
+            f"{100 * flagged:.1f} % of pixels above {CONFIDENCE_FLAG:g}",
+        ),
+        (
+            "what that means",
+            "the estimated nRMSE is how much similar-looking neighbouring pixels disagree in "
+            "spectral shape, in the units of the paper's nRMSE; pixels above "
+            f"{CONFIDENCE_FLAG:g} (the paper's Figure 7 level) are where to trust the spectra "
+            "less (highlights, edges, saturation)",
+        ),
     ]
+
+
+def _confidence_gallery(confidence: xr.DataArray, captions: list[str]) -> dict[str, Any]:
+    """Confidence maps as thumbnails on one colour scale, spanning the percentiles
+    :data:`CONFIDENCE_PERCENTILES` of the images shown."""
+    from matplotlib import colormaps
+
+    values = np.asarray(confidence.transpose("image", "y", "x").values, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    lo, hi = np.percentile(finite, CONFIDENCE_PERCENTILES) if finite.size else (0.0, 1.0)
+    hi = hi if hi > lo else lo + 1e-12
+    colour = colormaps["viridis"]
+    scaled = np.clip((values - lo) / (hi - lo), 0.0, 1.0)
+    items = [
+        (_png((colour(np.nan_to_num(scaled[k]))[..., :3] * 255).astype(np.uint8)), captions[k])
+        for k in range(values.shape[0])
+    ]
+    bar = (colour(np.linspace(0, 1, 256))[None, :, :3] * 255).astype(np.uint8).repeat(12, axis=0)
+    low, high = CONFIDENCE_PERCENTILES
+    return _gallery(
+        "confidence",
+        "Estimated nRMSE of the reconstruction per pixel (the confidence of the spectra group; "
+        f"higher: trust less). One colour scale for all maps, from its {low:g} % to its "
+        f"{high:g} % percentile over the images shown: {lo:.4f} (dark) to {hi:.4f} (bright); "
+        "values beyond are clipped.",
+        items,
+        legend=_png(bar),
+    ) | {"legend_low": f"{lo:.4f}", "legend_high": f"{hi:.4f}"}
+
+
+def _camera_spectra(
+    cube: xr.Dataset, brightness: np.ndarray, confidence: np.ndarray | None
+) -> dict[str, Any]:
+    """Spectra at pixels that show the range per camera (:func:`representative_pixels`)."""
+    cameras = (
+        np.asarray(cube["camera"].values)
+        if "camera" in cube.coords and cube["camera"].dims == ("image",)
+        else np.zeros(cube.sizes["image"], int)
+    )
+    labels = _labels(cube)
+    radiance = cube["radiance"]
+    panels = []
+    for camera in sorted(set(cameras.tolist()), key=str):
+        mine = np.flatnonzero(cameras == camera)
+        picks = representative_pixels(brightness[mine], None if confidence is None else confidence[mine])
+        lines = [
+            (
+                f"{kind}: image {int(labels[mine[m]])}, y {y}, x {x}",
+                np.asarray(radiance.isel(image=int(mine[m]), y=y, x=x).values, dtype=float),
+            )
+            for kind, m, y, x in picks
+        ]
+        panels.append((f"camera {camera}", lines))
+    return _figure(
+        plot_camera_spectra(panels, np.asarray(cube["wavelength"].values, dtype=float)),
+        "camera_spectra",
+        "Reconstructed spectra at pixels chosen per camera to show the range of its images "
+        "shown: near saturation (99.9th percentile of brightness), typical (median), dark "
+        "(2nd percentile) and, where the run has a confidence, the least confident pixel.",
+    )
 
 
 def _reconstruction(
@@ -604,55 +732,57 @@ def _reconstruction(
 ) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
     labels = sorted(int(v) for v in _labels(spectra))
     shown = labels[: int(max_images)]
-    cube = _by_label(spectra, shown)
-    srgb = render_srgb(cube["radiance"], percentile=exposure_percentile, dtype="float").compute()
-    titles = [image_label(cube, k) for k in range(len(shown))]
+    cube = _by_label(spectra, shown).compute()
     height, width = spectra.sizes["y"], spectra.sizes["x"]
-    points = list(pixels) if pixels else default_pixels(height, width)
-    bad = [p for p in points if not (0 <= p[0] < height and 0 <= p[1] < width)]
+    bad = [p for p in pixels or () if not (0 <= p[0] < height and 0 <= p[1] < width)]
     if bad:
         raise ParameterError.single("pixels", f"(y, x) inside {height} x {width} px", f"{bad}")
+    srgb = render_srgb(cube["radiance"], percentile=exposure_percentile, dtype="float").compute()
+    captions = [_thumbnail_caption(cube, k) for k in range(len(shown))]
     headline = [("images reconstructed", str(len(labels)))]
-    blocks: list[dict[str, Any]] = [
-        _text(f"sRGB renders: {srgb.attrs.get('exposure_normalisation', '')}."),
-    ]
+    if "confidence" in spectra:
+        headline += _confidence_headline(spectra["confidence"])
+    blocks: list[dict[str, Any]] = []
     if len(shown) < len(labels):
         blocks.append(_text(f"Figures for the first {len(shown)} of {len(labels)} images."))
+    rgb8 = (np.clip(np.asarray(srgb.transpose("image", "y", "x", "channel").values), 0, 1) * 255).astype(
+        np.uint8
+    )
     blocks.append(
-        _figure(
-            plot_renders(srgb, titles=[f"image {label}" for label in shown]),
+        _gallery(
             "renders",
-            "sRGB renders of the reconstructed spectral images (CIE 1931 2°, one exposure).",
+            "sRGB renders of the reconstructed spectral images (CIE 1931 2°, one exposure: "
+            f"{srgb.attrs.get('exposure_normalisation', '')}).",
+            [(_png(rgb8[k]), captions[k]) for k in range(len(shown))],
         )
     )
-    ys = xr.DataArray([p[0] for p in points], dims="pixel")
-    xs = xr.DataArray([p[1] for p in points], dims="pixel")
-    picked = cube["radiance"].isel(y=ys, x=xs).transpose("image", "pixel", "wavelength").compute()
-    wavelength = np.asarray(cube["wavelength"].values, dtype=float)
-    for k, label in enumerate(shown[:4]):
-        blocks.append({"kind": "heading", "text": titles[k]})
+    brightness = np.asarray(cube["radiance"].mean("wavelength").transpose("image", "y", "x").values)
+    confidence = (
+        np.asarray(cube["confidence"].transpose("image", "y", "x").values, dtype=float)
+        if "confidence" in cube
+        else None
+    )
+    blocks.append(_camera_spectra(cube, brightness, confidence))
+    if pixels:
+        points = list(pixels)
+        picked = cube["radiance"].isel(
+            image=0, y=xr.DataArray([p[0] for p in points]), x=xr.DataArray([p[1] for p in points])
+        )
         blocks.append(
             _figure(
                 plot_pixel_spectra(
-                    np.asarray(srgb.isel(image=k).values),
-                    np.asarray(picked.isel(image=k).values),
+                    rgb8[0].astype(float) / 255,
+                    np.asarray(picked.transpose("dim_0", "wavelength").values),
                     points,
-                    wavelength,
-                    title=titles[k],
+                    np.asarray(cube["wavelength"].values, dtype=float),
+                    title=image_label(cube, 0),
                 ),
-                f"pixel_spectra_{label:03d}",
-                f"Image {label}: reconstructed spectra at the numbered pixels.",
+                f"pixel_spectra_{shown[0]:03d}",
+                f"Image {shown[0]}: reconstructed spectra at the numbered pixels asked for.",
             )
         )
-    if "confidence" in spectra:
-        blocks.append(
-            _figure(
-                plot_confidence(_by_label(spectra["confidence"], shown)),
-                "confidence",
-                "Confidence of the reconstruction (variable confidence of the spectra group: "
-                f"{spectra['confidence'].attrs.get('long_name', 'confidence')}).",
-            )
-        )
+    if "confidence" in cube:
+        blocks.append(_confidence_gallery(cube["confidence"], captions))
     return headline, [_section("reconstruction", "Reconstruction", blocks)]
 
 
@@ -882,8 +1012,9 @@ def write_run_report(
         sections = accuracy + sections
         groups |= {"truth/spectra": truth, "evaluation": evaluation}
     elif run.has("raw/spectral"):
-        raw_rgb = _read(run, "raw/rgb")
-        fast = capture_time_from_run(run.read("raw/spectral"), raw_rgb)
+        # exposure times only: the groups as stored (their pixels are not read)
+        raw_rgb = run.read("raw/rgb", friendly=False) if run.has("raw/rgb") else None
+        fast = capture_time_from_run(run.read("raw/spectral", friendly=False), raw_rgb)
         band = float(fast["exposure_time"].sum())
         rgb = float(fast["rgb_exposure_time"].sum())
         headline.append(

@@ -41,6 +41,9 @@ __all__ = [
     "plot_renders",
     "plot_pixel_spectra",
     "plot_confidence",
+    "PIXEL_KINDS",
+    "representative_pixels",
+    "plot_camera_spectra",
 ]
 
 #: Colour map of the error maps: cubehelix (Green, 2011), the paper's choice.
@@ -63,11 +66,13 @@ def image_label(evaluation: xr.Dataset, image: int) -> str:
     Returns
     -------
     str
-        E.g. ``"image 7, view (45°, 15°), light (30°, 0°), with band shots"``.
+        E.g. ``"image 7, camera 1, view (45°, 15°), light (30°, 0°), with band shots"``.
     """
     coords = evaluation.coords
     label = int(coords["image"].values[image]) if "image" in coords else image
     parts = [f"image {label}"]
+    if "camera" in coords and coords["camera"].dims == ("image",):
+        parts.append(f"camera {coords['camera'].values[image]}")
     if "theta_o" in coords and "phi_o" in coords:
         parts.append(
             f"view ({float(coords['theta_o'][image]):.0f}°, {float(coords['phi_o'][image]):.0f}°)"
@@ -531,4 +536,75 @@ def plot_confidence(
         figure.colorbar(
             shown, ax=list(axes), shrink=0.8, label=str(confidence.attrs.get("long_name", "confidence"))
         )
+    return figure
+
+
+#: What :func:`representative_pixels` picks per camera: a name and the brightness percentile
+#: (``None``: the least trustworthy pixel, the highest estimated nRMSE of ``confidence``).
+PIXEL_KINDS: tuple[tuple[str, float | None], ...] = (
+    ("near saturation", 99.9),
+    ("typical", 50.0),
+    ("dark", 2.0),
+    ("least confident", None),
+)
+
+
+def representative_pixels(
+    brightness: np.ndarray, confidence: np.ndarray | None = None
+) -> list[tuple[str, int, int, int]]:
+    """Pixels that show the range of one camera's images: ``(kind, image, y, x)``.
+
+    The pixel nearest each brightness percentile of :data:`PIXEL_KINDS` (near saturation,
+    typical, dark) and, with ``confidence`` (estimated nRMSE, higher: trust less), the
+    least confident pixel.
+
+    Parameters
+    ----------
+    brightness
+        ``(image, y, x)`` mean radiance over wavelength of the camera's images.
+    confidence
+        ``(image, y, x)`` estimated nRMSE, or ``None``.
+    """
+    picks = []
+    finite = np.isfinite(brightness)
+    if not finite.any():
+        return picks
+    for kind, percentile in PIXEL_KINDS:
+        if percentile is None:
+            if confidence is None or not np.isfinite(confidence).any():
+                continue
+            flat = int(np.nanargmax(np.where(finite, confidence, np.nan)))
+        else:
+            level = np.percentile(brightness[finite], percentile)
+            flat = int(np.nanargmin(np.where(finite, np.abs(brightness - level), np.nan)))
+        picks.append((kind, *(int(v) for v in np.unravel_index(flat, brightness.shape))))
+    return picks
+
+
+def plot_camera_spectra(
+    panels: list[tuple[str, list[tuple[str, np.ndarray]]]], wavelength: np.ndarray
+) -> Figure:
+    """Reconstructed spectra at chosen pixels, one panel per camera, one scale for all.
+
+    Parameters
+    ----------
+    panels
+        Per camera: its title and ``(legend label, spectrum)`` pairs (the label names the
+        kind of pixel, its image and position; see :func:`representative_pixels`).
+    wavelength
+        [nm].
+    """
+    columns = max(1, len(panels))
+    figure = Figure(figsize=(3.6 * columns + 0.6, 3.9), layout="constrained")
+    axes = np.atleast_1d(figure.subplots(1, columns, sharey=True))
+    styles = {kind: f"C{i}" for i, (kind, _) in enumerate(PIXEL_KINDS)}
+    for ax, (title, lines) in zip(axes, panels, strict=True):
+        for label, spectrum in lines:
+            kind = label.split(":")[0]
+            ax.plot(wavelength, spectrum, color=styles.get(kind, "0.3"), label=label)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("wavelength [nm]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, loc="upper left")
+    axes[0].set_ylabel("relative radiance")
     return figure

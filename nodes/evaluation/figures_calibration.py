@@ -28,6 +28,8 @@ __all__ = [
     "plot_oecf",
     "plot_quantum_efficiency",
     "plot_registration",
+    "patch_names",
+    "registration_precision",
 ]
 
 
@@ -91,19 +93,23 @@ def plot_cross_validation(
         ax.set_title(title)
         ax.set_axis_off()
     bar = fig.add_subplot(spec[1, :])
-    labels = (
-        [str(p) for p in table["relative_error"]["patch"].values]
-        if "patch" in table["relative_error"].coords
-        else [str(i) for i in range(n)]
-    )
+    labels = patch_names(table["relative_error"])
     bar.bar(np.arange(n), 100 * np.asarray(table["relative_error"].values), color="0.4")
-    bar.set_xticks(np.arange(n), labels, rotation=60, ha="right", fontsize=7)
+    bar.set_xticks(np.arange(n), labels, rotation=90, fontsize=7)  # upright boxes: no overlap
     bar.set_ylabel("relative error [%]")
     bar.set_title(
         f"(d) per patch: mean {100 * table.attrs.get('mean_relative_error', np.nan):.2f}"
         f" %, max {100 * table.attrs.get('max_relative_error', np.nan):.2f} %"
     )
     return fig
+
+
+def patch_names(values: xr.DataArray) -> list[str]:
+    """The colour-checker patches' names (coordinate ``patch_name``), else their indices."""
+    for name in ("patch_name", "patch"):
+        if name in values.coords:
+            return [str(p) for p in values[name].values]
+    return [str(i) for i in range(values.sizes["patch"])]
 
 
 # -- figures of a run without ground truth: calibration (paper Fig. 2, 3), OECF, QE, registration
@@ -343,9 +349,19 @@ def plot_quantum_efficiency(calibration: xr.Dataset) -> Figure:
     return fig
 
 
+def registration_precision(registration: xr.Dataset) -> float:
+    """The step [px] of the shift estimate (1 / the upsampling factor of its phase
+    correlation): differences below it are not measured."""
+    factor = registration.attrs.get("upsample_factor")
+    return 1.0 / float(factor) if factor else 0.0
+
+
 def plot_registration(registration: xr.Dataset) -> Figure:
-    """Shift per rotation pair (phase correlation) around the run's shift, and residuals."""
+    """Shift per rotation pair (phase correlation) around the run's shift, and each pair's
+    residual from it against the estimate's precision (1 / upsampling factor): a residual
+    below that step is no measured disagreement, and the panel says so."""
     from matplotlib.figure import Figure
+    from matplotlib.ticker import FormatStrFormatter, MaxNLocator
 
     fig = Figure(figsize=(10.0, 3.6), layout="constrained")
     ax_s, ax_r = fig.subplots(1, 2)
@@ -355,12 +371,20 @@ def plot_registration(registration: xr.Dataset) -> Figure:
     iy, ix = axis.index("y"), axis.index("x")
     ax_s.scatter(pairs[:, ix], pairs[:, iy], color="C0", label="rotation pairs")
     ax_s.scatter([shift[ix]], [shift[iy]], color="C3", marker="x", s=80, label="run shift (median)")
+    # at least +-0.25 px around the shift, a few ticks: the spread shows at its true scale
+    for index, limits, target in ((ix, ax_s.set_xlim, ax_s.xaxis), (iy, ax_s.set_ylim, ax_s.yaxis)):
+        spread = np.nanmax(np.abs(pairs[:, index] - shift[index])) if pairs.size else 0.0
+        half = max(0.25, 1.3 * float(spread))
+        limits(shift[index] - half, shift[index] + half)
+        target.set_major_locator(MaxNLocator(5))
+        target.set_major_formatter(FormatStrFormatter("%.2f"))
     ax_s.set_xlabel("x shift [px]")
     ax_s.set_ylabel("y shift [px]")
-    ax_s.set_title(f"misregistration: dy {shift[iy]:+.3f} px, dx {shift[ix]:+.3f} px")
+    ax_s.set_title(f"misregistration: dy {shift[iy]:+.2f} px, dx {shift[ix]:+.2f} px")
     ax_s.legend(fontsize=8)
     ax_s.grid(alpha=0.3)
     residual = np.asarray(registration["residual"].values, dtype=float)
+    step = registration_precision(registration)
     labels = [
         f"{a}->{b}"
         for a, b in zip(
@@ -369,6 +393,15 @@ def plot_registration(registration: xr.Dataset) -> Figure:
     ]
     ax_r.bar(np.arange(residual.size), residual, color="0.4")
     ax_r.set_xticks(np.arange(residual.size), labels, rotation=60, fontsize=7)
+    ax_r.set_xlabel("rotation pair (RGB -> spectral)")
     ax_r.set_ylabel("residual [px]")
-    ax_r.set_title(f"residual per pair (max {np.nanmax(residual) if residual.size else 0:.3f} px)")
+    if step:
+        ax_r.axhline(step, color="C3", linestyle="--", label=f"precision of the estimate ({step:g} px)")
+        ax_r.set_ylim(0, max(2.5 * step, 1.2 * float(np.nanmax(residual)) if residual.size else 0))
+        ax_r.legend(fontsize=8, loc="upper left")
+    largest = float(np.nanmax(residual)) if residual.size else 0.0
+    if step and largest <= step:
+        ax_r.set_title("residual per pair: every pair agrees within the precision")
+    else:
+        ax_r.set_title(f"residual per pair (max {largest:.2f} px)")
     return fig

@@ -8,11 +8,13 @@ import pytest
 import xarray as xr
 from support.browser import screenshot
 from support.cubes import cube_dataset
+from support.page_layout import browser_overlaps, figure_overlaps
 
+from spectralize.flows import report
 from spectralize.flows.report import error_map_figures, write_report, write_run_report
+from spectralize.nodes.evaluation.accuracy import evaluate
 from spectralize.nodes.evaluation.capture_time import capture_time
 from spectralize.nodes.evaluation.figures import nrmse_histograms
-from spectralize.nodes.evaluation.accuracy import evaluate
 from spectralize.schemas import SchemaError
 from spectralize.store import RunStore
 
@@ -257,7 +259,7 @@ def test_write_run_report_reads_everything_from_the_store(run, tmp_path):
     assert "1.6" in page.cells  # 32 shots x 0.05 s
     assert "reference: the paper's long-exposure capture" in html.unescape(index.read_text())
     assert page.cells[page.cells.index("with band shots") + 1] == str(12 * 18)  # image 0 only
-    assert {"renders", "pixel_spectra_000"} <= set(embedded(page))  # the reconstruction section
+    assert {"renders-0", "camera_spectra"} <= set(embedded(page))  # the reconstruction section
     # the report folder inside the run store does not disturb the store
     assert store.validate() == [] and "report" not in store.groups()
 
@@ -268,7 +270,7 @@ def relative(ds: xr.Dataset) -> xr.Dataset:
     return ds
 
 
-def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_path):
+def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_path, monkeypatch):
     spectra, _, _, _ = run
     store = RunStore.create(tmp_path / "run.zarr")
     confidence = xr.DataArray(
@@ -301,17 +303,47 @@ def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_
         ).pipe(relative),
         fingerprint="calibration-fp",
     )
+    drawn = {}
+    keep = report._figure
+
+    def recording(figure, figure_id, caption):
+        drawn[figure_id] = figure
+        return keep(figure, figure_id, caption)
+
+    monkeypatch.setattr(report, "_figure", recording)
     index = write_run_report(store.path, directory=tmp_path / "report", pixels=[(1, 2), (10, 15)])
     page = parse(index)
     figures = embedded(page)
-    assert {"renders", "confidence", "cross_validation", "quantum_efficiency"} <= set(figures)
-    assert {f"pixel_spectra_{label:03d}" for label in range(3)} <= set(figures)
-    assert "cross-validation" in page.tables and "0.02" in page.cells
+    thumbnails = {f"renders-{k}" for k in range(3)} | {f"confidence-{k}" for k in range(3)}
+    assert thumbnails | {"cross_validation", "quantum_efficiency", "camera_spectra"} <= set(figures)
+    assert "pixel_spectra_000" in figures  # the pixels asked for, on the first image
+    assert "cross-validation" in page.tables and "2.00 %" in page.cells  # in %, like the headline
     text = html.unescape(index.read_text())
     headline = text[text.index('id="headline"') : text.index("<section")]
     assert "images reconstructed" in headline and "2.00 %" in headline
-    assert [h.split(",")[0] for h in page.headings] == ["image 0", "image 1", "image 2"]
-    # a real browser renders it: a screenshot that is not blank
+    # no truth: the quality headline is the confidence's (estimated nRMSE), with its meaning
+    values = np.linspace(0, 1, 3 * 12 * 18)
+    assert (
+        f"estimated nRMSE median {np.median(values):.4f}, 95th percentile "
+        f"{np.percentile(values, 95):.4f}; {100 * np.mean(values > 0.03):.1f} % of pixels above 0.03"
+    ) in headline
+    assert "what that means" in headline
+    # thumbnails named by image, camera and angles, in label order
+    assert "image 0 · camera 1 · view θo 45°, φo 15° · light θi 30°, φi 0°" in text
+    assert text.index("image 0 · camera") < text.index("image 1 · camera") < text.index("image 2 ·")
+    # the confidence's colour scale spans its 2 % to 98 % percentiles, not its extremes
+    shown = np.linspace(0, 1, 3 * 12 * 18)
+    low, high = np.percentile(shown, [2, 98])
+    assert f"{low:.4f} (dark) to {high:.4f} (bright)" in text
+    # a real browser lays it out: every image decodes, no two text lines or images overlap
+    layout = browser_overlaps(index, tmp_path)
+    assert layout["images"] == len(page.images) and layout["broken"] == 0
+    assert layout["boxes"] > 100 and layout["overlaps"] == []
+    # nor do the texts inside the figures (tick labels, titles, legends)
+    assert {name: figure_overlaps(figure) for name, figure in drawn.items()} == {
+        name: [] for name in drawn
+    }
+    # and a screenshot that is not blank
     shot = screenshot(index, tmp_path / "report.png", width=1200, height=1600)
     assert shot.shape[0] >= 1000 and shot.shape[1] >= 1000
     colours = np.unique(shot.reshape(-1, 3) // 16, axis=0)
@@ -341,7 +373,7 @@ def test_calibration_cross_validation_is_tabulated_and_drawn(run, tmp_path):
     page = parse(index)
     assert "cross-validation" in page.tables
     assert embedded(page)["cross_validation"][:8] == PNG
-    assert "0.02" in page.cells
+    assert "2.00 %" in page.cells
 
 
 def test_labels_are_escaped_by_the_template(run, tmp_path):

@@ -51,7 +51,7 @@ def test_figures(run):
     images = [ax for ax in error_map.axes if ax.get_images()]
     assert len(images) == 3  # truth, reconstruction, nRMSE
     assert images[-1].get_images()[0].get_cmap().name == "cubehelix"
-    assert error_map.get_suptitle().startswith("image 1, view (45°, 15°)")
+    assert error_map.get_suptitle().startswith("image 1, camera 1, view (45°, 15°)")
     assert error_map.get_suptitle().endswith(", with band shots")
     other = plot_error_map(ev, 2, truth_srgb=srgb)
     assert other.get_suptitle().endswith("without band shots")
@@ -91,5 +91,5 @@ def test_histograms_and_labels_without_band_shot_information(run):
     labels = [t.get_text() for t in plot_histograms(ev).axes[0].get_legend().get_texts()]
     n_pixels = ev.sizes["image"] * ev.sizes["y"] * ev.sizes["x"]
     assert labels[0].startswith(f"all images ({n_pixels} px")
-    assert image_label(ev, 0) == "image 0, view (45°, 0°), light (30°, 0°)"
+    assert image_label(ev, 0) == "image 0, camera 0, view (45°, 0°), light (30°, 0°)"
     assert image_label(evaluation, 0).endswith(", with band shots")
