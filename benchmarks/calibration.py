@@ -610,6 +610,154 @@ def main_camera_matrix(args) -> dict:
     return result
 
 
+# -- the calibrated chain on foreign gantries (issue 25, items 2, 4, 5) --------------------------
+FOREIGN_RESULTS = Path(__file__).resolve().parent / "results" / "calibration_foreign.json"
+SUPPORT = Path(__file__).resolve().parents[1] / "tests" / "support"
+FOREIGN_LABS = {  # lab: (script, arguments); sigma-paired was kept out of every choice
+    "foreign-gaussian": ("foreign_gantry.py", []),
+    "nikon-paired": ("foreign_gantry_models.py", ["--lab", "nikon-paired"]),
+    "sigma-paired (held out)": ("foreign_gantry_models.py", ["--lab", "sigma-paired"]),
+}
+FOREIGN_SETTINGS = {
+    "before": [
+        "calibrate_spectral.camera_matrix_method=smooth",
+        "calibrate_spectral.white_patch=false",
+        "calibrate_spectral.matched_levels=false",
+    ],
+    "after": [],
+}
+
+
+def _cli(*args: str, cwd: Path) -> None:
+    import subprocess
+
+    out = subprocess.run(
+        [sys.executable, "-m", "spectralize.flows.cli", *args], cwd=cwd, capture_output=True, text=True
+    )
+    if out.returncode:
+        raise RuntimeError(f"spectralize {' '.join(args)} failed:\n{out.stdout}\n{out.stderr}")
+
+
+def foreign_measures(root: Path, lab: str) -> dict:
+    """C per channel, chart cross-check, band radiance against the writer's truth, spectra."""
+    from spectralize.store import RunStore
+
+    sys.path.insert(0, str(SUPPORT))
+    import foreign_gantry as base
+    import foreign_gantry_models as models
+
+    base.LAB.clear()
+    base.LAB.update(base.default_lab() if lab == "foreign-gaussian" else models.lab(lab.split()[0]))
+    store = RunStore.open(root / "run.zarr")
+    truth = np.load(root / "truth.npz")
+    wl = truth["wavelength"]
+    cameras = [str(c) for c in truth["cameras"]]
+    calibration = store.read("calibration/spectral")
+    c = calibration["camera_matrix"].values
+    result = {
+        "c_error_rgb": c_shape_error(c, truth["sensitivity"][cameras.index("cam-45")]).round(4).tolist(),
+        "chart_cross_check_mean": calibration.attrs["mean_relative_error"],
+        "chart_cross_check_max": calibration.attrs["max_relative_error"],
+    }
+    # band radiance against the writer's radiance of the same LED, registered (no shift)
+    bands, raw = store.read("bands"), store.read("raw/spectral")
+    inner = (slice(3, -3), slice(3, -3))
+    ratio = []
+    for i, w in enumerate(bands["wavelength"].values):
+        led = int(raw["led"].values[i])
+        true = base.radiance(float(raw["theta_i"].values[i]), float(raw["phi_i"].values[i]))
+        true = true[int(np.argmin(np.abs(wl - w)))] * base.LAB["led_power"].get(led, 1.0)
+        ratio.append(float(bands["radiance"].values[i][inner].sum() / true[inner].sum()))
+    order = np.argsort(bands["wavelength"].values)
+    ratio = np.asarray(ratio)[order] / np.median(ratio)
+    local = np.array([np.median(ratio[max(0, k - 2) : k + 3]) for k in range(ratio.size)])
+    result["band_radiance_bias"] = (ratio - 1).round(4).tolist()
+    result["band_radiance_max_abs_bias"] = float(np.abs(ratio - 1).max())
+    result["band_radiance_ripple_rms"] = float(np.sqrt(np.mean((ratio - local) ** 2)))
+    # spectra: per-pixel shape error and per-band bias, per camera, with and without bands
+    expected = truth["reflectance"][truth["material"]] * truth["illuminant"]
+    spectra = store.read("spectra")["radiance"]
+    has = store.read("image_sets")["has_bands"].load()
+    rgb = store.read("raw/rgb")
+    camera_of = dict(zip(rgb["image"].values.tolist(), rgb["camera"].values.tolist(), strict=True))
+    mask = np.zeros(expected.shape[:2], bool)
+    mask[3:-3, 3:-3] = True
+    for index, name in enumerate(cameras):
+        for flag in (True, False):
+            labels = [
+                int(v) for v in has["image"].values[has.values == flag] if camera_of[int(v)] == index
+            ]
+            if not labels:
+                continue
+            errors, num, den = [], 0.0, 0.0
+            for label in labels:
+                got = spectra.sel(image=label).transpose("y", "x", "wavelength").values
+                scale = (got * expected).sum(-1) / (expected * expected).sum(-1)
+                fit = scale[..., None] * expected
+                errors.append((np.linalg.norm(got - fit, axis=-1) / np.linalg.norm(fit, axis=-1))[mask])
+                num, den = num + got[mask].sum(0), den + fit[mask].sum(0)
+            e = np.concatenate(errors)
+            bias = num / den - 1
+            result[f"spectra {name} {'with' if flag else 'without'} bands"] = {
+                "images": len(labels),
+                "median": float(np.median(e)),
+                "p95": float(np.percentile(e, 95)),
+                "max_abs_band_bias": float(np.abs(bias).max()),
+                "worst_band_nm": float(wl[int(np.argmax(np.abs(bias)))]),
+            }
+    return result
+
+
+def main_foreign(args) -> dict:
+    import shutil
+    import subprocess
+    import tempfile
+
+    start = time.perf_counter()
+    results: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for lab, (script, extra) in FOREIGN_LABS.items():
+            root = Path(tmp) / lab.split()[0]
+            subprocess.run(
+                [sys.executable, str(SUPPORT / script), str(root / "capture"), *extra]
+                + ["--truth", str(root / "truth.npz")],
+                check=True,
+                capture_output=True,
+            )
+            _cli("ingest", str(root / "capture"), str(root / "raw.zarr"), cwd=root)
+            for setting, sets in FOREIGN_SETTINGS.items():
+                shutil.rmtree(root / "run.zarr", ignore_errors=True)
+                shutil.copytree(root / "raw.zarr", root / "run.zarr")
+                _cli(
+                    "run",
+                    "btf",
+                    str(root / "run.zarr"),
+                    *[a for s in sets for a in ("--set", s)],
+                    cwd=root,
+                )
+                results.setdefault(lab, {})[setting] = foreign_measures(root, lab)
+                print(lab, setting, json.dumps(results[lab][setting]["c_error_rgb"]), flush=True)
+    result = {
+        "benchmark": "calibration_foreign",
+        "setup": {
+            "labs": {k: " ".join([v[0], *v[1]]) for k, v in FOREIGN_LABS.items()},
+            "settings": FOREIGN_SETTINGS,
+            "c_error": "per channel RMS over wavelength of (s C - truth) / max(truth), paired camera",
+            "band_radiance": "sum over the frame (3 px border off) of the calibrated, registered band "
+            "radiance / the writer's radiance under the same LED, median-normalised",
+            "spectra": "per pixel |S - s T| / |s T| with one scale s per pixel; per-band bias of "
+            "the sums over pixels",
+        },
+        "machine": {"python": platform.python_version(), "cpu_count": _cpus(), "numpy": np.__version__},
+        "labs": results,
+        "seconds_total": time.perf_counter() - start,
+    }
+    if not args.quick:
+        FOREIGN_RESULTS.parent.mkdir(parents=True, exist_ok=True)
+        FOREIGN_RESULTS.write_text(json.dumps(result, indent=2) + "\n")
+    return result
+
+
 # -- main ---------------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -620,9 +768,16 @@ def main(argv: list[str] | None = None) -> dict:
         help="only the camera matrix C: shape error per channel and chart cross-validation",
     )
     parser.add_argument("--seeds", type=int, default=2, help="--camera-matrix: noise draws per case")
+    parser.add_argument(
+        "--foreign",
+        action="store_true",
+        help="only the calibrated chain on the foreign gantries (tests/support), before and after",
+    )
     args = parser.parse_args(argv)
     if args.camera_matrix:
         return main_camera_matrix(args)
+    if args.foreign:
+        return main_foreign(args)
     side = 256 if args.quick else 512
     filter_size = 20.0 if args.quick else 40.0
 

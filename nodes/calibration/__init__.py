@@ -10,6 +10,7 @@ module                what
 ``hdr``               HDR merge of RGB exposure series (Robertson's estimator)
 ``spectral``          quantum efficiency Q, camera matrix C, cross-validation (Fig. 4)
 ``camera_lobes``      C as a non-negative sum of smooth lobes (the default fit of C)
+``matched_level_qe``  Q of the white reference at each band shot's own signal level
 ``registration``      spectral-to-RGB misregistration (phase correlation) and resampling
 ``band_radiance``     calibrated, registered band radiance of every shot
 ``declarations``      the calibration nodes: parameters and :class:`~spectralize.engine.Node` s

@@ -22,9 +22,14 @@ What it models (all of it different from spectralize's simulator on purpose):
 - every file TIFF (some zlib-compressed), in nested folders; manifest columns in another
   order, with extra columns.
 
+What the gantry is made of (illuminant, materials, chart, RGB cameras and their sensor
+models: sensitivity, response, black offset; LED power) is one dictionary, :func:`default_lab`;
+``foreign_gantry_models.py`` writes harder labs through the same code.
+
 Usage: ``python foreign_gantry.py OUT [--truth truth.npz]``. Deterministic (fixed seed).
-``--truth`` writes what a lab never has (material map, reflectances, illuminant) beside, not
-inside, the capture folder, so that a test can judge the reconstruction.
+``--truth`` writes what a lab never has (material map, reflectances, illuminant, every RGB
+camera's sensitivity and model, LED power) beside, not inside, the capture folder, so that a
+test can judge the calibration and the reconstruction.
 """
 
 from __future__ import annotations
