@@ -266,21 +266,28 @@ def _flows_epilog() -> str:
 
     lines = ["flows (FLOW):"]
     lines += [f"  {name:<10} {text}" for name, text in sorted(FLOW_DESCRIPTIONS.items())]
-    lines.append("  or the name of one node (see `spectralize nodes`), run on its own")
+    lines.append("  or the name of one node (see 'spectralize nodes'), run on its own")
     lines.append("")
-    lines.append("parameters: `spectralize nodes` prints each as --set NODE.PARAM=DEFAULT")
+    lines.append("parameters: 'spectralize nodes' prints each as --set NODE.PARAM=DEFAULT")
     return "\n".join(lines)
 
 
 _SET_HELP = (
     "node parameter NODE.PARAM=VALUE or PARAM=VALUE (repeatable); VALUE is JSON (null, true, "
     '[0.5,0.0], "text"), a Python literal (None, (0.5, 0.0)) or bare text (block-jacobi-pcg); '
-    "`spectralize nodes` lists every parameter with its default in this syntax"
+    "'spectralize nodes' lists every parameter with its default in this syntax"
 )
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="spectralize", description=__doc__)
+    parser = _Parser(
+        prog="spectralize",
+        description="Turns the measurement runs of a spectral BTF gantry into calibrated "
+        "spectral image cubes (Fast Capture of Spectral Image Series).",
+        epilog="Options anywhere on the line: --debug (full tracebacks), -v/--verbose "
+        "(Prefect's log lines).\nRun 'spectralize COMMAND --help' for a command's options, "
+        "their defaults and allowed values.",
+    )
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     parser.add_argument(
@@ -309,7 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument(
         "--flow",
         default=None,
-        help="also require the groups this flow reads (a flow of `spectralize flows`, e.g. btf)",
+        help="also require the groups this flow reads (a flow of 'spectralize flows', e.g. btf)",
     )
     validate.set_defaults(handler=_cmd_validate)
     clean = commands.add_parser("clean", help="remove unfinished writes of killed runs")
@@ -319,9 +326,11 @@ def build_parser() -> argparse.ArgumentParser:
         "run",
         help="run a flow against a store (finished nodes are skipped)",
         description="Run a flow against a run store. Nodes whose results are up to date are "
-        "skipped; an interrupted write resumes where it stopped. Progress: a bar with ETA per "
-        "image set and per running solver (iterations of the limit) on a terminal, plain lines "
-        "otherwise; -v shows Prefect's log lines instead.",
+        "skipped; an interrupted write resumes where it stopped. Progress: a bar of the image "
+        "sets' work done and one per running solver, each with the time left measured from the "
+        "solver's convergence rate and time per iteration, on a terminal; the same numbers as "
+        "plain lines otherwise; -v shows Prefect's log lines instead. The flow name, the store "
+        "path, every --set and --dask-address are checked first, in well under a second.",
         lazy_epilog=_flows_epilog,
     )
     run.add_argument("flow", help="a flow (listed below) or a node name")

@@ -224,12 +224,13 @@ def check_assignments(
         if not _fits(value, schema):
             expected = _kind_text(schema)
             near = ""
-            if isinstance(value, str) and "enum" in _enum_schema(schema):
-                near = did_you_mean(value, [str(v) for v in _enum_schema(schema)["enum"]])
+            allowed = [str(v) for v in _enum_schema(schema).get("enum", ())]
+            if isinstance(value, str) and allowed:
+                near = did_you_mean(value, allowed)
                 expected = (
-                    f"one of: {shortened([str(v) for v in _enum_schema(schema)['enum']])}"
-                    if not near
-                    else "an allowed value"
+                    f"one of: {', '.join(allowed)}"
+                    if len(allowed) <= 8 or not near
+                    else f"one of {len(allowed)} values"
                 )
             problems.append(f"--set {owners[0]}.{parameter}: expected {expected}, got {value!r}{near}")
     return problems

@@ -4,10 +4,14 @@ defaults and allowed values, and every default `spectralize nodes` prints parses
 import contextlib
 import io
 import json
+import os
+import re
 import shlex
+import socket
 import subprocess
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -182,3 +186,105 @@ def test_help_shows_defaults_and_allowed_values():
     serve = help_of("serve")
     assert "(default: 0 2 * * *)" in serve and "(default: 5.0)" in serve
     assert "-v, --verbose" in help_of()
+
+
+# -- errors in under a second: checked before Prefect and the engine load ------------------
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    """A private listing cache, filled (as after the first `spectralize nodes` or run)."""
+    folder = tmp_path_factory.mktemp("cache")
+    done = subprocess.run(
+        [sys.executable, "-m", "spectralize.flows.cli", "nodes"],
+        env={**os.environ, "SPECTRALIZE_CACHE_DIR": str(folder)},
+        capture_output=True,
+        timeout=300,
+    )
+    assert done.returncode == 0
+    return folder
+
+
+def timed_error(argv, cwd, cache):
+    """Exit code, stderr and the least wall time [s] of three runs of the real command."""
+    env = {**os.environ, "SPECTRALIZE_CACHE_DIR": str(cache)}
+    best, done = float("inf"), None
+    for _ in range(3):
+        start = time.perf_counter()
+        done = subprocess.run(
+            [sys.executable, "-m", "spectralize.flows.cli", *argv],
+            cwd=cwd,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        best = min(best, time.perf_counter() - start)
+    return done.returncode, done.stderr, best
+
+
+def refused_port() -> int:
+    """A local TCP port nothing listens on."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+ERRORS = {
+    "store path": (["run", "btf", "{tmp}/nope.zarr"], "run store '{tmp}/nope.zarr' does not exist"),
+    "flow name": (["run", "btff", "{store}"], "unknown flow or node 'btff'; did you mean 'btf'?"),
+    "parameter name": (
+        ["run", "btf", "{store}", "--set", "reconstruct_image_sets.tolerence=1e-3"],
+        "node 'reconstruct_image_sets' has no parameter 'tolerence'; did you mean 'tolerance'?",
+    ),
+    "parameter type": (
+        ["run", "dark", "{store}", "--set", "dark_average.frames_per_chunk=many"],
+        "--set dark_average.frames_per_chunk: expected an integer >= 1, got 'many'",
+    ),
+    "parameter range": (
+        ["run", "btf", "{store}", "--set", "reconstruct_image_sets.tolerance=-1"],
+        "--set reconstruct_image_sets.tolerance: expected a number > 0 or null (None), got -1",
+    ),
+    "method": (
+        ["run", "btf", "{store}", "--set", "reconstruct_image_sets.method=mixture-prior-pgc"],
+        "got 'mixture-prior-pgc'; did you mean 'mixture-prior-pcg'",
+    ),
+    "dask address": (
+        ["run", "dark", "{store}", "--dask-address", "tcp://127.0.0.1:{port}"],
+        "cannot reach the dask scheduler at tcp://127.0.0.1:{port}",
+    ),
+    "capture folder": (
+        ["validate", "{tmp}/capture"],
+        "is a capture folder, not a run store; ingest it first: spectralize ingest",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", ERRORS)
+def test_command_line_errors_come_in_under_a_second_and_a_half(case, store, cache, tmp_path):
+    (tmp_path / "capture").mkdir()
+    (tmp_path / "capture" / "manifest.csv").write_text("file,kind\n")
+    words = {"tmp": str(tmp_path), "store": str(store), "port": str(refused_port())}
+    argv, message = ERRORS[case]
+    code, err, seconds = timed_error([a.format(**words) for a in argv], tmp_path, cache)
+    assert code == 2, err
+    assert message.format(**words) in err
+    assert "Traceback" not in err and err.count("\n") <= 3  # one short message
+    assert seconds < 1.5, f"{case}: {seconds:.2f} s"
+
+
+def test_the_early_errors_load_neither_prefect_nor_the_engine(store, cache, tmp_path, monkeypatch):
+    monkeypatch.setenv("SPECTRALIZE_CACHE_DIR", str(cache))
+    argv = ["run", "btf", str(store), "--set", "reconstruct_image_sets.tolerence=1e-3"]
+    found = loaded_after(argv, tmp_path, (*HEAVY, "xarray", "numpy"))
+    assert found["code"] == 2 and found["loaded"] == []
+
+
+def test_help_has_no_markup_and_lists_each_command_once():
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
+        build_parser().parse_args(["--help"])
+    text = out.getvalue()
+    assert "``" not in text and "`" not in text
+    for command in ("nodes", "flows", "validate", "clean", "run", "serve", "ingest", "report"):
+        assert len(re.findall(rf"^\s+{command}\s", text, re.MULTILINE)) == 1, command
