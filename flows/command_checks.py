@@ -82,7 +82,7 @@ def check_store(path: str | Path, *, may_be_missing: bool = False) -> None:
         near = did_you_mean(path.name, (p.name for p in _siblings(path)))
         raise UsageError(f"run store {str(path)!r} does not exist{near}")
     if not path.is_dir() or not (path / "zarr.json").is_file():
-        raise UsageError(f"{str(path)!r} is not a run store (a zarr directory with zarr.json)")
+        raise UsageError(f"{str(path)!r} is not a run store: not a zarr v3 store (no zarr.json)")
 
 
 def _siblings(path: Path) -> list[Path]:

@@ -594,6 +594,8 @@ def _calibration(store: RunStore) -> tuple[list[tuple[str, str]], list[dict[str,
 # -- reconstruction (no ground truth needed) -------------------------------------------------
 #: Percentiles of the confidence that span its colour scale (a few outliers do not set it).
 CONFIDENCE_PERCENTILES: tuple[float, float] = (2.0, 98.0)
+#: Cameras with a panel of spectra (a gantry has a few; more would not be read side by side).
+MAX_CAMERA_PANELS = 6
 #: The estimated nRMSE above which a pixel is flagged: the paper's Figure 7 level.
 CONFIDENCE_FLAG = DEFAULT_THRESHOLD
 
@@ -703,7 +705,8 @@ def _camera_spectra(
     labels = _labels(cube)
     radiance = cube["radiance"]
     panels = []
-    for camera in sorted(set(cameras.tolist()), key=str):
+    every = sorted(set(cameras.tolist()), key=str)
+    for camera in every[:MAX_CAMERA_PANELS]:
         mine = np.flatnonzero(cameras == camera)
         picks = representative_pixels(brightness[mine], None if confidence is None else confidence[mine])
         lines = [
@@ -719,7 +722,12 @@ def _camera_spectra(
         "camera_spectra",
         "Reconstructed spectra at pixels chosen per camera to show the range of its images "
         "shown: near saturation (99.9th percentile of brightness), typical (median), dark "
-        "(2nd percentile) and, where the run has a confidence, the least confident pixel.",
+        "(2nd percentile) and, where the run has a confidence, the least confident pixel"
+        + (
+            f"; the first {MAX_CAMERA_PANELS} of {len(every)} cameras."
+            if len(every) > MAX_CAMERA_PANELS
+            else "."
+        ),
     )
 
 

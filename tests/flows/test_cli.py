@@ -56,7 +56,8 @@ def test_demo_runs_then_skips(tmp_path):
     before = tree(store)
     unknown = cli("run", "nope", str(store), cwd=tmp_path)
     assert unknown.returncode == 2
-    assert "unknown flow or node 'nope'" in unknown.stderr and "dark_average" in unknown.stderr
+    assert "unknown flow or node 'nope'" in unknown.stderr
+    assert "flows: btf, calibrate, dark, demo" in unknown.stderr  # nodes: counted, not listed
     bad = cli(
         "run",
         "dark",

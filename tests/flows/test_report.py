@@ -395,3 +395,47 @@ def test_labels_are_escaped_by_the_template(run, tmp_path):
     page = parse(index)
     assert page.title == f"run {attack}"  # shown as text, not run as markup
     assert attack in page.cells and f"{attack}.zarr" in page.cells
+
+
+def test_the_report_of_a_demo_sized_run_takes_under_five_seconds(tmp_path):
+    """99 images of 64 x 64 px with confidence, the colour checker and the registration, as
+    the demo's capture path makes them; 24 images with figures."""
+    import time
+
+    rng = np.random.default_rng(4)
+    n = 99
+    values = rng.uniform(0.05, 1.0, (n, SHAPE.wavelengths.size, 64, 64)).astype(np.float32)
+    spectra = cube_dataset(values).assign(
+        confidence=(
+            ("image", "y", "x"),
+            rng.gamma(1.0, 0.01, (n, 64, 64)).astype(np.float32),
+            {"units": "1"},
+        )
+    )
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write("spectra", spectra.chunk({"image": 11}), fingerprint="spectra-fp")
+    measured = rng.uniform(0.1, 1.0, (24, 3))
+    store.write(
+        "calibration/spectral",
+        xr.Dataset(
+            {
+                "quantum_efficiency": ("wavelength", np.linspace(0.2, 1.0, SHAPE.wavelengths.size)),
+                "camera_matrix": (("channel", "wavelength"), np.ones((3, SHAPE.wavelengths.size))),
+                "measured_rgb": (("patch", "channel"), measured),
+                "predicted_rgb": (("patch", "channel"), measured * 1.02),
+                "relative_error": ("patch", np.full(24, 0.02)),
+            },
+            coords={
+                "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
+                "patch": np.arange(24),
+                "channel": ["R", "G", "B"],
+            },
+            attrs={"mean_relative_error": 0.02, "max_relative_error": 0.02},
+        ).pipe(relative),
+        fingerprint="calibration-fp",
+    )
+    start = time.perf_counter()
+    index = write_run_report(store.path, directory=tmp_path / "report")
+    seconds = time.perf_counter() - start
+    assert len(parse(index).images) >= 2 * 24 + 3  # renders and confidence of 24, figures
+    assert seconds < 5.0, f"{seconds:.1f} s"

@@ -1,5 +1,9 @@
-"""The example notebook runs, cell by cell, against a small run store (nbclient)."""
+"""The example notebook runs, cell by cell (nbclient), on any run store: a small one with
+ground truth, the store the capture path makes (sample capture folder -> ingest -> btf: no
+truth) and a simulated run."""
 
+import subprocess
+import sys
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -117,33 +121,88 @@ class Images(HTMLParser):
             self.sources.append(dict(attrs)["src"])
 
 
-@pytest.mark.filterwarnings("ignore::zarr.errors.UnstableSpecificationWarning")  # channel labels
-def test_notebook_executes_against_a_run(tmp_path, monkeypatch):
-    store = make_run(tmp_path / "run.zarr")
-    report = tmp_path / "report"
-    monkeypatch.setenv("SPECTRALIZE_RUN", str(store.path))
+def execute(store: Path, report: Path, cwd: Path, monkeypatch) -> list:
+    """Run the notebook on ``store``; its code cells, every one executed without error."""
+    monkeypatch.setenv("SPECTRALIZE_RUN", str(store))
     monkeypatch.setenv("SPECTRALIZE_REPORT_DIR", str(report))
     monkeypatch.delenv("MPLBACKEND", raising=False)  # the kernel's inline backend shows figures
     notebook = nbformat.read(NOTEBOOK, as_version=4)
     client = NotebookClient(
-        notebook, timeout=120, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+        notebook, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(cwd)}}
     )
     client.execute()  # raises CellExecutionError if any cell fails
-
     code = [cell for cell in notebook.cells if cell.cell_type == "code"]
     assert all(cell.execution_count for cell in code)  # every code cell ran
-    errors = [out for cell in code for out in cell.outputs if out.output_type == "error"]
-    assert errors == []
-    text = "\n".join(
+    assert [out for cell in code for out in cell.outputs if out.output_type == "error"] == []
+    return code
+
+
+def printed(code: list) -> str:
+    return "\n".join(
         out.get("text", "") for cell in code for out in cell.outputs if out.output_type == "stream"
     )
+
+
+def pictures(code: list) -> list:
+    return [out for cell in code for out in cell.outputs if "image/png" in out.get("data", {})]
+
+
+@pytest.mark.filterwarnings("ignore::zarr.errors.UnstableSpecificationWarning")  # channel labels
+def test_notebook_executes_against_a_run_with_truth(tmp_path, monkeypatch):
+    store = make_run(tmp_path / "run.zarr")
+    report = tmp_path / "report"
+    code = execute(store.path, report, tmp_path, monkeypatch)
+    text = printed(code)
+    assert "simulated, with ground truth" in text
     # 32 band shots of 0.1 s + 3 RGB series of 0.05 s against the paper's 226.212 s
     assert f"{226.212 / 3.35:.1f}x faster" in text
     assert "Warning" not in text
     assert f"report written to {report / 'index.html'}" in text
-    images = [out for cell in code for out in cell.outputs if "image/png" in out.get("data", {})]
-    assert len(images) >= 5  # error maps, renders, Figure 5/6 pair, histogram
+    assert len(pictures(code)) >= 5  # renders, spectra, error maps, Figure 5/6 pair, histogram
     page = Images()
     page.feed((report / "index.html").read_text(encoding="utf-8"))
     assert len(page.sources) >= 4  # histogram, capture time, error map and spectra of an image
     assert all(source.startswith("data:image/png;base64,") for source in page.sources)  # one file
+
+
+def cli(*args: str, cwd: Path) -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", *args], cwd=cwd, capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+
+
+@pytest.fixture(scope="module")
+def capture_store(tmp_path_factory) -> Path:
+    """The capture path, as a user takes it: a sample capture folder, ingested, btf run."""
+    work = tmp_path_factory.mktemp("capture-path")
+    cli("spectralize.datasets.capture.sample", "capture", "--recipe", "tiny", cwd=work)
+    cli("spectralize.flows.cli", "ingest", "capture", "run.zarr", cwd=work)
+    cli("spectralize.flows.cli", "run", "btf", "run.zarr", cwd=work)
+    return work / "run.zarr"
+
+
+@pytest.mark.slow
+def test_notebook_executes_on_the_store_the_capture_path_makes(capture_store, tmp_path, monkeypatch):
+    assert not RunStore.open(capture_store).has("truth/spectra")
+    code = execute(capture_store, tmp_path / "report", tmp_path, monkeypatch)
+    text = printed(code)
+    assert "no ground truth" in text
+    assert "colour checker: mean relative error" in text  # calibration
+    assert "estimated nRMSE over all pixels of all images: median" in text  # confidence
+    assert "no accuracy; the confidence above is the measure" in text
+    assert "faster" in text  # capture time without truth
+    assert f"report written to {tmp_path / 'report' / 'index.html'}" in text
+    assert len(pictures(code)) >= 4  # QE and C, renders, spectra, confidence
+
+
+@pytest.mark.slow
+def test_notebook_executes_on_a_simulated_run(tmp_path, monkeypatch):
+    from spectralize.flows import run_flow
+
+    run_flow("demo", tmp_path / "run.zarr", parameters={"simulate.recipe": "tiny"})
+    code = execute(tmp_path / "run.zarr", tmp_path / "report", tmp_path, monkeypatch)
+    text = printed(code)
+    assert "simulated, with ground truth" in text
+    assert "estimated nRMSE over all pixels" in text and "colour checker" in text
+    assert len(pictures(code)) >= 8  # the above and error maps, spectra, histograms
