@@ -12,7 +12,12 @@ import json
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["parse_value", "format_value", "parse_assignments", "type_text"]
+__all__ = ["UsageError", "parse_value", "format_value", "parse_assignments", "type_text"]
+
+
+class UsageError(Exception):
+    """A wrong command line (a malformed ``--set``, an unknown name, a value out of range),
+    found before anything loads: exit 2, no traceback."""
 
 
 def parse_value(text: str) -> Any:
@@ -45,8 +50,6 @@ def parse_assignments(items: Sequence[str]) -> dict[str, Any]:
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            from .command_checks import UsageError
-
             raise UsageError(
                 f"--set expects KEY=VALUE (e.g. dark_average.frames_per_chunk=8), got {item!r}"
             )

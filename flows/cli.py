@@ -27,8 +27,8 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from .assignments import parse_assignments
-from .command_checks import UsageError, check_run, check_store
+from .assignments import UsageError, parse_assignments
+from .command_checks import check_run, check_store
 
 __all__ = ["main", "build_parser"]
 

@@ -24,8 +24,9 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from .assignments import UsageError
+
 __all__ = [
-    "UsageError",
     "DASK_TIMEOUT_S",
     "did_you_mean",
     "shortened",
@@ -39,10 +40,6 @@ __all__ = [
 #: Seconds the command line waits for a dask scheduler to accept a connection.
 DASK_TIMEOUT_S = 2.0
 _CAPTURE_FILES = ("manifest.csv", "capture.toml")
-
-
-class UsageError(Exception):
-    """A wrong command line, found before anything loads (exit 2, no traceback)."""
 
 
 def did_you_mean(word: str, candidates: Iterable[str]) -> str:

@@ -4,8 +4,13 @@ read back, and a parameter's type is shown without its constraint metadata."""
 import pytest
 
 from spectralize.engine import registry
-from spectralize.flows.assignments import format_value, parse_assignments, parse_value, type_text
-from spectralize.flows.command_checks import UsageError
+from spectralize.flows.assignments import (
+    UsageError,
+    format_value,
+    parse_assignments,
+    parse_value,
+    type_text,
+)
 
 
 @pytest.mark.parametrize(
