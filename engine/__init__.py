@@ -52,8 +52,8 @@ or else from the first line of the argument's numpydoc entry. An explicit
 
 from . import progress
 from .discovery import ENTRY_POINT_GROUP, RegisteredNode, discover_nodes, get_node, registry
-from .graph import PlannedStep, Step, check_graph
-from .node import Choices, Node, Parameters, choices_of, parameters_from_signature
+from .graph import PlannedStep, Step, check_graph, value_refusals
+from .node import Choices, Node, Parameters, ValueCheck, choices_of, parameters_from_signature
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -63,6 +63,7 @@ __all__ = [
     "PlannedStep",
     "RegisteredNode",
     "Step",
+    "ValueCheck",
     "check_graph",
     "choices_of",
     "discover_nodes",
@@ -70,4 +71,5 @@ __all__ = [
     "parameters_from_signature",
     "progress",
     "registry",
+    "value_refusals",
 ]

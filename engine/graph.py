@@ -3,21 +3,25 @@
 A graph is checked as a whole before anything runs (parameters, including those whose values
 come from a method table; bindings; inputs; producers; schemas; cycles) and every problem is
 reported at once. Run order and cycle detection use :class:`graphlib.TopologicalSorter`.
+:func:`value_refusals` runs the value checks of a checked graph's nodes on the groups a store
+already has (what ``spectralize validate --flow`` reports).
 """
 
 from __future__ import annotations
 
 import graphlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from spectralize.schemas import GROUP_SCHEMAS, ParameterError, PipelineError, Problem
+import xarray as xr
+
+from spectralize.schemas import GROUP_SCHEMAS, ParameterError, PipelineError, Problem, SpectralizeError
 
 from .discovery import registry
 from .node import Node, Parameters
 
-__all__ = ["Step", "PlannedStep", "check_graph"]
+__all__ = ["Step", "PlannedStep", "check_graph", "value_refusals"]
 
 
 @dataclass(frozen=True)
@@ -213,3 +217,36 @@ def check_graph(
     if problems:
         raise PipelineError(f"the node graph cannot run ({len(problems)} problem(s)):", problems)
     return order
+
+
+def value_refusals(
+    planned: Sequence[PlannedStep], read: Callable[[str], xr.Dataset | None]
+) -> list[tuple[PlannedStep, SpectralizeError]]:
+    """What the value checks of a graph's nodes refuse in the groups that exist already.
+
+    Each step's :meth:`Node.refusals` gets the input groups ``read`` returns (``None``: the
+    group is not there yet, an earlier step makes it) and the step's parameters: the checks
+    the node makes before computing, so the graph would stop there. A group refused for one
+    step is not checked again for the later steps that read it (the same rule would be
+    reported twice). Each group is read once.
+    """
+    groups: dict[str, xr.Dataset | None] = {}
+    refused: set[str] = set()
+    found: list[tuple[PlannedStep, SpectralizeError]] = []
+    for item in planned:
+        if item.node.check is None or refused & set(item.inputs.values()):
+            continue
+        inputs = {}
+        for argument, group in item.inputs.items():
+            if group not in groups:
+                groups[group] = read(group)
+            data = groups[group]
+            if data is not None:
+                inputs[argument] = data
+        if not inputs:
+            continue
+        errors = item.node.refusals(inputs, item.parameters)
+        if errors:
+            refused.update(group for group in item.inputs.values() if groups[group] is not None)
+            found += [(item, error) for error in errors]
+    return found

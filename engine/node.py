@@ -6,6 +6,11 @@ written once, where the science is. A parameter whose values are the keys of a m
 (solvers, baselines, response models, recipes) is annotated with :class:`Choices`, and a typo
 then fails when the parameters are parsed, which :func:`~spectralize.engine.check_graph`
 does before anything runs.
+
+A node may declare a value check (:attr:`Node.check`): what its function would refuse in its
+inputs' values before computing (unsorted exposure times, frames entirely saturated). The
+node calls it before its function, and ``spectralize validate --flow`` calls the same hook on a
+store, so a store that passes validation is not refused by the flow for its values.
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ from __future__ import annotations
 import inspect
 import re
 import typing
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,7 +37,24 @@ from spectralize.schemas import (
     validate_dataset,
 )
 
-__all__ = ["Parameters", "Choices", "Node", "parameters_from_signature", "choices_of"]
+__all__ = [
+    "Parameters",
+    "Choices",
+    "Node",
+    "ValueCheck",
+    "parameters_from_signature",
+    "choices_of",
+]
+
+ValueCheck = Callable[[Mapping[str, xr.Dataset], "Parameters"], Sequence[SpectralizeError]]
+"""A node's value check: ``check(inputs, parameters) -> refusals``.
+
+``inputs`` are the node's input groups by argument (lazy; only those that exist: ``validate``
+calls it on a store where the groups an earlier step makes may be missing, and the check then
+checks what it can), ``parameters`` its parsed :class:`Parameters`. It returns every error the
+node's function would raise for those values before computing (empty: accepted). Pure and
+cheap: it reads only what it needs.
+"""
 
 
 class Parameters(BaseModel):
@@ -210,6 +232,9 @@ class Node:
         Output group -> chunk size per dim on disk.
     resumable_along
         Output group -> dim along which it is written region by region (resumable).
+    check
+        The node's value check (:data:`ValueCheck`), run before its function and by
+        ``spectralize validate --flow``; ``None``: the schemas' checks only.
     """
 
     name: str
@@ -221,6 +246,7 @@ class Node:
     description: str = ""
     chunks: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
     resumable_along: Mapping[str, str] = field(default_factory=dict)
+    check: ValueCheck | None = None
 
     def __post_init__(self) -> None:
         problems: list[Problem] = []
@@ -349,6 +375,18 @@ class Node:
                 problems,
             )
 
+    def refusals(
+        self, inputs: Mapping[str, xr.Dataset], parameters: Mapping[str, Any] | Parameters | None = None
+    ) -> list[SpectralizeError]:
+        """What the node's value check refuses in ``inputs`` (empty when it has none).
+
+        ``inputs`` may lack groups (those an earlier step of a flow makes); the check then
+        checks the ones given.
+        """
+        if self.check is None:
+            return []
+        return list(self.check(inputs, self.parse_parameters(parameters)))
+
     def __call__(
         self,
         inputs: Mapping[str, xr.Dataset] | None = None,
@@ -362,10 +400,19 @@ class Node:
             For invalid parameters.
         SchemaError
             For inputs that are missing or break their declared schemas (nothing runs).
+        SpectralizeError
+            The first refusal of the node's value check (nothing runs); the others are
+            noted on it.
         """
         params = self.parse_parameters(parameters)
         inputs = dict(inputs or {})
         self.check_inputs(inputs)
+        refused = self.refusals(inputs, params)
+        if refused:
+            first = refused[0]
+            for other in refused[1:]:
+                first.add_note(f"and: {other.summary or other}")
+            raise first
         result = self.function(**inputs, **params.model_dump())
         if isinstance(result, xr.Dataset):
             if len(self.outputs) != 1:

@@ -1,11 +1,10 @@
-"""The value checks a flow's nodes make before computing, run on a store without the flow.
+"""``spectralize validate --flow F``: the value checks of F's nodes, run on a store.
 
-``spectralize validate STORE --flow F`` must not pass a store that ``F`` then rejects. The
-contract's own value rules (NaN/inf, ranges) are :meth:`RunStore.validate`'s; the rules below
-are those the calibration nodes apply to their exposure series before any numerics
-(:mod:`spectralize.nodes.calibration.exposure_series`: exposure times positive, finite and
-strictly increasing; values within the bit depth; no frame entirely saturated). They are the
-nodes' own functions, called with the nodes' default thresholds, so one rule set decides both.
+``validate --flow F`` must not pass a store that ``F`` then rejects. The contract's own value
+rules (NaN/inf, ranges) are :meth:`RunStore.validate`'s; what a node refuses beyond them is
+its value check (:attr:`spectralize.engine.Node.check`), the hook the node runs before its
+function. Here the same hooks run, with the flow's parameters, on the groups the store has
+(:func:`spectralize.engine.value_refusals`), so one rule set decides both.
 
 References
 ----------
@@ -14,103 +13,29 @@ Fast Capture of Spectral Image Series, sec. 4 (the exposure series of the calibr
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
-import xarray as xr
-
 from spectralize.schemas import Problem, SpectralizeError
-from spectralize.store import RunStore
+from spectralize.store import SCHEMA_ATTR, RunStore
 
-__all__ = ["NODE_CHECKS", "flow_value_problems"]
-
-
-def _problems(check: Callable[[], None], where: str) -> list[Problem]:
-    """What a node's check raises, as problems (nothing when it passes)."""
-    try:
-        check()
-    except SpectralizeError as error:
-        listed = [p for p in error.problems if isinstance(p, Problem)]
-        found = error.summary.removeprefix(f"{where}: ")
-        return listed or [Problem(where, "an exposure series the node accepts", found)]
-    return []
+__all__ = ["flow_value_problems", "refusal_lines"]
 
 
-def _times(ds: xr.Dataset, node: str, group: str, name: str, dim: str) -> list[Problem]:
-    from spectralize.nodes.calibration.exposure_series import check_exposure_times
-
-    if name not in ds.coords and name not in ds:
-        return []
-    times = ds[name].transpose(..., dim)
-    where = f"{node}: {group}"
-    return _problems(lambda: check_exposure_times(times, dim, where), where)
+def refusal_lines(error: SpectralizeError) -> list[Problem | str]:
+    """An error as ``validate`` lists it: its summary line, then its problems (run's text)."""
+    return ([error.summary] if error.summary else []) + list(error.problems)
 
 
-def _rgb_series(ds: xr.Dataset, node: str) -> list[Problem]:
-    """``recover_rgb_oecf`` and ``hdr_merge``: raw/rgb's series, and no frame entirely saturated."""
-    from spectralize.nodes.calibration.exposure_series import check_bit_depth, check_frames
+def flow_value_problems(store: RunStore, flow: str) -> list[Problem | str]:
+    """What the nodes of ``flow`` would refuse before computing, for the groups present.
 
-    problems = _times(ds, node, "raw/rgb", "exposure_time", "exposure")
-    counts = ds["counts"]
-    bits = ds.attrs.get("bit_depth", counts.attrs.get("bit_depth"))
-    where = f"{node}: raw/rgb:counts"
-    depth = _problems(lambda: check_bit_depth(bits, where="raw/rgb.attrs['bit_depth']"), where)
-    if depth:
-        return problems + depth
-    top = 2 ** int(bits) - 1
-    return problems + _problems(
-        lambda: check_frames(
-            counts,
-            ("image", "exposure", "channel"),
-            black_level=-1,  # the entirely-dark rule needs the node's data-driven black level
-            saturation=top,
-            max_code=top,
-            where=where,
-            times=ds["exposure_time"],
-        ),
-        where,
-    )
-
-
-def _target_series(ds: xr.Dataset, node: str, group: str) -> list[Problem]:
-    """The white reference's and colour checker's RGB and band exposure series."""
-    return _times(ds, node, group, "rgb_exposure_time", "rgb_exposure") + _times(
-        ds, node, group, "spectral_exposure_time", "spectral_exposure"
-    )
-
-
-NODE_CHECKS: dict[str, dict[str, Callable[[xr.Dataset, str], list[Problem]]]] = {
-    "recover_rgb_oecf": {"raw/rgb": _rgb_series},
-    "hdr_merge": {"raw/rgb": _rgb_series},
-    "recover_spectral_oecf": {
-        "raw/white_reference": lambda ds, node: _times(
-            ds, node, "raw/white_reference", "spectral_exposure_time", "spectral_exposure"
-        )
-    },
-    "calibrate_spectral": {
-        "raw/white_reference": lambda ds, node: _target_series(ds, node, "raw/white_reference"),
-        "raw/colour_checker": lambda ds, node: _target_series(ds, node, "raw/colour_checker"),
-    },
-}
-"""node -> {input group -> its checks}: what each calibration node refuses before computing."""
-
-
-def flow_value_problems(store: RunStore, flow: str) -> list[Problem]:
-    """The problems the nodes of ``flow`` would raise before computing, for the groups present.
-
-    Each group is read once (its frames reduced with dask); a group checked for several nodes
-    reports a problem once.
+    Each group is read once; a group refused for one node is not checked again for the
+    nodes after it.
     """
+    from spectralize.engine import check_graph, value_refusals
     from spectralize.flows.pipelines import get_flow
 
-    problems: list[Problem] = []
-    seen: set[str] = set()
-    for step in get_flow(flow).steps:
-        for group, check in NODE_CHECKS.get(step.node, {}).items():
-            if not store.has(group):
-                continue  # a missing group is validate's own problem (``required``)
-            for problem in check(store.read(group, friendly=False), step.node):
-                text = str(problem).split(": ", 1)[-1]
-                if text not in seen:
-                    seen.add(text)
-                    problems.append(problem)
-    return problems
+    available = {group: store.group_attrs(group).get(SCHEMA_ATTR) for group in store.groups()}
+    planned = check_graph(get_flow(flow).steps, available=available)
+    found = value_refusals(
+        planned, lambda group: store.read(group, friendly=False) if store.has(group) else None
+    )
+    return [line for _, error in found for line in refusal_lines(error)]

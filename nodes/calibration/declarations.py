@@ -29,7 +29,10 @@ node                       function                             groups
 The engine checks every input group against the schema its node declares
 (:data:`spectralize.schemas.run.GROUP_SCHEMAS`) before calling the function, so the functions
 check only what a schema cannot say (bit depths in range, exposure times present in the dark
-frames, saturation). Parameters are the functions' keyword-only arguments: the engine derives
+frames, saturation). The nodes that read exposure series declare those checks as their value
+check (``check=``, the ``*_check`` functions below): the engine runs it before the function,
+and ``spectralize validate --flow`` runs it on a store, with the same functions the node
+functions raise from. Parameters are the functions' keyword-only arguments: the engine derives
 each node's frozen parameter model from the annotations (``Annotated[T, Field(...)]``, and
 ``Choices(WEIGHTING_FUNCTIONS)`` for the weighting), so types, defaults and limits are
 written once.
@@ -45,23 +48,30 @@ radiance units to HDR units, which is what the reconstruction needs (``RGB = C @
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Annotated
 
 import numpy as np
 import xarray as xr
 from pydantic import Field
 
-from spectralize.engine import Node
+from spectralize.engine import Node, Parameters
 from spectralize.nodes.calibration.band_radiance import calibrate_bands
 from spectralize.nodes.calibration.dark import average_dark_frames
-from spectralize.nodes.calibration.hdr import merge_hdr
-from spectralize.nodes.calibration.oecf.low_snr import recover_spectral_oecf
-from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
+from spectralize.nodes.calibration.exposure_series import target_series_refusals
+from spectralize.nodes.calibration.hdr import merge_hdr, merge_hdr_refusals
+from spectralize.nodes.calibration.oecf.low_snr import recover_spectral_oecf, spectral_oecf_refusals
+from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf, rgb_oecf_refusals
 from spectralize.nodes.calibration.registration import estimate_registration
 from spectralize.nodes.calibration.spectral import calibrate_spectral
+from spectralize.schemas import SpectralizeError
 
 __all__ = [
     "merge_hdr_node",
+    "rgb_oecf_check",
+    "hdr_merge_check",
+    "spectral_oecf_check",
+    "calibrate_spectral_check",
     "DARK_AVERAGE",
     "RECOVER_RGB_OECF",
     "RECOVER_SPECTRAL_OECF",
@@ -107,6 +117,51 @@ def merge_hdr_node(
     return out
 
 
+# -- value checks (Node.check): what each node refuses before computing ---------------------
+def rgb_oecf_check(inputs: Mapping[str, xr.Dataset], parameters: Parameters) -> list[SpectralizeError]:
+    """``recover_rgb_oecf``: raw/rgb's series, with the black level the node would use."""
+    if "raw_rgb" not in inputs:
+        return []
+    return rgb_oecf_refusals(inputs["raw_rgb"], black_level=parameters.model_dump()["black_level"])
+
+
+def hdr_merge_check(inputs: Mapping[str, xr.Dataset], parameters: Parameters) -> list[SpectralizeError]:
+    """``hdr_merge``: raw/rgb's series, with the levels :func:`merge_hdr_node` would use."""
+    if "raw_rgb" not in inputs:
+        return []
+    values = parameters.model_dump()
+    black, saturation = values["black_level"], values["saturation"]
+    oecf_rgb = inputs.get("oecf_rgb")
+    if oecf_rgb is not None:  # before the response is made, the dark rule waits for it
+        attrs = {**oecf_rgb.attrs, **oecf_rgb["response"].attrs}
+        black = int(attrs.get("black_level", 0)) if black is None else black
+        saturation = attrs.get("saturation") if saturation is None else saturation
+    return merge_hdr_refusals(inputs["raw_rgb"], black_level=black, saturation=saturation)
+
+
+def spectral_oecf_check(
+    inputs: Mapping[str, xr.Dataset], parameters: Parameters
+) -> list[SpectralizeError]:
+    """``recover_spectral_oecf``: the white reference's band series."""
+    if "white_reference" not in inputs:
+        return []
+    return spectral_oecf_refusals(inputs["white_reference"])
+
+
+def calibrate_spectral_check(
+    inputs: Mapping[str, xr.Dataset], parameters: Parameters
+) -> list[SpectralizeError]:
+    """``calibrate_spectral``: the targets' RGB and band series' exposure times."""
+    found: list[SpectralizeError] = []
+    for argument, group in (
+        ("white_reference", "raw/white_reference"),
+        ("colour_checker", "raw/colour_checker"),
+    ):
+        if argument in inputs:
+            found += target_series_refusals(inputs[argument], group, "calibrate_spectral")
+    return found
+
+
 # -- nodes --------------------------------------------------------------------------------
 DARK_AVERAGE = Node(
     name="dark_average",
@@ -123,6 +178,7 @@ RECOVER_RGB_OECF = Node(
     function=recover_rgb_oecf,
     inputs={"raw_rgb": "raw/rgb"},
     outputs=("calibration/oecf_rgb",),
+    check=rgb_oecf_check,
     description="RGB camera response per channel by Robertson 2003 from raw/rgb (sec. 4).",
 )
 
@@ -132,6 +188,7 @@ RECOVER_SPECTRAL_OECF = Node(
     function=recover_spectral_oecf,
     inputs={"white_reference": "raw/white_reference", "dark": "dark"},
     outputs=("calibration/oecf_spectral",),
+    check=spectral_oecf_check,
     description="Spectral camera response: low-SNR extension joined to Robertson (sec. 4).",
 )
 
@@ -147,6 +204,7 @@ CALIBRATE_SPECTRAL = Node(
         "oecf_spectral": "calibration/oecf_spectral",
     },
     outputs=("calibration/spectral",),
+    check=calibrate_spectral_check,
     description="Quantum efficiency, camera matrix C and cross-validation (sec. 4, Fig. 4).",
 )
 
@@ -156,6 +214,7 @@ HDR_MERGE = Node(
     function=merge_hdr_node,
     inputs={"raw_rgb": "raw/rgb", "oecf_rgb": "calibration/oecf_rgb"},
     outputs=("hdr",),
+    check=hdr_merge_check,
     description="HDR RGB radiance from the exposure series (Robertson), lazy per chunk.",
 )
 

@@ -8,10 +8,12 @@ checked here, once:
 - :func:`check_integer`: raw pixel values are integers (DN);
 - :func:`check_exposure_times`: positive, finite and strictly increasing along the series;
 - :func:`warn_if_geometric`: equal exposure-time ratios leave the response ambiguous;
-- :func:`frame_flags`, :func:`check_frames`: frames entirely saturated or entirely dark carry
-  no information;
+- :func:`frame_extremes`, :func:`frame_flags`, :func:`check_frames`: frames entirely saturated
+  or entirely dark carry no information;
 - :func:`saturated_frames`: frames with at least one pixel at the ADC's maximum code;
-- :func:`target_spectral_series`: the per-band exposure series of a calibration target.
+- :func:`target_spectral_series`: the per-band exposure series of a calibration target;
+- :func:`refused`, :func:`raise_first`, :func:`target_series_refusals`: the checks as the
+  nodes' value checks (``Node.check``) return them, and as the node functions raise them.
 
 References
 ----------
@@ -24,13 +26,13 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import dask
 import numpy as np
 import xarray as xr
 
-from spectralize.schemas import CalibrationError, SchemaError
+from spectralize.schemas import CalibrationError, SchemaError, SpectralizeError
 from spectralize.schemas.errors import Problem
 
 __all__ = [
@@ -39,11 +41,15 @@ __all__ = [
     "check_integer",
     "check_exposure_times",
     "warn_if_geometric",
+    "frame_extremes",
     "frame_flags",
     "raise_for_frames",
     "check_frames",
     "saturated_frames",
     "target_spectral_series",
+    "refused",
+    "raise_first",
+    "target_series_refusals",
 ]
 
 _LISTED = 5  # problems listed one by one in an error; the rest are counted
@@ -175,18 +181,17 @@ def warn_if_geometric(times: xr.DataArray, series_dim: str, where: str) -> None:
         )
 
 
-def frame_flags(
-    counts: xr.DataArray, pixel_dims: Sequence[str], *, black_level: float, saturation: float
+def frame_extremes(
+    counts: xr.DataArray, pixel_dims: Sequence[str]
 ) -> tuple[int, int, np.ndarray, np.ndarray]:
-    """Smallest and largest value, and per frame whether it is not entirely saturated/dark.
+    """Smallest and largest value, and each frame's smallest and largest value.
 
     Returns
     -------
     tuple
-        ``(lo, hi, not_saturated, not_dark)``: the two bool arrays over the frame dims (the
-        dims of ``counts`` not in ``pixel_dims``, in their order). A frame is entirely
-        saturated when every value is ``>= saturation``, entirely dark when every value is
-        ``<= black_level``. One pass over the data (numpy or dask).
+        ``(lo, hi, frame_min, frame_max)``: the two arrays over the frame dims (the dims of
+        ``counts`` not in ``pixel_dims``, in their order). One pass over the data (numpy or
+        dask); thresholds are applied afterwards, so a data-dependent one costs no second pass.
     """
     pixel_dims = [d for d in counts.dims if d in pixel_dims]
     if counts.chunks is None:  # numpy: two reductions, no xarray/dask overhead
@@ -196,19 +201,26 @@ def frame_flags(
         values = np.ascontiguousarray(np.moveaxis(counts.values, axes, tuple(range(-len(axes), 0))))
         values = values.reshape(values.shape[: values.ndim - len(axes)] + (-1,))
         frame_min, frame_max = values.min(axis=-1), values.max(axis=-1)
-        return (
-            int(frame_min.min()),
-            int(frame_max.max()),
-            frame_min < saturation,
-            frame_max > black_level,
-        )
-    lo, hi, not_saturated, not_dark = dask.compute(
-        counts.min().data,
-        counts.max().data,
-        (counts < saturation).any(pixel_dims).data,
-        (counts > black_level).any(pixel_dims).data,
-    )
-    return int(lo), int(hi), np.asarray(not_saturated), np.asarray(not_dark)
+    else:
+        frame_min, frame_max = dask.compute(counts.min(pixel_dims).data, counts.max(pixel_dims).data)
+    frame_min, frame_max = np.asarray(frame_min), np.asarray(frame_max)
+    return int(frame_min.min()), int(frame_max.max()), frame_min, frame_max
+
+
+def frame_flags(
+    counts: xr.DataArray, pixel_dims: Sequence[str], *, black_level: float, saturation: float
+) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """Smallest and largest value, and per frame whether it is not entirely saturated/dark.
+
+    Returns
+    -------
+    tuple
+        ``(lo, hi, not_saturated, not_dark)``: the two bool arrays over the frame dims (see
+        :func:`frame_extremes`). A frame is entirely saturated when every value is
+        ``>= saturation``, entirely dark when every value is ``<= black_level``.
+    """
+    lo, hi, frame_min, frame_max = frame_extremes(counts, pixel_dims)
+    return lo, hi, frame_min < saturation, frame_max > black_level
 
 
 def raise_for_frames(
@@ -340,3 +352,40 @@ def target_spectral_series(target: xr.Dataset, group: str) -> tuple[xr.DataArray
         )
     )
     return counts.load(), depth
+
+
+def refused(*checks: Callable[[], object]) -> list[SpectralizeError]:
+    """Run each check; the errors they raise, in order (empty: every check passed)."""
+    found: list[SpectralizeError] = []
+    for check in checks:
+        try:
+            check()
+        except SpectralizeError as error:
+            found.append(error)
+    return found
+
+
+def raise_first(errors: Sequence[SpectralizeError]) -> None:
+    """Raise the first of ``errors`` (a node function refusing what its value check found)."""
+    if errors:
+        raise errors[0]
+
+
+def target_series_refusals(target: xr.Dataset, group: str, node: str) -> list[SpectralizeError]:
+    """The exposure times of a calibration target's RGB and band series (paper section 4).
+
+    ``rgb_exposure_time`` along ``rgb_exposure`` and ``spectral_exposure_time`` along
+    ``spectral_exposure``, where the group has them: positive, finite and strictly increasing
+    (:func:`check_exposure_times`), named ``"<node>: <group>"``.
+    """
+    where = f"{node}: {group}"
+    return refused(
+        *(
+            lambda name=name, dim=dim: check_exposure_times(target[name].transpose(..., dim), dim, where)
+            for name, dim in (
+                ("rgb_exposure_time", "rgb_exposure"),
+                ("spectral_exposure_time", "spectral_exposure"),
+            )
+            if name in target.variables
+        )
+    )

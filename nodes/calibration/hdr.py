@@ -30,14 +30,16 @@ import xarray as xr
 from spectralize.nodes.calibration.exposure_series import (
     check_bit_depth,
     check_exposure_times,
+    frame_extremes,
     raise_for_frames,
+    refused,
 )
 from spectralize.nodes.calibration.oecf.response import response_at_codes
 from spectralize.nodes.calibration.oecf.weighting import Weighting, weighting_function
-from spectralize.schemas import CalibrationError, SchemaError
+from spectralize.schemas import CalibrationError, SchemaError, SpectralizeError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["merge_hdr", "merge_robertson"]
+__all__ = ["merge_hdr", "merge_robertson", "merge_hdr_refusals"]
 
 _DIMS = ("image", "exposure", "y", "x", "channel")
 
@@ -353,3 +355,45 @@ def merge_hdr(
         },
     )
     return out
+
+
+def merge_hdr_refusals(
+    raw_rgb: xr.Dataset, *, black_level: int | None, saturation: int | None
+) -> list[SpectralizeError]:
+    """What :func:`merge_hdr` refuses in raw/rgb before merging (its value check).
+
+    The bit depth (8..16); exposure times positive, finite and strictly increasing per image;
+    values within the bit depth; no frame entirely saturated (``>= saturation``, default
+    ``2**bit_depth - 1``); no frame entirely dark (``<= black_level``; not checked while the
+    response that gives the black level is not there yet: ``black_level=None``). The same
+    functions :func:`merge_hdr` raises from, with its names. One pass over the counts.
+    """
+    where = "merge_hdr"
+    bits = raw_rgb.attrs.get("bit_depth", raw_rgb["counts"].attrs.get("bit_depth"))
+    depth = refused(lambda: check_bit_depth(bits, where="raw/rgb.attrs['bit_depth']"))
+    if depth:
+        return depth
+    top = 2 ** int(bits) - 1  # type: ignore[call-overload]
+    sat = top if saturation is None else int(saturation)
+    black = -1 if black_level is None else int(black_level)
+    counts = raw_rgb["counts"]
+    times = raw_rgb["exposure_time"].transpose("image", "exposure")
+    found = refused(lambda: check_exposure_times(times, "exposure", f"{where}: raw/rgb"))
+    frame_dims = [d for d in counts.dims if d in ("image", "exposure", "channel")]
+    lo, hi, frame_min, frame_max = frame_extremes(
+        counts, [d for d in counts.dims if d not in frame_dims]
+    )
+    return found + refused(
+        lambda: raise_for_frames(
+            lo,
+            hi,
+            frame_min < sat,
+            frame_max > black,
+            frame_dims=frame_dims,
+            black_level=black,
+            saturation=sat,
+            max_code=top,
+            where=f"{where}: raw/rgb:counts",
+            times=times,
+        )
+    )

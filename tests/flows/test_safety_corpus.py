@@ -32,7 +32,7 @@ from spectralize.flows.ingest.raw_groups import capture_files_of_chunk
 from spectralize.flows.runtime import run_steps
 from spectralize.flows.schedule import failure_line
 from spectralize.schemas import StoreError
-from spectralize.store import MANIFEST_ATTR, RunStore, work_dir
+from spectralize.store import RunStore, work_dir
 
 EXE = [sys.executable, "-m", "spectralize.flows.cli"]
 
@@ -271,7 +271,7 @@ def small_store(path):
 
 def rot(store, group, variable, index=0):
     """Flip bytes in the middle of a chunk and keep its modification time (real bit rot)."""
-    manifest = json.loads(store.group_attrs(group)[MANIFEST_ATTR])["files"]
+    manifest = store.manifest(group)["files"]
     rel = sorted(k for k in manifest if k.startswith(f"{variable}/c/"))[index]
     chunk = store.path / group / rel
     stat = chunk.stat()
@@ -538,28 +538,34 @@ def test_the_nightly_flow_reports_three_folders_and_two_stores(prefect_api, capt
 
 # -- 4. one rule set: validate --flow runs the nodes' checks -----------------------------------
 @functools.cache
-def simulated_rgb() -> xr.Dataset:
-    """raw/rgb of the tiny simulated run (image, exposure, y, x, channel), 10 bit, in memory."""
+def simulated_run() -> dict[str, xr.Dataset]:
+    """The raw groups of the tiny simulated run (raw/rgb: image, exposure, y, x, channel, 10 bit)."""
+    from spectralize.flows.pipelines import flow_inputs
     from spectralize.nodes.simulation.assembly import simulate_run
     from spectralize.nodes.simulation.recipes import get_recipe
 
-    return simulate_run(get_recipe("tiny"))["raw/rgb"].load()
+    run = simulate_run(get_recipe("tiny"))
+    return {group: run[group].load() for group in flow_inputs("btf")}
 
 
-def rgb_store(path, edit):
-    """A store whose raw/rgb a lab's importer wrote (no spectralize checks), edited by ``edit``."""
+def btf_store(path, edit):
+    """A store btf can run on, whose raw/rgb a lab's importer wrote (no spectralize checks),
+    edited by ``edit``."""
     store = RunStore.create(path)
-    rgb = edit(simulated_rgb().copy(deep=True))
+    for group, ds in simulated_run().items():
+        if group != "raw/rgb":
+            store.write(group, ds, fingerprint=f"sim-{group}")
+    rgb = edit(simulated_run()["raw/rgb"].copy(deep=True))
     with warnings.catch_warnings():  # the channel names: str arrays are not in zarr v3's spec
         warnings.simplefilter("ignore", UnstableSpecificationWarning)
         rgb.to_zarr(store.path, group="raw/rgb", zarr_format=3, consolidated=False)
     return store
 
 
-def saturate(image=None, exposure=None):
+def set_counts(value, image=None, exposure=None):
     def edit(rgb):
         pick = {k: v for k, v in (("image", image), ("exposure", exposure)) if v is not None}
-        rgb["counts"][pick] = 1023
+        rgb["counts"][pick] = value
         return rgb
 
     return edit
@@ -574,33 +580,64 @@ def exposure_time(value):
     return edit
 
 
+def listed(stderr: str) -> list[str]:
+    """The problems ``validate`` lists (its ``  - `` lines)."""
+    return [line[4:] for line in stderr.splitlines() if line.startswith("  - ")]
+
+
 @pytest.mark.parametrize(
     "edit, fragment",
     [
-        (saturate(), "is entirely saturated (>= saturation = 1023)"),
-        (saturate(image=2, exposure=1), "frame image=2, exposure=1, channel=0 (exposure_time 0.003 s)"),
+        (
+            set_counts(1023),
+            "frame image=0, exposure=0, channel=0 (exposure_time 0.001 s) is entirely saturated",
+        ),
+        (
+            set_counts(1023, image=2, exposure=1),
+            "frame image=2, exposure=1, channel=0 (exposure_time 0.003 s) is entirely saturated",
+        ),
         (exposure_time(0.002), "found unsorted values 0.003 then 0.002"),
         (exposure_time(0.003), "found duplicate values 0.003 then 0.003"),
+        # the dark rule's threshold is the node's data-driven black level (0.1 % quantile of
+        # the shortest exposures + 3 DN): the value check computes it as the node does
+        (
+            set_counts(0, image=2, exposure=1),
+            "frame image=2, exposure=1, channel=0 (exposure_time 0.003 s) is entirely dark (<= black_level = ",
+        ),
     ],
-    ids=["all saturated", "partly saturated", "unsorted times", "duplicate times"],
+    ids=["all saturated", "partly saturated", "unsorted times", "duplicate times", "a dark frame"],
 )
-def test_validate_flow_refuses_what_the_flow_refuses(prefect_api, tmp_path, capsys, edit, fragment):
-    from spectralize.flows.preflight import flow_value_problems
-
-    assert flow_value_problems(rgb_store(tmp_path / "clean.zarr", lambda rgb: rgb), "btf") == []
-    store = rgb_store(tmp_path / "run.zarr", edit)
-    validate = cli.main(["validate", str(store.path), "--flow", "recover_rgb_oecf"])
+def test_validate_flow_btf_refuses_what_run_btf_refuses(prefect_api, tmp_path, capsys, edit, fragment):
+    store = btf_store(tmp_path / "run.zarr", edit)
+    validate = cli.main(["validate", str(store.path), "--flow", "btf"])
     checked = capsys.readouterr().err
-    run = cli.main(["run", "recover_rgb_oecf", str(store.path)])
+    run = cli.main(["run", "btf", str(store.path)])
     ran = capsys.readouterr().err
-    assert run == 2 and "recover_rgb_oecf" in ran, ran
     assert validate == 1, checked
-    if fragment.startswith("frame "):  # the problem lists name the same frame
-        key = "recover_rgb_oecf: raw/rgb:counts[image=2, exposure=1, channel=0]: expected a frame"
-        assert key in checked and key in ran, (checked, ran)
-    elif "saturated" in fragment:
-        key = "raw/rgb:counts[image=0, exposure=0, channel=0]: expected a frame with some values below"
-        assert key in checked and key in ran and fragment in ran, (checked, ran)
-    else:
-        assert fragment in checked and fragment in ran, (checked, ran)
+    assert run == 2 and "in node 'recover_rgb_oecf' (computing)" in ran, ran
+    problems = listed(checked)
+    assert problems[0].startswith("recover_rgb_oecf: raw/rgb") and fragment in problems[0], checked
+    for line in problems:  # the same text, line by line: the refusal run gives
+        assert line in ran, (line, ran)
+    assert f"spectralize run: error: {problems[0]}" in ran, ran
     assert not store.has("calibration/oecf_rgb")
+
+
+@pytest.mark.slow
+def test_a_good_store_passes_validate_flow_btf_and_run_btf(prefect_api, tmp_path, capsys):
+    store = btf_store(tmp_path / "run.zarr", lambda rgb: rgb)
+    assert cli.main(["validate", str(store.path), "--flow", "btf"]) == 0, capsys.readouterr().err
+    assert cli.main(["run", "btf", str(store.path)]) == 0, capsys.readouterr().err
+    assert store.has("calibration/oecf_rgb") and store.has("hdr") and store.validate() == []
+
+
+def test_the_value_checks_are_the_nodes_hooks():
+    """validate --flow and run call the same hook; the old separate rule table is gone."""
+    from spectralize.engine import registry
+
+    nodes = registry()
+    checked = {name for name, item in nodes.items() if item.node.check is not None}
+    assert {"recover_rgb_oecf", "hdr_merge", "recover_spectral_oecf", "calibrate_spectral"} <= checked
+    import spectralize.flows.preflight as preflight
+
+    assert not hasattr(preflight, "NODE_CHECKS")

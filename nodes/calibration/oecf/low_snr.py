@@ -32,6 +32,8 @@ from spectralize.nodes.calibration.exposure_series import (
     check_exposure_times,
     check_integer,
     counts_array,
+    raise_first,
+    refused,
     saturated_frames,
     target_spectral_series,
     warn_if_geometric,
@@ -48,10 +50,15 @@ from spectralize.nodes.calibration.oecf.robertson import (
 )
 from spectralize.nodes.calibration.oecf.weighting import Weighting, weighting_function
 from spectralize.nodes.filter_size import filter_radius, filter_sigma
-from spectralize.schemas import CalibrationError, SchemaError
+from spectralize.schemas import CalibrationError, SchemaError, SpectralizeError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["LOW_SNR_TRUNCATE", "recover_oecf_low_snr", "recover_spectral_oecf"]
+__all__ = [
+    "LOW_SNR_TRUNCATE",
+    "recover_oecf_low_snr",
+    "recover_spectral_oecf",
+    "spectral_oecf_refusals",
+]
 
 LOW_SNR_TRUNCATE: float = 2.5
 """Gaussian support of the low-SNR extension in sigmas: kernel radius ``s / 2``.
@@ -531,6 +538,7 @@ def recover_spectral_oecf(
     .. [1] Fast Capture of Spectral Image Series, section 4 and Fig. 2.
     """
     group = "raw/white_reference"
+    raise_first(spectral_oecf_refusals(white_reference))
     counts, depth = target_spectral_series(white_reference, group)
     j, picks = _low_snr_choice(counts, dark, depth, band, low_signal_fraction)
     series = (
@@ -605,3 +613,22 @@ def recover_spectral_oecf(
     out["low_snr_code"].attrs.update(units="DN", long_name="pixel value above the dark frame")
     out["raw_code"].attrs.update(units="DN", long_name="raw pixel value")
     return out
+
+
+def spectral_oecf_refusals(white_reference: xr.Dataset) -> list[SpectralizeError]:
+    """What :func:`recover_spectral_oecf` refuses in the white reference before computing.
+
+    The spectral camera's bit depth (8..16) and the band series' exposure times: positive,
+    finite and strictly increasing along ``spectral_exposure`` (its value check).
+    """
+    group = "raw/white_reference"
+    return refused(
+        lambda: check_bit_depth(
+            white_reference.attrs.get("spectral_bit_depth"), where=f"{group}.attrs['spectral_bit_depth']"
+        ),
+        lambda: check_exposure_times(
+            white_reference["spectral_exposure_time"].transpose(..., "spectral_exposure"),
+            "spectral_exposure",
+            f"recover_spectral_oecf: {group}",
+        ),
+    )

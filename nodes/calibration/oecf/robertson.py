@@ -35,6 +35,10 @@ from spectralize.nodes.calibration.exposure_series import (
     check_frames,
     check_integer,
     counts_array,
+    frame_extremes,
+    raise_first,
+    raise_for_frames,
+    refused,
     warn_if_geometric,
 )
 from spectralize.nodes.calibration.oecf.response import response_dataarray
@@ -43,7 +47,7 @@ from spectralize.nodes.calibration.oecf.weighting import (
     Weighting,
     weighting_function,
 )
-from spectralize.schemas import CalibrationError, SchemaError
+from spectralize.schemas import CalibrationError, SchemaError, SpectralizeError
 from spectralize.schemas.errors import Problem
 
 __all__ = [
@@ -53,6 +57,8 @@ __all__ = [
     "robertson_response",
     "recover_oecf",
     "recover_rgb_oecf",
+    "default_black_level",
+    "rgb_oecf_refusals",
 ]
 
 Operator = Literal["auto", "dense", "sparse", "samples"]
@@ -802,43 +808,11 @@ def recover_rgb_oecf(
     .. [1] Robertson, Borman, Stevenson 2003.
     .. [2] Fast Capture of Spectral Image Series, section 4.
     """
-    where = "recover_rgb_oecf: raw/rgb"
-    depth = check_bit_depth(raw_rgb.attrs.get("bit_depth"), where="raw/rgb.attrs['bit_depth']")
-    saturation = 2**depth - 1
-    counts = raw_rgb["counts"]
+    raise_first(rgb_oecf_refusals(raw_rgb, black_level=black_level))
+    depth = int(raw_rgb.attrs["bit_depth"])
     cameras = np.asarray(raw_rgb["camera"].values)
-    # The checks recover_oecf makes, named after raw/rgb, before the default black level is
-    # taken from the shortest exposures (saturated ones would put it above saturation)
-    times = raw_rgb["exposure_time"]
-    check_exposure_times(times.transpose(..., "exposure"), "exposure", where)
-    check_frames(
-        counts,
-        tuple(d for d in ("image", "exposure", "channel") if d in counts.dims),
-        black_level=-1,  # dark frames: checked by recover_oecf with the real black level
-        saturation=saturation,
-        max_code=saturation,
-        where=f"{where}:counts",
-        times=times,
-    )
     if black_level is None:
-        shortest = counts.isel(exposure=0)
-        if shortest.sizes["image"] > 8:
-            shortest = shortest.isel(image=slice(0, None, shortest.sizes["image"] // 8))
-        floor = int(np.quantile(np.asarray(shortest.values), 0.001))
-        black_level = floor + 3
-        if black_level >= saturation:
-            raise CalibrationError(
-                f"{where}:counts: the shortest exposures are (almost) entirely saturated: their "
-                f"0.1 % quantile is {floor} DN, so the default black_level ({black_level}) is not "
-                f"below saturation ({saturation}). Use shorter exposures, or set black_level",
-                [
-                    Problem(
-                        f"{where}:counts[exposure=0]",
-                        f"a 0.1 % quantile below saturation - 3 = {saturation - 3} DN",
-                        f"{floor} DN (exposure_time {float(times.isel(exposure=0).min()):g} s)",
-                    )
-                ],
-            )
+        black_level = default_black_level(raw_rgb)
     data = raw_rgb[["counts"]].assign_attrs(bit_depth=depth)
     if not per_camera:
         data = data.drop_vars("camera")
@@ -877,3 +851,95 @@ def recover_rgb_oecf(
     )
     out["camera"].attrs.update(long_name="RGB camera index")
     return out
+
+
+def default_black_level(raw_rgb: xr.Dataset) -> int:
+    """The under-exposed code level taken from the data: the shortest exposures' floor.
+
+    ``black_level = q + 3`` with ``q`` the 0.1 % quantile of the codes of the shortest
+    exposure (of at most about 8 images spread over the run): the ADC offset plus noise.
+
+    Raises
+    ------
+    CalibrationError
+        When that level is not below saturation (the shortest exposures are almost
+        entirely saturated), naming the quantile and the exposure time.
+    """
+    where = "recover_rgb_oecf: raw/rgb"
+    saturation = (
+        2 ** check_bit_depth(raw_rgb.attrs.get("bit_depth"), where="raw/rgb.attrs['bit_depth']") - 1
+    )
+    counts, times = raw_rgb["counts"], raw_rgb["exposure_time"]
+    shortest = counts.isel(exposure=0)
+    if shortest.sizes["image"] > 8:
+        shortest = shortest.isel(image=slice(0, None, shortest.sizes["image"] // 8))
+    floor = int(np.quantile(np.asarray(shortest.values), 0.001))
+    black_level = floor + 3
+    if black_level >= saturation:
+        raise CalibrationError(
+            f"{where}:counts: the shortest exposures are (almost) entirely saturated: their "
+            f"0.1 % quantile is {floor} DN, so the default black_level ({black_level}) is not "
+            f"below saturation ({saturation}). Use shorter exposures, or set black_level",
+            [
+                Problem(
+                    f"{where}:counts[exposure=0]",
+                    f"a 0.1 % quantile below saturation - 3 = {saturation - 3} DN",
+                    f"{floor} DN (exposure_time {float(times.isel(exposure=0).min()):g} s)",
+                )
+            ],
+        )
+    return black_level
+
+
+def rgb_oecf_refusals(raw_rgb: xr.Dataset, *, black_level: int | None = None) -> list[SpectralizeError]:
+    """What :func:`recover_rgb_oecf` refuses in raw/rgb before computing (its value check).
+
+    The bit depth (8..16); exposure times positive, finite and strictly increasing per image;
+    values within the bit depth; no frame entirely saturated; the black level
+    (:func:`default_black_level` when ``black_level`` is ``None``: computed from the data
+    here, so ``validate --flow`` applies the threshold the node applies); no frame entirely
+    dark (every value at or below it). One pass over the counts.
+
+    Returns
+    -------
+    list of SpectralizeError
+        Each error the node would raise (empty: accepted).
+    """
+    where = "recover_rgb_oecf: raw/rgb"
+    depth = refused(
+        lambda: check_bit_depth(raw_rgb.attrs.get("bit_depth"), where="raw/rgb.attrs['bit_depth']")
+    )
+    if depth:
+        return depth
+    saturation = 2 ** int(raw_rgb.attrs["bit_depth"]) - 1
+    counts, times = raw_rgb["counts"], raw_rgb["exposure_time"]
+    found = refused(lambda: check_exposure_times(times.transpose(..., "exposure"), "exposure", where))
+    frame_dims = [d for d in counts.dims if d in ("image", "exposure", "channel")]
+    lo, hi, frame_min, frame_max = frame_extremes(
+        counts, [d for d in counts.dims if d not in frame_dims]
+    )
+
+    def frames(black: int) -> None:
+        raise_for_frames(
+            lo,
+            hi,
+            frame_min < saturation,
+            frame_max > black,
+            frame_dims=frame_dims,
+            black_level=black,
+            saturation=saturation,
+            max_code=saturation,
+            where=f"{where}:counts",
+            times=times,
+        )
+
+    bright = refused(lambda: frames(-1))  # saturated frames first: they decide the black level
+    if bright:
+        return found + bright
+    levels: list[int] = []
+    found += refused(
+        lambda: levels.append(default_black_level(raw_rgb) if black_level is None else black_level)
+    )
+    if levels:
+        found += refused(lambda: frames(levels[0]))
+    return found
