@@ -629,10 +629,16 @@ FOREIGN_SETTINGS = {
 
 
 def _cli(*args: str, cwd: Path) -> None:
+    import os
     import subprocess
 
+    env = os.environ | {"SPECTRALIZE_CACHE_DIR": str(cwd / "cache")}  # this checkout's nodes
     out = subprocess.run(
-        [sys.executable, "-m", "spectralize.flows.cli", *args], cwd=cwd, capture_output=True, text=True
+        [sys.executable, "-m", "spectralize.flows.cli", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env=env,
     )
     if out.returncode:
         raise RuntimeError(f"spectralize {' '.join(args)} failed:\n{out.stdout}\n{out.stderr}")
