@@ -49,9 +49,11 @@ def cache_dir() -> Path:
 
 
 def _package_files(module: str) -> Iterator[Path]:
-    """The ``.py`` files of the first regular package on ``module``'s dotted path (for
-    ``spectralize.nodes.calibration.declarations``: all of ``spectralize.nodes``), found
-    without executing it (only namespace parents are imported)."""
+    """The ``.py`` files of the outermost regular package on ``module``'s dotted path whose
+    folder holds ``module`` (for ``spectralize.nodes.calibration.declarations``: all of
+    ``spectralize.nodes``, since ``spectralize``'s own folder holds only its ``__init__``; for
+    a plugin ``lab.nodes``: all of ``lab``), found without executing ``module`` or that package
+    (only the parents above it are imported)."""
     parts = module.split(".")
     for end in range(1, len(parts) + 1):
         try:
@@ -60,14 +62,18 @@ def _package_files(module: str) -> Iterator[Path]:
             return
         if spec is None:
             return
-        if spec.origin not in (None, "namespace"):  # a regular package or a plain module
-            roots = spec.submodule_search_locations or ()
-            if not roots:
-                yield Path(spec.origin)
-                return
-            for root in roots:
-                yield from sorted(Path(root).rglob("*.py"))
+        if spec.origin in (None, "namespace"):
+            continue
+        roots = [Path(root) for root in spec.submodule_search_locations or ()]
+        if not roots:  # a plain module
+            yield Path(spec.origin)
             return
+        rest = parts[end:]
+        for root in roots:
+            inside = root.joinpath(*rest)
+            if not rest or inside.with_suffix(".py").is_file() or (inside / "__init__.py").is_file():
+                yield from sorted(root.rglob("*.py"))
+                return
 
 
 def listing_key(modules: Iterable[str] | None = None) -> str:

@@ -6,7 +6,7 @@ import subprocess
 import sys
 import textwrap
 
-from spectralize.flows.node_listing import listing_key
+from spectralize.flows.node_listing import _package_files, listing_key
 
 SCIENCE = ("xarray", "dask", "zarr", "spectralize.engine", "spectralize.nodes.reconstruction")
 
@@ -129,3 +129,13 @@ def test_the_key_follows_the_sources_of_a_package(tmp_path, monkeypatch):
     (package / "mod.py").write_text("X = 12\n")  # a different size
     assert listing_key(["lab_pkg.mod"]) != key
     assert "lab_pkg" not in sys.modules  # found, not imported
+
+
+def test_the_key_reads_the_room_a_node_lives_in():
+    """`spectralize` is a regular package whose folder holds only its `__init__`; the rooms are
+    folders of their own, so a node's sources are found in its room (a stale key once let
+    `run --set` refuse a parameter that `spectralize nodes` listed)."""
+    files = {p.as_posix() for p in _package_files("spectralize.nodes.calibration.declarations")}
+    assert any(f.endswith("nodes/calibration/declarations.py") for f in files)
+    assert any(f.endswith("nodes/reconstruction/methods.py") for f in files)
+    assert not any(f.endswith("flows/cli.py") for f in files)
