@@ -25,12 +25,13 @@ worker) reports to that process's listeners, normally none.
 What a display is told of a task is an :class:`Estimate`: the share of its work done and
 the seconds left, measured, never read off an iteration limit. A solver that reports its
 residual (``advance(done, residual)``) and was given its ``tolerance`` is estimated from the
-convergence rate it shows: with the relative residual ``r_k`` falling by a factor ``rho`` per
-iteration (the mean of the rates over all iterations so far and over their second half: CG's
-fast start makes the first optimistic, a plateau the second pessimistic; measured from
-:data:`MIN_ITERATIONS` on), ``log(r_k / tolerance) / -log(rho)`` iterations are left, plus the ``fixed``
-iterations that always follow (the ``S >= 0`` refinement); each costs the mean time per
-iteration measured so far. A task without a tolerance counts ``total`` steps exactly.
+convergence rate it shows: with the relative residual ``r_k`` falling by a factor ``rho``
+per iteration (the mean of the rates over all iterations so far and over their second half:
+CG's fast start makes the first optimistic, a plateau the second pessimistic; measured from
+:data:`MIN_ITERATIONS` on), ``log(r_k / tolerance) / -log(rho)`` iterations are left, plus
+the ``fixed`` iterations that always follow (the ``S >= 0`` refinement); each costs the mean
+time per iteration measured so far. A task without a tolerance counts ``total`` steps
+exactly. The share done is in time, set-up included (:class:`Estimate`).
 
 Standard library only, so any node may import it.
 

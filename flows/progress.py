@@ -14,10 +14,11 @@ solver's work done and seconds left, from its measured convergence rate and time
 iteration).
 
 How the time left of a node's image sets is measured (:class:`SetClock`): the work done is
-the sets written plus the share done of every set being solved (a set solved but not yet
-written counts as done); the rate is that work over the time since the first set started;
-the time left is the work left at that rate. So the bar moves as the work is done, not in
-jumps when sets finish, and the estimate exists before the first set is written.
+the sets written plus the share done of every set in progress, a set being its solve and
+what follows until it is written (both measured); the rate is that work over the time since
+the first set started; the time left is the work left at that rate. So the bar moves as the
+work is done, not in jumps when sets finish, and the estimate exists before the first set
+is written.
 
 Two displays, with the same numbers:
 
@@ -180,15 +181,23 @@ def format_seconds(seconds: float) -> str:
 
 class SetClock:
     """The work done on a node's image sets and the time left, measured (see the module
-    docstring). Not thread-safe: the displays call it under their lock."""
+    docstring). Not thread-safe: the displays call it under their lock.
+
+    A set's work is its solve and what follows until it is written (its confidence, the
+    write); the time after the solve is measured on the sets written so far (solved sets are
+    matched to written regions in order), so a solved set waiting for its write is not
+    counted as done.
+    """
 
     def __init__(self) -> None:
         self._start: dict[str, float] = {}  # node -> when its first set started
         self._first: dict[str, float] = {}  # node -> when its first region was written
-        # (node, key) -> [start, share done by the solver's estimate, or None before it has one]
+        # (node, key) -> [start, share of the solve done by its estimate, or None before one]
         self._running: dict[tuple[str, int], list[Any]] = {}
-        self._took: dict[str, list[float]] = {}  # node -> seconds each finished set took
-        self._solved: dict[str, int] = {}  # node -> sets solved, not yet written
+        self._took: dict[str, list[float]] = {}  # node -> seconds each finished solve took
+        self._after: dict[str, list[float]] = {}  # node -> seconds from solved to written
+        # node -> (time solved, seconds it took) of each set solved, not yet written, in order
+        self._solved: dict[str, list[tuple[float, float]]] = {}
         self._regions: dict[str, tuple[int, int, int]] = {}  # node -> (done, total, resumed)
 
     def task_started(self, node: str, key: int, now: float) -> None:
@@ -208,15 +217,34 @@ class SetClock:
         if state is not None:
             self._took.setdefault(node, []).append(now - state[0])
             if node in self._regions:
-                self._solved[node] = self._solved.get(node, 0) + 1
+                self._solved.setdefault(node, []).append((now, now - state[0]))
+
+    @staticmethod
+    def _mean(values: list[float] | None) -> float | None:
+        return sum(values) / len(values) if values else None
 
     def _share(self, node: str, state: list[Any], now: float) -> float:
-        """A running set's share done: its solver's estimate, else (during its set-up and
-        first iterations) its time so far over the mean time a finished set took."""
-        if state[1] is not None:
-            return state[1]
-        took = self._took.get(node)
-        return min(0.9, (now - state[0]) / (sum(took) / len(took))) if took else 0.0
+        """A running set's share of its work: its solve's share (its solver's estimate, else,
+        during set-up and first iterations, its time over the mean solve) scaled by the solve's
+        part of the set's time (the rest is measured after the solves)."""
+        spent = now - state[0]
+        took = self._mean(self._took.get(node))
+        if state[1] is not None and state[1] > 0:
+            solve = spent / state[1]  # the solve's projected duration
+        elif took:
+            solve = max(took, spent / 0.9)
+        else:
+            return 0.0
+        after = self._mean(self._after.get(node)) or 0.0
+        return min(0.99, spent / (solve + after))
+
+    def _waiting(self, node: str, now: float) -> float:
+        """The share done of the sets solved but not yet written."""
+        after = self._mean(self._after.get(node)) or 0.0
+        return sum(
+            min(0.99, (took + now - solved) / (took + after)) if took + after > 0 else 1.0
+            for solved, took in self._solved.get(node, ())
+        )
 
     def regions(self, node: str, done: int, total: int, resumed: int, now: float) -> None:
         previous, _, base = self._regions.get(node, (resumed, total, resumed))
@@ -225,7 +253,11 @@ class SetClock:
             base = done
             self._first[node] = now
         self._regions[node] = (done, total, max(base, resumed))
-        self._solved[node] = max(0, self._solved.get(node, 0) - max(0, done - previous))
+        waiting = self._solved.get(node, [])
+        for _ in range(max(0, done - previous)):
+            if waiting:
+                solved, _ = waiting.pop(0)
+                self._after.setdefault(node, []).append(now - solved)
 
     def estimate(self, node: str, now: float) -> tuple[float, float | None]:
         """``(sets done, seconds left)``: sets done counts the share of sets in progress;
@@ -234,14 +266,14 @@ class SetClock:
             return 0.0, None
         done, total, resumed = self._regions[node]
         running = sum(self._share(node, st, now) for (n, _), st in self._running.items() if n == node)
-        work = min(float(total - resumed), done - resumed + self._solved.get(node, 0) + running)
+        work = min(float(total - resumed), done - resumed + self._waiting(node, now) + running)
         elapsed = now - self._start.get(node, self._first.get(node, now))
         if work <= 0 or elapsed <= 0:
             return resumed + max(work, 0.0), None
         return resumed + work, elapsed / work * (total - resumed - work)
 
     def forget(self, node: str) -> None:
-        for table in (self._start, self._first, self._took, self._solved, self._regions):
+        for table in (self._start, self._first, self._took, self._after, self._solved, self._regions):
             table.pop(node, None)
         for key in [k for k in self._running if k[0] == node]:
             del self._running[key]

@@ -313,14 +313,16 @@ def test_the_image_sets_clock_counts_the_work_of_running_sets():
     clock.task_advanced("node", 2, Estimate(0.5, 10.0))
     # one set's work in 10 s: three left, 30 s (two running at a time show as the rate)
     assert clock.estimate("node", 10.0) == (1.0, 30.0)
-    clock.task_finished("node", 1, now=20.0)  # solved, not yet written: done
-    clock.task_advanced("node", 2, Estimate(1.0, 0.0))
-    assert clock.estimate("node", 20.0) == (2.0, 20.0)
-    clock.regions("node", 1, 4, 0, now=21.0)  # the solved set written: still two sets' work
-    assert clock.estimate("node", 20.0) == (2.0, 20.0)
-    # a set without its solver's estimate yet: its time over the 20 s a finished set took
-    clock.task_started("node", 3, now=20.0)
-    assert clock.estimate("node", 25.0) == (2.25, 25.0 / 2.25 * 1.75)
+    clock.task_finished("node", 1, now=20.0)  # solved in 20 s ...
+    clock.regions("node", 1, 4, 0, now=25.0)  # ... and written 5 s later: a set is 25 s
+    clock.task_advanced("node", 2, Estimate(25 / 30, 5.0))  # its solve: 30 s, then 5 s more
+    work, left = clock.estimate("node", 25.0)
+    assert work == pytest.approx(1 + 25 / 35) and left == pytest.approx(25 / work * (4 - work))
+    # a set without its solver's estimate yet: its time over a mean set's (20 s + 5 s)
+    clock.task_started("node", 3, now=25.0)
+    work_later, _ = clock.estimate("node", 30.0)
+    # set 2 at its last estimate: 30 s spent of a 36 s solve and 5 s after it
+    assert work_later == pytest.approx(1 + 30 / 41 + 5 / 25)
 
 
 def test_the_rich_display_shows_a_bar_per_running_solver():
