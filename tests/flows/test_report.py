@@ -434,8 +434,10 @@ def test_the_report_of_a_demo_sized_run_takes_under_five_seconds(tmp_path):
         ).pipe(relative),
         fingerprint="calibration-fp",
     )
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     index = write_run_report(store.path, directory=tmp_path / "report")
-    seconds = time.perf_counter() - start
+    seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
     assert len(parse(index).images) >= 2 * 24 + 3  # renders and confidence of 24, figures
-    assert seconds < 5.0, f"{seconds:.1f} s"
+    # the work, all threads: under 5 s; the wall clock too, unless other work shares the cores
+    assert cpu < 5.0, f"{cpu:.1f} s of CPU"
+    assert seconds < max(5.0, 3 * cpu), f"{seconds:.1f} s"
