@@ -465,7 +465,7 @@ class RichProgress:
                 self._bars[key] = self.progress.add_task(
                     f"    {group}: image sets", total=total, completed=resumed
                 )
-            self.progress.update(self._bars[key], total=total, count=f"{done}/{total}")
+            self.progress.update(self._bars[key], total=total, count=f"{done}/{total} written")
             self._update_sets(node)
 
     def task_started(self, node: str, key: int, label: str, total: int | None) -> None:

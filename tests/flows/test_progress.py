@@ -129,7 +129,7 @@ def test_the_rich_bar_renders_on_a_terminal():
                 display.progress.refresh()
             text = out.getvalue()
             progress.notify("step_finished", "reconstruct_image_sets", "ran", 3.0)
-    assert "spectra: image sets" in text and "4/4" in text
+    assert "spectra: image sets" in text and "4/4 written" in text
     assert "[1/2] reconstruct_image_sets: done in 3 s" in out.getvalue()
 
 
