@@ -114,9 +114,8 @@ def _registry() -> tuple[dict, bool]:
     return nodes, not caught and bool(nodes)
 
 
-def _render() -> tuple[str, bool]:
-    """The listing, and whether discovery went without warnings (then it may be cached)."""
-    nodes, cacheable = _registry()
+def _render(nodes: dict) -> str:
+    """The listing of ``nodes`` (the registry)."""
     lines = []
     for name, entry in sorted(nodes.items()):
         node = entry.node
@@ -137,7 +136,7 @@ def _render() -> tuple[str, bool]:
             lines.append(f"    --set {setting}  ({type_text(ptype)}{note}) {description}".rstrip())
             if pname in choices:
                 lines.append(f"        one of: {', '.join(choices[pname]) or 'none'}")
-    return "".join(f"{line}\n" for line in lines), cacheable
+    return "".join(f"{line}\n" for line in lines)
 
 
 def _parameter_schemas(node) -> dict[str, Any]:
@@ -157,12 +156,11 @@ def _parameter_schemas(node) -> dict[str, Any]:
     return found
 
 
-def _render_catalogue() -> tuple[dict[str, Any], bool]:
+def _render_catalogue(nodes: dict) -> dict[str, Any]:
     """What the command line checks before it loads the engine: every node's input groups
     and parameter schemas, every flow's nodes and the groups it reads from the store."""
     from spectralize.flows.pipelines import FLOWS, external_inputs
 
-    nodes, cacheable = _registry()
     catalogue: dict[str, Any] = {
         "nodes": {
             name: {
@@ -179,46 +177,52 @@ def _render_catalogue() -> tuple[dict[str, Any], bool]:
             for name, flow in sorted(FLOWS.items())
         },
     }
-    return catalogue, cacheable
+    return catalogue
 
 
-def _cached(name: str, suffix: str, render, *, use_cache: bool, encode, decode):
-    """``render()``'s result, from the cache file ``<name>-<key><suffix>`` when it is there."""
-    path = cache_dir() / f"{name}-{listing_key()}{suffix}" if use_cache else None
-    if path is not None:
+#: The cached renderings: name -> (file suffix, encode, decode).
+_CACHED = {
+    "nodes": (".txt", str, str),
+    "catalogue": (".json", json.dumps, json.loads),
+}
+
+
+def _cached(name: str, *, use_cache: bool) -> Any:
+    """The rendering ``name`` of :data:`_CACHED`, from its cache file ``<name>-<key><suffix>``
+    when it is there; else both renderings are made from one load of the registry and both
+    cached (so the first ``spectralize nodes`` or ``run`` makes the other answer at once)."""
+    key = listing_key() if use_cache else ""
+    paths = {n: cache_dir() / f"{n}-{key}{suffix}" for n, (suffix, _, _) in _CACHED.items()}
+    if use_cache:
         try:
-            return decode(path.read_text(encoding="utf-8"))
+            return _CACHED[name][2](paths[name].read_text(encoding="utf-8"))
         except (OSError, ValueError):
             pass
-    value, cacheable = render()
-    if path is not None and cacheable:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            for old in path.parent.glob(f"{name}-*{suffix}"):  # of older sources
-                old.unlink(missing_ok=True)
-            partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-            partial.write_text(encode(value), encoding="utf-8")
-            os.replace(partial, path)
-        except OSError:
-            pass
-    return value
+    nodes, cacheable = _registry()
+    values = {"nodes": _render(nodes), "catalogue": _render_catalogue(nodes)}
+    if use_cache and cacheable:
+        for other, (suffix, encode, _) in _CACHED.items():
+            path = paths[other]
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                for old in path.parent.glob(f"{other}-*{suffix}"):  # of older sources
+                    old.unlink(missing_ok=True)
+                partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+                partial.write_text(encode(values[other]), encoding="utf-8")
+                os.replace(partial, path)
+            except OSError:
+                pass
+    return values[name]
 
 
 def node_listing(*, use_cache: bool = True) -> str:
     """The text ``spectralize nodes`` prints (empty when no node is installed): from the
     cache when its key matches, else rendered from the registry and cached."""
-    return _cached("nodes", ".txt", _render, use_cache=use_cache, encode=str, decode=str)
+    return _cached("nodes", use_cache=use_cache)
 
 
 def node_catalogue(*, use_cache: bool = True) -> dict[str, Any]:
     """Nodes (input groups, parameter JSON schemas) and flows (nodes, groups read from the
     store) as plain data, cached like the listing: what ``spectralize run`` checks in
     milliseconds before Prefect and the engine load (:mod:`.command_checks`)."""
-    return _cached(
-        "catalogue",
-        ".json",
-        _render_catalogue,
-        use_cache=use_cache,
-        encode=json.dumps,
-        decode=json.loads,
-    )
+    return _cached("catalogue", use_cache=use_cache)

@@ -1,6 +1,7 @@
 """`spectralize nodes` from its cache: the same text as a fresh listing, without importing
 the science, and renewed when a plugin is installed or a node's source changes."""
 
+import json
 import os
 import subprocess
 import sys
@@ -67,6 +68,11 @@ def test_the_cached_listing_is_the_fresh_one_without_the_science(tmp_path):
     assert first["code"] == 0 and "reconstruct_image_sets  (version" in first["out"]
     assert "xarray" in first["loaded"]  # rendered: every node was loaded
     assert len(list(cache.glob("nodes-*.txt"))) == 1
+    # and the catalogue the command line checks --set against, from the same load
+    (catalogue,) = cache.glob("catalogue-*.json")
+    checks = json.loads(catalogue.read_text())
+    assert checks["flows"]["btf"]["nodes"][0] == "dark_average"
+    assert checks["nodes"]["dark_average"]["parameters"]["frames_per_chunk"]["minimum"] == 1
 
     cached = spectralize_nodes(cache=cache)
     assert cached["out"] == first["out"]
