@@ -333,6 +333,24 @@ def error_map_figures(
     return out
 
 
+#: Images with an error map and representative spectra (two figures each): enough to show
+#: the range; the per-image table has every image.
+MAX_ERROR_MAPS = 4
+
+
+def _range_of_images(evaluation: xr.Dataset, labels: Sequence[int]) -> list[int]:
+    """At most :data:`MAX_ERROR_MAPS` of ``labels``, evenly spaced in the ranking of their
+    95th-percentile nRMSE (the best and the worst included), in label order."""
+    if len(labels) <= MAX_ERROR_MAPS:
+        return list(labels)
+    p95 = np.asarray(
+        _by_label(evaluation["nrmse_statistics"], labels).sel(statistic="p95").values, dtype=float
+    )
+    ranked = np.argsort(np.where(np.isfinite(p95), p95, np.inf), kind="stable")
+    picks = ranked[np.round(np.linspace(0, len(labels) - 1, MAX_ERROR_MAPS)).astype(int)]
+    return sorted(int(labels[i]) for i in set(picks.tolist()))
+
+
 def _accuracy(
     evaluation: xr.Dataset,
     *,
@@ -422,8 +440,17 @@ def _accuracy(
     ]
     if len(shown) < len(labels):
         blocks.append(_text(f"Figures for the first {len(shown)} of {len(labels)} images."))
+    mapped = _range_of_images(evaluation, shown)
+    if len(mapped) < len(shown):
+        blocks.append(
+            _text(
+                f"Error maps for {len(mapped)} of these {len(shown)} images, chosen to show the "
+                "range of their 95th-percentile nRMSE, from the best to the worst (the table above "
+                "has every image)."
+            )
+        )
     for label, error_map, spectra_figure in error_map_figures(
-        evaluation, spectra, truth, shown, exposure_percentile=exposure_percentile
+        evaluation, spectra, truth, mapped, exposure_percentile=exposure_percentile
     ):
         position = int(np.flatnonzero(_labels(evaluation) == label)[0])
         name = image_label(evaluation, position)

@@ -441,3 +441,19 @@ def test_the_report_of_a_demo_sized_run_takes_under_five_seconds(tmp_path):
     # the work, all threads: under 5 s; the wall clock too, unless other work shares the cores
     assert cpu < 5.0, f"{cpu:.1f} s of CPU"
     assert seconds < max(5.0, 3 * cpu), f"{seconds:.1f} s"
+
+
+def test_error_maps_show_the_range_of_the_images_not_the_first_ones(run, tmp_path, monkeypatch):
+    spectra, truth, shots, _ = run
+    values = np.concatenate([truth["radiance"].values] * 3)  # nine images ...
+    truth = cube_dataset(values).assign_coords(image=np.arange(9))
+    noise = np.random.default_rng(2).standard_normal(values.shape)
+    gains = np.linspace(0.0, 0.08, 9)[[3, 0, 8, 1, 5, 2, 7, 4, 6]]  # ... of scrambled error
+    spectra = truth.copy(data={"radiance": values * (1 + gains[:, None, None, None] * noise)})
+    evaluation = evaluate(spectra, truth).compute()
+    monkeypatch.setattr(report, "MAX_ERROR_MAPS", 3)
+    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path)
+    mapped = [h.split(",")[0] for h in parse(index).headings]
+    # the best (gain 0: label 1), the median (gain 0.04: label 7) and the worst (label 2)
+    assert mapped == ["image 1", "image 2", "image 7"]
+    assert "Error maps for 3 of these 9 images" in index.read_text()
