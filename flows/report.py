@@ -892,8 +892,9 @@ def write_report(
     shots
         Group ``raw/spectral``, only used when ``baselines`` are cubes.
     max_images
-        At most this many images (the lowest labels) get an error-map and a spectra figure
-        (all are tabulated).
+        At most this many images (the lowest labels) are considered for figures; of them at
+        most :data:`MAX_ERROR_MAPS`, chosen to show the range of the nRMSE, get an error map
+        and a spectra figure (all are tabulated).
     exposure_percentile
         Percentile of the truth's luminance mapped to sRGB white (one exposure for truth and
         reconstruction, over the images shown).
@@ -978,7 +979,8 @@ def write_run_report(
     title
         Title of the page (default: the store's name).
     max_images
-        At most this many images (the lowest labels) get figures.
+        At most this many images (the lowest labels) get thumbnails (and, with ground truth,
+        are considered for the error maps).
     pixels
         (y, x) of the spectra drawn per image (default: centre and quadrant centres).
     exposure_percentile

@@ -510,7 +510,8 @@ def plot_pixel_spectra(
 def plot_confidence(
     confidence: xr.DataArray, *, titles: list[str] | None = None, columns: int = 4
 ) -> Figure:
-    """Maps of the reconstruction's ``confidence`` variable (image, y, x), one colour scale."""
+    """Maps of the reconstruction's ``confidence`` variable (image, y, x), one colour scale
+    spanning its 2nd to 98th percentile (values beyond are clipped)."""
     conf = confidence
     if "wavelength" in conf.dims:
         conf = conf.mean("wavelength")
@@ -521,7 +522,8 @@ def plot_confidence(
     axes = np.atleast_1d(figure.subplots(rows, columns)).ravel()
     values = np.asarray(conf.transpose("image", "y", "x").values, dtype=np.float64)
     finite = values[np.isfinite(values)]
-    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    # the 2nd to 98th percentile: a few outliers do not darken every map
+    lo, hi = (float(v) for v in np.percentile(finite, (2, 98))) if finite.size else (0.0, 1.0)
     labels = conf["image"].values if "image" in conf.coords else np.arange(n)
     shown = None
     for k, ax in enumerate(axes):
