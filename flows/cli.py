@@ -376,7 +376,11 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--out", default=None, help="folder of index.html (default: STORE-report)")
     report.add_argument("--max-images", type=int, default=24, help="images with figures")
     report.add_argument(
-        "--pixel", action="append", default=[], metavar="Y,X", help="pixel whose spectra are drawn"
+        "--pixel",
+        action="append",
+        default=[],
+        metavar="Y,X",
+        help="a pixel whose spectrum is drawn on the first image (besides those chosen per camera)",
     )
     report.set_defaults(handler=_cmd_report)
     export = commands.add_parser("export", help="export spectral cubes as ENVI or netCDF")

@@ -982,7 +982,8 @@ def write_run_report(
         At most this many images (the lowest labels) get thumbnails (and, with ground truth,
         are considered for the error maps).
     pixels
-        (y, x) of the spectra drawn per image (default: centre and quadrant centres).
+        (y, x) whose spectra are drawn on the first image, besides the spectra per camera at
+        pixels chosen to show its range (default: none).
     exposure_percentile
         Percentile of the luminance mapped to sRGB white.
 
