@@ -38,7 +38,6 @@ __all__ = [
     "nrmse_histograms",
     "plot_histograms",
     "plot_capture_time",
-    "plot_renders",
     "plot_pixel_spectra",
     "plot_confidence",
     "PIXEL_KINDS",
@@ -427,36 +426,6 @@ def plot_capture_time(capture: xr.Dataset) -> Figure:
 
 
 # -- figures of a reconstruction without ground truth ------------------------------------
-def plot_renders(srgb: xr.DataArray, *, titles: list[str] | None = None, columns: int = 4) -> Figure:
-    """sRGB renders of several images on a grid (no ground truth needed).
-
-    Parameters
-    ----------
-    srgb
-        (image, y, x, channel) in 0..1 from
-        :func:`~spectralize.nodes.evaluation.colorimetry.render_srgb`.
-    titles
-        One title per image (default: ``image <label>``).
-    columns
-        Images per row.
-    """
-    n = srgb.sizes["image"]
-    columns = max(1, min(columns, n))
-    rows = -(-n // columns)
-    figure = Figure(figsize=(3.0 * columns, 3.1 * rows), layout="constrained")
-    axes = np.atleast_1d(figure.subplots(rows, columns)).ravel()
-    labels = srgb["image"].values if "image" in srgb.coords else np.arange(n)
-    for k, ax in enumerate(axes):
-        ax.set_xticks([])
-        ax.set_yticks([])
-        if k >= n:
-            ax.set_axis_off()
-            continue
-        ax.imshow(np.asarray(srgb.isel(image=k).values), interpolation="nearest")
-        ax.set_title(titles[k] if titles else f"image {int(labels[k])}", fontsize=8)
-    return figure
-
-
 def plot_pixel_spectra(
     srgb: np.ndarray,
     spectra: np.ndarray,
