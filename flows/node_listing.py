@@ -1,5 +1,10 @@
-"""The text of ``spectralize nodes``, cached on disk so that it answers without importing
-the science.
+"""The text of ``spectralize nodes`` and the catalogue the command line checks ``--set``
+against, cached on disk so that both answer without importing the science.
+
+The catalogue (:func:`node_catalogue`) is the same knowledge as data: every node's input
+groups and parameters' JSON schemas (types, bounds, allowed values), every flow's nodes
+and the groups it reads from the store (:mod:`.command_checks` uses it). Both are rendered
+from one load of the registry and cached together.
 
 Listing the nodes needs every node's parameter model, which the engine derives from the
 node function's signature: loading a node imports its stage (xarray, dask, zarr; about
