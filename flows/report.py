@@ -8,12 +8,18 @@ then one section per part of the run that exists:
   low-SNR series after increasing Gaussian filters (Fig. 2), the exposure plan and filter
   sizes with Q and L (Fig. 3), the colour-checker cross-validation (Fig. 4), the OECFs, the
   quantum efficiency and camera matrix, and the registration residuals;
-- **Reconstruction** (no ground truth needed): sRGB renders of the cube, spectra at chosen
-  pixels, and the ``confidence`` map when the ``spectra`` group has one;
+- **Reconstruction** (no ground truth needed): sRGB thumbnails labelled with image, camera
+  and angles, spectra at pixels chosen per camera to show its range (near saturation,
+  typical, dark, least confident), and, when the ``spectra`` group has a ``confidence`` (an
+  estimated nRMSE), its maps on one percentile scale and a headline of reconstruction
+  quality without truth (median, 95th percentile, share of pixels above 0.03);
 - **Accuracy** (simulated runs with ``truth/spectra``): statistics per subset and per image,
   nRMSE histograms over all pixels (Fig. 7, normalised, with an overflow bin), capture time
-  (Fig. 8), baselines, and per image the ground truth, reconstruction and error map with the
-  representative spectra (Figs. 5 and 6).
+  (Fig. 8), baselines, and for a few images chosen to show the range of the nRMSE the ground
+  truth, reconstruction and error map with the representative spectra (Figs. 5 and 6).
+
+Thumbnails are PNGs encoded straight from the arrays (no matplotlib), so a run's report
+takes seconds.
 
 Images are selected and named by their *label* (the ``image`` coordinate), never by position:
 ``spectra`` and ``evaluation`` may be ordered by image set while ``truth/spectra`` is in label
