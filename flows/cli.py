@@ -466,6 +466,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.handler(args)
     except KeyboardInterrupt:
+        import logging
+
+        # zarr's I/O tasks cut off by the interrupt would each log "Task was destroyed" at exit
+        logging.getLogger("asyncio").setLevel(logging.CRITICAL)
         print(f"spectralize {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as error:

@@ -18,6 +18,12 @@ Nothing damaged or stale is trusted. How much is verified, and when:
 - ``verify=True`` (``spectralize run --verify``) first recomputes the checksum of every file
   of every group the flow reads or would skip (bit rot that kept the times, in groups no step
   reads this time), with the same outcome per group. It costs one read of those groups.
+- before the report is written or confirmed up to date, the groups it shows
+  (:data:`REPORT_GROUPS`) that this run did not write are checked deeply, smallest first, up to
+  :data:`REPORT_VERIFY_BYTES` in all (larger ones are left to ``--verify``, and said so): a
+  report never presents rot the run could have seen for about a second's read. A damaged
+  group found there, or by a chunk the report reads, is recomputed with its dependants and
+  the report written again, in the same run.
 
 Input values are checked against the contract (NaN/inf, ranges) before a node's numerics
 start. SIGTERM stops a run as Ctrl-C does (:mod:`.signals`).
@@ -66,7 +72,36 @@ from spectralize.store import (
 
 from .signals import sigterm_as_interrupt
 
-__all__ = ["StepReport", "RunReport", "run_steps", "output_fingerprint", "flow_inputs"]
+__all__ = [
+    "StepReport",
+    "RunReport",
+    "run_steps",
+    "output_fingerprint",
+    "flow_inputs",
+    "REPORT_GROUPS",
+    "REPORT_VERIFY_BYTES",
+]
+
+REPORT_GROUPS = (
+    "spectra",
+    "evaluation",
+    "truth/spectra",
+    "calibration/spectral",
+    "calibration/oecf_rgb",
+    "calibration/oecf_spectral",
+    "registration",
+    "dark",
+    "raw/rgb",
+    "raw/spectral",
+    "raw/white_reference",
+    "raw/exposure_plan",
+)
+"""The groups :func:`~spectralize.flows.report.write_run_report` reads (a test holds it to that)."""
+
+REPORT_VERIFY_BYTES = 2_000_000_000
+"""At most this many bytes of the report's groups are checked deeply before each report: about
+2 s at the 0.7-1.3 GB/s measured (datasets/README.md, what verifying costs); the demo store's
+report groups (56 MB) take about 0.5 s."""
 
 
 def output_fingerprint(run_fingerprint: str, group: str) -> str:
@@ -357,6 +392,37 @@ def _verify_deep(store: RunStore, planned: Sequence[PlannedStep], log: Callable[
     log(f"verified {len(groups)} group(s), {size / 1e6:,.1f} MB, in {seconds:.2f} s")
 
 
+class _Recompute(Exception):
+    """Groups were marked damaged before the report: run the steps again (they recompute them)."""
+
+
+def _verify_report_groups(store: RunStore, made: set[str], fresh: set[str]) -> bool:
+    """Check the report's groups deeply before the report (see the module's docstring).
+
+    ``fresh``: groups this run wrote (not checked again). Returns ``False`` when a group the
+    flow makes was found damaged (it is marked: the steps recompute it); a damaged raw group
+    is an error naming the chunk (:func:`_handle_damage`).
+    """
+    groups = sorted((store.size_on_disk(g), g) for g in REPORT_GROUPS if g not in fresh and store.has(g))
+    budget, healthy, left = REPORT_VERIFY_BYTES, True, []
+    for size, group in groups:
+        if size > budget:
+            left.append(f"{group} ({size / 1e9:.1f} GB)")
+            continue
+        budget -= size
+        problems = store.verify(group, deep=True)
+        if problems:
+            first = problems[0]
+            _handle_damage(store, group, first.where, f"{first.found}, expected {first.expected}", made)
+            healthy = False
+    if left:
+        _log()(
+            f"report: not checked deeply before the report (over {REPORT_VERIFY_BYTES / 1e9:g} GB): "
+            f"{', '.join(left)}; `spectralize run --verify` checks them"
+        )
+    return healthy
+
+
 _VALUES_CHECKED: dict[tuple[str, str, str], None] = {}  # (store, group, fingerprint) checked
 
 
@@ -626,6 +692,8 @@ def _up_to_date_report(
         fingerprints.update(expected)
         run_report.steps.append(StepReport(item.node.name, "skipped", 0.0, expected))
     if report:
+        if not _verify_report_groups(store, _made_by(planned), set()):
+            return None  # a damaged group was marked: the flow recomputes it, then reports
         run_report.report = write_report_task.fn(str(store.path))
     return run_report
 
@@ -771,11 +839,21 @@ def _graph_flow(
     planned = plan(store_path, [Step(**s) for s in steps], create=False)
     store = RunStore.open(store_path)
     made, marked = _made_by(planned), set[str]()
+    checked_report = False
     while True:  # a chunk that fails its checksum when read: its group is recomputed
         try:
             return _run_planned(
-                store, flow_name, planned, retries, retry_delay_seconds, dask_address, report
+                store,
+                flow_name,
+                planned,
+                retries,
+                retry_delay_seconds,
+                dask_address,
+                report and not checked_report,
+                report,
             )
+        except _Recompute:
+            checked_report = True  # once: what it marked is rewritten by the next pass
         except Exception as error:
             found = _checksum_error(error)
             if found is None:
@@ -790,9 +868,14 @@ def _run_planned(
     retries: int,
     retry_delay_seconds: float,
     dask_address: str | None,
+    check_report: bool,
     report: bool,
 ) -> RunReport:
-    """The steps of a flow run in order (up-to-date ones skipped), then its report."""
+    """The steps of a flow run in order (up-to-date ones skipped), then its report.
+
+    ``check_report``: check the report's groups this run did not write deeply first
+    (:func:`_verify_report_groups`); damage found there raises :class:`_Recompute`.
+    """
     log = get_run_logger()
     store_path = str(store.path)
     run_report = RunReport(store_path, flow_name)
@@ -829,6 +912,10 @@ def _run_planned(
         run_report.steps.append(step_report)
     ran = sum(s.status == "ran" for s in run_report.steps)
     log.info(f"{flow_name}: {ran} node(s) ran, {len(run_report.steps) - ran} skipped")
+    if check_report:
+        fresh = {g for step in run_report.steps if step.status == "ran" for g in step.outputs}
+        if not _verify_report_groups(store, _made_by(planned), fresh):
+            raise _Recompute
     if report:
         progress.notify("step_started", len(planned) + 1, len(planned) + 1, "report")
         start = time.perf_counter()

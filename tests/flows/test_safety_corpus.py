@@ -6,13 +6,13 @@ real processes and signals."""
 import functools
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
 import sys
 import textwrap
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,6 @@ import pytest
 import tifffile
 import xarray as xr
 from support.capture_folders import rows, sample, write_rows  # noqa: F401  (sample: a fixture)
-from zarr.errors import UnstableSpecificationWarning
 
 from spectralize.datasets.dark_stack import make_raw_dark
 from spectralize.engine import Node, RegisteredNode, Step
@@ -354,6 +353,104 @@ def test_verify_names_a_rotten_raw_chunk_before_anything_runs(prefect_api, chain
         run_steps(store.path, chain, verify=True)
 
 
+# -- 3b. the report's groups: rot that kept its times is repaired by the same run ---------------
+@pytest.fixture(scope="module")
+def reported_btf(prefect_api, tmp_path_factory):
+    """A finished btf run of the tiny simulated run, with its report (made once per module)."""
+    path = tmp_path_factory.mktemp("btf") / "run.zarr"
+    btf_store(path, None)
+    assert cli.main(["run", "btf", str(path)]) == 0
+    return path
+
+
+def copy_run(source, target_dir):
+    """A copy of a run store and its report folder (times kept: the report is up to date)."""
+    target = target_dir / source.name
+    shutil.copytree(source, target, copy_function=shutil.copy2, symlinks=True)
+    report = source.parent / f"{source.stem}-report"
+    shutil.copytree(report, target_dir / report.name, copy_function=shutil.copy2)
+    return RunStore.open(target)
+
+
+def run_btf(capsys, store):
+    code = cli.main(["run", "btf", str(store.path)])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.slow
+def test_rot_in_a_group_the_report_shows_is_repaired_by_an_up_to_date_run(
+    reported_btf, tmp_path, capsys
+):
+    store = copy_run(reported_btf, tmp_path)
+    want = store.read("spectra")["radiance"].values
+    key = rot(store, "spectra", "radiance")
+    assert store.validate() == []  # sizes and times unchanged: the cheap check cannot see it
+    code, out, err = run_btf(capsys, store)
+    assert code == 0, err
+    assert f"spectra is damaged ({key}: CRC-32 " in err, err
+    statuses = dict(line.split()[:2] for line in out.splitlines()[1:] if line.startswith("  "))
+    assert statuses["reconstruct_image_sets"] == "ran" and statuses["dark_average"] == "skipped", out
+    assert store.validate(deep=True) == []
+    np.testing.assert_allclose(store.read("spectra")["radiance"].values, want, rtol=1e-5)
+    code, out, err = run_btf(capsys, store)  # healthy now: everything up to date, no warning
+    assert code == 0 and "damaged" not in err and " ran " not in out, (out, err)
+
+
+@pytest.mark.slow
+def test_a_chunk_the_report_reads_that_fails_is_recomputed_and_the_report_written_in_one_run(
+    reported_btf, tmp_path, capsys, monkeypatch
+):
+    from spectralize.flows import runtime
+
+    monkeypatch.setattr(runtime, "REPORT_VERIFY_BYTES", 0)  # nothing checked before: the read finds it
+    store = copy_run(reported_btf, tmp_path)
+    report = tmp_path / "run-report"
+    shutil.rmtree(report)  # the report is written again, so it reads its groups
+    key = rot(store, "calibration/spectral", "relative_error")
+    code, out, err = run_btf(capsys, store)
+    assert code == 0, err
+    assert f"calibration/spectral is damaged (chunk {key}: its bytes do not match the checksum" in err, (
+        err
+    )
+    assert "recomputing it and the groups that depend on it" in err
+    assert (report / "index.html").is_file()
+    assert store.validate(deep=True) == []
+    code, out, err = run_btf(capsys, store)
+    assert code == 0 and "damaged" not in err, err
+
+
+@pytest.mark.slow
+def test_rot_in_a_raw_group_the_report_shows_fails_the_up_to_date_run_naming_the_chunk(
+    reported_btf, tmp_path, capsys
+):
+    store = copy_run(reported_btf, tmp_path)
+    key = rot(store, "raw/rgb", "counts")
+    code, out, err = run_btf(capsys, store)
+    assert code == 2, (out, err)
+    assert f"group 'raw/rgb' of run store {str(store.path)!r} is damaged and no step" in err, err
+    assert key in err
+    assert any(p.where == "raw/rgb" for p in store.validate())  # marked: the cheap check sees it now
+
+
+@pytest.mark.slow
+def test_the_report_reads_only_the_groups_checked_before_it(reported_btf, tmp_path, monkeypatch):
+    from spectralize.flows.report import write_run_report
+    from spectralize.flows.runtime import REPORT_GROUPS
+
+    store = copy_run(reported_btf, tmp_path)
+    read: list[str] = []
+    original = RunStore.read
+
+    def recording(self, group, *args, **kwargs):
+        read.append(group)
+        return original(self, group, *args, **kwargs)
+
+    monkeypatch.setattr(RunStore, "read", recording)
+    write_run_report(store, directory=tmp_path / "again")
+    assert read and set(read) <= set(REPORT_GROUPS), sorted(set(read) - set(REPORT_GROUPS))
+
+
 # -- 5. clean exits ---------------------------------------------------------------------------
 def cube_store(path):
     store = RunStore.create(path)
@@ -467,6 +564,80 @@ def test_sigterm_stops_a_run_like_ctrl_c(tmp_path):
     assert store.has("dark") and store.validate() == []
 
 
+def finished_regions(store):
+    """The regions an unfinished resumable write has finished (its ``.done`` flags)."""
+    folder = work_dir(store) / "staging"
+    return [f for d in folder.glob("*.done") for f in d.iterdir()] if folder.is_dir() else []
+
+
+def groups_of(path):
+    """Every group of a store: its fingerprint and its data, loaded (the store's own records,
+    which name the store and the time, left out)."""
+    store = RunStore.open(path)
+    found = {}
+    for group in store.groups():
+        data = store.read(group, friendly=False).load()
+        data.attrs = {k: v for k, v in data.attrs.items() if not k.startswith("spectralize_")}
+        found[group] = (store.fingerprint(group), data)
+    return found
+
+
+@pytest.mark.slow
+def test_sigterm_stops_an_ingest_like_ctrl_c_and_a_second_ingest_resumes(sample, tmp_path):  # noqa: F811
+    store_path = tmp_path / "run.zarr"
+    ingest_run = spawn("ingest", str(sample), str(store_path))
+    started: list[psutil.Process] = []
+    try:
+        # once a group is finished and the next one has finished regions (kept for the rerun)
+        wait_for(
+            lambda: (
+                (store_path / "zarr.json").exists()
+                and RunStore.open(store_path).groups()
+                and finished_regions(store_path)
+            ),
+            ingest_run,
+            "a group was written and another has finished regions",
+        )
+        started = psutil.Process(ingest_run.pid).children(recursive=True)
+        os.kill(ingest_run.pid, signal.SIGTERM)
+        out, err = ingest_run.communicate(timeout=120)
+        gone, alive = psutil.wait_procs(started, timeout=30)
+        assert alive == [], [p.cmdline() for p in alive]
+    finally:
+        for process in [p for p in started if p.is_running()]:
+            process.kill()
+        if ingest_run.poll() is None:
+            ingest_run.kill()
+            ingest_run.wait()
+    assert ingest_run.returncode == 130, err
+    assert "Traceback" not in err, err
+    assert err.strip().splitlines()[-1] == "spectralize ingest: interrupted", err
+    assert [line for line in err.splitlines() if "interrupted" in line] == [
+        "spectralize ingest: interrupted"
+    ], err
+    assert lock_note(store_path) == {}  # the lock was released
+    store = RunStore.open(store_path)
+    written = store.groups()
+    # nothing half-written looks finished: every group there is whole, and some are not there yet
+    assert written and store.validate(deep=True) == []
+    clean = tmp_path / "clean.zarr"
+    assert ingest(sample, clean).groups  # the same folder, never interrupted
+    assert set(written) < set(RunStore.open(clean).groups()), written
+    resumed = subprocess.run(
+        [*EXE, "ingest", str(sample), str(store_path)], capture_output=True, text=True
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    for group in written:  # finished before the signal: not written again
+        assert re.search(rf"^  {re.escape(group)} +up to date", resumed.stdout, re.M), resumed.stdout
+    got, want = groups_of(store_path), groups_of(clean)
+    assert set(got) == set(want)
+    for group, (fingerprint, data) in want.items():
+        assert got[group][0] == fingerprint, group
+        xr.testing.assert_identical(got[group][1], data)
+    assert not list(store_path.rglob("*.partial"))
+    assert RunStore.open(store_path).staging_leftovers() == []
+
+
 HOLDER = textwrap.dedent(
     """
     import sys, time
@@ -549,16 +720,16 @@ def simulated_run() -> dict[str, xr.Dataset]:
 
 
 def btf_store(path, edit):
-    """A store btf can run on, whose raw/rgb a lab's importer wrote (no spectralize checks),
-    edited by ``edit``."""
+    """A store btf can run on, its raw/rgb edited by ``edit`` (``None``: as simulated).
+
+    The store takes the edited values (its contract has no rule about their order or
+    saturation): only the nodes' value checks can refuse them.
+    """
     store = RunStore.create(path)
     for group, ds in simulated_run().items():
-        if group != "raw/rgb":
-            store.write(group, ds, fingerprint=f"sim-{group}")
-    rgb = edit(simulated_run()["raw/rgb"].copy(deep=True))
-    with warnings.catch_warnings():  # the channel names: str arrays are not in zarr v3's spec
-        warnings.simplefilter("ignore", UnstableSpecificationWarning)
-        rgb.to_zarr(store.path, group="raw/rgb", zarr_format=3, consolidated=False)
+        if group == "raw/rgb" and edit is not None:
+            ds = edit(ds.copy(deep=True))
+        store.write(group, ds, fingerprint=f"sim-{group}")
     return store
 
 
@@ -625,7 +796,7 @@ def test_validate_flow_btf_refuses_what_run_btf_refuses(prefect_api, tmp_path, c
 
 @pytest.mark.slow
 def test_a_good_store_passes_validate_flow_btf_and_run_btf(prefect_api, tmp_path, capsys):
-    store = btf_store(tmp_path / "run.zarr", lambda rgb: rgb)
+    store = btf_store(tmp_path / "run.zarr", None)
     assert cli.main(["validate", str(store.path), "--flow", "btf"]) == 0, capsys.readouterr().err
     assert cli.main(["run", "btf", str(store.path)]) == 0, capsys.readouterr().err
     assert store.has("calibration/oecf_rgb") and store.has("hdr") and store.validate() == []
