@@ -12,7 +12,12 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["canonical_json", "compute_fingerprint"]
+__all__ = ["canonical_json", "compute_fingerprint", "STORE_LAYOUT"]
+
+STORE_LAYOUT = 2
+"""The on-disk layout a fingerprint promises (2: label order, shards, manifests beside the
+metadata). Part of every fingerprint, so that groups of an older layout are recomputed (or
+ingested again) instead of being read as if they were laid out like this one."""
 
 
 def canonical_json(value: Any) -> str:
@@ -23,7 +28,8 @@ def canonical_json(value: Any) -> str:
 def compute_fingerprint(
     node: str, version: str, parameters: Mapping[str, Any], inputs: Mapping[str, str]
 ) -> str:
-    """Fingerprint of one node run: sha256 of its name, version, parameters and inputs.
+    """Fingerprint of one node run: sha256 of its name, version, parameters, inputs and the
+    store layout (:data:`STORE_LAYOUT`).
 
     Parameters
     ----------
@@ -34,5 +40,11 @@ def compute_fingerprint(
     inputs
         Input group name -> that group's fingerprint.
     """
-    payload = {"node": node, "version": version, "parameters": dict(parameters), "inputs": dict(inputs)}
+    payload = {
+        "node": node,
+        "version": version,
+        "parameters": dict(parameters),
+        "inputs": dict(inputs),
+        "layout": STORE_LAYOUT,
+    }
     return hashlib.sha256(canonical_json(payload).encode()).hexdigest()

@@ -1,15 +1,22 @@
 """How a Dataset is laid out in a run store: chunks zarr can store, text, the view on reading.
 
-Written: every dask array gets regular chunks (:func:`regular_chunks`), except along the dim
-of a resumable write, whose regions keep their sizes and get on-disk chunks of 1
-(:func:`region_encoding`), so that no two regions share a chunk; text becomes zarr 3's
+Written: dims whose index is not in label order (``image`` of a result computed image set
+by image set) are sorted (:func:`label_order`), so plain xarray and
+:meth:`~spectralize.store.RunStore.read` see the images in one order; every dask array gets
+regular chunks (:func:`regular_chunks`), except along the dim of a resumable write, whose
+regions keep their sizes and get on-disk chunks of 1 while they are staged
+(:func:`region_encoding`), so that no two regions share a chunk. A finished group is laid out
+for a full run (:func:`shard_layout`): small variables (per-image coordinates, bookkeeping)
+in one chunk each, large ones in zarr 3 shards of about :data:`SHARD_BYTES` along their
+first dim, so files grow with shards, not with images x chunks. Text becomes zarr 3's
 specified variable-length ``string`` type (:func:`variable_length_strings`). Read:
 :func:`friendly` gives the convenient view of :meth:`~spectralize.store.RunStore.read`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Mapping
+import math
+from collections.abc import Hashable, Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -17,7 +24,76 @@ import xarray as xr
 
 from spectralize.schemas import StoreError
 
-__all__ = ["regular_chunks", "region_encoding", "variable_length_strings", "friendly"]
+__all__ = [
+    "regular_chunks",
+    "region_encoding",
+    "label_order",
+    "label_permutations",
+    "shard_layout",
+    "variable_length_strings",
+    "friendly",
+    "SMALL_BYTES",
+    "SHARD_BYTES",
+]
+
+SMALL_BYTES = 16 * 2**20
+"""A variable up to this size is one chunk (per-image coordinates of a full run: ~0.4 MB)."""
+SHARD_BYTES = 32 * 2**20
+"""Aimed-at size of one shard (one file) of a large variable; at least one chunk row."""
+
+
+def label_permutations(ds: xr.Dataset) -> dict[str, np.ndarray]:
+    """Per dim whose numeric index is not increasing: the positions that sort it."""
+    return {
+        str(dim): np.argsort(np.asarray(index), kind="stable")
+        for dim, index in ds.indexes.items()
+        if dim in ds.dims and index.dtype.kind in "iuf" and not index.is_monotonic_increasing
+    }
+
+
+def label_order(ds: xr.Dataset) -> xr.Dataset:
+    """``ds`` with every numeric dim index in increasing (label) order."""
+    order = label_permutations(ds)
+    return ds.isel(order) if order else ds
+
+
+def shard_layout(
+    ds: xr.Dataset, encoding: dict[str, dict[str, Any]], keep: Iterable[Hashable] = ()
+) -> xr.Dataset:
+    """Chunks and shards on disk for a finished group; returns ``ds`` rechunked to match.
+
+    Variables up to :data:`SMALL_BYTES` (index coordinates aside) become one chunk, unless
+    they have a dim of ``keep`` (chunked on request). The others keep their chunks (the
+    dask chunks, or ``encoding``'s) inside shards spanning every other dim whole and as many
+    chunk rows of the first dim as fit in :data:`SHARD_BYTES`; their dask chunks become the
+    shards, so every write task writes whole shards.
+    """
+    rechunk: dict[Hashable, xr.Variable] = {}
+    for name, var in ds.variables.items():
+        if name in ds.indexes or var.ndim == 0 or var.dtype.kind in "OTU":
+            continue
+        enc = encoding.setdefault(str(name), {})
+        if "shards" in enc:
+            continue
+        if var.nbytes <= SMALL_BYTES and not set(var.dims) & set(keep):
+            enc["chunks"] = tuple(var.shape)
+            if var.chunks is not None:
+                rechunk[name] = var.chunk(dict.fromkeys(var.dims, -1))
+            continue
+        chunks = tuple(
+            enc.get("chunks") or (tuple(max(c) for c in var.chunks) if var.chunks else var.shape)
+        )
+        rest = tuple(math.ceil(n / c) * c for n, c in zip(var.shape[1:], chunks[1:], strict=True))
+        row = chunks[0] * math.prod(rest) * var.dtype.itemsize
+        first = min(
+            max(1, SHARD_BYTES // max(row, 1)) * chunks[0],
+            math.ceil(var.shape[0] / chunks[0]) * chunks[0],
+        )
+        enc["chunks"], enc["shards"] = chunks, (first, *rest)
+        rechunk[name] = var.chunk(dict(zip(var.dims, (first, *rest), strict=True)))
+    coords = {k: v for k, v in rechunk.items() if k in ds.coords}
+    data = {k: v for k, v in rechunk.items() if k not in ds.coords}
+    return ds.assign_coords(coords).assign(data)
 
 
 def regular_chunks(
@@ -81,11 +157,9 @@ def variable_length_strings(ds: xr.Dataset) -> xr.Dataset:
 
 
 def friendly(ds: xr.Dataset) -> xr.Dataset:
-    """Dims in label order, small coordinates in memory, pixel index coordinates."""
-    for dim in list(ds.indexes):
-        index = ds.indexes[dim]
-        if dim in ds.dims and index.dtype.kind in "iuf" and not index.is_monotonic_increasing:
-            ds = ds.sortby(dim)
+    """Dims in label order (stores of the first layout kept results in set order), small
+    coordinates in memory, pixel index coordinates."""
+    ds = label_order(ds)
     small = {
         name: coord.load()
         for name, coord in ds.coords.items()

@@ -12,11 +12,23 @@ atomic at the group level (:mod:`.staging`), and every finished group carries in
     those ingredients in readable form;
 ``spectralize_schema``
     the name of the schema the group follows (:mod:`spectralize.schemas`);
-``spectralize_manifest``
-    every file of the group with its size, modification time and CRC-32 (:mod:`.integrity`).
+and beside its ``zarr.json``, not in its attrs (they would grow with the image count and
+be read by every open), the files
 
-Bookkeeping that is not a plain value (provenance, manifest) is stored as a JSON string, so
-a group opened with plain xarray can be written to netCDF; :meth:`RunStore.read` decodes it.
+``spectralize_manifest.json``
+    every file of the group with its size, modification time and CRC-32 (:mod:`.integrity`);
+``<record>.json``
+    records a writer keeps with the group (``write(records=...)``, :meth:`RunStore.record`),
+    such as which capture file each raw frame came from.
+
+Provenance is stored as a JSON string, so a group opened with plain xarray can be written to
+netCDF; :meth:`RunStore.provenance` decodes it. Groups are laid out for a full run
+(:mod:`.layout`: label order, one chunk per small variable, large ones in zarr 3 shards) and
+the store keeps consolidated metadata, so ``xarray.open_zarr(store, group=...)`` and
+``xarray.open_datatree(store, engine="zarr")`` open it quickly and see what
+:meth:`RunStore.read` sees. Stores of the first layout (format version 1) are read as they
+are; their groups' fingerprints differ from this layout's
+(:data:`~.fingerprint.STORE_LAYOUT`), so a flow or ingest recomputes them in this layout.
 
 Checks, from cheap to deep: :meth:`RunStore.verify` compares sizes and modification times
 with the manifest and recomputes the checksum of every file whose time changed (an edit in
@@ -37,6 +49,7 @@ import shutil
 import socket
 import time
 import uuid
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
@@ -56,20 +69,24 @@ from spectralize.schemas import (
 
 from .fingerprint import canonical_json
 from .integrity import (
+    MANIFEST_FILE,
     CheckedLocalStore,
     ChecksumError,
     chunk_files,
+    load_manifest,
     make_manifest,
     read_manifest,
     verify_files,
+    write_manifest,
 )
 from .layout import friendly as friendly_view
-from .layout import region_encoding, regular_chunks, variable_length_strings
+from .layout import label_order, region_encoding, regular_chunks, shard_layout, variable_length_strings
 from .lock import StoreLock, work_dir
 from .staging import (
     STAGING,
     adopt_abandoned,
     flags_path,
+    pack_staged,
     remove_tree,
     replace_group,
     replaced_group,
@@ -88,20 +105,21 @@ __all__ = [
 ]
 
 STORE_FORMAT = "spectralize-run-store"
-STORE_FORMAT_VERSION = 1
+STORE_FORMAT_VERSION = 2  # 2: sharded, label order, manifests beside zarr.json, consolidated
 FINGERPRINT_ATTR = "spectralize_fingerprint"
 PROVENANCE_ATTR = "spectralize_provenance"
 SCHEMA_ATTR = "spectralize_schema"
 MANIFEST_ATTR = "spectralize_manifest"
 DAMAGED_ATTR = "spectralize_damaged"  # why a group is not to be trusted (set by mark_damaged)
 _BOOKKEEPING = (FINGERPRINT_ATTR, PROVENANCE_ATTR, SCHEMA_ATTR, MANIFEST_ATTR, DAMAGED_ATTR)
-_JSON_ATTRS = (PROVENANCE_ATTR, MANIFEST_ATTR)
+_JSON_ATTRS = (PROVENANCE_ATTR, MANIFEST_ATTR)  # MANIFEST_ATTR: in stores of the first layout
 _NO_SPACE = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 _READ_ONLY = {errno.EROFS, errno.EACCES, errno.EPERM}
 
 
 def _json_attr(value: Any) -> Any:
-    if isinstance(value, str):
+    """A JSON object or list stored as text, decoded; anything else as it is."""
+    if isinstance(value, str) and value[:1] in ("{", "["):
         try:
             return json.loads(value)
         except ValueError:
@@ -142,9 +160,13 @@ class RunStore:
             if exist_ok:
                 return cls.open(path)
             raise StoreError(f"cannot create run store {str(path)!r}: the path already exists")
-        meta = {
-            "spectralize": {"format": STORE_FORMAT, "version": STORE_FORMAT_VERSION},
-            **dict(attrs or {}),
+        meta = {  # plain values: the root writes to netCDF (open_datatree(...).to_netcdf())
+            "spectralize_format": STORE_FORMAT,
+            "spectralize_format_version": STORE_FORMAT_VERSION,
+            **{
+                k: canonical_json(v) if isinstance(v, dict | list) else v
+                for k, v in (attrs or {}).items()
+            },
         }
         zarr.open_group(str(path), mode="w-", zarr_format=3, attributes=meta)
         return cls(path)
@@ -176,11 +198,20 @@ class RunStore:
                 f"{str(path)!r} is not a zarr v3 group: zarr.json has zarr_format="
                 f"{meta.get('zarr_format')!r}, node_type={meta.get('node_type')!r}"
             )
-        tag = (meta.get("attributes") or {}).get("spectralize", {})
+        root = meta.get("attributes") or {}
+        tag = root.get("spectralize") or {  # the first layout kept a dict
+            "format": root.get("spectralize_format"),
+            "version": root.get("spectralize_format_version"),
+        }
         if tag.get("format") != STORE_FORMAT:
             raise StoreError(
                 f"{str(path)!r} is a zarr store but not a spectralize run store: its root attrs "
-                f"lack spectralize.format == {STORE_FORMAT!r}"
+                f"lack spectralize_format == {STORE_FORMAT!r}"
+            )
+        if int(tag.get("version") or 1) > STORE_FORMAT_VERSION:
+            raise StoreError(
+                f"{str(path)!r} is a run store of format version {tag.get('version')}, newer than "
+                f"this spectralize reads ({STORE_FORMAT_VERSION}): upgrade spectralize"
             )
         store = cls(path)
         store._recover_interrupted_replacements()
@@ -204,8 +235,9 @@ class RunStore:
 
     @property
     def attrs(self) -> dict[str, Any]:
-        """The store's root attrs."""
-        return dict(json.loads((self.path / "zarr.json").read_text()).get("attributes") or {})
+        """The store's root attrs (values stored as JSON text decoded)."""
+        attrs = json.loads((self.path / "zarr.json").read_text()).get("attributes") or {}
+        return {k: _json_attr(v) for k, v in attrs.items()}
 
     # -- listing ---------------------------------------------------------------------------
     def _group_path(self, group: str) -> Path:
@@ -288,6 +320,20 @@ class RunStore:
         """How ``group`` was made: node, version, parameters, inputs, time."""
         return dict(_json_attr(self.group_attrs(group).get(PROVENANCE_ATTR)) or {})
 
+    def manifest(self, group: str) -> dict[str, Any] | None:
+        """The manifest written when ``group`` was committed (``None``: imported without one)."""
+        return load_manifest(self._group_path(group), self.group_attrs(group), MANIFEST_ATTR)
+
+    def record(self, group: str, name: str, default: Any = None) -> Any:
+        """A record kept with ``group`` (``write(records={name: ...})``), else ``default``.
+
+        Stores of the first layout kept records in the group's attrs; they are read too.
+        """
+        try:
+            return json.loads((self._group_path(group) / f"{name}.json").read_text())
+        except FileNotFoundError:
+            return self.group_attrs(group).get(name, default)
+
     def size_on_disk(self, group: str) -> int:
         """Bytes the files of a finished group take (0 when there is no such group)."""
         if not self.has(group):
@@ -347,15 +393,16 @@ class RunStore:
     ) -> xr.Dataset:
         checksums: dict[str, int] = {}
         if checked:
-            manifest = read_manifest(self.group_attrs(group).get(MANIFEST_ATTR)) or {}
+            manifest = read_manifest(self.manifest(group)) or {}
             prefix = group.strip("/")
             checksums = {
                 f"{prefix}/{rel}": crc for rel, (_, _, crc) in manifest.items() if crc is not None
             }
+        meta = self._group_meta(self._group_path(group)) or {}
         return xr.open_zarr(
             CheckedLocalStore(self.path, read_only=True, checksums=checksums),
             group=group.strip("/"),
-            consolidated=False,
+            consolidated=bool(meta.get("consolidated_metadata")),
             chunks=dict(chunks) if chunks is not None else {},
         )
 
@@ -373,7 +420,7 @@ class RunStore:
         problems = []
         if attrs.get(DAMAGED_ATTR):
             problems.append(Problem(group, "an undamaged group", str(attrs[DAMAGED_ATTR])))
-        manifest = read_manifest(attrs.get(MANIFEST_ATTR))
+        manifest = read_manifest(self.manifest(group))
         if manifest:
             problems += verify_files(self._group_path(group), manifest, group, deep=deep)
         return problems
@@ -392,6 +439,7 @@ class RunStore:
             temporary = path.with_name(f"zarr.json.{os.getpid()}.tmp")
             temporary.write_text(json.dumps(meta, indent=2))
             os.replace(temporary, path)
+            self._consolidate()
 
     def group_of(self, key: str) -> str | None:
         """The finished group a store key (``"hdr/radiance/c/0/0/0/0"``) belongs to."""
@@ -479,6 +527,7 @@ class RunStore:
         resumable_along: str | None = None,
         concurrent_regions: int = 1,
         progress: Callable[[str], None] | None = None,
+        records: Mapping[str, Any] | None = None,
     ) -> str:
         """Write ``ds`` as ``group``, atomically, and return its fingerprint.
 
@@ -501,12 +550,16 @@ class RunStore:
         resumable_along
             Write region by region along this dim, flagging each finished region, so an
             interrupted write with the same fingerprint resumes where it stopped. The regions
-            are the dask chunks of ``ds`` along the dim (they may differ in size); on disk
-            the dim is chunked by 1, so no two regions share a chunk.
+            are the dask chunks of ``ds`` along the dim (they may differ in size; small ones
+            are written together); staged, the dim is chunked by 1, so no two regions share
+            a chunk; finished, the group is packed into shards (:mod:`.layout`).
         concurrent_regions
             How many regions are computed and written at the same time (resumable writes).
         progress
             Called with a short message after each region.
+        records
+            Name -> JSON value kept beside the group as ``<name>.json`` (in its manifest, not
+            its attrs): bookkeeping that grows with the data (:meth:`record` reads it).
 
         Raises
         ------
@@ -545,6 +598,8 @@ class RunStore:
         if schema is not None:
             attrs[SCHEMA_ATTR] = schema.name
         ds = variable_length_strings(ds.copy(deep=False))
+        if resumable_along is None:
+            ds = label_order(ds)  # a resumable write is sorted when it is packed
         ds.attrs = attrs
         enc = {name: dict(value) for name, value in (encoding or {}).items()}
 
@@ -555,6 +610,7 @@ class RunStore:
             try:
                 staging.mkdir(exist_ok=True)
                 if resumable_along is None:
+                    ds = shard_layout(ds, enc, keep=chunks or ())
                     ds.to_zarr(
                         str(staged),
                         mode="w-",
@@ -573,7 +629,8 @@ class RunStore:
                         progress,
                         max(1, int(concurrent_regions)),
                     )
-                self._commit(staged, target, group)
+                    pack_staged(staged, keep=chunks or ())
+                self._commit(staged, target, group, records or {})
             except BaseException as error:
                 keep = resumable_along is not None and not (
                     isinstance(error, OSError) and error.errno in _NO_SPACE
@@ -614,13 +671,30 @@ class RunStore:
             f"{type(error).__name__}: {error}"
         )
 
-    def _commit(self, staged: Path, target: Path, group: str) -> None:
-        manifest = make_manifest(staged)
-        zarr.open_group(str(staged), mode="r+").attrs.update({MANIFEST_ATTR: canonical_json(manifest)})
+    def _commit(self, staged: Path, target: Path, group: str, records: Mapping[str, Any]) -> None:
+        for name, value in records.items():
+            if name == MANIFEST_FILE.removesuffix(".json") or "/" in name or name.startswith("."):
+                raise StoreError(f"invalid record name {name!r} for group {group!r}")
+            (staged / f"{name}.json").write_text(json.dumps(value, separators=(",", ":")))
+        with warnings.catch_warnings():  # the records and manifest are not zarr
+            warnings.simplefilter("ignore")
+            zarr.consolidate_metadata(str(staged))
+        write_manifest(staged, make_manifest(staged))
         parent = "/".join(group.strip("/").split("/")[:-1])
         if parent:
             zarr.open_group(str(self.path), mode="r+").require_group(parent)
         replace_group(staged, target, self.staging_dir, group)
+        self._consolidate()
+
+    def _consolidate(self) -> None:
+        """Consolidated metadata at the root (every group's arrays and attrs in one file).
+
+        Warnings about what others put in the store (files that are not zarr, text of types
+        without a zarr 3 specification) are not this writer's to raise.
+        """
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            zarr.consolidate_metadata(str(self.path))
 
     def _recover_interrupted_replacements(self) -> None:
         """Put back a previous result whose replacement was interrupted between two renames.

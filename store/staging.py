@@ -11,6 +11,11 @@ Large outputs are written region by region (:func:`write_regions`): every finish
 flagged in a small array beside the staged group (:func:`flags_path`), and a later writer
 with the same fingerprint adopts an abandoned staged group (:func:`adopt_abandoned`, renaming
 it to its own name, under the lock) and writes only the regions that were not finished.
+Of a write with more than :data:`JOIN_REGIONS_ABOVE` regions, small consecutive ones (image
+sets of tiny frames) are written together, up to :data:`REGION_BYTES`, so that the cost per
+region does not dominate a run of thousands of sets. A staged group complete in its regions
+is then packed (:func:`pack_staged`): sorted into label order and rewritten in the finished
+layout (:func:`~.layout.shard_layout`).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import xarray as xr
 import zarr
 
 from .integrity import PARTIAL_SUFFIX
+from .layout import label_permutations, shard_layout
 
 __all__ = [
     "STAGING",
@@ -41,12 +47,16 @@ __all__ = [
     "remove_tree",
     "adopt_abandoned",
     "write_regions",
+    "pack_staged",
+    "REGION_BYTES",
     "replace_group",
     "replaced_group",
 ]
 
 STAGING = ".staging"  # where stores before the work directory staged their writes
 REPLACED = ".replaced-"  # a previous result moved aside while its replacement is renamed in
+REGION_BYTES = 64 * 2**20  # consecutive regions are joined up to this size ...
+JOIN_REGIONS_ABOVE = 64  # ... when a write has more regions than this
 
 
 def group_stem(group: str) -> str:
@@ -110,8 +120,10 @@ def write_regions(
 ) -> None:
     """Write ``ds`` to ``staged`` region by region along ``dim``, skipping flagged regions.
 
-    The regions are the dask chunks of ``ds`` along ``dim``; ``concurrent`` of them are
-    computed and written at a time. The flag array is removed when every region is written.
+    The regions are the dask chunks of ``ds`` along ``dim`` (when there are more than
+    :data:`JOIN_REGIONS_ABOVE`, consecutive ones joined up to :data:`REGION_BYTES`);
+    ``concurrent`` of them are computed and written at a time. The flag array is removed
+    when every region is written.
     """
     dim_chunks = next(
         (
@@ -121,8 +133,9 @@ def write_regions(
         ),
         (ds.sizes[dim],),
     )
-    bounds = np.cumsum((0,) + tuple(dim_chunks))
-    regions = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    per_index = sum(v.nbytes // max(v.sizes[dim], 1) for v in ds.variables.values() if dim in v.dims)
+    joined = len(dim_chunks) > JOIN_REGIONS_ABOVE
+    regions = join_regions(dim_chunks, REGION_BYTES // max(per_index, 1) if joined else 0)
     flags_at = flags_path(staged)
     flags = None
     if staged.exists() and flags_at.exists():
@@ -179,6 +192,61 @@ def write_regions(
         if concurrent != 1:
             pool.shutdown(wait=True, cancel_futures=True)
     shutil.rmtree(flags_at)
+
+
+def join_regions(sizes: Iterable[int], most: int) -> list[slice]:
+    """Slices of consecutive chunks of ``sizes``, each chunk whole, joined up to ``most`` indices."""
+    regions: list[slice] = []
+    start = end = 0
+    for size in sizes:
+        if end > start and end + size - start > most:
+            regions.append(slice(start, end))
+            start = end
+        end += int(size)
+    if end > start:
+        regions.append(slice(start, end))
+    return regions
+
+
+def pack_staged(staged: Path, keep: Iterable[str] = ()) -> None:
+    """Rewrite a staged group complete in its regions in the finished layout, in label order.
+
+    The regions were written with chunks of 1 along their dim, in the order they were
+    computed; the packed copy (beside it, then renamed over it) has every dim whose index was
+    not increasing sorted and the chunks and shards of :func:`~.layout.shard_layout` (the
+    staged chunks kept along the dims of ``keep``, which the writer chunked on request). The
+    arrays are copied shard by shard with zarr, never all in memory.
+    """
+    source = xr.open_zarr(str(staged), consolidated=False, chunks={})
+    order = label_permutations(source)
+    template = source.isel(order) if order else source
+    for var in template.variables.values():
+        for key in ("chunks", "preferred_chunks", "shards"):
+            var.encoding.pop(key, None)
+    encoding: dict[str, dict[str, Any]] = {}
+    template = shard_layout(template, encoding, keep=keep)
+    packed = staged.with_name(f"{staged.name}.packed")
+    shutil.rmtree(packed, ignore_errors=True)
+    template.to_zarr(
+        str(packed), mode="w-", consolidated=False, zarr_format=3, compute=False, encoding=encoding
+    )
+    for name, var in source.variables.items():
+        if name in source.indexes:
+            continue
+        src = zarr.open_array(str(staged / str(name)), mode="r")
+        dst = zarr.open_array(str(packed / str(name)), mode="r+")
+        if var.ndim == 0:
+            dst[...] = src[...]
+            continue
+        step = (dst.shards or dst.chunks)[0]
+        first = order.get(str(var.dims[0]))
+        rest = tuple(order.get(str(d), slice(None)) for d in var.dims[1:])
+        for start in range(0, var.shape[0], step):
+            rows = slice(start, min(start + step, var.shape[0]))
+            pick = first[rows] if first is not None else rows
+            dst[rows] = src.oindex[(pick, *rest)]
+    shutil.rmtree(staged)
+    os.rename(packed, staged)
 
 
 def replace_group(staged: Path, target: Path, staging: Path, group: str) -> None:

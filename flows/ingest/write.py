@@ -53,8 +53,7 @@ def _known_files(store: RunStore) -> tuple[dict[str, tuple[int, int]], tuple[int
     for group in RAW_GROUPS:
         if not store.has(group):
             continue
-        attrs = store.group_attrs(group)
-        for files in (attrs.get(FILES_ATTR) or {}).values():
+        for files in (store.record(group, FILES_ATTR) or {}).values():
             known.update({f: (int(s), int(m)) for f, s, m in files})
         if group == "raw/spectral":
             meta = json.loads((store.path / group / "counts" / "zarr.json").read_text())
@@ -159,6 +158,7 @@ def _write_groups(
                 "capture": str(capture_dir.absolute()),
             },
             resumable_along=dim,
+            records={FILES_ATTR: group.files},
             progress=_Eta(say, group.name, regions) if dim else None,
         )
         report.groups[group.name] = "written"

@@ -24,7 +24,7 @@ from spectralize.engine import discovery as engine
 from spectralize.flows import cli
 from spectralize.flows.runtime import run_steps
 from spectralize.schemas import SchemaError
-from spectralize.store import MANIFEST_ATTR, RunStore, work_dir
+from spectralize.store import RunStore, work_dir
 
 EXE = [sys.executable, "-m", "spectralize.flows.cli"]
 
@@ -170,7 +170,7 @@ def test_nan_in_hdr_is_caught_before_any_numerics(prefect_api, test_nodes, tmp_p
 
 
 def truncate(store, group, variable):
-    manifest = json.loads(store.group_attrs(group)[MANIFEST_ATTR])["files"]
+    manifest = store.manifest(group)["files"]
     chunk = store.path / group / sorted(k for k in manifest if k.startswith(f"{variable}/c/"))[0]
     chunk.write_bytes(chunk.read_bytes()[:-5])
     return chunk
@@ -218,7 +218,7 @@ def small(path):
 
 def flipped(path, keep_time=False):
     store = small(path)
-    manifest = json.loads(store.group_attrs("raw/dark")[MANIFEST_ATTR])["files"]
+    manifest = store.manifest("raw/dark")["files"]
     chunk = store.path / "raw/dark" / sorted(k for k in manifest if k.startswith("frames/c/"))[0]
     stat = chunk.stat()
     data = bytearray(chunk.read_bytes())
@@ -478,7 +478,7 @@ def finished_results(path: Path) -> dict:
         store = RunStore.open(path)
     except Exception:
         return {}
-    return {g: (store.fingerprint(g), store.group_attrs(g).get(MANIFEST_ATTR)) for g in store.groups()}
+    return {g: (store.fingerprint(g), store.manifest(g)) for g in store.groups()}
 
 
 def test_bad_input_corpus(prefect_api, tmp_path, small_filesystem, capsys):

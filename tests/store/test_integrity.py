@@ -1,16 +1,12 @@
 """Nothing damaged is trusted: missing, truncated, edited, bit-rotten and added files are found by the manifest's sizes and checksums, cheaply, deeply and on read."""
 
-import json
 import os
 
 import pytest
 
 from spectralize.datasets.dark_stack import make_raw_dark
 from spectralize.schemas import StoreError
-from spectralize.store import (
-    MANIFEST_ATTR,
-    ChecksumError,
-)
+from spectralize.store import ChecksumError
 
 
 def small_raw_dark(seed=0):
@@ -20,7 +16,7 @@ def small_raw_dark(seed=0):
 
 
 def chunk_of(store, group, variable):
-    manifest = json.loads(store.group_attrs(group)[MANIFEST_ATTR])["files"]
+    manifest = store.manifest(group)["files"]
     rel = sorted(k for k in manifest if k.startswith(f"{variable}/c/"))[0]
     return store.path / group / rel
 
@@ -70,7 +66,7 @@ def test_files_added_after_commit_are_reported(dark_store):
 
 def test_missing_or_truncated_chunk_is_reported_never_read(store):
     store.write("raw/dark", small_raw_dark(), fingerprint="x", chunks={"frame": 4})
-    manifest = json.loads(store.group_attrs("raw/dark")[MANIFEST_ATTR])["files"]
+    manifest = store.manifest("raw/dark")["files"]
     chunk = sorted(k for k in manifest if k.startswith("frames/"))[0]
     os.remove(store.path / "raw" / "dark" / chunk)
     problems = store.verify("raw/dark")

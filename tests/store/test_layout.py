@@ -45,8 +45,8 @@ def test_reads_are_sorted_have_loaded_coords_pixel_coords_and_netcdf_friendly_at
     assert json.loads(ds.attrs["spectralize_provenance"])["p"] == {"a": 1}  # JSON text
     assert dark_store.provenance("cube")["p"] == {"a": 1}
     ds.to_netcdf(tmp_path / "read.nc")  # a read() result writes as it is
-    assert dark_store.read("cube", friendly=False).image.values.tolist() == [3, 0, 2, 1]  # as stored
-    plain = xr.open_zarr(str(dark_store.path), group="cube", consolidated=False)
+    assert dark_store.read("cube", friendly=False).image.values.tolist() == [0, 1, 2, 3]  # on disk
+    plain = xr.open_zarr(str(dark_store.path), group="cube", consolidated=True)
     assert json.loads(plain.attrs["spectralize_provenance"])["node"] == "n"
     plain.to_netcdf(tmp_path / "cube.nc")  # bookkeeping attrs are JSON strings
     assert xr.open_dataset(tmp_path / "cube.nc").radiance.shape == (4, 3, 2, 2)

@@ -1,0 +1,191 @@
+"""Benchmark of a full BTF run's geometry with tiny frames: what grows with the image count.
+
+Run from the repository root::
+
+    .venv/bin/python benchmarks/full_run.py                       # 52,272 images, 32 x 32 px
+    .venv/bin/python benchmarks/full_run.py --images 5227         # a tenth of the run
+
+The full run is 24 rotations x 198 LEDs x 11 cameras = 52,272 images (paper, sec. 4);
+``--images N`` keeps all rotations and cameras and as many whole LEDs as give at least
+``N`` images (264 images per LED). The simulated run is written as a capture folder
+(:func:`~spectralize.datasets.capture.sample.write_capture_folder`), ingested
+(``spectralize ingest``) and processed by the whole ``btf`` flow (``spectralize run btf``),
+each a fresh process on this machine. Progress goes to stdout; the LAST line is one JSON
+object, also written to ``benchmarks/results/full_run[_N].json``:
+
+``images``                          images of the run store (``raw/rgb``)
+``files_per_image``                 files under the store directory per image
+``largest_group_metadata_bytes``    the largest group's metadata (every ``zarr.json`` of it
+                                    and its integrity manifest)
+``ingest_s``, ``flow_s``            wall time of the ingest and of the ``btf`` flow
+``seconds_per_1000_images``         (ingest + flow) per 1,000 images
+``peak_rss_gb``                     the largest resident set of the ingest and flow processes
+``open_and_read_coordinates_s``     a fresh process: ``open_run(store).read("spectra")`` and
+                                    its per-image coordinates in memory (imports excluded)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+RESULTS = HERE / "results"
+BIN = Path(sys.executable).parent
+
+ROTATIONS, LEDS, CAMERAS = 24, 198, 11
+FULL_RUN_IMAGES = ROTATIONS * LEDS * CAMERAS
+
+
+def log(message: str) -> None:
+    print(f"[full-run {time.strftime('%H:%M:%S')}] {message}", flush=True)
+
+
+def led_subset(images: int) -> list[int]:
+    """As many LEDs as give at least ``images`` images with 24 rotations and 11 cameras.
+
+    Neighbours on a ring first (the 24-LED rings from 10 deg polar angle outwards, then the
+    ring of 6 at the zenith): the spectral camera's sparse sets pair LEDs 15 deg apart.
+    """
+    count = min(LEDS, max(1, math.ceil(images / (ROTATIONS * CAMERAS))))
+    return [*range(6, LEDS), *range(6)][:count]
+
+
+def recipe_overrides(images: int, frame: int) -> dict:
+    """The ``paper`` recipe's gantry (24 rotations, 11 cameras) at ``frame`` px on a subset of LEDs."""
+    return {
+        "size": frame,
+        "chunk_size": None,
+        "leds": led_subset(images),
+        "n_dark_frames": 4,
+        "frames_per_chunk": 64,
+    }
+
+
+def run(command: list[str], env: dict[str, str] | None = None) -> float:
+    """Run ``command`` (a fresh process), echo its last lines, return its wall time."""
+    start = time.perf_counter()
+    done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
+    seconds = time.perf_counter() - start
+    tail = (done.stdout + done.stderr).strip().splitlines()[-6:]
+    for line in tail:
+        log(f"  | {line}")
+    if done.returncode:
+        raise SystemExit(f"{' '.join(command[:3])} failed with exit status {done.returncode}")
+    return seconds
+
+
+def group_metadata_bytes(store: Path) -> dict[str, int]:
+    """Per group: bytes of its ``zarr.json`` files and integrity manifest (not nested groups)."""
+    from spectralize.store import open_run
+    from spectralize.store.integrity import metadata_files
+
+    run = open_run(store)
+    return {
+        group: sum(p.stat().st_size for p in metadata_files(run.path / group)) for group in run.groups()
+    }
+
+
+OPEN_AND_READ = """
+import sys, time, json
+from spectralize.store import open_run
+start = time.perf_counter()
+ds = open_run(sys.argv[1]).read("spectra")
+coords = {name: c.values for name, c in ds.coords.items() if "image" in c.dims}
+print(json.dumps({"seconds": time.perf_counter() - start, "coords": sorted(coords)}))
+"""
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--images", type=int, default=FULL_RUN_IMAGES)
+    parser.add_argument(
+        "--frame",
+        type=int,
+        default=32,
+        help="frame height = width [px] (the spectral OECF filters need >= 27)",
+    )
+    parser.add_argument("--workdir", type=Path, default=None, help="keep capture and store here")
+    parser.add_argument("--output", type=Path, default=None)
+    args = parser.parse_args(argv)
+
+    from spectralize.datasets.capture.sample import write_capture_folder
+
+    root = args.workdir or Path(tempfile.mkdtemp(prefix="full-run-"))
+    root.mkdir(parents=True, exist_ok=True)
+    capture, store = root / "capture", root / "run.zarr"
+    overrides = recipe_overrides(args.images, args.frame)
+    log(f"capture folder: {len(overrides['leds'])} LED(s) x {ROTATIONS} rotations x {CAMERAS} cameras")
+    start = time.perf_counter()
+    if not (capture / "capture.toml").is_file():  # a --workdir of an earlier run keeps it
+        write_capture_folder(capture, recipe="paper", overrides=overrides)
+    capture_s = time.perf_counter() - start
+    log(f"capture folder written in {capture_s:.1f} s")
+    shutil.rmtree(store, ignore_errors=True)
+    shutil.rmtree(store.parent / f".{store.name}.spectralize", ignore_errors=True)
+
+    env = {**os.environ, "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "90"}
+    ingest_s = run([str(BIN / "spectralize"), "ingest", str(capture), str(store)], env)
+    log(f"ingested in {ingest_s:.1f} s")
+    flow_s = run([str(BIN / "spectralize"), "run", "btf", str(store)], env)
+    log(f"btf flow in {flow_s:.1f} s")
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6  # kB -> GB
+
+    done = subprocess.run(
+        [sys.executable, "-c", OPEN_AND_READ, str(store)], cwd=ROOT, capture_output=True, text=True
+    )
+    if done.returncode:
+        raise SystemExit(done.stderr)
+    opened = json.loads(done.stdout.strip().splitlines()[-1])
+
+    from spectralize.store import open_run
+
+    images = int(open_run(store).read("raw/rgb", verify=False).sizes["image"])
+    files = sum(len(names) for _, _, names in os.walk(store))
+    metadata = group_metadata_bytes(store)
+    largest = max(metadata, key=metadata.__getitem__)
+    result = {
+        "benchmark": "full_run",
+        "images": images,
+        "frame_px": args.frame,
+        "full_run_images": FULL_RUN_IMAGES,
+        "files": files,
+        "files_per_image": round(files / images, 3),
+        "largest_group_metadata_bytes": metadata[largest],
+        "largest_metadata_group": largest,
+        "capture_s": round(capture_s, 1),
+        "ingest_s": round(ingest_s, 1),
+        "flow_s": round(flow_s, 1),
+        "seconds_per_1000_images": round((ingest_s + flow_s) / images * 1000, 1),
+        "peak_rss_gb": round(peak, 2),
+        "open_and_read_coordinates_s": round(opened["seconds"], 2),
+        "cpu_count": os.cpu_count(),
+        "targets": {
+            "files_per_image": 3,
+            "largest_group_metadata_bytes": 1_000_000,
+            "seconds_per_1000_images": 60,
+            "peak_rss_gb": 4,
+            "open_and_read_coordinates_s": 2,
+        },
+    }
+    output = args.output or RESULTS / (
+        "full_run.json" if args.images >= FULL_RUN_IMAGES else f"full_run_{args.images}.json"
+    )
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result), flush=True)
+    return result
+
+
+if __name__ == "__main__":
+    main()

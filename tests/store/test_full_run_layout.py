@@ -1,0 +1,123 @@
+"""A store laid out for a full run: label order on disk, shards, one chunk per coordinate,
+consolidated metadata, small attrs, and what plain xarray does with it."""
+
+import json
+import warnings
+
+import dask.array as da
+import numpy as np
+import pytest
+import xarray as xr
+
+from spectralize.store import RunStore, layout, open_run
+from spectralize.store.integrity import MANIFEST_FILE
+
+
+def set_ordered_cube(sets):
+    """A spectral cube computed image set by image set: ``image`` in set order, one chunk per set."""
+    order = np.concatenate(sets)
+    pieces = [
+        da.from_array(np.asarray(s, np.float32)[:, None, None, None] * np.ones((1, 3, 4, 4), np.float32))
+        for s in sets
+    ]
+    return xr.Dataset(
+        {"radiance": (("image", "wavelength", "y", "x"), da.concatenate(pieces), {"units": "1"})},
+        coords={
+            "image": order,
+            "wavelength": ("wavelength", [450.0, 550.0, 650.0], {"units": "nm"}),
+            "theta_i": ("image", da.from_array(order * 10.0, chunks=1), {"units": "degree"}),
+            "camera": ("image", da.from_array(order % 3, chunks=1)),
+        },
+        attrs={"note": "x"},
+    )
+
+
+@pytest.mark.parametrize("resumable", [False, True])
+def test_plain_xarray_and_open_run_agree_on_image_order(tmp_path, resumable):
+    sets = [[4, 0, 7], [2, 5], [1, 3, 6]]
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write(
+        "cube",
+        set_ordered_cube(sets),
+        fingerprint="s",
+        resumable_along="image" if resumable else None,
+    )
+    plain = xr.open_zarr(str(store.path), group="cube")  # default: consolidated metadata
+    ours = open_run(store.path).read("cube")
+    raw = store.read("cube", friendly=False)
+    assert plain.image.values.tolist() == list(range(8))
+    assert ours.image.values.tolist() == raw.image.values.tolist() == plain.image.values.tolist()
+    assert plain.radiance.isel(image=5).values.max() == ours.radiance.isel(image=5).values.max() == 5
+    assert plain.theta_i.values.tolist() == [10.0 * i for i in range(8)]
+
+
+def test_files_grow_with_shards_and_coordinates_are_one_chunk(tmp_path, monkeypatch):
+    monkeypatch.setattr(layout, "SMALL_BYTES", 4096)  # the cube is "large"; coordinates small
+    monkeypatch.setattr(layout, "SHARD_BYTES", 100 * 192)  # 100 images of 192 B per shard
+    sets = [list(range(k, k + 10)) for k in range(0, 200, 10)][::-1]  # 20 sets, 200 images
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write("cube", set_ordered_cube(sets), fingerprint="s", resumable_along="image")
+    root = store.path / "cube"
+    chunk_files = [p for p in (root / "radiance" / "c").rglob("*") if p.is_file()]
+    assert len(chunk_files) == 2  # 200 images in two shards
+    meta = json.loads((root / "radiance" / "zarr.json").read_text())
+    assert meta["codecs"][0]["name"] == "sharding_indexed"
+    assert meta["chunk_grid"]["configuration"]["chunk_shape"] == [100, 3, 4, 4]
+    assert store.read("cube").radiance.values[:, 0, 0, 0].tolist() == list(range(200))
+    for name in ("theta_i", "camera"):
+        assert [p for p in (root / name / "c").rglob("*") if p.is_file()] == [root / name / "c" / "0"]
+    files = sum(1 for p in store.path.rglob("*") if p.is_file())
+    assert files < 20  # one per array, its metadata, the group's metadata and manifest
+
+
+def test_bookkeeping_stays_out_of_the_attrs_and_records_are_kept_beside(tmp_path):
+    store = RunStore.create(tmp_path / "run.zarr")
+    files = {"radiance": [[f"rgb/img{i:05d}.png", 1000, 1] for i in range(5000)]}
+    store.write("cube", set_ordered_cube([[1, 0]]), fingerprint="s", records={"frames_from": files})
+    attrs = store.group_attrs("cube")
+    assert "spectralize_manifest" not in attrs and "frames_from" not in attrs
+    assert len((store.path / "cube" / "zarr.json").read_bytes()) < 8000
+    assert store.record("cube", "frames_from") == files
+    assert (store.path / "cube" / MANIFEST_FILE).is_file()
+    assert "frames_from.json" in store.manifest("cube")["files"]  # checksummed like the data
+    assert store.verify("cube") == []
+
+
+def test_consolidated_metadata_opens_without_warnings_and_writes_to_netcdf(tmp_path):
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write("cube", set_ordered_cube([[2, 0], [1]]), fingerprint="s")
+    text = xr.Dataset(coords={"channel": ("channel", np.array(["R", "G", "B"]))})
+    store.write("raw/text", text.assign(v=("channel", np.arange(3.0))), fingerprint="t")
+    root = json.loads((store.path / "zarr.json").read_text())
+    assert {"cube", "raw/text"} <= set(root["consolidated_metadata"]["metadata"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tree = xr.open_datatree(str(store.path), engine="zarr")
+        ds = xr.open_zarr(str(store.path), group="cube")
+    tree.to_netcdf(tmp_path / "run.nc")
+    back = xr.open_datatree(tmp_path / "run.nc")
+    assert back["raw/text"].channel.values.tolist() == ["R", "G", "B"]
+    # per-image coordinates are one small chunk: where(drop=True) needs them in memory
+    eager = xr.open_zarr(str(store.path), group="cube", chunks=None)
+    assert eager.where(eager.theta_i < 15, drop=True).image.values.tolist() == [0, 1]
+    assert ds.where(ds.theta_i.compute() < 15, drop=True).image.values.tolist() == [0, 1]
+
+
+def test_a_store_of_the_first_layout_is_read_and_its_groups_get_other_fingerprints(tmp_path):
+    from spectralize.store import compute_fingerprint
+
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write("cube", set_ordered_cube([[1, 0]]), fingerprint="s")
+    group = store.path / "cube"
+    manifest = json.loads((group / MANIFEST_FILE).read_text())
+    meta = json.loads((group / "zarr.json").read_text())  # the first layout: manifest in attrs
+    meta["attributes"]["spectralize_manifest"] = json.dumps(manifest)
+    (group / "zarr.json").write_text(json.dumps(meta))
+    (group / MANIFEST_FILE).unlink()
+    assert store.manifest("cube") == manifest and store.verify("cube") == []
+    assert store.read("cube").image.values.tolist() == [0, 1]
+    payload = {"node": "n", "version": "1", "parameters": {}, "inputs": {}}  # no "layout"
+    import hashlib
+
+    old = hashlib.sha256(json.dumps(payload, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+    assert compute_fingerprint("n", "1", {}, {}) != old
