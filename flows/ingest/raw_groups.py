@@ -34,7 +34,8 @@ from spectralize.datasets.capture import ANGLES, Capture, CaptureError, Row
 from spectralize.datasets.capture.checks import pair
 from spectralize.datasets.capture.images import read_image
 from spectralize.datasets.capture.model import rounded
-from spectralize.store import MANIFEST_ATTR, RunStore
+from spectralize.store import RunStore
+from spectralize.store.fingerprint import STORE_LAYOUT
 from spectralize.store.integrity import CheckedLocalStore, ChecksumError, read_manifest
 
 __all__ = [
@@ -62,7 +63,7 @@ RAW_GROUPS: tuple[str, ...] = (
 
 #: Bumped when the groups ingest writes change: every group is then rewritten.
 INGEST_VERSION = "1"
-FILES_ATTR = "spectralize_ingest_files"  # per variable: [file, size, mtime_ns] in frame order
+FILES_ATTR = "spectralize_ingest_files"  # a record: per variable, [file, size, mtime_ns] per frame
 
 
 @dataclass
@@ -114,12 +115,11 @@ class FrameSources:
         self.copied = 0
         self.previous: dict[str, dict[tuple, tuple]] = {}
         if store.has(group) and not store.verify(group):
-            attrs = store.group_attrs(group)
-            manifest = read_manifest(attrs.get(MANIFEST_ATTR)) or {}
+            manifest = read_manifest(store.manifest(group)) or {}
             checksums = {
                 f"{group}/{rel}": crc for rel, (_, _, crc) in manifest.items() if crc is not None
             }
-            for var, files in (attrs.get(FILES_ATTR) or {}).items():
+            for var, files in (store.record(group, FILES_ATTR) or {}).items():
                 meta = json.loads((store.path / group / var / "zarr.json").read_text())
                 frame = 3 if group == "raw/rgb" or var == "rgb_counts" else 2  # (y, x[, channel])
                 grid = tuple(meta["shape"][: len(meta["shape"]) - frame])
@@ -567,6 +567,7 @@ def fingerprint(group: RawGroup) -> str:
     ds = group.dataset
     payload = {
         "ingest": INGEST_VERSION,
+        "layout": STORE_LAYOUT,  # a store of another layout is ingested again
         "group": group.name,
         "attrs": {k: v for k, v in ds.attrs.items() if k != "capture_folder"},
         "coords": {k: np.asarray(v.values).tolist() for k, v in ds.coords.items()},
@@ -616,7 +617,6 @@ def build_raw_groups(capture: Capture, store: RunStore) -> list[tuple[RawGroup, 
         else:
             group = _plan_group(capture, rgb, spectral)
         group.fingerprint = fingerprint(group)
-        group.dataset.attrs[FILES_ATTR] = group.files
         groups.append((group, sources))
     return groups
 
@@ -625,7 +625,7 @@ def capture_files_of_chunk(store: RunStore, key: str) -> list[str]:
     """The capture files whose frames the chunk ``key`` of a raw group holds, in frame order.
 
     ``key`` is a store key such as ``raw/rgb/counts/c/0/1/0/0/0`` (what a
-    :class:`~spectralize.store.ChecksumError` names); the files come from the group's
+    :class:`~spectralize.store.ChecksumError` names); the files come from the group's record
     ``spectralize_ingest_files`` (one ``[file, size, mtime_ns]`` per frame, C order). An empty
     list for keys that are not chunks of a frame variable written by ingest.
     """
@@ -634,7 +634,7 @@ def capture_files_of_chunk(store: RunStore, key: str) -> list[str]:
         return []
     group, var = "/".join(parts[:2]), parts[2]
     try:
-        files = (store.group_attrs(group).get(FILES_ATTR) or {}).get(var) or []
+        files = (store.record(group, FILES_ATTR) or {}).get(var) or []
         meta = json.loads((store.path / group / var / "zarr.json").read_text())
         shape, chunk = meta["shape"], meta["chunk_grid"]["configuration"]["chunk_shape"]
         index = [int(i) for i in parts[4:]]
