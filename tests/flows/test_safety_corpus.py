@@ -802,13 +802,58 @@ def test_a_good_store_passes_validate_flow_btf_and_run_btf(prefect_api, tmp_path
     assert store.has("calibration/oecf_rgb") and store.has("hdr") and store.validate() == []
 
 
-def test_the_value_checks_are_the_nodes_hooks():
-    """validate --flow and run call the same hook; the old separate rule table is gone."""
+def frames_mean(raw_dark: xr.Dataset, *, longest: float = 1.0) -> xr.Dataset:
+    return xr.Dataset({"mean": raw_dark["frames"].mean("frame").astype(np.float32)})
+
+
+def test_validate_flow_and_run_call_the_nodes_own_hook(prefect_api, monkeypatch, tmp_path, capsys):
+    from spectralize.schemas import CalibrationError
+
+    seen = []
+
+    def check(inputs, parameters):
+        seen.append((sorted(inputs), parameters.model_dump()))
+        top = float(inputs["raw_dark"]["exposure_time"].max())
+        if top <= parameters.longest:
+            return []
+        return [CalibrationError(f"raw/dark: exposure_time {top:g} s is above {parameters.longest:g} s")]
+
+    installed = dict(engine.registry(refresh=True))
+    node = Node(
+        name="frames_mean",
+        function=frames_mean,
+        inputs={"raw_dark": "raw/dark"},
+        outputs=("dark",),
+        check=check,
+    )
+    installed[node.name] = RegisteredNode(node, "test")
+    monkeypatch.setattr(engine, "_installed", lambda: installed)
+    store = small_store(tmp_path / "run.zarr")  # exposure times 0.1 and 0.3 s
+    assert cli.main(["validate", str(store.path), "--flow", "frames_mean"]) == 0
+    assert seen == [(["raw_dark"], {"longest": 1.0})]  # the flow's parameters
+    monkeypatch.setattr(frames_mean, "__kwdefaults__", {"longest": 0.2})
+    installed[node.name] = RegisteredNode(
+        Node(
+            name="frames_mean",
+            function=frames_mean,
+            inputs=node.inputs,
+            outputs=node.outputs,
+            check=check,
+        ),
+        "test",
+    )
+    capsys.readouterr()
+    assert cli.main(["validate", str(store.path), "--flow", "frames_mean"]) == 1
+    checked = capsys.readouterr().err
+    assert cli.main(["run", "frames_mean", str(store.path)]) == 2
+    ran = capsys.readouterr().err
+    text = "raw/dark: exposure_time 0.3 s is above 0.2 s"
+    assert f"  - {text}" in checked and f"spectralize run: error: {text}" in ran, (checked, ran)
+    assert not store.has("dark")
+
+
+def test_the_calibration_nodes_declare_their_value_checks():
     from spectralize.engine import registry
 
-    nodes = registry()
-    checked = {name for name, item in nodes.items() if item.node.check is not None}
+    checked = {name for name, item in registry().items() if item.node.check is not None}
     assert {"recover_rgb_oecf", "hdr_merge", "recover_spectral_oecf", "calibrate_spectral"} <= checked
-    import spectralize.flows.preflight as preflight
-
-    assert not hasattr(preflight, "NODE_CHECKS")
