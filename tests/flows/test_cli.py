@@ -25,6 +25,7 @@ def tree(path: Path):
     )
 
 
+@pytest.mark.slow
 def test_demo_runs_then_skips(tmp_path):
     first = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
@@ -120,6 +121,7 @@ def test_usage_errors_exit_non_zero(tmp_path, argv):
     assert cli(*argv, cwd=tmp_path).returncode != 0
 
 
+@pytest.mark.slow
 def test_a_node_that_fails_prints_one_clear_error_and_no_traceback(prefect_api, tmp_path):
     from prefect.settings import PREFECT_API_URL
 

@@ -88,6 +88,7 @@ def test_help_imports_neither_prefect_nor_the_engine(argv, tmp_path):
     assert "usage: spectralize" in found["out"]
 
 
+@pytest.mark.slow
 def test_flows_nodes_validate_and_export_do_not_import_prefect(store, tmp_path):
     flows = loaded_after(["flows"], tmp_path)
     assert flows["code"] == 0 and "btf: full-BTF processing" in flows["out"]

@@ -15,10 +15,13 @@ import time
 from pathlib import Path
 
 import psutil
+import pytest
 from distributed import Client
 
 from spectralize.datasets.dark_stack import make_raw_dark
 from spectralize.store import RunStore
+
+pytestmark = pytest.mark.slow  # real processes killed mid-run
 
 # The CLI's own main(), with the watchdog's grace period shortened from 30 s so that the
 # test stays short; everything else (Prefect, the store, the dask client) is the real run.

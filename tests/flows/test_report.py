@@ -270,6 +270,7 @@ def relative(ds: xr.Dataset) -> xr.Dataset:
     return ds
 
 
+@pytest.mark.slow
 def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_path, monkeypatch):
     spectra, _, _, _ = run
     store = RunStore.create(tmp_path / "run.zarr")

@@ -13,9 +13,12 @@ from importlib import util
 from pathlib import Path
 
 import numpy as np
+import pytest
 import xarray as xr
 
 from spectralize.store import RunStore, work_dir
+
+pytestmark = pytest.mark.slow  # real processes killed mid-run
 
 _HELPERS = Path(__file__).parents[1] / "nodes" / "reconstruction" / "test_set_reconstruction.py"
 _spec = util.spec_from_file_location("set_reconstruction_inputs", _HELPERS)

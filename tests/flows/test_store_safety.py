@@ -58,6 +58,7 @@ def wait_for(condition, process, what, timeout=120):
         time.sleep(0.01)
 
 
+@pytest.mark.slow
 def test_second_concurrent_run_fails_clearly_and_the_first_result_is_complete(tmp_path):
     store = raw_store(tmp_path / "run.zarr")
     first = spawn("run", "dark", str(store.path))
@@ -80,6 +81,7 @@ def test_second_concurrent_run_fails_clearly_and_the_first_result_is_complete(tm
     assert store.validate(deep=True) == [] and store.staging_leftovers() == []
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_no_process_and_the_next_run_marks_the_flow_run_crashed(tmp_path):
     store = raw_store(tmp_path / "run.zarr", frames=96, shape=(160, 160))
     run = spawn("run", "dark", str(store.path), "--set", "frames_per_chunk=2")

@@ -216,6 +216,7 @@ KILLED_WRITER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:run store run.zarr. taking over the lock:RuntimeWarning")
 def test_sigkill_during_commits_never_leaves_a_damaged_or_half_group(tmp_path):
     path = RunStore.create(tmp_path / "run.zarr").path

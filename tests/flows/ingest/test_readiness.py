@@ -3,6 +3,7 @@
 import shutil
 
 import numpy as np
+import pytest
 from support.capture_folders import rows
 
 from spectralize.flows.ingest import capture_state
@@ -19,6 +20,7 @@ def test_a_folder_still_being_written_waits(capture):
     assert not missing.ready and "not present yet" in missing.reason and first in missing.reason
 
 
+@pytest.mark.slow
 def test_nightly_run_ingests_complete_capture_folders_processes_and_reports_them(
     prefect_api, sample, tmp_path
 ):

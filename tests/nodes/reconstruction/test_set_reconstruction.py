@@ -177,6 +177,7 @@ def test_spectra_group_carries_a_confidence_that_tracks_the_error(solved):
     assert spearmanr(cube.confidence.values.ravel(), error.ravel()).statistic > 0.2
 
 
+@pytest.mark.slow
 def test_seed_confidence_is_solved_with_the_seed_and_passed_on(solved):
     hdr, sets, _, seed, cube = solved
     cube = cube.compute()

@@ -158,6 +158,7 @@ def tiled_and_whole():
     return scene, whole, tiled, iterations
 
 
+@pytest.mark.slow
 def test_tiled_solve_stays_close_to_the_whole_solve(tiled_and_whole):
     scene, whole, tiled, iterations = tiled_and_whole
     assert tiled.attrs["tiles"] == 4 and tiled.attrs["halo"] == 26
@@ -228,6 +229,7 @@ def _run_reconstruction(path: Path, inputs, parameters: dict) -> RunStore:
     return store
 
 
+@pytest.mark.slow
 def test_tiled_nodes_write_what_the_whole_solve_writes_tile_by_tile(tmp_path):
     inputs = reconstruction_inputs()
     hdr, bands, camera, sets, truth = inputs

@@ -25,6 +25,7 @@ def tiny():
     return gantry, {k: ds.load() for k, ds in gantry.groups().items()}
 
 
+@pytest.mark.slow
 def test_groups_follow_the_contract(tiny, tmp_path):
     _, groups = tiny
     assert set(groups) == set(GROUPS)
