@@ -23,6 +23,7 @@ Run `spectralize COMMAND --help` for a command's options, their defaults and all
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -339,8 +340,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--retries", type=int, default=0, help="Prefect task retries per node")
     run.add_argument(
         "--dask-address",
-        default=None,
-        help="address of an existing dask.distributed scheduler (default: local threads)",
+        default=os.environ.get("DASK_SCHEDULER_ADDRESS") or None,
+        help="address of an existing dask.distributed scheduler (default: $DASK_SCHEDULER_ADDRESS, "
+        "else local threads)",
     )
     run.add_argument(
         "--verify",

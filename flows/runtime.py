@@ -593,7 +593,9 @@ def run_steps(
     The store's lock is held for the whole run (a second writer gets
     :class:`~spectralize.store.StoreBusyError`). When every step is up to date the answer
     comes without starting Prefect. ``verify``: recompute the checksums of every group the
-    flow reads or writes first (see the module's docstring). SIGTERM is handled like Ctrl-C.
+    flow reads or writes first (see the module's docstring). ``dask_address``: an existing
+    ``dask.distributed`` scheduler (default: ``$DASK_SCHEDULER_ADDRESS``, else local threads;
+    its workers must reach the store at the same path). SIGTERM is handled like Ctrl-C.
     """
     with sigterm_as_interrupt():
         return _run_steps(
@@ -621,6 +623,7 @@ def _run_steps(
     verify: bool,
 ) -> RunReport:
     path = Path(store_path).absolute()
+    dask_address = dask_address or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
     if not path.exists():
         _require_store_or_first_steps_without_inputs(path, steps, flow_name)
     try:
