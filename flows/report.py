@@ -68,7 +68,9 @@ from spectralize.nodes.evaluation.figures import (
     representative_pixels,
 )
 from spectralize.nodes.evaluation.figures_calibration import (
+    camera_calibration_rows,
     patch_names,
+    plot_camera_matrices,
     plot_cross_validation,
     plot_exposure_plan,
     plot_oecf,
@@ -512,6 +514,45 @@ def _cross_validation(calibration: xr.Dataset) -> list[dict[str, Any]]:
     return [table, figure]
 
 
+def _camera_calibration(
+    calibration: xr.Dataset, headline: list[tuple[str, str]]
+) -> list[dict[str, Any]]:
+    """Per RGB camera: its C, where it comes from, its chart cross-validation, flags (issue 25)."""
+    rows = camera_calibration_rows(calibration)
+    if not rows:
+        return []
+    flagged = [r["camera"] for r in rows if r["flags"]]
+    if flagged:
+        headline.append(("cameras flagged in calibration", ", ".join(flagged)))
+    table = _table(
+        "camera-calibration",
+        "Each RGB camera's calibration: its sensor model (capture.toml rgb.models), where its C "
+        "comes from, the chart cross-validation through its own C (mean and largest patch) and "
+        "the largest difference of its C from another camera's of its model; flagged above "
+        "3 % and 5 %.",
+        ["camera", "model", "C from", "chart mean", "chart max", "C vs its model", "flags"],
+        [
+            [
+                r["camera"],
+                r["model"],
+                r["c_source"],
+                _percent(r["mean_relative_error"]),
+                _percent(r["max_relative_error"]),
+                "—" if r["model_difference"] is None else _percent(r["model_difference"]),
+                "; ".join(r["flags"]) or "—",
+            ]
+            for r in rows
+        ],
+    )
+    figure = _figure(
+        plot_camera_matrices(calibration),
+        "camera_matrices",
+        "The camera matrix C of each RGB camera (rows normalised to its peak): each camera's "
+        "images are reconstructed through its own C.",
+    )
+    return [table, figure]
+
+
 def _percent(fraction: float) -> str:
     """``2.31 %`` (``—`` when not finite)."""
     return f"{100 * float(fraction):.2f} %" if np.isfinite(fraction) else "—"
@@ -575,6 +616,7 @@ def _calibration(store: RunStore) -> tuple[list[tuple[str, str]], list[dict[str,
             ("colour-checker cross-validation, mean error", f"{100 * np.nanmean(error):.2f} %")
         )
         blocks += _cross_validation(spectral)
+        blocks += _camera_calibration(spectral, headline)
     oecf_rgb, oecf_spectral = (
         _read(store, "calibration/oecf_rgb"),
         _read(store, "calibration/oecf_spectral"),

@@ -260,8 +260,8 @@ _CHANNEL = ArraySpec("channel", ("channel",), "kind:UOT", None, "colour channel"
 _CALIBRATION_VARIABLES = (
     _counts(
         "rgb_counts",
-        ("rgb_exposure", "y", "x", "channel"),
-        "RGB exposure series of the RGB camera paired with the spectral camera",
+        ("camera", "rgb_exposure", "y", "x", "channel"),
+        "RGB exposure series of each RGB camera that photographed the target",
     ),
     _counts(
         "spectral_counts",
@@ -281,8 +281,15 @@ _CALIBRATION_VARIABLES = (
 _CALIBRATION_COORDS = (
     _WL,
     _CHANNEL,
+    ArraySpec("camera", ("camera",), "kind:iu", "1", "RGB camera index (raw/rgb camera)"),
     ArraySpec(
-        "rgb_exposure_time", ("rgb_exposure",), "kind:f", "s", "exposure time", (0, 1e4), finite=True
+        "rgb_exposure_time",
+        ("camera", "rgb_exposure"),
+        "kind:f",
+        "s",
+        "exposure time",
+        (0, 1e4),
+        finite=True,
     ),
     ArraySpec(
         "spectral_exposure_time",
@@ -361,7 +368,18 @@ RAW_COLOUR_CHECKER = GroupSchema(
             finite=True,
         ),
         ArraySpec(
-            "patch_index", ("y", "x"), "kind:iu", "1", "patch under each RGB pixel, -1 on the frame"
+            "patch_index",
+            ("y", "x"),
+            "kind:iu",
+            "1",
+            "patch under each pixel of the paired RGB camera (and the spectral camera), -1 on the frame",
+        ),
+        ArraySpec(
+            "rgb_patch_index",
+            ("camera", "y", "x"),
+            "kind:iu",
+            "1",
+            "patch under each pixel of each RGB camera, -1 on the frame",
         ),
     ),
     coords=_CALIBRATION_COORDS + (ArraySpec("patch_name", ("patch",), "kind:UOT", None, "patch name"),),
@@ -547,6 +565,32 @@ CALIBRATION_SPECTRAL = GroupSchema(
         ),
         _CHANNEL,
         ArraySpec("patch", ("patch",), "kind:iu", None, "colour-checker patch index"),
+    ),
+    # per RGB camera (raw/rgb camera index); camera_matrix above is the paired camera's
+    optional_variables=(
+        ArraySpec(
+            "camera_matrices",
+            ("camera", "channel", "wavelength"),
+            "kind:f",
+            "1",
+            "RGB camera matrix C of each RGB camera",
+            finite=True,
+        ),
+        ArraySpec(
+            "rgb_transform",
+            ("camera", "channel", "channel_in"),
+            "kind:f",
+            "1",
+            "3 x 3 map of each camera's HDR RGB onto the paired camera's",
+            finite=True,
+        ),
+        ArraySpec(
+            "camera_relative_error",
+            ("camera", "patch"),
+            "kind:f",
+            "1",
+            "chart cross-validation per camera and patch",
+        ),
     ),
     attrs={
         "mean_relative_error": "mean relative error over patches",

@@ -38,6 +38,9 @@ __all__ = [
     "patches_from_table",
     "patches_from_chart",
     "check_patch_index",
+    "LED_POWER",
+    "parse_led_power",
+    "read_led_power",
     "read_calibration",
 ]
 
@@ -180,7 +183,12 @@ def check_patch_index(
 
 
 def read_calibration(
-    root: Path, config: Config, bands: np.ndarray, frame_shape: tuple[int, int] | None
+    root: Path,
+    config: Config,
+    bands: np.ndarray,
+    frame_shape: tuple[int, int] | None,
+    cameras: Sequence[str] = (),
+    leds: dict[int, str] | None = None,
 ) -> tuple[dict[str, Any], list[Problem]]:
     """Read and check the calibration tables of a capture folder.
 
@@ -193,14 +201,21 @@ def read_calibration(
     bands
         The wavelengths of the white reference's band series [nm].
     frame_shape
-        The frames' shape, which the patch label image must have (``None``: unknown).
+        The frames' shape, which the patch label images must have (``None``: unknown).
+    cameras
+        The RGB cameras with chart frames of their own: each needs its patch label image
+        (:meth:`~.model.Config.patch_index_of`).
+    leds
+        ``{led: where}`` of every LED the rows use (``where``: the first manifest line using
+        it), which ``led_power.csv``, when there is one, must list.
 
     Returns
     -------
     tables, problems
         ``illuminant``, ``white`` (on ``bands``), ``patches`` (names, reflectance, chart),
-        ``patch_index`` and, when ``exposure_plan.csv`` exists, ``plan`` (wavelength, time,
-        filter size); every problem found.
+        ``patch_index``, ``rgb_patch_index`` (camera -> labels), ``led_power`` (``None``
+        without ``led_power.csv``) and, when ``exposure_plan.csv`` exists, ``plan``
+        (wavelength, time, filter size); every problem found.
     """
     problems: list[Problem] = []
     out: dict[str, Any] = {}
@@ -252,33 +267,112 @@ def read_calibration(
                 "neither",
             )
         )
-    labels, why = contained_path(root, config.patch_index, follow_symlinks=config.follow_symlinks)
-    if labels is None:
-        problems.append(Problem(config.patch_index, "a file inside the capture folder", why))
-    elif not labels.is_file():
-        problems.append(
-            Problem(config.patch_index, "the colour checker's patch label image", "no such file")
+    n_patches = len(out["patches"][0]) if "patches" in out else None
+    index = _read_patch_index(root, config, config.patch_index, frame_shape, n_patches, problems)
+    if index is not None:
+        out["patch_index"] = index
+    out["rgb_patch_index"] = {}
+    for camera in cameras:
+        name = config.patch_index_of(camera)
+        index = (
+            out.get("patch_index")
+            if name == config.patch_index
+            else _read_patch_index(root, config, name, frame_shape, n_patches, problems, camera)
         )
-    else:
-        try:
-            index = read_image(labels)
-        except Exception as error:
-            problems.append(
-                Problem(
-                    config.patch_index, "a readable TIFF or PNG file", f"{type(error).__name__}: {error}"
-                )
-            )
-        else:
-            n_patches = len(out["patches"][0]) if "patches" in out else None
-            index, found = check_patch_index(config.patch_index, index, frame_shape, n_patches)
-            problems += found
-            if index is not None:
-                out["patch_index"] = index
+        if index is not None:
+            out["rgb_patch_index"][camera] = index
+    if leds is not None:
+        power, found = read_led_power(root, config, leds)
+        problems += found
+        out["led_power"] = power
     columns = ("wavelength_nm", "exposure_time_s", "filter_size_px")
     table = _read_table(root, "exposure_plan.csv", columns, problems, config=config)
     if table is not None:
         out["plan"] = tuple(np.asarray(table[c]) for c in columns)
     return out, problems
+
+
+def _read_patch_index(
+    root: Path,
+    config: Config,
+    name: str,
+    frame_shape: tuple[int, int] | None,
+    n_patches: int | None,
+    problems: list[Problem],
+    camera: str | None = None,
+) -> np.ndarray | None:
+    """A patch label image (:func:`check_patch_index`), or ``None`` with its problem."""
+    whose = f"RGB camera {camera!r}'s" if camera else "the colour checker's"
+    labels, why = contained_path(root, name, follow_symlinks=config.follow_symlinks)
+    if labels is None:
+        problems.append(Problem(name, "a file inside the capture folder", why))
+        return None
+    if not labels.is_file():
+        hint = (
+            " (or colour_checker.patch_indices in capture.toml, or shared_patch_index = true when "
+            "the cameras' frames of the chart are one view)"
+            if camera
+            else ""
+        )
+        problems.append(Problem(name, f"{whose} patch label image of the chart{hint}", "no such file"))
+        return None
+    try:
+        index = read_image(labels)
+    except Exception as error:
+        problems.append(Problem(name, "a readable TIFF or PNG file", f"{type(error).__name__}: {error}"))
+        return None
+    index, found = check_patch_index(name, index, frame_shape, n_patches)
+    problems += found
+    return index
+
+
+LED_POWER = "led_power.csv"
+"""Optional table ``led, relative_power``: the power of each LED relative to the others."""
+
+
+def parse_led_power(
+    table: dict[str, list], lines: list[int], leds: dict[int, str], where: str
+) -> tuple[dict[int, float] | None, list[Problem]]:
+    """``{led: relative power}`` of a parsed ``led_power.csv``; every LED of ``leds`` listed once.
+
+    ``lines`` are the file's line numbers of the table's rows (problems name them).
+    """
+    problems: list[Problem] = []
+    power: dict[int, float] = {}
+    for line, led, value in zip(lines, table["led"], table["relative_power"], strict=True):
+        if led != int(led):
+            problems.append(Problem(f"{where} line {line}: led", "an LED index (integer)", repr(led)))
+        elif int(led) in power:
+            problems.append(
+                Problem(f"{where} line {line}: led", "each LED once", f"LED {int(led)} again")
+            )
+        elif not value > 0:
+            problems.append(
+                Problem(f"{where} line {line}: relative_power", "a positive number", repr(value))
+            )
+        else:
+            power[int(led)] = float(value)
+    missing = sorted(set(leds) - set(power))
+    for led in missing:
+        problems.append(Problem(where, f"a row for LED {led}, which lights {leds[led]}", "none"))
+    return (None if problems else power), problems
+
+
+def read_led_power(
+    root: Path, config: Config, leds: dict[int, str]
+) -> tuple[dict[int, float] | None, list[Problem]]:
+    """``calibration/led_power.csv``, when it exists: ``{led: relative power}`` (``None``
+    without the file); an LED the manifest uses but the table lacks is a problem."""
+    problems: list[Problem] = []
+    table = _read_table(root, LED_POWER, ("led", "relative_power"), problems, config=config)
+    if table is None:
+        return None, problems
+    path, _ = contained_path(root, f"{CALIBRATION}/{LED_POWER}", follow_symlinks=config.follow_symlinks)
+    with open(path, newline="", encoding="utf-8-sig") as handle:
+        reader = csv.reader(handle)
+        lines = [reader.line_num for cells in reader if any(c.strip() for c in cells)][1:]
+    power, found = parse_led_power(table, lines, leds, f"{CALIBRATION}/{LED_POWER}")
+    return power, problems + found
 
 
 def _is_file(root: Path, name: str, config: Config) -> bool:

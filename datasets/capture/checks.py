@@ -31,6 +31,9 @@ __all__ = [
     "frame_key",
     "check_structure",
     "pair",
+    "calibration_cameras",
+    "borrowed_calibration",
+    "check_calibration_cameras",
     "check_frame_shapes",
     "calibration_bands",
     "check_bands",
@@ -70,7 +73,7 @@ def check_rows(rows: list[Row], config: Config) -> tuple[list[Row], list[Problem
                     f"{row.where}: camera", f"the spectral camera for kind {row.kind}", repr(row.camera)
                 )
             )
-        elif row.kind in ("white_reference", "colour_checker", "registration") and rgb_camera:
+        elif row.kind == "registration" and rgb_camera:
             if row.camera != config.paired_camera:
                 problems.append(
                     Problem(
@@ -225,18 +228,11 @@ def check_structure(rows: list[Row], config: Config) -> list[Problem]:
         )
     elif min(dark.values()) < 2:
         problems.append(Problem(f"{MANIFEST}: dark", "at least 2 frames per exposure time", "1"))
-    # calibration targets: an RGB series and a band series per wavelength, one set of times
+    # calibration targets: an RGB series per RGB camera that photographed them (the paired
+    # camera always), and a band series per wavelength, one set of times
+    problems += check_calibration_cameras(rows, config)
     for kind in ("white_reference", "colour_checker"):
-        rgb = [r for r in rows if r.kind == kind and r.camera == config.paired_camera]
         mono = [r for r in rows if r.kind == kind and r.camera == config.spectral_camera]
-        if len({rounded(r.exposure_time) for r in rgb}) < 2:
-            problems.append(
-                Problem(
-                    f"{MANIFEST}: {kind} (camera {config.paired_camera})",
-                    "an exposure series of at least two exposure times",
-                    f"{len(rgb)} frame(s)" if len(rgb) < 2 else "one time",
-                )
-            )
         times: dict[float, set[float]] = defaultdict(set)
         for r in mono:
             times[rounded(r.wavelength)].add(rounded(r.exposure_time))
@@ -309,6 +305,79 @@ def check_structure(rows: list[Row], config: Config) -> list[Problem]:
         if not any(r.kind == kind for r in rows):
             problems.append(Problem(MANIFEST, f"frames of kind {kind}", "none"))
 
+    return problems
+
+
+def calibration_cameras(rows: list[Row], config: Config) -> list[str]:
+    """The RGB cameras with their own calibration-target frames, in ``rgb.cameras`` order."""
+    own = {r.camera for r in rows if r.kind in ("white_reference", "colour_checker")}
+    return [c for c in config.rgb_cameras if c in own]
+
+
+def borrowed_calibration(config: Config, cameras: list[str]) -> dict[str, str]:
+    """``{camera: lender}`` for RGB cameras without chart frames of their own: the first
+    camera with frames that ``rgb.models`` says is of the same sensor model."""
+    out = {}
+    for camera in config.rgb_cameras:
+        if camera in cameras or config.model_of(camera) is None:
+            continue
+        same = [c for c in cameras if config.model_of(c) == config.model_of(camera)]
+        if same:
+            out[camera] = same[0]
+    return out
+
+
+def check_calibration_cameras(rows: list[Row], config: Config) -> list[Problem]:
+    """Each RGB camera photographs the white reference and the colour checker (an exposure
+    series each, as many exposures as the other cameras), or borrows the calibration of a
+    camera that ``rgb.models`` in ``capture.toml`` says is of the same model; the paired
+    camera always has its own."""
+    problems: list[Problem] = []
+    cameras = calibration_cameras(rows, config)
+    borrowed = borrowed_calibration(config, cameras)
+    counts: dict[str, dict[str, int]] = defaultdict(dict)
+    for camera in config.rgb_cameras:
+        if camera not in cameras:
+            if camera in borrowed:
+                continue
+            model = config.model_of(camera)
+            problems.append(
+                Problem(
+                    f"{MANIFEST}: white_reference, colour_checker (camera {camera})",
+                    f"an exposure series of the white reference and the colour checker by RGB camera "
+                    f"{camera!r} (each camera is calibrated on its own), or in capture.toml rgb.models "
+                    f"the same model as a camera that has them",
+                    "no frames"
+                    + (
+                        f"; rgb.models says {model!r}, which no camera with chart frames has"
+                        if model is not None
+                        else ""
+                    ),
+                )
+            )
+            continue
+        for kind in ("white_reference", "colour_checker"):
+            series = [r for r in rows if r.kind == kind and r.camera == camera]
+            times = {rounded(r.exposure_time) for r in series}
+            counts[kind][camera] = len(series)
+            if len(times) < 2:
+                lines = ", ".join(str(r.line) for r in series)
+                problems.append(
+                    Problem(
+                        f"{MANIFEST}: {kind} (camera {camera}" + (f", lines {lines})" if lines else ")"),
+                        "an exposure series of at least two exposure times",
+                        f"{len(series)} frame(s)" if len(series) < 2 else "one time",
+                    )
+                )
+    for kind, per_camera in counts.items():
+        if len(set(per_camera.values())) > 1:
+            problems.append(
+                Problem(
+                    f"{MANIFEST}: {kind}",
+                    "the same number of RGB exposures for every camera",
+                    ", ".join(f"{c}: {n}" for c, n in per_camera.items()),
+                )
+            )
     return problems
 
 

@@ -114,6 +114,19 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
         checker, "colour_checker", "patch_index", str, f"{CALIBRATION}/colour_checker_patches.png"
     )
     follow = get(raw, "", "follow_symlinks", bool, False)
+    shared = get(checker, "colour_checker", "shared_patch_index", bool, False)
+    models = _camera_table(rgb, "rgb", "models", str, cameras, problems)
+    black = _camera_table(rgb, "rgb", "black_level_dn", int, cameras, problems)
+    for camera, value in black.items():
+        if values["rgb_depth"] is not None and not 0 <= value < 2 ** values["rgb_depth"] - 1:
+            problems.append(
+                Problem(
+                    f"{where}: rgb.black_level_dn.{camera}",
+                    f"0..{2 ** values['rgb_depth'] - 2} DN",
+                    repr(value),
+                )
+            )
+    indices = _camera_table(checker, "colour_checker", "patch_indices", str, cameras, problems)
     if problems:
         return None, problems
     config = Config(
@@ -132,6 +145,30 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
         chart=chart,
         patch_index=patch_index,
         follow_symlinks=bool(follow),
+        rgb_models=models,
+        black_level_dn=black,
+        patch_indices=indices,
+        shared_patch_index=bool(shared),
         raw=raw,
     )
     return config, problems
+
+
+def _camera_table(
+    table: dict, sect: str, key: str, kind: type, cameras: list | None, problems: list[Problem]
+) -> dict:
+    """An optional ``[sect.key]`` table of one value per RGB camera (``camera = value``)."""
+    label = f"{CONFIG}: {sect}.{key}"
+    value = table.get(key, {})
+    if not isinstance(value, dict):
+        problems.append(Problem(label, "a table of camera = value", repr(value)))
+        return {}
+    out = {}
+    for camera, item in value.items():
+        if cameras is not None and camera not in cameras:
+            problems.append(Problem(f"{label}.{camera}", f"one of rgb.cameras {cameras}", repr(camera)))
+        elif not isinstance(item, kind) or isinstance(item, bool):
+            problems.append(Problem(f"{label}.{camera}", f"a {kind.__name__}", repr(item)))
+        else:
+            out[str(camera)] = item
+    return out

@@ -118,7 +118,29 @@ class Config:
     chart: str | None
     patch_index: str
     follow_symlinks: bool = False  # follow symbolic links whose target is inside the folder
+    rgb_models: dict[str, str] = field(default_factory=dict)  # camera -> sensor model (rgb.models)
+    black_level_dn: dict[str, int] = field(default_factory=dict)  # camera -> black level [DN]
+    patch_indices: dict[str, str] = field(default_factory=dict)  # camera -> patch label image
+    shared_patch_index: bool = False  # cameras without their own label image use patch_index
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def patch_index_of(self, camera: str) -> str:
+        """The patch label image of an RGB camera's chart frames (capture folder path).
+
+        ``colour_checker.patch_indices`` names it per camera; the paired camera's default is
+        ``colour_checker.patch_index``; another camera's is
+        ``calibration/colour_checker_patches_<camera>.png``, or ``patch_index`` when
+        ``colour_checker.shared_patch_index = true`` (frames of one view).
+        """
+        if camera in self.patch_indices:
+            return self.patch_indices[camera]
+        if camera == self.paired_camera or self.shared_patch_index:
+            return self.patch_index
+        return f"{CALIBRATION}/colour_checker_patches_{camera}.png"
+
+    def model_of(self, camera: str) -> str | None:
+        """The sensor model ``rgb.models`` gives an RGB camera (``None``: not said)."""
+        return self.rgb_models.get(camera)
 
 
 @dataclass
@@ -135,6 +157,8 @@ class Capture:
     patches: tuple[list[str], np.ndarray, str]  # names, reflectance (patch, band), chart name
     patch_index: np.ndarray  # (y, x) int16, -1 on the frame
     plan_table: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # wl, time, filter size
+    rgb_patch_index: dict[str, np.ndarray] = field(default_factory=dict)  # camera -> (y, x) labels
+    led_power: dict[int, float] | None = None  # calibration/led_power.csv: LED -> relative power
 
     def of(self, kind: str, camera: str | None = None) -> list[Row]:
         """The rows of one kind (and camera), in manifest order."""

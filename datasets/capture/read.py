@@ -23,7 +23,14 @@ from pathlib import Path
 from spectralize.schemas import Problem
 
 from .calibration import read_calibration
-from .checks import calibration_bands, check_bands, check_frame_shapes, check_rows, check_structure
+from .checks import (
+    calibration_bands,
+    calibration_cameras,
+    check_bands,
+    check_frame_shapes,
+    check_rows,
+    check_structure,
+)
 from .config import parse_config
 from .images import probe
 from .manifest import parse_manifest
@@ -104,7 +111,13 @@ def read_capture(
     say(f"checked {len(todo)} file(s)")
     problems += check_frame_shapes(probed, frame_shape)
     bands = calibration_bands(rows)
-    calibration, found = read_calibration(root, config, bands, frame_shape)
+    leds: dict[int, str] = {}
+    for row in rows:
+        if row.kind in ("rgb", "spectral") and row.led is not None:
+            leds.setdefault(row.led, row.where)
+    calibration, found = read_calibration(
+        root, config, bands, frame_shape, calibration_cameras(rows, config), leds
+    )
     problems += found
     problems += check_bands(rows, bands)
     if problems:
@@ -122,6 +135,8 @@ def read_capture(
         patches=calibration["patches"],
         patch_index=calibration["patch_index"],
         plan_table=calibration.get("plan"),
+        rgb_patch_index=calibration["rgb_patch_index"],
+        led_power=calibration.get("led_power"),
     )
 
 

@@ -149,10 +149,12 @@ def write_capture_folder(
     ):
         ds = groups[f"raw/{kind}"]
         rgb_counts = ds["rgb_counts"].values
-        for e, t in enumerate(ds["rgb_exposure_time"].values):
-            name = f"{kind}/rgb_exp{e:02d}.{rgb_writer[1]}"
-            rgb_writer[0](root / name, rgb_counts[e])
-            rows.append({"file": name, "kind": kind, "camera": paired, "exposure_time_s": float(t)})
+        for k, index in enumerate(ds["camera"].values):  # every RGB camera photographs it
+            cam = cameras[int(index)]
+            for e, t in enumerate(ds["rgb_exposure_time"].values[k]):
+                name = f"{kind}/{cam}_rgb_exp{e:02d}.{rgb_writer[1]}"
+                rgb_writer[0](root / name, rgb_counts[k, e])
+                rows.append({"file": name, "kind": kind, "camera": cam, "exposure_time_s": float(t)})
         band_counts = ds["spectral_counts"].values
         for w, wl in enumerate(ds["wavelength"].values):
             for e, t in enumerate(ds["spectral_exposure_time"].values):
@@ -209,10 +211,19 @@ def write_capture_folder(
         "rotation_step_deg": float(get_recipe(recipe, seed=seed, **(overrides or {})).rotation_step),
     }
     sections = {
-        "rgb": {"cameras": cameras, "bit_depth": int(rgb.attrs["bit_depth"]), "paired_camera": paired},
+        "rgb": {
+            "cameras": cameras,
+            "bit_depth": int(rgb.attrs["bit_depth"]),
+            "paired_camera": paired,
+            "models": {c: "Nikon 5100 (NPL)" for c in cameras},  # the simulator's one sensor model
+        },
         "spectral": {"camera": SPECTRAL_CAMERA, "bit_depth": int(spectral.attrs["bit_depth"])},
         "exposure_plan": {k: float(plan.attrs[k]) for k in ("t0", "s0", "omega")},
-        "colour_checker": {"patch_index": "calibration/colour_checker_patches.png"}
+        # the simulated cameras' frames of the chart are one rectified view: one label image
+        "colour_checker": {
+            "patch_index": "calibration/colour_checker_patches.png",
+            "shared_patch_index": True,
+        }
         | ({"chart": str(checker.attrs["chart"])} if chart_by_name else {}),
         "source": {
             "simulator": "spectralize.datasets.capture.sample",

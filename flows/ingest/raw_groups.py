@@ -20,18 +20,18 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import uuid
 from collections import defaultdict
 from dataclasses import dataclass
 from typing import Any
 
-import dask
 import dask.array as da
 import numpy as np
 import xarray as xr
 import zarr
 
 from spectralize.datasets.capture import ANGLES, Capture, CaptureError, Row
-from spectralize.datasets.capture.checks import pair
+from spectralize.datasets.capture.checks import borrowed_calibration, calibration_cameras, pair
 from spectralize.datasets.capture.images import read_image
 from spectralize.datasets.capture.model import rounded
 from spectralize.store import RunStore
@@ -62,7 +62,7 @@ RAW_GROUPS: tuple[str, ...] = (
 """The groups ingest writes, in the order they are built (``raw/spectral`` needs ``raw/rgb``)."""
 
 #: Bumped when the groups ingest writes change: every group is then rewritten.
-INGEST_VERSION = "1"
+INGEST_VERSION = "2"
 FILES_ATTR = "spectralize_ingest_files"  # a record: per variable, [file, size, mtime_ns] per frame
 
 
@@ -133,7 +133,7 @@ class FrameSources:
                     for k, entry in enumerate(files)
                 }
 
-    def frames(self, var: str, rows: list[Row], frame: tuple[int, ...]) -> tuple[list[da.Array], list]:
+    def frames(self, var: str, rows: list[Row], frame: tuple[int, ...]) -> tuple[Frames, list]:
         arrays, files = [], []
         for row in rows:
             stat = self.capture.stat(row)
@@ -145,35 +145,57 @@ class FrameSources:
             else:
                 source = ("file", file)
                 self.read += 1
-            arrays.append(da.from_delayed(dask.delayed(_load)(source, frame), frame, dtype=np.uint16))
+            arrays.append(source)
             files.append(stat)
-        return arrays, files
+        return Frames(arrays, frame), files
+
+
+@dataclass
+class Frames:
+    """Where each frame of a variable comes from (C order) and the shape of one frame."""
+
+    sources: list[tuple]
+    frame: tuple[int, ...]
 
 
 #: Target size of one dask chunk (and one resumable region): memory is bounded by a few.
 CHUNK_BYTES = 64 * 2**20
 
 
-def _grid(arrays: list[da.Array], shape: tuple[int, ...]) -> da.Array:
+def _grid(frames: Frames, shape: tuple[int, ...]) -> da.Array:
     """Frames (C order) stacked onto a grid of ``shape``, chunked to about :data:`CHUNK_BYTES`.
 
     The last grid dims are filled first: e.g. an RGB image's exposure series is one chunk
-    (when it fits), and as many images as fit share it.
+    (when it fits), and as many images as fit share it. One dask task per chunk, holding only
+    the sources of its frames: the graph grows with the chunks, not with the frames.
     """
-    stacked = _stack(arrays, shape)
-    budget = max(1, CHUNK_BYTES // max(1, int(np.prod(stacked.shape[len(shape) :])) * 2))
-    chunks = {}
+    frame = frames.frame
+    budget = max(1, CHUNK_BYTES // max(1, int(np.prod(frame)) * 2))
+    sizes = [0] * len(shape)
     for axis in reversed(range(len(shape))):
-        chunks[axis] = int(min(shape[axis], max(1, budget)))
+        sizes[axis] = int(min(shape[axis], max(1, budget)))
         budget //= max(1, shape[axis])
-    return stacked.rechunk(chunks)
+    chunks = da.core.normalize_chunks((*sizes, *frame), (*shape, *frame))
+    name = f"ingest-frames-{uuid.uuid4().hex}"
+    graph: dict[tuple, tuple] = {}
+    starts = [np.cumsum((0, *c[:-1])) for c in chunks[: len(shape)]]
+    for block in itertools.product(*(range(len(c)) for c in chunks[: len(shape)])):
+        ranges = [
+            range(int(starts[a][i]), int(starts[a][i]) + chunks[a][i]) for a, i in enumerate(block)
+        ]
+        positions = itertools.product(*ranges)
+        picked = [frames.sources[int(np.ravel_multi_index(p, shape))] for p in positions]
+        extent = tuple(len(r) for r in ranges)
+        graph[(name, *block, *([0] * len(frame)))] = (_load_block, picked, frame, extent)
+    return da.Array(graph, name, chunks, dtype=np.uint16)
 
 
-def _stack(arrays: list[da.Array], shape: tuple[int, ...]) -> da.Array:
-    if len(shape) == 1:
-        return da.stack(arrays)
-    step = int(np.prod(shape[1:]))
-    return da.stack([_stack(arrays[i * step : (i + 1) * step], shape[1:]) for i in range(shape[0])])
+def _load_block(sources: list[tuple], frame: tuple[int, ...], extent: tuple[int, ...]) -> np.ndarray:
+    """The frames of one chunk, shape ``extent + frame``."""
+    out = np.empty((len(sources), *frame), np.uint16)
+    for k, source in enumerate(sources):
+        out[k] = _load(source, frame).reshape(frame)
+    return out.reshape(*extent, *frame)
 
 
 def _attrs_counts(bits: int, long_name: str) -> dict[str, Any]:
@@ -226,6 +248,11 @@ def _rgb_group(capture: Capture, sources: FrameSources) -> RawGroup:
             np.array([k[1] for k in keys], np.int64),
             {"units": "1", "long_name": "index of the LED"},
         ),
+        "led_power": (
+            "image",
+            np.array([_led_power(capture, k[1]) for k in keys]),
+            {"units": "1", "long_name": "relative power of the LED (calibration/led_power.csv)"},
+        ),
     }
     for i, name in enumerate(ANGLES):
         coords[name] = (
@@ -243,7 +270,14 @@ def _rgb_group(capture: Capture, sources: FrameSources) -> RawGroup:
         },
         coords=coords,
         attrs=_source_attrs(capture, "LDR exposure series of the RGB cameras")
-        | {"bit_depth": config.rgb_bit_depth, "camera": "rgb", "camera_names": list(config.rgb_cameras)},
+        | {
+            "bit_depth": config.rgb_bit_depth,
+            "camera": "rgb",
+            "camera_names": list(config.rgb_cameras),
+            "camera_models": [config.model_of(c) or "" for c in config.rgb_cameras],
+            "black_level_dn": [config.black_level_dn.get(c, -1) for c in config.rgb_cameras],
+            "led_power_from": "calibration/led_power.csv" if capture.led_power else "none (each LED 1)",
+        },
     )
     return RawGroup("raw/rgb", ds, {"counts": files}, resumable="image")
 
@@ -308,6 +342,16 @@ def _spectral_group(capture: Capture, sources: FrameSources, image_of: dict[tupl
             np.array([r.led for r in rows], np.int64),
             {"units": "1", "long_name": "index of the LED"},
         ),
+        "led_power": (
+            "shot",
+            np.array([_led_power(capture, r.led) for r in rows]),
+            {"units": "1", "long_name": "relative power of the shot's LED (calibration/led_power.csv)"},
+        ),
+        "image_led_power": (
+            "shot",
+            np.array([_led_power(capture, p[2]) for p in pairs]),
+            {"units": "1", "long_name": "relative power of the LED of the RGB image it pairs with"},
+        ),
         "filter_size": (
             "shot",
             _filter_sizes(capture, wavelength, times),
@@ -371,7 +415,9 @@ def _dark_group(capture: Capture, sources: FrameSources) -> RawGroup:
 def _target_group(capture: Capture, sources: FrameSources, kind: str) -> RawGroup:
     config = capture.config
     y, x = capture.frame_shape
-    rgb_rows = sorted(capture.of(kind, config.paired_camera), key=lambda r: r.exposure_time)
+    cameras = calibration_cameras(capture.rows, config)
+    per_camera = [sorted(capture.of(kind, c), key=lambda r: r.exposure_time) for c in cameras]
+    rgb_rows = [r for series in per_camera for r in series]
     band_rows = capture.of(kind, config.spectral_camera)
     times = sorted({rounded(r.exposure_time) for r in band_rows})
     grid = {(rounded(r.wavelength), rounded(r.exposure_time)): r for r in band_rows}
@@ -381,12 +427,9 @@ def _target_group(capture: Capture, sources: FrameSources, kind: str) -> RawGrou
     ds = xr.Dataset(
         {
             "rgb_counts": (
-                ("rgb_exposure", "y", "x", "channel"),
-                _grid(rgb_arrays, (len(rgb_rows),)),
-                _attrs_counts(
-                    config.rgb_bit_depth,
-                    f"raw RGB counts of the paired RGB camera {config.paired_camera}",
-                ),
+                ("camera", "rgb_exposure", "y", "x", "channel"),
+                _grid(rgb_arrays, (len(cameras), len(per_camera[0]))),
+                _attrs_counts(config.rgb_bit_depth, "raw RGB counts of each RGB camera"),
             ),
             "spectral_counts": (
                 ("wavelength", "spectral_exposure", "y", "x"),
@@ -409,9 +452,15 @@ def _target_group(capture: Capture, sources: FrameSources, kind: str) -> RawGrou
                 {"units": "nm", "long_name": "centre wavelength of the filter band"},
             ),
             "channel": ("channel", np.asarray(config.channels), {"long_name": "channel"}),
+            "camera": (
+                "camera",
+                np.array([config.rgb_cameras.index(c) for c in cameras], np.int64),
+                {"units": "1", "long_name": "RGB camera index (capture.toml rgb.cameras)"},
+            ),
+            "camera_name": ("camera", np.asarray(cameras), {"long_name": "RGB camera name"}),
             "rgb_exposure_time": (
-                "rgb_exposure",
-                np.array([r.exposure_time for r in rgb_rows]),
+                ("camera", "rgb_exposure"),
+                np.array([[r.exposure_time for r in series] for series in per_camera]),
                 {"units": "s", "long_name": "exposure time of the RGB series"},
             ),
             "spectral_exposure_time": (
@@ -425,7 +474,8 @@ def _target_group(capture: Capture, sources: FrameSources, kind: str) -> RawGrou
             "rgb_bit_depth": config.rgb_bit_depth,
             "spectral_bit_depth": config.spectral_bit_depth,
             "rgb_camera": config.rgb_cameras.index(config.paired_camera),
-        },
+        }
+        | _camera_attrs(capture, cameras),
     )
     if kind == "white_reference":
         ds["target_reflectance"] = (
@@ -450,10 +500,29 @@ def _target_group(capture: Capture, sources: FrameSources, kind: str) -> RawGrou
         ds["patch_index"] = (
             ("y", "x"),
             capture.patch_index,
-            {"units": "1", "long_name": "patch under each RGB pixel (-1: frame)"},
+            {"units": "1", "long_name": "patch under each pixel of the paired RGB camera (-1: frame)"},
+        )
+        ds["rgb_patch_index"] = (
+            ("camera", "y", "x"),
+            np.stack([capture.rgb_patch_index[c] for c in cameras]),
+            {"units": "1", "long_name": "patch under each pixel of each RGB camera (-1: frame)"},
         )
         ds.attrs["chart"] = chart
     return RawGroup(f"raw/{kind}", ds, {"rgb_counts": rgb_files, "spectral_counts": band_files})
+
+
+def _camera_attrs(capture: Capture, cameras: list[str]) -> dict[str, Any]:
+    """Every RGB camera's name and sensor model, and which cameras borrow a calibration."""
+    config = capture.config
+    return {
+        "camera_names": list(config.rgb_cameras),
+        "camera_models": [config.model_of(c) or "" for c in config.rgb_cameras],
+        "calibration_borrowed": borrowed_calibration(config, cameras),
+    }
+
+
+def _led_power(capture: Capture, led: int) -> float:
+    return 1.0 if capture.led_power is None else float(capture.led_power[led])
 
 
 def _registration_group(capture: Capture, sources: FrameSources) -> RawGroup:

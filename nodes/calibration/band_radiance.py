@@ -3,7 +3,9 @@
 :func:`calibrate_bands` (node ``calibrate_bands``) turns every raw band shot into relative
 band radiance in the units of the measured illuminant, the input of the reconstruction:
 dark subtracted (negative values kept), linearised with the spectral camera's response, per
-second, divided by the quantum efficiency of its band, and resampled onto the RGB pixel grid.
+second, divided by the quantum efficiency of its band, scaled from its LED's power to that of
+the RGB image it pairs with (``calibration/led_power.csv``), and resampled onto the RGB pixel
+grid.
 
 References
 ----------
@@ -24,7 +26,21 @@ from spectralize.nodes.calibration.spectral import band_signal, shot_levels
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["calibrate_bands"]
+__all__ = ["calibrate_bands", "led_power_gain"]
+
+
+def led_power_gain(raw_spectral: xr.Dataset) -> np.ndarray:
+    """(shot,) power of the paired RGB image's LED over the shot's own LED's.
+
+    Multiplying a band shot's radiance by it puts the shot on the scale of the RGB image it
+    pairs with (the radiance is proportional to the LED's power). Ones where raw/spectral has
+    no ``led_power`` / ``image_led_power`` coords (no ``calibration/led_power.csv``).
+    """
+    if "led_power" not in raw_spectral.coords or "image_led_power" not in raw_spectral.coords:
+        return np.ones(raw_spectral.sizes["shot"])
+    own = np.asarray(raw_spectral["led_power"].values, dtype=float)
+    paired = np.asarray(raw_spectral["image_led_power"].values, dtype=float)
+    return paired / own
 
 
 def calibrate_bands(
@@ -41,6 +57,13 @@ def calibrate_bands(
     order: Annotated[
         int, Field(ge=0, le=5, description="spline order of the registration resampling")
     ] = 1,
+    led_power: Annotated[
+        bool,
+        Field(
+            description="scale each shot by the power of its paired RGB image's LED over its own "
+            "LED's (raw/spectral led_power, image_led_power: calibration/led_power.csv)"
+        ),
+    ] = True,
 ) -> xr.Dataset:
     """Band radiance of every shot: ``band_signal / Q(lambda_shot)``, registered to RGB.
 
@@ -73,6 +96,9 @@ def calibrate_bands(
         coord.
     order
         Spline order of the registration resampling.
+    led_power
+        Put each shot on the scale of the RGB image it pairs with (:func:`led_power_gain`):
+        a band shot lit by LED ``l + 1`` pairs with the RGB image lit by LED ``l``.
 
     Returns
     -------
@@ -142,7 +168,8 @@ def calibrate_bands(
             ),
             dims="shot",
         )
-    radiance = (signal / q_shot).astype(np.float32)
+    gain = led_power_gain(raw_spectral) if led_power else np.ones(wavelengths.size)
+    radiance = (signal * xr.DataArray(gain, dims="shot") / q_shot).astype(np.float32)
     if radiance.chunks is not None:
         radiance = radiance.chunk({"y": -1, "x": -1})
     radiance = register_frames(radiance, registration["shift"], order=order)
@@ -166,5 +193,8 @@ def calibrate_bands(
             "quantum_efficiency": "white reference at the shot's own level" if matched else "per band",
             "registration_shift_px": [float(v) for v in registration["shift"].values],
             "negative_values": "kept (noise below the dark level)",
+            "led_power": "scaled to the paired RGB image's LED (calibration/led_power.csv)"
+            if led_power and "led_power" in raw_spectral.coords
+            else "not scaled (no LED power table)",
         },
     )

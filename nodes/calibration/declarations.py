@@ -7,8 +7,9 @@ entry points name these objects. The node functions live with their method:
 node                       function                             groups
 =========================  ===================================  ==================================
 ``dark_average``           :func:`.dark.average_dark_frames`    raw/dark -> dark
-``recover_rgb_oecf``       :func:`.oecf.robertson.              raw/rgb -> calibration/oecf_rgb
-                           recover_rgb_oecf`
+``recover_rgb_oecf``       :func:`.oecf.robertson.              raw/rgb, raw/colour_checker,
+                           recover_rgb_oecf`                    raw/white_reference
+                                                                -> calibration/oecf_rgb
 ``recover_spectral_oecf``  :func:`.oecf.low_snr.                raw/white_reference, dark
                            recover_spectral_oecf`               -> calibration/oecf_spectral
 ``calibrate_spectral``     :func:`.spectral.                    raw/white_reference,
@@ -174,9 +175,15 @@ DARK_AVERAGE = Node(
 
 RECOVER_RGB_OECF = Node(
     name="recover_rgb_oecf",
-    version="1",
+    # 2: one response per camera by default, each camera's own black level, and its series of
+    # the calibration targets with its raw/rgb series
+    version="2",
     function=recover_rgb_oecf,
-    inputs={"raw_rgb": "raw/rgb"},
+    inputs={
+        "raw_rgb": "raw/rgb",
+        "colour_checker": "raw/colour_checker",
+        "white_reference": "raw/white_reference",
+    },
     outputs=("calibration/oecf_rgb",),
     check=rgb_oecf_check,
     description="RGB camera response per channel by Robertson 2003 from raw/rgb (sec. 4).",
@@ -194,7 +201,7 @@ RECOVER_SPECTRAL_OECF = Node(
 
 CALIBRATE_SPECTRAL = Node(
     name="calibrate_spectral",
-    version="2",
+    version="3",  # 3: C, its map onto the paired camera and the cross-check per RGB camera
     function=calibrate_spectral,
     inputs={
         "white_reference": "raw/white_reference",
@@ -220,7 +227,7 @@ HDR_MERGE = Node(
 
 CALIBRATE_BANDS = Node(
     name="calibrate_bands",
-    version="2",
+    version="3",  # 3: shots scaled to their paired RGB image's LED power (led_power.csv)
     function=calibrate_bands,
     inputs={
         "raw_spectral": "raw/spectral",

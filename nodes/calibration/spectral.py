@@ -42,6 +42,7 @@ from spectralize.nodes.calibration.exposure_series import (
 from spectralize.nodes.calibration.hdr import merge_hdr
 from spectralize.nodes.calibration.matched_level_qe import level_table, matched_quantum_efficiency
 from spectralize.nodes.calibration.oecf.response import apply_response
+from spectralize.nodes.calibration.rgb_transform import rgb_transform
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
 
@@ -734,19 +735,38 @@ def _longest_unsaturated(counts: xr.DataArray, depth: int, group: str) -> np.nda
     return np.asarray([int(np.flatnonzero(row)[-1]) for row in top])
 
 
-def _rgb_series(target: xr.Dataset, group: str) -> xr.Dataset:
-    """The target's RGB exposure series as a one-image raw/rgb Dataset (usable exposures)."""
+def target_cameras(target: xr.Dataset) -> list[int]:
+    """The raw/rgb camera indices of a calibration target's RGB series, in its ``camera`` order."""
+    if "camera" in target["rgb_counts"].dims:
+        return [int(v) for v in target["camera"].values]
+    return [int(target.attrs.get("rgb_camera", 0))]
+
+
+def _rgb_series(target: xr.Dataset, group: str, camera: int | None = None) -> xr.Dataset:
+    """One camera's RGB exposure series of a target (default: the paired camera's) as a
+    one-image raw/rgb Dataset (usable exposures)."""
     depth = check_bit_depth(target.attrs.get("rgb_bit_depth"), where=f"{group}.attrs['rgb_bit_depth']")
-    counts = target["rgb_counts"].transpose("rgb_exposure", "y", "x", "channel").load()
+    camera = int(target.attrs.get("rgb_camera", 0)) if camera is None else camera
+    counts, times = target["rgb_counts"], target["rgb_exposure_time"]
+    if "camera" in counts.dims:
+        cameras = target_cameras(target)
+        if camera not in cameras:
+            raise CalibrationError(
+                f"{group}:rgb_counts: no exposure series of RGB camera {camera} (cameras {cameras})"
+            )
+        counts = counts.isel(camera=cameras.index(camera))
+        times = times.isel(camera=cameras.index(camera)) if "camera" in times.dims else times
+    counts = counts.transpose("rgb_exposure", "y", "x", "channel").load()
     _, _, not_saturated, not_dark = frame_flags(
         counts, ("y", "x"), black_level=0, saturation=2**depth - 1
     )
     usable = not_saturated.all(axis=1) & not_dark.all(axis=1)  # per exposure
     if usable.sum() < 1:
-        raise CalibrationError(f"{group}:rgb_counts: every exposure is saturated or dark")
+        raise CalibrationError(
+            f"{group}:rgb_counts: every exposure of camera {camera} is saturated or dark"
+        )
     counts = counts.isel(rgb_exposure=np.flatnonzero(usable))
-    times = np.asarray(target["rgb_exposure_time"].values, dtype=float)[usable]
-    camera = int(target.attrs.get("rgb_camera", 0))
+    times = np.asarray(times.values, dtype=float)[usable]
     data = (
         counts.rename(rgb_exposure="exposure")
         .drop_vars([c for c in counts.coords if c != "channel"])
@@ -776,11 +796,16 @@ def _eroded_labels(labels: np.ndarray, margin: int) -> np.ndarray:
 
 
 def _white_rgb(
-    white_reference: xr.Dataset, response: xr.DataArray, attrs: Mapping, group: str, margin: float = 0.1
+    white_reference: xr.Dataset,
+    response: xr.DataArray,
+    attrs: Mapping,
+    group: str,
+    margin: float = 0.1,
+    camera: int | None = None,
 ) -> xr.DataArray:
     """HDR RGB (channel,) of the white reference: median over the frame less a border of
     ``margin`` of its size (hot pixels and the target's edge do not move a median)."""
-    raw = _rgb_series(white_reference, group).drop_vars("camera")
+    raw = _rgb_series(white_reference, group, camera).drop_vars("camera")
     hdr = merge_hdr(raw, response.assign_attrs(dict(attrs) | response.attrs))["radiance"].isel(image=0)
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     dy, dx = int(margin * ny), int(margin * nx)
@@ -980,50 +1005,35 @@ def calibrate_spectral(
         white_counts, depth, dark, oecf_spectral, np.asarray(light.values, float), "raw/white_reference"
     )
 
-    # -- C from the colour checker's HDR RGB
+    # -- C of every RGB camera from its own HDR RGB of the colour checker
     group = "raw/colour_checker"
-    rgb_raw = _rgb_series(colour_checker, group)
-    response = oecf_rgb["response"]
-    camera = int(rgb_raw["camera"].values[0])
-    if "camera" in response.dims:
-        if camera not in response["camera"].values.tolist():
-            camera = int(response["camera"].values[0])
-        response = response.sel(camera=camera)
-    rgb_raw = rgb_raw.drop_vars("camera")
-    hdr = merge_hdr(rgb_raw, response.assign_attrs(oecf_rgb.attrs | response.attrs))
+    fit = {
+        "method": camera_matrix_method,
+        "ridge": ridge,
+        "smoothness": smoothness,
+        "nonnegative": nonnegative,
+        "white_patch": white_patch,
+        "patch_margin": patch_margin,
+    }
+    cameras = target_cameras(colour_checker)
+    paired = int(colour_checker.attrs.get("rgb_camera", cameras[0]))
+    fits = {k: _fit_camera(k, white_reference, colour_checker, oecf_rgb, **fit) for k in cameras}
+    names_of, lender_of = _camera_names(colour_checker, cameras)
+    reference = paired if paired in fits else lender_of[paired]
+    cm, measured, fit_spectra, cv_scores, smoothness, camera = (
+        fits[reference]["cm"],
+        fits[reference]["measured"],
+        fits[reference]["fit_spectra"],
+        fits[reference]["cv_scores"],
+        fits[reference]["smoothness"],
+        paired,
+    )
     labels = _eroded_labels(np.asarray(colour_checker["patch_index"].values), patch_margin)
     names = (
         [str(v) for v in colour_checker["patch_name"].values]
         if "patch_name" in colour_checker.coords
         else None
     )
-    measured = patch_means(hdr["radiance"].isel(image=0), labels).compute()
-    spectra = (colour_checker["patch_reflectance"] * colour_checker["illuminant"]).load()
-    spectra = spectra.assign_coords(patch=measured["patch"].values)
-    spectra = spectra.transpose("patch", "wavelength")
-    fit_rgb, fit_spectra = measured, spectra
-    if white_patch:
-        white_rgb = _white_rgb(white_reference, response, oecf_rgb.attrs, "raw/white_reference")
-        white_spectrum = (white_reference["target_reflectance"] * white_reference["illuminant"]).load()
-        white_spectrum = white_spectrum.interp(wavelength=spectra["wavelength"].values)
-        n = measured.sizes["patch"] + 1
-        fit_rgb = xr.concat(
-            [_bare(measured, "channel"), _bare(white_rgb, "channel").expand_dims(patch=1)], dim="patch"
-        ).assign_coords(patch=np.arange(n))
-        fit_spectra = xr.concat(
-            [_bare(spectra, "wavelength"), _bare(white_spectrum, "wavelength").expand_dims(patch=1)],
-            dim="patch",
-        ).assign_coords(patch=np.arange(n))
-        fit_spectra = fit_spectra.transpose("patch", "wavelength")
-    cv_scores = None
-    if camera_matrix_method == "lobes":
-        cm = lobe_camera_matrix(fit_rgb, fit_spectra, ridge=ridge)
-    else:
-        if smoothness is None:
-            smoothness, cv_scores = cross_validated_smoothness(
-                fit_rgb, fit_spectra, nonnegative=nonnegative
-            )
-        cm = camera_matrix(fit_rgb, fit_spectra, smoothness=smoothness, nonnegative=nonnegative)
 
     # -- cross-validation: the spectral camera's capture of the checker through C
     checker_counts, cdepth = target_spectral_series(colour_checker, group)
@@ -1044,6 +1054,14 @@ def calibrate_spectral(
     )
     patch_spectra = patch_means(band_radiance, labels).assign_coords(patch=measured["patch"].values)
     table = cross_validate(measured, patch_spectra, cm)
+    per_camera = _per_camera(fits, lender_of, names_of, reference, patch_spectra, fit_spectra)
+    models = [str(m) for m in colour_checker.attrs.get("camera_models", [])]
+    per_camera = per_camera.assign_coords(
+        camera_model=(
+            "camera",
+            np.asarray([models[k] if k < len(models) else "" for k in per_camera["camera"].values]),
+        )
+    )
 
     unit = {"units": "1"}
     out = xr.Dataset(
@@ -1098,7 +1116,147 @@ def calibrate_spectral(
             if c not in ("wavelength", "channel", "patch", "smoothness", "ridge_candidate")
         ]
     )
+    out = out.merge(per_camera.assign_coords(patch=out["patch"].values))
     if names is not None:
         out = out.assign_coords(patch_name=("patch", names))
     out["wavelength"].attrs.update(units="nm", long_name="band centre wavelength")
     return out
+
+
+def _camera_names(target: xr.Dataset, cameras: list[int]) -> tuple[dict[int, str], dict[int, int]]:
+    """``{index: name}`` of every RGB camera, and ``{index: lender}`` for those without chart
+    frames that borrow the calibration of a camera of the same model (ingest's attrs)."""
+    names = [str(n) for n in target.attrs.get("camera_names", [])]
+    names_of = {k: (names[k] if k < len(names) else f"camera {k}") for k in cameras}
+    names_of |= {k: n for k, n in enumerate(names)}
+    lender_of = {
+        names.index(borrower): names.index(lender)
+        for borrower, lender in dict(target.attrs.get("calibration_borrowed") or {}).items()
+        if borrower in names and lender in names and names.index(lender) in cameras
+    }
+    return names_of, lender_of
+
+
+def _fit_camera(
+    camera: int,
+    white_reference: xr.Dataset,
+    colour_checker: xr.Dataset,
+    oecf_rgb: xr.Dataset,
+    *,
+    method: str,
+    ridge: float | None,
+    smoothness: float | None,
+    nonnegative: bool,
+    white_patch: bool,
+    patch_margin: int,
+) -> dict:
+    """``C`` of one RGB camera from its own HDR RGB of the chart (and the white reference),
+    through its own response and patch label image."""
+    group = "raw/colour_checker"
+    rgb_raw = _rgb_series(colour_checker, group, camera)
+    response = oecf_rgb["response"]
+    if "camera" in response.dims:
+        response = response.sel(
+            camera=camera if camera in response["camera"].values.tolist() else response["camera"][0]
+        )
+    hdr = merge_hdr(rgb_raw.drop_vars("camera"), response.assign_attrs(oecf_rgb.attrs | response.attrs))
+    index = colour_checker["patch_index"]
+    if "rgb_patch_index" in colour_checker:
+        index = colour_checker["rgb_patch_index"].isel(
+            camera=target_cameras(colour_checker).index(camera)
+        )
+    labels = _eroded_labels(np.asarray(index.values), patch_margin)
+    measured = patch_means(hdr["radiance"].isel(image=0), labels).compute()
+    spectra = (colour_checker["patch_reflectance"] * colour_checker["illuminant"]).load()
+    spectra = spectra.assign_coords(patch=measured["patch"].values).transpose("patch", "wavelength")
+    fit_rgb, fit_spectra = measured, spectra
+    if white_patch:
+        white_rgb = _white_rgb(
+            white_reference, response, oecf_rgb.attrs, "raw/white_reference", camera=camera
+        )
+        white_spectrum = (white_reference["target_reflectance"] * white_reference["illuminant"]).load()
+        white_spectrum = white_spectrum.interp(wavelength=spectra["wavelength"].values)
+        n = measured.sizes["patch"] + 1
+        fit_rgb = xr.concat(
+            [_bare(measured, "channel"), _bare(white_rgb, "channel").expand_dims(patch=1)], dim="patch"
+        ).assign_coords(patch=np.arange(n))
+        fit_spectra = xr.concat(
+            [_bare(spectra, "wavelength"), _bare(white_spectrum, "wavelength").expand_dims(patch=1)],
+            dim="patch",
+        ).assign_coords(patch=np.arange(n))
+        fit_spectra = fit_spectra.transpose("patch", "wavelength")
+    cv_scores = None
+    if method == "lobes":
+        cm = lobe_camera_matrix(fit_rgb, fit_spectra, ridge=ridge)
+    else:
+        if smoothness is None:
+            smoothness, cv_scores = cross_validated_smoothness(
+                fit_rgb, fit_spectra, nonnegative=nonnegative
+            )
+        cm = camera_matrix(fit_rgb, fit_spectra, smoothness=smoothness, nonnegative=nonnegative)
+    return {
+        "cm": cm,
+        "measured": measured,
+        "fit_spectra": fit_spectra,
+        "cv_scores": cv_scores,
+        "smoothness": smoothness,
+    }
+
+
+def _per_camera(
+    fits: dict[int, dict],
+    lender_of: dict[int, int],
+    names_of: dict[int, str],
+    reference: int,
+    patch_spectra: xr.DataArray,
+    fit_spectra: xr.DataArray,
+) -> xr.Dataset:
+    """C, the map onto the reference camera's RGB and the chart cross-validation per camera."""
+    cameras = sorted(set(fits) | set(lender_of))
+    c_ref = np.asarray(fits[reference]["cm"]["camera_matrix"].values, float)
+    matrices, transforms, errors, sources = [], [], [], []
+    for k in cameras:
+        own = fits[k if k in fits else lender_of[k]]
+        cm = own["cm"]["camera_matrix"]
+        matrices.append(np.asarray(cm.values, float))
+        transforms.append(rgb_transform(cm.values, c_ref, np.asarray(fit_spectra.values, float)))
+        errors.append(np.asarray(cross_validate(own["measured"], patch_spectra, cm)["relative_error"]))
+        sources.append(
+            "own chart frames"
+            if k in fits
+            else f"borrowed from {names_of[lender_of[k]]} (same model in capture.toml rgb.models)"
+        )
+    channel = fits[reference]["cm"]["camera_matrix"]["channel"].values
+    wavelength = fits[reference]["cm"]["camera_matrix"]["wavelength"].values
+    unit = {"units": "1"}
+    errors_ = np.stack(errors)
+    return xr.Dataset(
+        {
+            "camera_matrices": (
+                ("camera", "channel", "wavelength"),
+                np.stack(matrices),
+                unit | {"long_name": "RGB camera matrix C of each RGB camera"},
+            ),
+            "rgb_transform": (
+                ("camera", "channel", "channel_in"),
+                np.stack(transforms),
+                unit | {"long_name": "3 x 3 map of each camera's HDR RGB onto the paired camera's"},
+            ),
+            "camera_relative_error": (
+                ("camera", "patch"),
+                errors_,
+                unit | {"long_name": "chart cross-validation per camera: |C_k S - R_k| / |R_k|"},
+            ),
+            "camera_mean_relative_error": (("camera",), np.nanmean(errors_, axis=1), unit),
+            "camera_max_relative_error": (("camera",), np.nanmax(errors_, axis=1), unit),
+        },
+        coords={
+            "camera": ("camera", np.asarray(cameras, np.int64), {"long_name": "raw/rgb camera index"}),
+            "camera_name": ("camera", np.asarray([names_of[k] for k in cameras])),
+            "c_source": ("camera", np.asarray(sources)),
+            "channel": channel,
+            "wavelength": wavelength,
+            "channel_in": ("channel_in", np.asarray(channel)),
+        },
+        attrs={"reference_camera": int(reference)},
+    )

@@ -27,6 +27,10 @@ __all__ = [
     "plot_exposure_plan",
     "plot_oecf",
     "plot_quantum_efficiency",
+    "CROSS_VALIDATION_FLAG",
+    "MODEL_DIFFERENCE_FLAG",
+    "camera_calibration_rows",
+    "plot_camera_matrices",
     "plot_registration",
     "patch_names",
     "registration_precision",
@@ -346,6 +350,100 @@ def plot_quantum_efficiency(calibration: xr.Dataset) -> Figure:
     ax_c.legend(fontsize=8)
     for ax in (ax_q, ax_c):
         ax.grid(alpha=0.3)
+    return fig
+
+
+CROSS_VALIDATION_FLAG = 0.03
+"""A camera whose chart cross-validation (mean over patches) exceeds this is flagged."""
+MODEL_DIFFERENCE_FLAG = 0.05
+"""A camera whose ``C`` differs from another camera's of its model by more than this (per
+channel, RMS over wavelength after one scale per channel, relative to the peak) is flagged."""
+
+
+def _shape_difference(c: np.ndarray, other: np.ndarray) -> float:
+    """Largest per-channel RMS of ``s c - other`` relative to ``other``'s peak."""
+    scale = (c * other).sum(1) / np.maximum((c * c).sum(1), 1e-30)
+    rms = np.sqrt(np.mean((scale[:, None] * c - other) ** 2, axis=1))
+    return float(np.max(rms / np.maximum(other.max(1), 1e-30)))
+
+
+def camera_calibration_rows(calibration: xr.Dataset) -> list[dict]:
+    """Per RGB camera: its name, model, where its ``C`` comes from, the chart cross-validation
+    and the largest difference of its ``C`` from the others' of its model, with flags.
+
+    Flagged: a cross-validation above :data:`CROSS_VALIDATION_FLAG`, a ``C`` more than
+    :data:`MODEL_DIFFERENCE_FLAG` from another camera's of the same model (both fitted from
+    their own chart frames). Empty for a calibration without per-camera results.
+    """
+    if "camera_matrices" not in calibration:
+        return []
+    names = [str(v) for v in calibration["camera_name"].values]
+    models = (
+        [str(v) for v in calibration["camera_model"].values]
+        if "camera_model" in calibration.coords
+        else [""] * len(names)
+    )
+    sources = [str(v) for v in calibration["c_source"].values]
+    matrices = np.asarray(calibration["camera_matrices"].values, float)
+    rows = []
+    for k, name in enumerate(names):
+        own = sources[k] == "own chart frames"
+        peers = [
+            j
+            for j in range(len(names))
+            if j != k and models[k] and models[j] == models[k] and sources[j] == "own chart frames"
+        ]
+        difference = (
+            max(_shape_difference(matrices[k], matrices[j]) for j in peers) if own and peers else None
+        )
+        mean = float(calibration["camera_mean_relative_error"].values[k])
+        flags = []
+        if mean > CROSS_VALIDATION_FLAG:
+            flags.append(f"cross-validation above {100 * CROSS_VALIDATION_FLAG:g} %")
+        if difference is not None and difference > MODEL_DIFFERENCE_FLAG:
+            flags.append(f"C differs from its model's by more than {100 * MODEL_DIFFERENCE_FLAG:g} %")
+        rows.append(
+            {
+                "camera": name,
+                "model": models[k] or "—",
+                "c_source": sources[k],
+                "mean_relative_error": mean,
+                "max_relative_error": float(calibration["camera_max_relative_error"].values[k]),
+                "model_difference": difference,
+                "flags": flags,
+            }
+        )
+    return rows
+
+
+def plot_camera_matrices(calibration: xr.Dataset) -> Figure:
+    """The rows of ``C`` of every RGB camera side by side (each normalised to its peak),
+    titled with its model and chart cross-validation."""
+    from matplotlib.figure import Figure
+
+    matrices = calibration["camera_matrices"]
+    n = matrices.sizes["camera"]
+    fig = Figure(figsize=(3.4 * n + 0.6, 3.2), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, n, sharey=True))
+    colours = {"R": "tab:red", "G": "tab:green", "B": "tab:blue"}
+    rows = camera_calibration_rows(calibration)
+    for ax, k, row in zip(axes, range(n), rows, strict=True):
+        matrix = matrices.isel(camera=k)
+        peak = float(np.nanmax(matrix.values)) or 1.0
+        for channel in matrix["channel"].values:
+            line = matrix.sel(channel=channel)
+            ax.plot(
+                line["wavelength"].values,
+                line.values / peak,
+                color=colours.get(str(channel), "0.3"),
+                label=str(channel),
+            )
+        title = f"{row['camera']} ({row['model']})\nchart {100 * row['mean_relative_error']:.1f} %"
+        ax.set_title(title + (" [flagged]" if row["flags"] else ""), fontsize=9)
+        ax.set_xlabel("wavelength [nm]")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("C / its peak")
+    axes[0].legend(fontsize=8)
     return fig
 
 

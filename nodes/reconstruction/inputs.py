@@ -18,7 +18,7 @@ import xarray as xr
 
 from spectralize.schemas.errors import ReconstructionError
 
-__all__ = ["ReconstructionInputs", "inputs_from_xarray", "WAVELENGTH_TOLERANCE_NM"]
+__all__ = ["ReconstructionInputs", "inputs_from_xarray", "in_paired_camera", "WAVELENGTH_TOLERANCE_NM"]
 
 WAVELENGTH_TOLERANCE_NM = 0.01
 """Band and camera-matrix wavelengths closer than this are the same wavelength."""
@@ -288,4 +288,50 @@ def inputs_from_xarray(
         filter_size=filter_size,
         camera_matrix=c_values,
         wavelength=wavelength,
+    )
+
+
+def in_paired_camera(hdr: xr.Dataset, calibration: xr.Dataset) -> xr.Dataset:
+    """``hdr`` with every image's RGB as the paired camera would have measured it (lazy).
+
+    Eq. 1 has one camera matrix ``C``, the paired camera's (its images pair with the band
+    shots). An image of RGB camera ``k`` measures ``C_k S``; the calibration's
+    ``rgb_transform`` (camera, channel, channel_in), the least-squares 3 x 3 map of ``C_k``
+    onto ``C`` over the calibration spectra
+    (:func:`~spectralize.nodes.calibration.rgb_transform.rgb_transform`), puts it into the
+    paired camera's RGB, so each image is reconstructed through its own camera's ``C``.
+    Unchanged when the calibration has no ``rgb_transform`` (one camera matrix given, e.g.
+    the truth) or ``hdr`` no per-image ``camera``.
+
+    Raises
+    ------
+    ReconstructionError
+        An image of a camera the calibration has no map for.
+    """
+    if "rgb_transform" not in calibration or "camera" not in hdr["radiance"].coords:
+        return hdr
+    transform = calibration["rgb_transform"].load()
+    transform = transform.drop_vars([c for c in transform.coords if c != "camera"])
+    cameras = np.asarray(hdr["camera"].values)
+    known = set(int(c) for c in transform["camera"].values)
+    missing = sorted(set(int(c) for c in np.unique(cameras)) - known)
+    if missing:
+        raise ReconstructionError(
+            f"calibration: rgb_transform has no map for RGB camera(s) {missing} of hdr "
+            f"(it has {sorted(known)})"
+        )
+    if all(
+        np.allclose(transform.sel(camera=int(c)).values, np.eye(3), atol=0, rtol=0)
+        for c in np.unique(cameras)
+    ):
+        return hdr
+    per_image = transform.sel(camera=xr.DataArray(cameras, dims="image")).drop_vars("camera")
+    per_image = per_image.assign_coords(channel=hdr["channel"].values, channel_in=hdr["channel"].values)
+    radiance = hdr["radiance"].rename(channel="channel_in")
+    mapped = xr.dot(per_image, radiance, dim="channel_in").transpose(*hdr["radiance"].dims)
+    mapped = mapped.astype(hdr["radiance"].dtype).assign_attrs(
+        hdr["radiance"].attrs, rgb="in the paired camera's RGB (calibration/spectral rgb_transform)"
+    )
+    return hdr.assign(
+        radiance=mapped.assign_coords({c: hdr["radiance"][c] for c in hdr["radiance"].coords})
     )

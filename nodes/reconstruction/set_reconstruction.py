@@ -37,6 +37,7 @@ from spectralize.schemas.run import SPECTRA
 
 from .confidence import neighbourhood_spread
 from .image_sets import set_members
+from .inputs import in_paired_camera
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
 from .tiling import core_chunks, join_tiles, method_options, set_windows, solve_set, tile_tasks
 
@@ -205,6 +206,7 @@ def reconstruct_seed_set(
     seed = int(image_sets.attrs["seed_set"])
     members, _ = set_members(image_sets, seed)
     wavelength = _wavelengths(bands)
+    hdr = in_paired_camera(hdr, calibration)  # each image through its own camera's C
     rgb, shots = _set_inputs(hdr, bands, members)
     camera_matrix = _camera_matrix(calibration, wavelength)
     settings = {
@@ -363,6 +365,7 @@ def reconstruct_image_sets(
     seed = int(spectra_seed.attrs["seed_set"])
     wavelength = _wavelengths(bands)
     camera_matrix = _camera_matrix(calibration, wavelength)
+    hdr = in_paired_camera(hdr, calibration)  # each image through its own camera's C
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     seed_members, seed_owned = set_members(image_sets, seed)
     seed_rgb = hdr["radiance"].sel(image=seed_members).transpose("image", "y", "x", "channel")

@@ -408,15 +408,16 @@ class Gantry:
             ),
         )
         group = "raw/white_reference" if target == "white" else "raw/colour_checker"
+        # every RGB camera photographs the flat Lambertian target lit at normal incidence: the
+        # cameras are of one model, so each sees the paired camera's frames (one noise draw)
+        n_camera = len(r.rgb_camera_thetas)
+        rgb = da.broadcast_to(rgb[None], (n_camera, *rgb.shape), chunks=((1,) * n_camera, *rgb.chunks))
         ds = xr.Dataset(
             {
                 "rgb_counts": (
-                    ("rgb_exposure", "y", "x", "channel"),
+                    ("camera", "rgb_exposure", "y", "x", "channel"),
                     rgb,
-                    self._counts_attrs(
-                        r.rgb_bit_depth,
-                        f"raw RGB counts of the RGB camera at {r.spectral_camera_theta:g} deg",
-                    ),
+                    self._counts_attrs(r.rgb_bit_depth, "raw RGB counts of each RGB camera"),
                 ),
                 "spectral_counts": (
                     ("wavelength", "spectral_exposure", "y", "x"),
@@ -431,9 +432,14 @@ class Gantry:
                     {"units": "nm", "long_name": "centre wavelength of the filter band"},
                 ),
                 "channel": ("channel", _strings(["R", "G", "B"]), {"long_name": "channel"}),
+                "camera": (
+                    "camera",
+                    np.arange(n_camera, dtype=np.int64),
+                    {"units": "1", "long_name": "RGB camera index"},
+                ),
                 "rgb_exposure_time": (
-                    "rgb_exposure",
-                    self.schedule.calib_rgb_times,
+                    ("camera", "rgb_exposure"),
+                    np.broadcast_to(self.schedule.calib_rgb_times, (n_camera, ne)).copy(),
                     {"units": "s", "long_name": "exposure time of the RGB series"},
                 ),
                 "spectral_exposure_time": (
@@ -477,14 +483,20 @@ class Gantry:
                 ),
                 patch_name=("patch", _strings(refl["patch_name"].values)),
             )
+            labels = self.renderer.chart.patch_index(slice(0, n), slice(0, n))
             ds["patch_index"] = (
                 ("y", "x"),
-                self.renderer.chart.patch_index(slice(0, n), slice(0, n)),
+                labels,
                 {
                     "units": "1",
                     "long_name": "patch under each pixel of the "
                     "RGB image (-1: frame); the spectral image is shifted",
                 },
+            )
+            ds["rgb_patch_index"] = (
+                ("camera", "y", "x"),
+                np.broadcast_to(np.asarray(labels), (n_camera, n, n)).copy(),
+                {"units": "1", "long_name": "patch under each pixel of each RGB camera (-1: frame)"},
             )
             ds.attrs["chart"] = self.renderer.chart.chart
         return ds

@@ -82,7 +82,7 @@ def run(prefect_api, tmp_path_factory):
 
 def test_ingest_takes_the_lab_s_cameras_bit_depths_and_calibration_grids(run):
     root, store, ingested, _ = run
-    assert "1282 frame(s) read from files" in ingested
+    assert "1300 frame(s) read from files" in ingested  # cam-top photographs the targets too
     assert store.validate() == []
     rgb, spectral_shots = store.read("raw/rgb"), store.read("raw/spectral")
     assert rgb.sizes == {"image": 24, "exposure": 5, "y": 40, "x": 52, "channel": 3}
@@ -195,9 +195,9 @@ def two_models(prefect_api, tmp_path_factory):
 
 def test_c_of_a_measured_sensor_has_its_physical_shape(two_models):
     """C of the paired Nikon camera: non-negative, its rows peak in the order of the truth, G
-    within 6 % (RMS over wavelength relative to its peak). R and B miss the 5 % target: the
-    chart's RGB is off the truth by 5-15 % after this capture's linearisation (its darkest
-    patches most: the black level and the S-shaped response; issue 25, item 1)."""
+    within 6 % (RMS over wavelength relative to its peak). R and B miss the 5 % target (about
+    8 % and 15 %, benchmarks/calibration_oracle.py): 24 patches and the white leave the
+    rows' tails undetermined where the sharp LED gives little light."""
     root, store = two_models
     truth = np.load(root / "truth.npz")
     assert truth["cameras"].tolist() == ["cam-top", "cam-45", "cam-side"]
@@ -214,3 +214,39 @@ def test_c_of_a_measured_sensor_has_its_physical_shape(two_models):
     error = np.sqrt(np.mean((scale[:, None] * c - true) ** 2, axis=1)) / true.max(1)
     assert error[1] < 0.06 and error.max() < 0.25, error
     assert calibration.attrs["mean_relative_error"] < 0.06
+
+
+def test_every_camera_is_calibrated_on_its_own(two_models):
+    """Each RGB camera's response, black level and C from its own frames; each image is read
+    through its own camera's C; the band shots on the scale of their paired image's LED."""
+    root, store = two_models
+    truth = np.load(root / "truth.npz")
+    oecf = store.read("calibration/oecf_rgb")
+    assert oecf.attrs["per_camera"] and oecf.sizes["camera"] == 3
+    assert oecf.attrs["black_levels"][2] < oecf.attrs["black_levels"][1]  # Sigma 48 DN, Nikon 60 DN
+    calibration = store.read("calibration/spectral")
+    assert calibration["camera_name"].values.tolist() == ["cam-top", "cam-45", "cam-side"]
+    assert set(calibration["c_source"].values.tolist()) == {"own chart frames"}
+    assert calibration["camera_model"].values.tolist() == ["nikon", "nikon", "sigma"]
+    assert float(calibration["camera_mean_relative_error"].max()) < 0.04
+    # the Sigma camera's C has the Sigma's shape, not the paired Nikon's
+    c = calibration["camera_matrices"].values
+    unit = c / np.linalg.norm(c, axis=2, keepdims=True)
+    true = truth["sensitivity"] / np.linalg.norm(truth["sensitivity"], axis=2, keepdims=True)
+    assert (
+        np.linalg.norm(unit[2] - true[2], axis=1).max() < np.linalg.norm(unit[1] - true[2], axis=1).max()
+    )
+    # the same-model camera maps onto the paired one by about its gain only
+    transform = calibration["rgb_transform"].values
+    np.testing.assert_allclose(transform[1], np.eye(3), atol=1e-9)
+    off_diagonal = np.abs(transform[0] - np.diag(np.diag(transform[0]))).max()
+    assert off_diagonal < 0.1 * np.abs(np.diag(transform[0])).min()
+    # LED powers: the lab's table on the band shots and their paired images
+    spectral = store.read("raw/spectral")
+    gain = spectral["image_led_power"].values / spectral["led_power"].values
+    true_power = truth["led_power"]
+    expected = true_power[spectral["led"].values - 101] / true_power[spectral["led"].values - 100]
+    np.testing.assert_allclose(gain, expected, rtol=0.01)
+    from spectralize.nodes.calibration.band_radiance import led_power_gain
+
+    np.testing.assert_allclose(led_power_gain(spectral), gain)

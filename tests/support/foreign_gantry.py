@@ -18,7 +18,11 @@ What it models (all of it different from spectralize's simulator on purpose):
   and hot pixels, dark current, 2.5 DN read noise, shot noise, a slightly compressive response;
 - band shots spread over five LED positions (a sweep of 32 bands, 410-720 nm), exposure
   times from eq. 2 with its own ``t0``, ``omega``;
-- an 18-patch chart of its own (``colour_checker.csv``) and its patch label image as TIFF;
+- an 18-patch chart of its own (``colour_checker.csv``), photographed (with the white
+  reference) by every RGB camera, each framing it a little differently: a patch label image
+  per camera as TIFF (``colour_checker.patch_indices``), the sensor model of each camera in
+  ``rgb.models`` and, where the LEDs' powers differ, the lab's measurement of them
+  (``calibration/led_power.csv``, 0.3 % repeatability);
 - every file TIFF (some zlib-compressed), in nested folders; manifest columns in another
   order, with extra columns.
 
@@ -54,6 +58,7 @@ LED_THETA = 35.0
 LED_AZIMUTHS = [150.0 + 15.0 * k for k in range(6)]  # LED 100 + k
 T0, S0, OMEGA = 0.03, 0.25, 0.8  # eq. 2 and 3 constants of this lab's exposure plan
 RGB_TIMES = [0.002, 0.004, 0.012, 0.024, 0.072]  # ratios 2, 3, 2, 3 [s]
+CHART_OFFSET = {"cam-top": (1, -2), "cam-45": (0, 0), "cam-side": (-1, 1)}  # chart framing [px]
 LAB: dict = {}  # what this lab's gantry is made of (:func:`default_lab`), set by write_capture
 
 
@@ -388,12 +393,18 @@ def write_capture(root: Path, truth: Path | None = None, lab: dict | None = None
     chart_map = np.concatenate([np.full((1, WAVELENGTHS.size), 0.02), chart])[patches]
     spectral_series = series(0.001, 13)
     for kind, reflectance_map in (("white_reference", white_map), ("colour_checker", chart_map)):
-        seen_rgb = target(reflectance_map)
-        for e, t in enumerate(series(0.0002, 9)):
-            name = save(
-                root, f"{SESSION}/calibration_shots/{kind}/rgb_{e:02d}.tif", rgb_counts(rng, seen_rgb, t)
-            )
-            add(file=name, camera=PAIRED, kind=kind, exposure_time_s=t)
+        # every RGB camera photographs the targets; each frames the chart a little differently
+        for camera in cameras:
+            view = np.roll(reflectance_map, CHART_OFFSET[camera], axis=(0, 1))
+            seen_rgb = target(view)
+            folder = "" if camera == PAIRED else f"{camera}/"
+            for e, t in enumerate(series(0.0002, 9)):
+                name = save(
+                    root,
+                    f"{SESSION}/calibration_shots/{kind}/{folder}rgb_{e:02d}.tif",
+                    rgb_counts(rng, seen_rgb, t, camera),
+                )
+                add(file=name, camera=camera, kind=kind, exposure_time_s=t)
         seen_mono = target(reflectance_map, shift=MISREGISTRATION)
         for b, wl in enumerate(WAVELENGTHS):
             for e, t in enumerate(spectral_series):
@@ -465,6 +476,24 @@ def write_capture(root: Path, truth: Path | None = None, lab: dict | None = None
         ),
     )
     tifffile.imwrite(calibration / "chart_labels.tif", patches, photometric="minisblack")
+    for camera in cameras:
+        if camera != PAIRED:
+            tifffile.imwrite(
+                calibration / f"chart_labels_{camera}.tif",
+                np.roll(patches, CHART_OFFSET[camera], axis=(0, 1)),
+                photometric="minisblack",
+            )
+    if power:  # the lab's measurement of each LED's power (0.3 % repeatability)
+        measured = np.random.default_rng(5).normal(1.0, 0.003, 6)
+        write_table(
+            calibration / "led_power.csv",
+            ["led", "relative_power"],
+            (
+                (led, float(power.get(led, 1.0) * m))
+                for led, m in zip(range(100, 106), measured, strict=True)
+            ),
+        )
+    models = {camera: cameras[camera][2] for camera in cameras}
     (root / "capture.toml").write_text(
         "\n".join(
             [
@@ -486,8 +515,18 @@ def write_capture(root: Path, truth: Path | None = None, lab: dict | None = None
                 f"s0 = {S0}",
                 f"omega = {OMEGA}",
                 "",
+                "[rgb.models]",
+                *[f'"{camera}" = "{model}"' for camera, model in models.items()],
+                "",
                 "[colour_checker]",
                 'patch_index = "calibration/chart_labels.tif"',
+                "",
+                "[colour_checker.patch_indices]",
+                *[
+                    f'"{camera}" = "calibration/chart_labels_{camera}.tif"'
+                    for camera in cameras
+                    if camera != PAIRED
+                ],
                 "",
             ]
         ),

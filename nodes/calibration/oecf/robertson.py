@@ -58,6 +58,8 @@ __all__ = [
     "recover_oecf",
     "recover_rgb_oecf",
     "default_black_level",
+    "camera_black_levels",
+    "with_target_series",
     "rgb_oecf_refusals",
 ]
 
@@ -731,24 +733,78 @@ def recover_oecf(
     return xr.Dataset({"response": response}, attrs={"bit_depth": depth})
 
 
+def with_target_series(
+    data: xr.Dataset, targets: list[xr.Dataset], camera: int, black_level: int, saturation: int
+) -> xr.Dataset:
+    """One camera's raw/rgb series plus its exposure series of the calibration targets.
+
+    The white reference and the colour checker are photographed over a longer exposure range
+    (9 times against raw/rgb's few) at every level of the chart's patches, so they reach the
+    codes the scene seldom does (a sensor's shoulder in a channel the scene is dim in). Each
+    target series is cut into windows of raw/rgb's exposure count (every second start), left
+    out where a frame is entirely saturated or entirely at or below ``black_level``; each
+    window is one more image of ``camera``.
+    """
+    counts = data["counts"].transpose("image", "exposure", "y", "x", "channel")
+    n_exp = counts.sizes["exposure"]
+    frames, times = [np.asarray(counts.values)], [np.asarray(data["exposure_time"].values)]
+    for target in targets:
+        if "camera" not in target["rgb_counts"].dims or camera not in target["camera"].values:
+            continue
+        pos = [int(v) for v in target["camera"].values].index(camera)
+        series = np.asarray(
+            target["rgb_counts"].isel(camera=pos).transpose("rgb_exposure", "y", "x", "channel").values
+        )
+        series_times = np.asarray(target["rgb_exposure_time"].isel(camera=pos).values, float)
+        if series.shape[1:] != counts.shape[2:]:
+            continue
+        for start in range(0, series.shape[0] - n_exp + 1, 2):
+            window = series[start : start + n_exp].reshape(n_exp, -1, series.shape[-1])
+            if (window.min(1) >= saturation).any() or (window.max(1) <= black_level).any():
+                continue
+            frames.append(series[None, start : start + n_exp])
+            times.append(series_times[None, start : start + n_exp])
+    if len(frames) == 1:
+        return data
+    stacked = np.concatenate(frames)
+    return xr.Dataset(
+        {"counts": (("image", "exposure", "y", "x", "channel"), stacked)},
+        coords={
+            "exposure_time": (("image", "exposure"), np.concatenate(times)),
+            "camera": ("image", np.full(stacked.shape[0], camera)),
+            "channel": counts["channel"].values,
+        },
+        attrs=data.attrs,
+    )
+
+
 def recover_rgb_oecf(
     raw_rgb: xr.Dataset,
+    colour_checker: xr.Dataset | None = None,
+    white_reference: xr.Dataset | None = None,
     *,
+    calibration_targets: Annotated[
+        bool,
+        Field(
+            description="add each camera's exposure series of the colour checker and the white "
+            "reference to its raw/rgb series (they reach codes the scene seldom does)"
+        ),
+    ] = True,
     per_camera: Annotated[
         bool,
         Field(
             description="one response per RGB camera (True) or one "
             "response per channel pooled over all cameras "
-            "(False)"
+            "(False, with a warning when the cameras' own responses differ)"
         ),
-    ] = False,
+    ] = True,
     black_level: Annotated[
         int | None,
         Field(
             ge=0,
             description="codes at or below it get "
-            "weight 0 [DN]; None: the 0.1 % quantile of the "
-            "shortest exposure plus 3",
+            "weight 0 [DN]; None: per camera, capture.toml's rgb.black_level_dn plus 3, else "
+            "the 0.1 % quantile of the camera's shortest exposures plus 3",
         ),
     ] = None,
     weighting: Annotated[str, Choices(WEIGHTING_FUNCTIONS, "weighting function")] = "gaussian",
@@ -778,12 +834,21 @@ def recover_rgb_oecf(
     ----------
     raw_rgb
         Group ``raw/rgb``.
+    colour_checker, white_reference
+        Groups ``raw/colour_checker`` and ``raw/white_reference``: each camera's exposure
+        series of them join its raw/rgb series (:func:`with_target_series`) unless
+        ``calibration_targets`` is false.
+    calibration_targets
+        Whether they do.
     per_camera
-        Recover one response per camera; otherwise pool all cameras (same sensor model) and
-        copy the response to every camera.
+        Recover one response per camera (the default: cameras of other models respond
+        otherwise); else pool all cameras and copy the response to every camera, with a
+        warning naming the largest difference of a camera's own response from the pooled one
+        when it exceeds :data:`POOLING_TOLERANCE`.
     black_level
-        Under-exposed codes (weight 0); default: the 0.1 % quantile of the shortest
-        exposure's codes plus 3 DN (the ADC offset plus noise).
+        Under-exposed codes (weight 0); default per camera (:func:`camera_black_levels`):
+        ``rgb.black_level_dn`` of ``capture.toml`` plus 3 DN, else the 0.1 % quantile of the
+        camera's shortest exposures plus 3 DN (the ADC offset plus noise).
     weighting
         A key of :data:`~spectralize.nodes.calibration.oecf.weighting.WEIGHTING_FUNCTIONS`.
     tolerance, max_pixels
@@ -794,8 +859,9 @@ def recover_rgb_oecf(
     xarray.Dataset
         Group ``calibration/oecf_rgb``: ``response`` (camera, channel, code) float64
         [1], relative exposure per code normalised to 1 at the mid code; ``samples``
-        (camera, channel, code). Attrs ``bit_depth``, ``black_level``, ``saturation``,
-        ``weighting``, ``per_camera``, ``converged``, ``iterations``.
+        (camera, channel, code). Attrs ``bit_depth``, ``black_level`` (the lowest camera's,
+        for the HDR weighting), ``black_levels`` (per camera), ``saturation``, ``weighting``,
+        ``per_camera``, ``converged``, ``iterations``.
 
     Raises
     ------
@@ -811,18 +877,33 @@ def recover_rgb_oecf(
     raise_first(rgb_oecf_refusals(raw_rgb, black_level=black_level))
     depth = int(raw_rgb.attrs["bit_depth"])
     cameras = np.asarray(raw_rgb["camera"].values)
-    if black_level is None:
-        black_level = default_black_level(raw_rgb)
+    levels = camera_black_levels(raw_rgb) if black_level is None else {}
+    levels = {int(c): levels.get(int(c), black_level) for c in np.unique(cameras)}
     data = raw_rgb[["counts"]].assign_attrs(bit_depth=depth)
-    if not per_camera:
-        data = data.drop_vars("camera")
-    result = recover_oecf(
-        data,
-        black_level=black_level,
-        weighting=weighting,  # type: ignore[arg-type]  # a table key
-        tolerance=tolerance,
-        max_pixels=max_pixels,
-    )
+    options = {"weighting": weighting, "tolerance": tolerance, "max_pixels": max_pixels}
+    targets = [t for t in (colour_checker, white_reference) if t is not None and calibration_targets]
+    own = {  # one response per camera, each with its own black level (and target series)
+        c: recover_oecf(
+            with_target_series(
+                data.isel(image=np.flatnonzero(cameras == c)), targets, c, level, 2**depth - 1
+            ),
+            black_level=level,
+            **options,
+        )
+        for c, level in levels.items()
+    }
+    black_level = min(levels.values())
+    if per_camera:
+        result = xr.concat([own[c] for c in levels], dim="camera", combine_attrs="override")
+        result["response"].attrs["iterations"] = max(
+            int(r["response"].attrs.get("iterations", 0)) for r in own.values()
+        )
+        result["response"].attrs["converged"] = all(
+            bool(r["response"].attrs.get("converged", True)) for r in own.values()
+        )
+    else:
+        result = recover_oecf(data.drop_vars("camera"), black_level=black_level, **options)
+        _warn_pooled(own, result, "recover_rgb_oecf: raw/rgb")
     response = result["response"]
     samples = response["samples"].drop_vars("samples", errors="ignore")
     response = response.drop_vars("samples")
@@ -844,6 +925,7 @@ def recover_rgb_oecf(
             "saturation": int(attrs.get("saturation", 2**depth - 1)),
             "weighting": weighting,
             "per_camera": bool(per_camera),
+            "black_levels": [int(levels[int(c)]) for c in response["camera"].values],
             "converged": bool(attrs.get("converged", True)),
             "iterations": int(attrs.get("iterations", 0)),
             "source": "raw/rgb",
@@ -851,6 +933,57 @@ def recover_rgb_oecf(
     )
     out["camera"].attrs.update(long_name="RGB camera index")
     return out
+
+
+def camera_black_levels(raw_rgb: xr.Dataset) -> dict[int, int]:
+    """``{camera: black level}``: ``rgb.black_level_dn`` of ``capture.toml`` plus 3 DN where
+    raw/rgb's attrs carry it (``black_level_dn``, -1: not given), else
+    :func:`default_black_level` of the camera's own images (cameras of other models have
+    other black offsets)."""
+    cameras = np.asarray(raw_rgb["camera"].values)
+    declared = list(raw_rgb.attrs.get("black_level_dn") or [])
+    out = {}
+    for c in np.unique(cameras):
+        c = int(c)
+        if c < len(declared) and int(declared[c]) >= 0:
+            out[c] = int(declared[c]) + 3
+        else:
+            out[c] = default_black_level(raw_rgb.isel(image=np.flatnonzero(cameras == c)))
+    return out
+
+
+POOLING_TOLERANCE = 0.02
+"""Largest relative difference between cameras' own responses that pooling passes silently."""
+
+
+def _warn_pooled(own: dict[int, xr.Dataset], pooled: xr.Dataset, where: str) -> float:
+    """Warn when a camera's own response differs from the pooled one by more than
+    :data:`POOLING_TOLERANCE` (relative, at the codes both have samples at); return the
+    largest difference."""
+    import warnings
+
+    ref = np.asarray(pooled["response"].values, float)
+    seen_ref = np.asarray(pooled["response"]["samples"].values) >= 10  # codes both measured well
+    worst, who = 0.0, None
+    for c, result in own.items():
+        mine = np.asarray(result["response"].isel(camera=0).values, float)
+        seen = (
+            (np.asarray(result["response"]["samples"].isel(camera=0).values) >= 10)
+            & seen_ref
+            & (ref > 0)
+        )
+        if seen.any():
+            diff = float(np.nanmax(np.abs(mine[seen] / ref[seen] - 1.0)))
+            if diff > worst:
+                worst, who = diff, c
+    if worst > POOLING_TOLERANCE:
+        warnings.warn(
+            f"{where}: per_camera=False pools cameras whose own responses differ from the "
+            f"pooled one by up to {100 * worst:.1f} % (camera {who}): their images are merged "
+            "through a response that is not theirs. Use per_camera=True (the default).",
+            stacklevel=3,
+        )
+    return worst
 
 
 def default_black_level(raw_rgb: xr.Dataset) -> int:

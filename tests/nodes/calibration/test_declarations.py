@@ -12,7 +12,8 @@ from spectralize.schemas import ParameterError
 DEFAULTS = {
     "DARK_AVERAGE": {"frames_per_chunk": 16, "ddof": 1},
     "RECOVER_RGB_OECF": {
-        "per_camera": False,
+        "calibration_targets": True,
+        "per_camera": True,
         "black_level": None,
         "weighting": "gaussian",
         "tolerance": 1e-6,
@@ -37,7 +38,7 @@ DEFAULTS = {
     },
     "HDR_MERGE": {"black_level": None, "saturation": None},
     "ESTIMATE_REGISTRATION": {"azimuth_offset": 15.0, "upsample_factor": 50, "max_shift": 8.0},
-    "CALIBRATE_BANDS": {"filter_size": None, "order": 1},
+    "CALIBRATE_BANDS": {"filter_size": None, "order": 1, "led_power": True},
 }
 
 
