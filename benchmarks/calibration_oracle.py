@@ -1,0 +1,390 @@
+"""What calibration costs: the foreign gantries' captures through the chain, calibrated and oracle.
+
+Issue 25, item 6. Each foreign lab (``tests/support/foreign_gantry*.py``; ``sigma-paired`` was
+kept out of every choice of the calibration's settings and is reported on its own) is
+written, ingested and calibrated by ``spectralize run btf``. The reconstruction is then run
+twice in this process, on one machine, with the same settings:
+
+- *calibrated*: the run store's ``hdr``, ``bands`` and ``calibration/spectral``;
+- *oracle*: the writer's truth injected in their place: each camera's true OECF and black
+  offset (HDR merged with :func:`merge_hdr_node` through them), each camera's true
+  sensitivity as ``C`` (and the 3 x 3 maps onto the paired camera from them, as the chain
+  computes its own), the spectral camera's true response, dark pattern and QE, and the true
+  LED powers (band radiance on the scale of the RGB image it pairs with). The registration
+  is the estimated one in both (it is not calibration of the response).
+
+Reported per lab, per RGB camera, for images with and without band shots: per-pixel nRMSE
+``|S - T| / |T|`` against the writer's radiance of that image (median, p95, share below
+0.03), the same after one scale per pixel (spectral shape), the ratio calibrated / oracle;
+and the calibration's own errors: C per channel (RMS over wavelength of ``s C - C_true``
+relative to the channel's peak), the chart cross-check per camera, band radiance bias per
+band against the writer's radiance, the LED scale error left with and without the LED power
+table, and the second camera model's images against the paired model's.
+
+Usage::
+
+    python benchmarks/calibration_oracle.py            # all labs, writes results/calibration_oracle.json
+    python benchmarks/calibration_oracle.py --quick    # one lab, nothing written
+
+References
+----------
+Fast Capture of Spectral Image Series, sec. 4 (calibration) and 5 (evaluation).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+RESULTS = Path(__file__).resolve().parent / "results" / "calibration_oracle.json"
+SUPPORT = Path(__file__).resolve().parents[1] / "tests" / "support"
+LABS = {  # lab: (script, arguments); sigma-paired was kept out of every choice
+    "nikon-paired": ("foreign_gantry_models.py", ["--lab", "nikon-paired"]),
+    "foreign-gaussian": ("foreign_gantry.py", []),
+    "sigma-paired (held out)": ("foreign_gantry_models.py", ["--lab", "sigma-paired"]),
+}
+BORDER = 3  # px left out at the frame's edge (registration resampling)
+
+
+def _cli(*args: str, cwd: Path) -> float:
+    start = time.perf_counter()
+    out = subprocess.run(
+        [sys.executable, "-m", "spectralize.flows.cli", *args], cwd=cwd, capture_output=True, text=True
+    )
+    if out.returncode:
+        raise RuntimeError(f"spectralize {' '.join(args)} failed:\n{out.stdout}\n{out.stderr}")
+    return time.perf_counter() - start
+
+
+def _lab(name: str):
+    """The writer's modules with ``name``'s gantry loaded (its truth)."""
+    sys.path.insert(0, str(SUPPORT))
+    import foreign_gantry as base
+    import foreign_gantry_models as models
+
+    base.LAB.clear()
+    base.LAB.update(base.default_lab() if name == "foreign-gaussian" else models.lab(name.split()[0]))
+    return base
+
+
+# -- the writer's truth in the chain's groups ------------------------------------------------------
+def true_c(base, camera: str) -> np.ndarray:
+    """(channel, wavelength) C in HDR units per band radiance unit: the writer's ``y / t``."""
+    model = base.LAB["models"][base.LAB["rgb_cameras"][camera][2]]
+    return base.RGB_SCALE * model["sensitivity"](base.WAVELENGTHS) / base.WAVELENGTHS.size
+
+
+def oracle_oecf(base, oecf: xr.Dataset, cameras: list[str]) -> xr.Dataset:
+    """``calibration/oecf_rgb`` with each camera's true response: code -> exposure ``y``."""
+    out = oecf.copy(deep=True).load()
+    codes = np.asarray(out["code"].values, float)
+    fine = np.linspace(0.0, 1.3, 200_001)
+    for k in out["camera"].values:
+        model = base.LAB["models"][base.LAB["rgb_cameras"][cameras[int(k)]][2]]
+        level = (codes - model["black"]) / (base.RGB_MAX - model["black"])
+        y = np.interp(level, model["oecf"](fine), fine)
+        y[codes <= model["black"]] = 0.0
+        out["response"].loc[{"camera": k}] = np.broadcast_to(y, out["response"].sel(camera=k).shape)
+    blacks = [base.LAB["models"][m[2]]["black"] for m in base.LAB["rgb_cameras"].values()]
+    out.attrs["black_level"] = int(min(blacks) + 3)
+    return out
+
+
+def oracle_band_radiance(base, raw: xr.Dataset, image_leds: np.ndarray) -> np.ndarray:
+    """(shot, y, x) band radiance from the writer's spectral camera model, on the scale of
+    the RGB image each shot pairs with (true LED powers), not yet registered."""
+    offset, current = base.dark_pattern()
+    a = 0.06 / base.MONO_MAX  # response(e) = e (1 - a e)
+    counts = np.asarray(raw["counts"].values, float)
+    times = np.asarray(raw["exposure_time"].values, float)[:, None, None]
+    q = base.mono_efficiency(np.asarray(raw["wavelength"].values, float))[:, None, None]
+    level = np.clip(counts - offset, None, 1.0 / (4 * a))
+    electrons = (1.0 - np.sqrt(1.0 - 4 * a * level)) / (2 * a)
+    radiance = (electrons - current * times) / (base.MONO_GAIN * times * q)
+    power = base.LAB["led_power"]
+    gain = np.array(
+        [
+            power.get(int(image_led), 1.0) / power.get(int(led), 1.0)
+            for image_led, led in zip(image_leds, raw["led"].values, strict=True)
+        ]
+    )
+    return radiance * gain[:, None, None]
+
+
+def truth_radiance(base, rgb: xr.Dataset, image: int) -> np.ndarray:
+    """(y, x, wavelength) the writer's radiance of RGB image ``image``."""
+    c = rgb.sel(image=image)
+    power = base.LAB["led_power"].get(int(c["led"]), 1.0)
+    return np.moveaxis(power * base.radiance(float(c["theta_i"]), float(c["phi_i"])), 0, -1)
+
+
+# -- the reconstruction, twice -------------------------------------------------------------------
+def reconstruct(hdr, bands, calibration, image_sets) -> xr.DataArray:
+    """The chain's reconstruction (both nodes, their defaults) in this process."""
+    from spectralize.nodes.reconstruction.set_reconstruction import (
+        reconstruct_image_sets,
+        reconstruct_seed_set,
+    )
+
+    seed = reconstruct_seed_set(hdr, bands, calibration, image_sets).compute()
+    spectra = reconstruct_image_sets(hdr, bands, calibration, image_sets, seed)
+    return spectra["radiance"].compute()
+
+
+def errors(spectra: xr.DataArray, base, rgb: xr.Dataset, labels: list[int]) -> dict:
+    """nRMSE and shape error per pixel (inner frame) over ``labels``; per-band bias."""
+    nrmse, shape, num, den = [], [], 0.0, 0.0
+    inner = (slice(BORDER, -BORDER), slice(BORDER, -BORDER))
+    for label in labels:
+        got = spectra.sel(image=label).transpose("y", "x", "wavelength").values[inner]
+        true = truth_radiance(base, rgb, label)[inner]
+        norm = np.linalg.norm(true, axis=-1)
+        nrmse.append(np.linalg.norm(got - true, axis=-1) / norm)
+        scale = (got * true).sum(-1) / (true * true).sum(-1)
+        shape.append(np.linalg.norm(got - scale[..., None] * true, axis=-1) / (np.abs(scale) * norm))
+        num, den = num + got.sum((0, 1)), den + true.sum((0, 1))
+    e, s = np.concatenate([x.ravel() for x in nrmse]), np.concatenate([x.ravel() for x in shape])
+    bias = num / den - 1
+    return {
+        "images": len(labels),
+        "median": float(np.median(e)),
+        "p95": float(np.percentile(e, 95)),
+        "share_below_0.03": float(np.mean(e < 0.03)),
+        "shape_median": float(np.median(s)),
+        "shape_p95": float(np.percentile(s, 95)),
+        "band_bias": bias.round(4).tolist(),
+        "max_abs_band_bias": float(np.abs(bias).max()),
+    }
+
+
+def c_error(c: np.ndarray, truth: np.ndarray) -> list[float]:
+    """Per channel RMS over wavelength of ``s C - truth`` relative to the truth's peak."""
+    scale = (c * truth).sum(1) / np.maximum((c * c).sum(1), 1e-30)
+    rms = np.sqrt(np.mean((scale[:, None] * c - truth) ** 2, axis=1))
+    return (rms / truth.max(1)).round(4).tolist()
+
+
+def band_scale(bands: np.ndarray, oracle: np.ndarray, raw: xr.Dataset) -> dict:
+    """Calibrated band radiance over the oracle's (inner frame sums), per band and per LED."""
+    inner = (slice(None), slice(BORDER, -BORDER), slice(BORDER, -BORDER))
+    ratio = bands[inner].sum((1, 2)) / oracle[inner].sum((1, 2))
+    wl, leds = np.asarray(raw["wavelength"].values, float), np.asarray(raw["led"].values)
+    order = np.argsort(wl)
+    per_led = {int(led): float(np.median(ratio[leds == led])) for led in np.unique(leds)}
+    mid = np.median(list(per_led.values()))
+    return {
+        "band_ratio_by_wavelength": dict(
+            zip([f"{w:g}" for w in wl[order]], ratio[order].round(4).tolist(), strict=True)
+        ),
+        "max_abs_band_bias": float(np.abs(ratio / np.median(ratio) - 1).max()),
+        "led_scale": {str(k): round(v / mid, 4) for k, v in per_led.items()},
+        "led_scale_spread": float(np.std([v / mid for v in per_led.values()])),
+    }
+
+
+def measure_lab(root: Path, lab: str) -> dict:
+    from spectralize.nodes.calibration.band_radiance import calibrate_bands
+    from spectralize.nodes.calibration.declarations import merge_hdr_node
+    from spectralize.nodes.calibration.registration import register_frames
+    from spectralize.nodes.calibration.rgb_transform import rgb_transform
+    from spectralize.store import RunStore
+
+    base = _lab(lab)
+    store = RunStore.open(root / "run.zarr")
+    cameras = list(base.LAB["rgb_cameras"])
+    read = {g: store.read(g) for g in ("raw/rgb", "raw/spectral", "hdr", "bands", "image_sets")}
+    rgb, raw, image_sets = read["raw/rgb"], read["raw/spectral"], read["image_sets"].load()
+    calibration = store.read("calibration/spectral").load()
+    paired = int(calibration.attrs.get("rgb_camera", 1))
+
+    # oracle groups
+    start = time.perf_counter()
+    hdr_oracle = merge_hdr_node(rgb, oracle_oecf(base, store.read("calibration/oecf_rgb"), cameras))
+    hdr_oracle = hdr_oracle.assign_coords({c: read["hdr"][c] for c in read["hdr"].coords})
+    registration = store.read("registration").load()
+    image_leds = rgb["led"].sel(image=raw["image"].values).values  # each shot's RGB image's LED
+    oracle_raw = oracle_band_radiance(base, raw.load(), image_leds)
+    shots = xr.DataArray(oracle_raw, dims=("shot", "y", "x")).astype(np.float32)
+    registered = register_frames(shots, registration["shift"]).compute()
+    bands_oracle = read["bands"].copy()
+    bands_oracle["radiance"] = (("shot", "y", "x"), np.asarray(registered.values, np.float32))
+    c_true = {k: true_c(base, name) for k, name in enumerate(cameras)}
+    spectra_fit = np.asarray(
+        (
+            store.read("raw/colour_checker")["patch_reflectance"] * base.illuminant(base.WAVELENGTHS)
+        ).values
+    )
+    oracle_cal = calibration.copy()
+    oracle_cal["camera_matrix"] = (("channel", "wavelength"), c_true[paired])
+    if "camera" in calibration.dims:
+        ks = [int(k) for k in calibration["camera"].values]
+        oracle_cal["camera_matrices"] = (
+            ("camera", "channel", "wavelength"),
+            np.stack([c_true[k] for k in ks]),
+        )
+        oracle_cal["rgb_transform"] = (
+            ("camera", "channel", "channel_in"),
+            np.stack([rgb_transform(c_true[k], c_true[paired], spectra_fit) for k in ks]),
+        )
+    oracle_seconds = time.perf_counter() - start
+
+    timings = {}
+    start = time.perf_counter()
+    calibrated = reconstruct(read["hdr"], read["bands"], calibration, image_sets)
+    timings["reconstruct_calibrated_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    oracle = reconstruct(hdr_oracle, bands_oracle, oracle_cal, image_sets)
+    timings["reconstruct_oracle_s"] = time.perf_counter() - start
+
+    has = image_sets["has_bands"]
+    result: dict = {"cameras": cameras, "paired_camera": cameras[paired], "spectra": {}}
+    for k, name in enumerate(cameras):
+        for flag in (True, False):
+            labels = [
+                int(v)
+                for v in has["image"].values[has.values == flag]
+                if int(rgb["camera"].sel(image=int(v))) == k
+            ]
+            if not labels:
+                continue
+            cal, orc = errors(calibrated, base, rgb, labels), errors(oracle, base, rgb, labels)
+            result["spectra"][f"{name} {'with' if flag else 'without'} bands"] = {
+                "calibrated": cal,
+                "oracle": orc,
+                "ratio_median": cal["median"] / orc["median"],
+                "ratio_p95": cal["p95"] / orc["p95"],
+            }
+    # the calibration's own errors
+    model_of = {name: base.LAB["rgb_cameras"][name][2] for name in cameras}
+    per_camera = {}
+    for k, name in enumerate(cameras):
+        entry = {"model": model_of[name]}
+        if "camera_matrices" in calibration and k in calibration["camera"].values:
+            sel = calibration.sel(camera=k)
+            entry |= {
+                "c_source": str(sel["c_source"].values),
+                "c_error": c_error(sel["camera_matrices"].values, c_true[k]),
+                "chart_cross_check_mean": float(sel["camera_mean_relative_error"]),
+                "chart_cross_check_max": float(sel["camera_max_relative_error"]),
+            }
+        elif k == paired:
+            entry |= {"c_error": c_error(calibration["camera_matrix"].values, c_true[k])}
+        per_camera[name] = entry
+    result["calibration"] = per_camera
+    bands_cal = np.asarray(read["bands"]["radiance"].values, float)
+    result["band_radiance"] = band_scale(bands_cal, np.asarray(registered.values, float), raw)
+    no_table = calibrate_bands(
+        raw,
+        store.read("dark"),
+        store.read("calibration/oecf_spectral"),
+        calibration,
+        registration,
+        led_power=False,
+    )["radiance"].values
+    result["band_radiance_without_led_table"] = {
+        k: v
+        for k, v in band_scale(
+            np.asarray(no_table, float), np.asarray(registered.values, float), raw
+        ).items()
+        if k in ("led_scale", "led_scale_spread")
+    }
+    # the second camera model's images (without bands) against the paired model's
+    spectra = result["spectra"]
+    paired_key = f"{cameras[paired]} without bands"
+    for name in cameras:
+        key = f"{name} without bands"
+        if model_of[name] != model_of[cameras[paired]] and key in spectra and paired_key in spectra:
+            result.setdefault("second_model_over_paired_model", {})[name] = {
+                "median": spectra[key]["calibrated"]["median"]
+                / spectra[paired_key]["calibrated"]["median"],
+                "p95": spectra[key]["calibrated"]["p95"] / spectra[paired_key]["calibrated"]["p95"],
+            }
+    result["seconds"] = timings | {"oracle_groups_s": oracle_seconds}
+    return result
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the first lab only, results not saved")
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    labs = dict(list(LABS.items())[:1]) if args.quick else LABS
+    results: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for lab, (script, extra) in labs.items():
+            root = Path(tmp) / lab.split()[0]
+            subprocess.run(
+                [sys.executable, str(SUPPORT / script), str(root / "capture"), *extra]
+                + ["--truth", str(root / "truth.npz")],
+                check=True,
+                capture_output=True,
+            )
+            seconds = {
+                "ingest_s": _cli("ingest", str(root / "capture"), str(root / "run.zarr"), cwd=root)
+            }
+            seconds["btf_s"] = _cli("run", "btf", str(root / "run.zarr"), cwd=root)
+            results[lab] = measure_lab(root, lab)
+            results[lab]["seconds"] |= seconds
+            _print_lab(lab, results[lab])
+            shutil.rmtree(root, ignore_errors=True)
+    result = {
+        "benchmark": "calibration_oracle",
+        "setup": {
+            "labs": {k: " ".join([v[0], *v[1]]) for k, v in LABS.items()},
+            "held_out": "sigma-paired: kept out of every choice of the calibration's settings",
+            "oracle": "true OECF and black offset per camera, true C per camera (and its maps onto "
+            "the paired camera), true spectral response, dark pattern and QE, true LED powers; "
+            "estimated registration in both",
+            "nrmse": "per pixel |S - T| / |T| against the writer's radiance of the image "
+            f"({BORDER} px border off); shape: the same after one scale per pixel",
+            "c_error": "per channel RMS over wavelength of (s C - C_true) / max(C_true)",
+            "targets": "calibrated / oracle <= 1.15 (median), <= 1.25 (p95) per camera with and "
+            "without bands; C within 0.05; chart cross-check within 0.02 per patch; second model "
+            "within 1.25x of the paired model without bands; no band biased > 10 %",
+        },
+        "machine": {
+            "python": platform.python_version(),
+            "cpu_count": os.cpu_count(),
+            "numpy": np.__version__,
+            "platform": platform.platform(),
+        },
+        "labs": results,
+        "seconds_total": time.perf_counter() - start,
+    }
+    if not args.quick:
+        RESULTS.parent.mkdir(parents=True, exist_ok=True)
+        RESULTS.write_text(json.dumps(result, indent=2) + "\n")
+    return result
+
+
+def _print_lab(lab: str, result: dict) -> None:
+    print(f"== {lab}")
+    for key, value in result["spectra"].items():
+        cal, orc = value["calibrated"], value["oracle"]
+        print(
+            f"  {key:28s} calibrated {cal['median']:.3f} / {cal['p95']:.3f} "
+            f"(<0.03: {cal['share_below_0.03']:.0%})  oracle {orc['median']:.3f} / {orc['p95']:.3f}  "
+            f"ratio {value['ratio_median']:.2f} / {value['ratio_p95']:.2f}"
+        )
+    for name, entry in result["calibration"].items():
+        print(f"  {name}: {entry}")
+    print(
+        "  bands:", {k: v for k, v in result["band_radiance"].items() if k != "band_ratio_by_wavelength"}
+    )
+    print("  without LED table:", result["band_radiance_without_led_table"])
+    print("  second model:", result.get("second_model_over_paired_model"), flush=True)
+
+
+if __name__ == "__main__":
+    main()
