@@ -528,7 +528,7 @@ def _camera_calibration(
         "camera-calibration",
         "Each RGB camera's calibration: its sensor model (capture.toml rgb.models), where its C "
         "comes from, the chart cross-validation through its own C (mean and largest patch) and "
-        "the largest difference of its C from another camera's of its model; flagged above "
+        "the difference of its C from the closest other camera's of its model; flagged above "
         "3 % and 5 %.",
         ["camera", "model", "C from", "chart mean", "chart max", "C vs its model", "flags"],
         [

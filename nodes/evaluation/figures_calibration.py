@@ -356,7 +356,7 @@ def plot_quantum_efficiency(calibration: xr.Dataset) -> Figure:
 CROSS_VALIDATION_FLAG = 0.03
 """A camera whose chart cross-validation (mean over patches) exceeds this is flagged."""
 MODEL_DIFFERENCE_FLAG = 0.05
-"""A camera whose ``C`` differs from another camera's of its model by more than this (per
+"""A camera whose ``C`` differs from every other camera's of its model by more than this (per
 channel, RMS over wavelength after one scale per channel, relative to the peak) is flagged."""
 
 
@@ -369,11 +369,12 @@ def _shape_difference(c: np.ndarray, other: np.ndarray) -> float:
 
 def camera_calibration_rows(calibration: xr.Dataset) -> list[dict]:
     """Per RGB camera: its name, model, where its ``C`` comes from, the chart cross-validation
-    and the largest difference of its ``C`` from the others' of its model, with flags.
+    and the difference of its ``C`` from the closest other camera's of its model, with flags.
 
     Flagged: a cross-validation above :data:`CROSS_VALIDATION_FLAG`, a ``C`` more than
-    :data:`MODEL_DIFFERENCE_FLAG` from another camera's of the same model (both fitted from
-    their own chart frames). Empty for a calibration without per-camera results.
+    :data:`MODEL_DIFFERENCE_FLAG` from every other camera's of the same model (each fitted
+    from its own chart frames; with two cameras of a model both are flagged, as either may
+    be the one off). Empty for a calibration without per-camera results.
     """
     if "camera_matrices" not in calibration:
         return []
@@ -394,7 +395,7 @@ def camera_calibration_rows(calibration: xr.Dataset) -> list[dict]:
             if j != k and models[k] and models[j] == models[k] and sources[j] == "own chart frames"
         ]
         difference = (
-            max(_shape_difference(matrices[k], matrices[j]) for j in peers) if own and peers else None
+            min(_shape_difference(matrices[k], matrices[j]) for j in peers) if own and peers else None
         )
         mean = float(calibration["camera_mean_relative_error"].values[k])
         flags = []

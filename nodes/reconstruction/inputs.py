@@ -321,7 +321,7 @@ def in_paired_camera(hdr: xr.Dataset, calibration: xr.Dataset) -> xr.Dataset:
             f"(it has {sorted(known)})"
         )
     if all(
-        np.allclose(transform.sel(camera=int(c)).values, np.eye(3), atol=0, rtol=0)
+        np.allclose(transform.sel(camera=int(c)).values, np.eye(3), atol=1e-9, rtol=0)
         for c in np.unique(cameras)
     ):
         return hdr

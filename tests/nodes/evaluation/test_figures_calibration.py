@@ -8,7 +8,9 @@ from support.page_layout import figure_overlaps
 
 from spectralize.nodes.evaluation.figures import representative_pixels
 from spectralize.nodes.evaluation.figures_calibration import (
+    camera_calibration_rows,
     patch_names,
+    plot_camera_matrices,
     plot_cross_validation,
     plot_registration,
     registration_precision,
@@ -75,3 +77,38 @@ def test_representative_pixels_span_the_brightness_and_find_the_least_confident(
     assert "least confident" not in dict(
         (kind, rest) for kind, *rest in representative_pixels(brightness, None)
     )
+
+
+def test_each_camera_s_calibration_is_flagged_where_it_fails():
+    """Flags: chart cross-validation above 3 %; C more than 5 % from its model's other camera."""
+    wl = np.arange(410.0, 721.0, 10.0)
+    lobe = lambda centre: np.exp(-0.5 * ((wl - centre) / 30.0) ** 2)  # noqa: E731
+    nikon = np.stack([lobe(600), lobe(530), lobe(460)])
+    shifted = np.stack([lobe(620), lobe(530), lobe(460)])  # R 20 nm off: not its model's shape
+    calibration = xr.Dataset(
+        {
+            "camera_matrices": (
+                ("camera", "channel", "wavelength"),
+                np.stack([nikon, 2 * nikon, shifted]),
+            ),
+            "camera_mean_relative_error": ("camera", [0.01, 0.05, 0.02]),
+            "camera_max_relative_error": ("camera", [0.02, 0.09, 0.04]),
+        },
+        coords={
+            "camera": [0, 1, 2],
+            "camera_name": ("camera", ["top", "paired", "side"]),
+            "camera_model": ("camera", ["nikon", "nikon", "nikon"]),
+            "c_source": ("camera", ["own chart frames"] * 3),
+            "channel": ["R", "G", "B"],
+            "wavelength": wl,
+        },
+    )
+    rows = {r["camera"]: r for r in camera_calibration_rows(calibration)}
+    assert rows["paired"]["flags"] == ["cross-validation above 3 %"]  # a gain alone is no flag
+    assert any("differs from its model" in f for f in rows["side"]["flags"])
+    assert rows["side"]["model_difference"] > 0.05 and rows["top"]["model_difference"] < 1e-9
+    assert rows["top"]["flags"] == []
+    assert camera_calibration_rows(calibration.drop_vars("camera_matrices")) == []
+    figure = plot_camera_matrices(calibration)
+    assert len(figure.axes) == 3 and "[flagged]" in figure.axes[1].get_title()
+    assert figure_overlaps(figure) == []
