@@ -13,7 +13,9 @@ from support.capture_folders import rows, write_rows
 
 from spectralize.datasets.capture import CaptureError, read_capture
 from spectralize.datasets.capture.write import write_png
+from spectralize.flows import run_flow
 from spectralize.flows.ingest import ingest
+from spectralize.nodes.evaluation.figures_calibration import camera_calibration_rows
 from spectralize.store import RunStore
 
 TARGETS = ("white_reference", "colour_checker")
@@ -117,3 +119,23 @@ def test_led_powers_reach_the_band_shots_and_the_rgb_images(capture, tmp_path):
     )
     paired_leds = rgb["led"].sel(image=spectral["image"].values).values
     np.testing.assert_allclose(spectral["image_led_power"].values, [power[int(v)] for v in paired_leds])
+
+
+@pytest.mark.slow
+def test_a_borrowing_camera_gets_its_lender_s_c_and_the_calibration_says_so(
+    prefect_api, capture, tmp_path
+):
+    _without_chart_frames(capture, "rgb15")
+    ingest(capture, tmp_path / "run.zarr")
+    run_flow("calibrate", tmp_path / "run.zarr")
+    calibration = RunStore.open(tmp_path / "run.zarr").read("calibration/spectral").load()
+    assert calibration["camera"].values.tolist() == [0, 1]
+    assert str(calibration["c_source"].sel(camera=0).values) == (
+        "borrowed from rgb45 (same model in capture.toml rgb.models)"
+    )
+    np.testing.assert_array_equal(
+        calibration["camera_matrices"].sel(camera=0), calibration["camera_matrices"].sel(camera=1)
+    )
+    np.testing.assert_allclose(calibration["rgb_transform"].sel(camera=0), np.eye(3), atol=1e-9)
+    rows = {r["camera"]: r for r in camera_calibration_rows(calibration)}
+    assert rows["rgb15"]["c_source"].startswith("borrowed") and rows["rgb15"]["model_difference"] is None
