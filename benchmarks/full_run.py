@@ -11,7 +11,7 @@ The full run is 24 rotations x 198 LEDs x 11 cameras = 52,272 images (paper, sec
 (:func:`~spectralize.datasets.capture.sample.write_capture_folder`), ingested
 (``spectralize ingest``) and processed by the whole ``btf`` flow (``spectralize run btf``),
 each a fresh process on this machine. Progress goes to stdout; the LAST line is one JSON
-object, also written to ``benchmarks/results/full_run[_N].json``:
+object, also kept in ``benchmarks/results/full_run.json`` (one entry per image count):
 
 ``images``                          images of the run store (``raw/rgb``)
 ``files_per_image``                 files under the store directory per image
@@ -30,6 +30,7 @@ import argparse
 import json
 import math
 import os
+import re
 import resource
 import shutil
 import subprocess
@@ -72,17 +73,24 @@ def recipe_overrides(images: int, frame: int) -> dict:
     }
 
 
-def run(command: list[str], env: dict[str, str] | None = None) -> float:
-    """Run ``command`` (a fresh process), echo its last lines, return its wall time."""
+def run(command: list[str], env: dict[str, str], log_file: Path) -> tuple[float, str]:
+    """Run ``command`` (a fresh process), echo its last lines; its wall time and stdout."""
     start = time.perf_counter()
     done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
     seconds = time.perf_counter() - start
+    log_file.write_text(done.stdout + done.stderr)
     tail = (done.stdout + done.stderr).strip().splitlines()[-6:]
     for line in tail:
         log(f"  | {line}")
     if done.returncode:
         raise SystemExit(f"{' '.join(command[:3])} failed with exit status {done.returncode}")
-    return seconds
+    return seconds, done.stdout
+
+
+def node_seconds(summary: str) -> dict[str, float]:
+    """Per node, the seconds of the flow's summary lines (``  node  ran  8.1 s  -> group``)."""
+    found = re.findall(r"^  (\w+)\s+ran\s+([0-9.]+) s", summary, flags=re.MULTILINE)
+    return {name: float(seconds) for name, seconds in found}
 
 
 def group_metadata_bytes(store: Path) -> dict[str, int]:
@@ -104,6 +112,31 @@ ds = open_run(sys.argv[1]).read("spectra")
 coords = {name: c.values for name, c in ds.coords.items() if "image" in c.dims}
 print(json.dumps({"seconds": time.perf_counter() - start, "coords": sorted(coords)}))
 """
+
+
+def record(output: Path, result: dict) -> None:
+    """Keep ``result`` in ``output`` beside the runs of other image counts (one per count)."""
+    try:
+        runs = json.loads(output.read_text()).get("runs", [])
+    except (OSError, ValueError):
+        runs = []
+    runs = sorted(
+        [r for r in runs if r["images"] != result["images"]] + [result], key=lambda r: r["images"]
+    )
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+    ).stdout.strip()
+    page = {
+        "benchmark": "full_run",
+        "commit": commit,
+        "date": time.strftime("%Y-%m-%d"),
+        "machine": {"cpu_count": os.cpu_count(), "python": sys.version.split()[0]},
+        "full_run_images": FULL_RUN_IMAGES,
+        "targets": result["targets"],
+        "runs": runs,
+    }
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(json.dumps(page, indent=2) + "\n")
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -135,9 +168,11 @@ def main(argv: list[str] | None = None) -> dict:
     shutil.rmtree(store.parent / f".{store.name}.spectralize", ignore_errors=True)
 
     env = {**os.environ, "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "90"}
-    ingest_s = run([str(BIN / "spectralize"), "ingest", str(capture), str(store)], env)
+    ingest_s, _ = run(
+        [str(BIN / "spectralize"), "ingest", str(capture), str(store)], env, root / "ingest.log"
+    )
     log(f"ingested in {ingest_s:.1f} s")
-    flow_s = run([str(BIN / "spectralize"), "run", "btf", str(store)], env)
+    flow_s, summary = run([str(BIN / "spectralize"), "run", "btf", str(store)], env, root / "flow.log")
     log(f"btf flow in {flow_s:.1f} s")
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6  # kB -> GB
 
@@ -167,6 +202,7 @@ def main(argv: list[str] | None = None) -> dict:
         "ingest_s": round(ingest_s, 1),
         "flow_s": round(flow_s, 1),
         "seconds_per_1000_images": round((ingest_s + flow_s) / images * 1000, 1),
+        "node_s": node_seconds(summary),
         "peak_rss_gb": round(peak, 2),
         "open_and_read_coordinates_s": round(opened["seconds"], 2),
         "cpu_count": os.cpu_count(),
@@ -178,11 +214,8 @@ def main(argv: list[str] | None = None) -> dict:
             "open_and_read_coordinates_s": 2,
         },
     }
-    output = args.output or RESULTS / (
-        "full_run.json" if args.images >= FULL_RUN_IMAGES else f"full_run_{args.images}.json"
-    )
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(json.dumps(result, indent=2) + "\n")
+    output = args.output or RESULTS / "full_run.json"
+    record(output, result)
     print(json.dumps(result), flush=True)
     return result
 
