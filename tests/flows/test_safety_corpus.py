@@ -398,6 +398,25 @@ def test_rot_in_a_group_the_report_shows_is_repaired_by_an_up_to_date_run(
 
 
 @pytest.mark.slow
+def test_rot_in_a_report_group_is_found_before_the_report_of_a_run_that_computed_something(
+    reported_btf, tmp_path, capsys
+):
+    store = copy_run(reported_btf, tmp_path)
+    shutil.rmtree(store.path / "spectra_seed")  # one step runs again; spectra stays up to date
+    key = rot(store, "spectra", "radiance")
+    code, out, err = run_btf(capsys, store)
+    assert code == 0, err
+    assert (
+        f"ran again: damaged output spectra (spectra: expected an undamaged group, found {key}: CRC-32"
+        in out
+    ), out
+    statuses = dict(line.split()[:2] for line in out.splitlines()[1:] if line.startswith("  "))
+    assert statuses["reconstruct_image_sets"] == "ran" and store.has("spectra_seed"), out
+    assert statuses["calibrate_bands"] == "skipped", out
+    assert store.validate(deep=True) == []
+
+
+@pytest.mark.slow
 def test_a_chunk_the_report_reads_that_fails_is_recomputed_and_the_report_written_in_one_run(
     reported_btf, tmp_path, capsys, monkeypatch
 ):
