@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from scipy.optimize import isotonic_regression
 
 from spectralize.nodes.calibration import oecf
+from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
 from spectralize.nodes.simulation.camera_model import capture, response_model
 from spectralize.schemas import CalibrationError, SchemaError
 
@@ -414,3 +415,46 @@ def test_other_bad_input(TIMES, small_series) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         oecf.recover_oecf(series)  # unequal ratios: no warning
+
+
+def test_rgb_oecf_per_camera_by_default_each_with_its_black_level_and_pooling_warns(TIMES) -> None:
+    """Issue 25, item 1: cameras of two models get their own responses and black levels;
+    pooling them is allowed but warned about with the measured difference."""
+    rng = np.random.default_rng(5)
+    side = 48
+    models = [response_model("gamma", gamma=2.2), response_model("log", a=30.0)]
+    offsets = [40, 16]
+    images = []
+    for camera in range(2):
+        radiance = np.exp(rng.uniform(np.log(3e-3), np.log(2.0), (side, side, 3)))
+        images.append(
+            capture(
+                radiance[None],
+                TIMES[:, None, None, None],
+                response=models[camera],
+                adc_offset=offsets[camera],
+                noise_sigma=2,
+                bit_depth=10,
+                seed=rng,
+            )
+        )
+    raw = xr.Dataset(
+        {"counts": (("image", "exposure", "y", "x", "channel"), np.stack(images))},
+        coords={
+            "exposure_time": (("image", "exposure"), np.stack([TIMES, TIMES])),
+            "channel": ["R", "G", "B"],
+            "camera": ("image", [0, 1]),
+        },
+        attrs={"bit_depth": 10},
+    )
+    own = recover_rgb_oecf(raw)
+    assert own.attrs["per_camera"] and own["response"]["camera"].values.tolist() == [0, 1]
+    low, high = own.attrs["black_levels"]
+    assert low > high and own.attrs["black_level"] == high  # each camera's own floor
+    quarter = own["response"].sel(channel="G").isel(code=256).values  # the two models differ
+    assert abs(quarter[0] / quarter[1] - 1) > 0.1
+    declared = recover_rgb_oecf(raw.assign_attrs(black_level_dn=[40, -1]))
+    assert declared.attrs["black_levels"][0] == 43  # capture.toml's black_level_dn + 3
+    with pytest.warns(UserWarning, match=r"per_camera=False pools cameras whose own responses differ"):
+        pooled = recover_rgb_oecf(raw, per_camera=False)
+    assert not pooled.attrs["per_camera"]
