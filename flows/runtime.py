@@ -842,10 +842,10 @@ def _graph_flow(
     planned = plan(store_path, [Step(**s) for s in steps], create=False)
     store = RunStore.open(store_path)
     made, marked = _made_by(planned), set[str]()
-    checked_report = False
+    checked_report, earlier = False, None
     while True:  # a chunk that fails its checksum when read: its group is recomputed
         try:
-            return _run_planned(
+            result = _run_planned(
                 store,
                 flow_name,
                 planned,
@@ -855,8 +855,14 @@ def _graph_flow(
                 report and not checked_report,
                 report,
             )
-        except _Recompute:
-            checked_report = True  # once: what it marked is rewritten by the next pass
+            if earlier is not None:  # what ran in the pass stopped before the report counts
+                result.steps = [
+                    first if first.status == "ran" and step.status == "skipped" else step
+                    for first, step in zip(earlier.steps, result.steps, strict=True)
+                ]
+            return result
+        except _Recompute as stopped:
+            checked_report, earlier = True, stopped.args[0]  # once: the next pass rewrites it
         except Exception as error:
             found = _checksum_error(error)
             if found is None:
@@ -918,7 +924,7 @@ def _run_planned(
     if check_report:
         fresh = {g for step in run_report.steps if step.status == "ran" for g in step.outputs}
         if not _verify_report_groups(store, _made_by(planned), fresh):
-            raise _Recompute
+            raise _Recompute(run_report)
     if report:
         progress.notify("step_started", len(planned) + 1, len(planned) + 1, "report")
         start = time.perf_counter()

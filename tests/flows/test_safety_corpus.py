@@ -411,7 +411,7 @@ def test_rot_in_a_report_group_is_found_before_the_report_of_a_run_that_computed
         in out
     ), out
     statuses = dict(line.split()[:2] for line in out.splitlines()[1:] if line.startswith("  "))
-    assert statuses["reconstruct_image_sets"] == "ran" and store.has("spectra_seed"), out
+    assert statuses["reconstruct_seed_set"] == "ran" and statuses["reconstruct_image_sets"] == "ran", out
     assert statuses["calibrate_bands"] == "skipped", out
     assert store.validate(deep=True) == []
 
