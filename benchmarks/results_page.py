@@ -604,6 +604,58 @@ def calibration_oracle(data: Json) -> list[str]:
     return out
 
 
+def full_run(data: Json) -> list[str]:
+    """The full run's geometry with small frames, one row per image count measured."""
+    targets = data["targets"]
+    out = [
+        f"The full run's geometry (24 rotations x 198 LEDs x 11 cameras = {data['full_run_images']:,} "
+        "images; a subset keeps every rotation and camera and fewer LEDs) with small frames, "
+        "written as a capture folder, ingested and run through the whole `btf` flow, each a fresh "
+        "process. Targets: at most "
+        f"{targets['files_per_image']} files per image, {targets['largest_group_metadata_bytes']:,} "
+        f"bytes of metadata per group, {targets['seconds_per_1000_images']} s per 1,000 images "
+        f"(ingest and flow), {targets['peak_rss_gb']} GB peak RSS, "
+        f"{targets['open_and_read_coordinates_s']} s to open `spectra` and read its coordinates.",
+        table(
+            [
+                "images",
+                "frame px",
+                "files / image",
+                "largest group metadata B",
+                "ingest s",
+                "flow s",
+                "s / 1000 images",
+                "peak RSS GB",
+                "open + coords s",
+            ],
+            [
+                [
+                    run["images"],
+                    run["frame_px"],
+                    run["files_per_image"],
+                    run["largest_group_metadata_bytes"],
+                    run["ingest_s"],
+                    run["flow_s"],
+                    run["seconds_per_1000_images"],
+                    run["peak_rss_gb"],
+                    run["open_and_read_coordinates_s"],
+                ]
+                for run in data["runs"]
+            ],
+        ),
+    ]
+    timed = [run for run in data["runs"] if run.get("node_s")]
+    if timed:
+        nodes = list(timed[-1]["node_s"])
+        out.append(
+            table(
+                ["images", *nodes],
+                [[run["images"], *(run["node_s"].get(n) for n in nodes)] for run in timed],
+            )
+        )
+    return out
+
+
 Section = tuple[str, str, str, Callable[[Json], list[str]]]
 SECTIONS: tuple[Section, ...] = (
     (
@@ -649,6 +701,12 @@ SECTIONS: tuple[Section, ...] = (
         "Paper-scale slice through the whole flow",
         "python benchmarks/paper_slice.py",
         paper_slice,
+    ),
+    (
+        "full_run",
+        "A full run's geometry with small frames",
+        "python benchmarks/full_run.py --images N",
+        full_run,
     ),
     ("cli", "Command line start-up", "python benchmarks/cli.py", cli),
 )
