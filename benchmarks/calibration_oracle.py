@@ -19,7 +19,9 @@ Reported per lab, per RGB camera, for images with and without band shots: per-pi
 and the calibration's own errors: C per channel (RMS over wavelength of ``s C - C_true``
 relative to the channel's peak), the chart cross-check per camera, band radiance bias per
 band against the writer's radiance, the LED scale error left with and without the LED power
-table, and the second camera model's images against the paired model's.
+table, and the second camera model's images against the paired model's; where the cost is
+(the truth injected on the band side only, and on the RGB side only) and how far the 3 x 3
+map of each camera onto the paired one is from exact on the scene's own spectra.
 
 Usage::
 
@@ -249,6 +251,41 @@ def measure_lab(root: Path, lab: str) -> dict:
 
     has = image_sets["has_bands"]
     result: dict = {"cameras": cameras, "paired_camera": cameras[paired], "spectra": {}}
+    # where the cost is: the truth injected on one side only (band radiance; OECF and C,
+    # which share their HDR units), the rest calibrated
+    ablation = {
+        "true band radiance": reconstruct(read["hdr"], bands_oracle, calibration, image_sets),
+        "true OECF and C": reconstruct(hdr_oracle, read["bands"], oracle_cal, image_sets),
+    }
+    result["ablation"] = {}
+    for variant, spectra in ablation.items():
+        for k, name in enumerate(cameras):
+            for flag in (True, False):
+                labels = [
+                    int(v)
+                    for v in has["image"].values[has.values == flag]
+                    if int(rgb["camera"].sel(image=int(v))) == k
+                ]
+                if labels:
+                    e = errors(spectra, base, rgb, labels)
+                    key = f"{name} {'with' if flag else 'without'} bands"
+                    result["ablation"].setdefault(variant, {})[key] = {
+                        "median": e["median"],
+                        "p95": e["p95"],
+                    }
+    # the 3 x 3 maps onto the paired camera (true C) on the scene's own spectra
+    scene = base.radiance(base.LED_THETA, base.LED_AZIMUTHS[0]).reshape(base.WAVELENGTHS.size, -1).T
+    result["map_error_on_scene"] = {}
+    for k, name in enumerate(cameras):
+        if k == paired:
+            continue
+        mapped = scene @ c_true[k].T @ rgb_transform(c_true[k], c_true[paired], spectra_fit).T
+        want = scene @ c_true[paired].T
+        e = np.linalg.norm(mapped - want, axis=1) / np.linalg.norm(want, axis=1)
+        result["map_error_on_scene"][name] = {
+            "median": float(np.median(e)),
+            "p95": float(np.percentile(e, 95)),
+        }
     for k, name in enumerate(cameras):
         for flag in (True, False):
             labels = [
@@ -383,7 +420,9 @@ def _print_lab(lab: str, result: dict) -> None:
         "  bands:", {k: v for k, v in result["band_radiance"].items() if k != "band_ratio_by_wavelength"}
     )
     print("  without LED table:", result["band_radiance_without_led_table"])
-    print("  second model:", result.get("second_model_over_paired_model"), flush=True)
+    print("  second model:", result.get("second_model_over_paired_model"))
+    print("  ablation:", json.dumps(result["ablation"]))
+    print("  3x3 map on the scene:", result["map_error_on_scene"], flush=True)
 
 
 if __name__ == "__main__":

@@ -559,6 +559,9 @@ def calibration_oracle(data: Json) -> list[str]:
             ]
             for key, value in result["spectra"].items()
         ]
+        ablation = result.get("ablation", {})
+        if ablation:
+            rows = [row + [pair(ablation[variant].get(row[0])) for variant in ablation] for row in rows]
         out += [
             f"**{lab}** (paired camera {result['paired_camera']})",
             table(
@@ -569,6 +572,7 @@ def calibration_oracle(data: Json) -> list[str]:
                     "oracle nRMSE",
                     "calibrated / oracle",
                     "calibrated shape error",
+                    *(f"{variant} injected" for variant in ablation),
                 ],
                 rows,
             ),
@@ -599,6 +603,11 @@ def calibration_oracle(data: Json) -> list[str]:
                 + "."
                 if result.get("second_model_over_paired_model")
                 else ""
+            )
+            + "".join(
+                f" The 3 x 3 map of {name} onto the paired camera (true C) on the scene's spectra: "
+                f"{pct(v['median'])} / {pct(v['p95'])} (median / p95)."
+                for name, v in result.get("map_error_on_scene", {}).items()
             ),
         ]
     return out
