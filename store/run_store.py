@@ -54,6 +54,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
 import xarray as xr
 import zarr
 
@@ -590,14 +591,14 @@ class RunStore:
             )
         fingerprint = fingerprint or f"unrecorded:{uuid.uuid4().hex}"
         ds = regular_chunks(ds, chunks, region_dim=resumable_along)
-        attrs = {k: v for k, v in ds.attrs.items() if k not in _BOOKKEEPING}
+        attrs = {k: _netcdf_value(v) for k, v in ds.attrs.items() if k not in _BOOKKEEPING}
         attrs[FINGERPRINT_ATTR] = fingerprint
         attrs[PROVENANCE_ATTR] = canonical_json(
             {**dict(provenance or {}), "written": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         )
         if schema is not None:
             attrs[SCHEMA_ATTR] = schema.name
-        ds = variable_length_strings(ds.copy(deep=False))
+        ds = netcdf_attrs(variable_length_strings(ds.copy(deep=False)))
         if resumable_along is None:
             ds = label_order(ds)  # a resumable write is sorted when it is packed
         ds.attrs = attrs
@@ -739,6 +740,22 @@ class RunStore:
     def discard_staging(self) -> None:
         """Remove every unfinished write (they would otherwise be resumed)."""
         self.clean()
+
+
+def _netcdf_value(value: Any) -> Any:
+    """An attr value netCDF can hold: booleans as 0 / 1 (``if attrs[...]`` reads the same)."""
+    if isinstance(value, bool | np.bool_):
+        return int(value)
+    if isinstance(value, list | tuple) and value and all(isinstance(v, bool) for v in value):
+        return [int(v) for v in value]
+    return value
+
+
+def netcdf_attrs(ds: xr.Dataset) -> xr.Dataset:
+    """``ds`` with every variable's boolean attrs as 0 / 1 (netCDF has no boolean type)."""
+    for var in ds.variables.values():
+        var.attrs = {k: _netcdf_value(v) for k, v in var.attrs.items()}
+    return ds
 
 
 def _alive(pid: int | None, host: str) -> bool:

@@ -87,7 +87,9 @@ def test_consolidated_metadata_opens_without_warnings_and_writes_to_netcdf(tmp_p
     store = RunStore.create(tmp_path / "run.zarr")
     store.write("cube", set_ordered_cube([[2, 0], [1]]), fingerprint="s")
     text = xr.Dataset(coords={"channel": ("channel", np.array(["R", "G", "B"]))})
-    store.write("raw/text", text.assign(v=("channel", np.arange(3.0))), fingerprint="t")
+    text = text.assign(v=("channel", np.arange(3.0), {"clipped": False}))
+    text.attrs["converged"] = True  # netCDF has no booleans: stored as 1
+    store.write("raw/text", text, fingerprint="t")
     root = json.loads((store.path / "zarr.json").read_text())
     assert {"cube", "raw/text"} <= set(root["consolidated_metadata"]["metadata"])
     with warnings.catch_warnings():
@@ -97,6 +99,7 @@ def test_consolidated_metadata_opens_without_warnings_and_writes_to_netcdf(tmp_p
     tree.to_netcdf(tmp_path / "run.nc")
     back = xr.open_datatree(tmp_path / "run.nc")
     assert back["raw/text"].channel.values.tolist() == ["R", "G", "B"]
+    assert back["raw/text"].attrs["converged"] == 1 and store.group_attrs("raw/text")["converged"]
     # per-image coordinates are one small chunk: where(drop=True) needs them in memory
     eager = xr.open_zarr(str(store.path), group="cube", chunks=None)
     assert eager.where(eager.theta_i < 15, drop=True).image.values.tolist() == [0, 1]
