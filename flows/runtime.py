@@ -636,6 +636,9 @@ def _run_steps(
     if not path.exists():
         RunStore.create(path)
     store = RunStore.open(path)
+    note = store.first_layout_note()
+    if note:
+        print(f"note: {note}", file=sys.stderr)
     with store.lock(f"spectralize run {flow_name}") as lock:
         if lock.previous is not None:
             _mark_crashed(lock.previous, path)

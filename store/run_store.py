@@ -219,6 +219,25 @@ class RunStore:
         return store
 
     @property
+    def format_version(self) -> int:
+        """The layout version the store was created with (1: before shards, see the module)."""
+        attrs = json.loads((self.path / "zarr.json").read_text()).get("attributes") or {}
+        tag = attrs.get("spectralize") or {"version": attrs.get("spectralize_format_version")}
+        return int(tag.get("version") or 1)
+
+    def first_layout_note(self) -> str | None:
+        """For a store of the first layout: what happens to it (its groups are recomputed)."""
+        if self.format_version >= STORE_FORMAT_VERSION:
+            return None
+        return (
+            f"run store {str(self.path)!r} has the first layout (format version "
+            f"{self.format_version}: one file per image and chunk, set order, manifests in the "
+            f"attrs); it is read as it is, and every group this flow makes is recomputed in "
+            f"format {STORE_FORMAT_VERSION} (sharded, label order); run `spectralize ingest` "
+            "on its capture folder again to migrate the raw groups too"
+        )
+
+    @property
     def staging_dir(self) -> Path:
         """Where unfinished writes are staged: ``.<store>.spectralize/staging`` beside the store."""
         return work_dir(self.path) / "staging"

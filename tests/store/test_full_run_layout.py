@@ -118,6 +118,11 @@ def test_a_store_of_the_first_layout_is_read_and_its_groups_get_other_fingerprin
     (group / "zarr.json").write_text(json.dumps(meta))
     (group / MANIFEST_FILE).unlink()
     assert store.manifest("cube") == manifest and store.verify("cube") == []
+    assert store.first_layout_note() is None
+    root = json.loads((store.path / "zarr.json").read_text())  # the first layout's root tag
+    root["attributes"] = {"spectralize": {"format": "spectralize-run-store", "version": 1}}
+    (store.path / "zarr.json").write_text(json.dumps(root))
+    assert "every group this flow makes is recomputed" in RunStore.open(store.path).first_layout_note()
     assert store.read("cube").image.values.tolist() == [0, 1]
     payload = {"node": "n", "version": "1", "parameters": {}, "inputs": {}}  # no "layout"
     import hashlib
