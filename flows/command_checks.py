@@ -299,7 +299,13 @@ def check_run(
         if store is not None:
             check_store(store, may_be_missing=not inputs)
     except UsageError as error:
-        problems.append(str(error))
+        text = str(error)
+        if inputs and not Path(store).exists():  # say what the store must hold, and how
+            text += (
+                f"; {flow!r} reads {shortened(sorted(inputs), 4)}: make the store with "
+                "`spectralize ingest CAPTURE_DIR STORE` (or `spectralize run simulate STORE`)"
+            )
+        problems.append(text)
     problems += check_assignments(assignments, node_names, catalogue)
     if dask_address:
         try:

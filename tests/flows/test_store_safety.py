@@ -304,9 +304,9 @@ CORPUS = [
         None,
         ["run", "dark", "{store}"],
         2,
-        ["run.zarr' does not exist", "reads raw/dark"],
+        ["run.zarr' does not exist", "reads raw/dark", "spectralize ingest"],
     ),
-    ("not a store", "plain", ["run", "dark", "{store}"], 2, ["is not a zarr v3 store"]),
+    ("not a store", "plain", ["run", "dark", "{store}"], 2, ["not a zarr v3 store"]),
     (
         "raw/rgb missing for btf",
         small,
