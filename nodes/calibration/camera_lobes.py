@@ -50,6 +50,7 @@ __all__ = [
     "lobe_basis",
     "lobe_camera_matrix",
     "cross_validated_ridge",
+    "check_chart_pair",
 ]
 
 LOBE_WIDTHS: tuple[float, ...] = (15.0, 25.0, 40.0, 60.0)
@@ -220,25 +221,7 @@ def lobe_camera_matrix(
     .. [1] Fast Capture of Spectral Image Series, eq. 1 and section 4.
     """
     where = "lobe_camera_matrix"
-    if set(rgb.dims) != {"patch", "channel"}:
-        raise SchemaError(
-            f"{where}: rgb must be (patch, channel)",
-            [Problem("rgb", "dims (patch, channel)", f"dims {rgb.dims}")],
-        )
-    if set(spectra.dims) != {"patch", "wavelength"}:
-        raise SchemaError(
-            f"{where}: spectra must be (patch, wavelength)",
-            [Problem("spectra", "dims (patch, wavelength)", f"dims {spectra.dims}")],
-        )
-    if rgb.sizes["patch"] != spectra.sizes["patch"]:
-        raise CalibrationError(
-            f"{where}: rgb has {rgb.sizes['patch']} patches, spectra {spectra.sizes['patch']}"
-        )
-    if "patch" in rgb.coords and "patch" in spectra.coords:
-        if not np.array_equal(rgb["patch"].values, spectra["patch"].values):
-            raise CalibrationError(f"{where}: rgb and spectra list different patches")
-    if spectra.sizes["wavelength"] < 3:
-        raise CalibrationError(f"{where}: need at least 3 bands, got {spectra.sizes['wavelength']}")
+    check_chart_pair(rgb, spectra, where)
     if ridge is not None and np.any(~(np.asarray(ridge, dtype=float) >= 0)):
         raise CalibrationError(f"{where}: ridge must be >= 0, got {ridge}")
     s = np.asarray(spectra.transpose("patch", "wavelength").values, dtype=np.float64)
@@ -298,3 +281,36 @@ def lobe_camera_matrix(
             attrs={"units": "1", "long_name": "leave-one-patch-out relative squared RGB error"},
         )
     return out
+
+
+def check_chart_pair(rgb: xr.DataArray, spectra: xr.DataArray, where: str) -> None:
+    """Refuse chart data a camera matrix cannot be fitted to: ``rgb`` must be
+    ``(patch, channel)`` and ``spectra`` ``(patch, wavelength)`` of the same patches (in the same
+    order, where both name them), on at least 3 wavelengths.
+
+    Raises
+    ------
+    SchemaError
+        For wrong dims, naming the array.
+    CalibrationError
+        For different patches, or fewer than 3 wavelengths, naming ``where``.
+    """
+    if set(rgb.dims) != {"patch", "channel"}:
+        raise SchemaError(
+            f"{where}: rgb must be (patch, channel)",
+            [Problem("rgb", "dims (patch, channel)", f"dims {rgb.dims}")],
+        )
+    if set(spectra.dims) != {"patch", "wavelength"}:
+        raise SchemaError(
+            f"{where}: spectra must be (patch, wavelength)",
+            [Problem("spectra", "dims (patch, wavelength)", f"dims {spectra.dims}")],
+        )
+    if rgb.sizes["patch"] != spectra.sizes["patch"]:
+        raise CalibrationError(
+            f"{where}: rgb has {rgb.sizes['patch']} patches, spectra {spectra.sizes['patch']}"
+        )
+    if "patch" in rgb.coords and "patch" in spectra.coords:
+        if not np.array_equal(rgb["patch"].values, spectra["patch"].values):
+            raise CalibrationError(f"{where}: rgb and spectra list different patches")
+    if spectra.sizes["wavelength"] < 3:
+        raise CalibrationError(f"{where}: need at least 3 bands, got {spectra.sizes['wavelength']}")

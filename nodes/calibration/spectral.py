@@ -31,7 +31,7 @@ import xarray as xr
 from pydantic import Field
 
 from spectralize.engine import Choices
-from spectralize.nodes.calibration.camera_lobes import lobe_camera_matrix
+from spectralize.nodes.calibration.camera_lobes import check_chart_pair, lobe_camera_matrix
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import (
     check_bit_depth,
@@ -388,25 +388,7 @@ def camera_matrix(
     from scipy import optimize
 
     where = "camera_matrix"
-    if set(rgb.dims) != {"patch", "channel"}:
-        raise SchemaError(
-            f"{where}: rgb must be (patch, channel)",
-            [Problem("rgb", "dims (patch, channel)", f"dims {rgb.dims}")],
-        )
-    if set(spectra.dims) != {"patch", "wavelength"}:
-        raise SchemaError(
-            f"{where}: spectra must be (patch, wavelength)",
-            [Problem("spectra", "dims (patch, wavelength)", f"dims {spectra.dims}")],
-        )
-    if rgb.sizes["patch"] != spectra.sizes["patch"]:
-        raise CalibrationError(
-            f"{where}: rgb has {rgb.sizes['patch']} patches, spectra {spectra.sizes['patch']}"
-        )
-    if "patch" in rgb.coords and "patch" in spectra.coords:
-        if not np.array_equal(rgb["patch"].values, spectra["patch"].values):
-            raise CalibrationError(f"{where}: rgb and spectra list different patches")
-    if spectra.sizes["wavelength"] < 3:
-        raise CalibrationError(f"{where}: need at least 3 bands, got {spectra.sizes['wavelength']}")
+    check_chart_pair(rgb, spectra, where)
     if smoothness < 0:
         raise CalibrationError(f"{where}: smoothness must be >= 0, got {smoothness}")
     s = np.asarray(spectra.transpose("patch", "wavelength").values, dtype=np.float64)
