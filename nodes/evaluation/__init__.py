@@ -19,9 +19,9 @@
 The figure modules are imported on their own, so that the metrics do not load matplotlib.
 """
 
+from .accuracy import evaluate
 from .capture_time import capture_time
 from .colorimetry import render_srgb, spectra_to_xyz
-from .accuracy import evaluate
 from .comparison import compare_methods
 from .pixel_metrics import colour_difference, normalised_rmse, spectral_angle
 
