@@ -214,7 +214,7 @@ class CheckedLocalStore(LocalStore):
         return buffer
 
     def _check(self, key: str, buffer: Any, expected: int) -> None:
-        found = zlib.crc32(buffer.as_numpy_array())  # type: ignore[arg-type]  # a buffer
+        found = zlib.crc32(buffer.as_numpy_array())
         if found == expected:
             self._checked.add(key)
             return
