@@ -512,12 +512,13 @@ def _target_group(capture: Capture, sources: FrameSources, kind: str) -> RawGrou
 
 
 def _camera_attrs(capture: Capture, cameras: list[str]) -> dict[str, Any]:
-    """Every RGB camera's name and sensor model, and which cameras borrow a calibration."""
+    """Every RGB camera's name and sensor model, and which cameras borrow a calibration
+    (``{borrower: lender}`` as JSON text, so the attrs stay netCDF-writable)."""
     config = capture.config
     return {
         "camera_names": list(config.rgb_cameras),
         "camera_models": [config.model_of(c) or "" for c in config.rgb_cameras],
-        "calibration_borrowed": borrowed_calibration(config, cameras),
+        "calibration_borrowed": json.dumps(borrowed_calibration(config, cameras), sort_keys=True),
     }
 
 

@@ -23,6 +23,7 @@ M. A. Robertson, S. Borman, R. L. Stevenson, Journal of Electronic Imaging 12(2)
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from typing import Annotated
 
@@ -1113,10 +1114,18 @@ def _camera_names(target: xr.Dataset, cameras: list[int]) -> tuple[dict[int, str
     names_of |= {k: n for k, n in enumerate(names)}
     lender_of = {
         names.index(borrower): names.index(lender)
-        for borrower, lender in dict(target.attrs.get("calibration_borrowed") or {}).items()
+        for borrower, lender in _borrowed(target.attrs.get("calibration_borrowed")).items()
         if borrower in names and lender in names and names.index(lender) in cameras
     }
     return names_of, lender_of
+
+
+def _borrowed(value: object) -> dict[str, str]:
+    """Ingest's ``calibration_borrowed`` attr: JSON text (a mapping in stores of its first
+    version)."""
+    if isinstance(value, str):
+        value = json.loads(value or "{}")
+    return {str(k): str(v) for k, v in dict(value or {}).items()}
 
 
 def _fit_camera(
