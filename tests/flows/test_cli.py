@@ -128,10 +128,13 @@ def test_a_node_that_fails_prints_one_clear_error_and_no_traceback(prefect_api, 
     from spectralize.nodes.simulation.assembly import simulate_run
     from spectralize.nodes.simulation.recipes import get_recipe
 
-    raw_rgb = simulate_run(get_recipe("tiny"))["raw/rgb"]
+    run = simulate_run(get_recipe("tiny"))
+    raw_rgb = run["raw/rgb"]
     raw_rgb["counts"] = raw_rgb["counts"] * 0 + 1023  # every frame saturated
     store = RunStore.create(tmp_path / "run.zarr")
     store.write("raw/rgb", raw_rgb, fingerprint="lab import")
+    for group in ("raw/colour_checker", "raw/white_reference"):  # the cameras' targets, intact
+        store.write(group, run[group], fingerprint="lab import")
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_LOGGING_")}
     env["PREFECT_API_URL"] = PREFECT_API_URL.value()  # the session's API: no server to start
     out = subprocess.run(

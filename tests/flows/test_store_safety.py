@@ -271,18 +271,20 @@ def nan_hdr(path):
 
 
 @functools.cache
-def simulated_rgb() -> xr.Dataset:
-    """raw/rgb of the tiny simulated run (image, exposure, y, x, channel), 10 bit, in memory."""
+def simulated_groups() -> dict[str, xr.Dataset]:
+    """raw/rgb of the tiny simulated run (image, exposure, y, x, channel), 10 bit, and the RGB
+    cameras' calibration targets the OECF recovery reads beside it, in memory."""
     from spectralize.nodes.simulation.assembly import simulate_run
     from spectralize.nodes.simulation.recipes import get_recipe
 
-    return simulate_run(get_recipe("tiny"))["raw/rgb"].load()
+    run = simulate_run(get_recipe("tiny"))
+    return {g: run[g].load() for g in ("raw/rgb", "raw/colour_checker", "raw/white_reference")}
 
 
 def imported_rgb(path, *, counts=None, exposure_time=None):
     """A store whose raw/rgb a lab's importer wrote, with edited counts or exposure times."""
     store = RunStore.create(path)
-    rgb = simulated_rgb().copy(deep=True)
+    rgb = simulated_groups()["raw/rgb"].copy(deep=True)
     if counts is not None:
         rgb["counts"].values[...] = counts
     if exposure_time is not None:
@@ -292,6 +294,8 @@ def imported_rgb(path, *, counts=None, exposure_time=None):
     with warnings.catch_warnings():  # the channel names: str arrays are not in zarr v3's spec
         warnings.simplefilter("ignore", UnstableSpecificationWarning)
         rgb.to_zarr(store.path, group="raw/rgb", zarr_format=3, consolidated=False)
+    for group in ("raw/colour_checker", "raw/white_reference"):
+        store.write(group, simulated_groups()[group], fingerprint="lab import")
     return store
 
 
