@@ -97,24 +97,48 @@ def write_capture_folder(
         (root / folder).mkdir(parents=True, exist_ok=True)
     (root / CALIBRATION).mkdir(parents=True, exist_ok=True)
 
-    # RGB exposure series: one PNG per image and exposure
+    # RGB exposure series: one PNG per image and exposure. The simulated counts are lazy and
+    # rendered a chunk of images at a time: read chunk by chunk (never one image at a time,
+    # which renders its whole chunk again for every image), with the per-image coordinates
+    # read once as plain arrays.
     counts = rgb["counts"]
-    for image in range(rgb.sizes["image"]):
-        c = rgb.isel(image=image)
-        series = counts.isel(image=image).values
-        cam = cameras[int(c["camera"])]
-        for e in range(rgb.sizes["exposure"]):
-            t = float(c["exposure_time"][e])
-            name = f"rgb/{cam}_rot{int(c['rotation']):02d}_led{int(c['led']):03d}_exp{e}.png"
-            write_png(root / name, series[e])
-            rows.append(_image_row(name, "rgb", cam, c, exposure_time_s=t))
+    per_image = {
+        name: np.asarray(rgb[name].values)
+        for name in ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
+    }
+    exposure_times = np.asarray(rgb["exposure_time"].transpose("image", "exposure").values, dtype=float)
+    for start, stop in _image_blocks(counts):
+        block = np.asarray(counts.isel(image=slice(start, stop)).values)
+        for image in range(start, stop):
+            c = {name: values[image] for name, values in per_image.items()}
+            cam = cameras[int(c["camera"])]
+            series = block[image - start]
+            for e in range(rgb.sizes["exposure"]):
+                name = f"rgb/{cam}_rot{int(c['rotation']):02d}_led{int(c['led']):03d}_exp{e}.png"
+                write_png(root / name, series[e])
+                rows.append(
+                    _image_row(name, "rgb", cam, c, exposure_time_s=float(exposure_times[image, e]))
+                )
     say(f"raw/rgb: {rgb.sizes['image']} images x {rgb.sizes['exposure']} exposures")
 
     # band shots: TIFF
     spectral = groups["raw/spectral"]
     shots = spectral["counts"].values
+    per_shot = {
+        name: np.asarray(spectral[name].values)
+        for name in (
+            "rotation",
+            "led",
+            "wavelength",
+            "exposure_time",
+            "theta_i",
+            "phi_i",
+            "theta_o",
+            "phi_o",
+        )
+    }
     for shot in range(spectral.sizes["shot"]):
-        c = spectral.isel(shot=shot)
+        c = {name: values[shot] for name, values in per_shot.items()}
         wl = float(c["wavelength"])
         name = f"spectral/rot{int(c['rotation']):02d}_led{int(c['led']):03d}_{wl:g}nm.tif"
         write_tiff(root / name, shots[shot])
@@ -242,6 +266,14 @@ def write_capture_folder(
     )
     say(f"wrote {len(rows)} frames to {root}")
     return root
+
+
+def _image_blocks(counts: xr.DataArray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the image chunks of lazy counts (one block if in memory)."""
+    chunks = counts.chunks
+    sizes = dict(zip(counts.dims, chunks, strict=True))["image"] if chunks else (counts.sizes["image"],)
+    stops = np.cumsum(sizes).tolist()
+    return list(zip([0, *stops[:-1]], stops, strict=True))
 
 
 def _camera_thetas(rgb: xr.Dataset) -> list[float]:
