@@ -18,7 +18,13 @@ import xarray as xr
 
 from spectralize.schemas.errors import ReconstructionError
 
-__all__ = ["ReconstructionInputs", "inputs_from_xarray", "in_paired_camera", "WAVELENGTH_TOLERANCE_NM"]
+__all__ = [
+    "ReconstructionInputs",
+    "camera_blocks",
+    "inputs_from_xarray",
+    "in_paired_camera",
+    "WAVELENGTH_TOLERANCE_NM",
+]
 
 WAVELENGTH_TOLERANCE_NM = 0.01
 """Band and camera-matrix wavelengths closer than this are the same wavelength."""
@@ -41,7 +47,9 @@ class ReconstructionInputs:
     filter_size
         Per shot ``s_i`` in pixels (eq. 3).
     camera_matrix
-        ``C``, ``(3, n_wavelength)``: maps a spectrum to RGB.
+        ``C``, ``(3, n_wavelength)``: maps a spectrum to RGB; or ``(n_image, 3,
+        n_wavelength)``, one ``C_m`` per image (images of several RGB cameras, each through
+        its own camera's matrix; :func:`camera_blocks`).
     wavelength
         The spectral grid in nm, increasing: the wavelengths of the band shots.
     """
@@ -79,9 +87,65 @@ class ReconstructionInputs:
         """``(n_wavelength, n_image, height, width)``: the solvers' layout of ``S``."""
         return (self.n_wavelength, self.n_image, self.height, self.width)
 
+    @property
+    def per_image_camera(self) -> bool:
+        """Whether every image has its own ``C_m`` (a 3-D :attr:`camera_matrix`)."""
+        return self.camera_matrix.ndim == 3
+
+    def camera_of(self, image: int) -> np.ndarray:
+        """``C`` of image ``image``, ``(3, n_wavelength)``."""
+        return self.camera_matrix[image] if self.per_image_camera else self.camera_matrix
+
     def rgb_pixels(self) -> np.ndarray:
         """``R`` as ``(3, n_pixels)`` over all pixels of all images (solver pixel order)."""
         return np.moveaxis(self.rgb, -1, 0).reshape(3, -1)
+
+
+def camera_blocks(camera_matrix: np.ndarray, n_image: int) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct camera matrices of a set and which one each image is seen through.
+
+    Parameters
+    ----------
+    camera_matrix
+        ``C``, ``(3, n_wavelength)`` (every image), or ``(n_image, 3, n_wavelength)``.
+    n_image
+        Images of the set.
+
+    Returns
+    -------
+    blocks, index
+        ``blocks`` ``(n_camera, 3, n_wavelength)`` C-contiguous (one for a 2-D ``C``, the
+        distinct ``C_m`` otherwise, in order of first use) and ``index`` ``(n_image,)``
+        int64: image ``m`` is seen through ``blocks[index[m]]``.
+
+    Raises
+    ------
+    ReconstructionError
+        For a ``C`` of another shape.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, eq. 1 (second term, ``C S(p)``).
+    """
+    c = np.asarray(camera_matrix)
+    if c.ndim == 2 and c.shape[0] == 3:
+        return np.ascontiguousarray(c[None]), np.zeros(n_image, dtype=np.int64)
+    if c.ndim != 3 or c.shape[:2] != (n_image, 3):
+        raise ReconstructionError(
+            f"camera_matrix: expected (3, n_wavelength) or (n_image={n_image}, 3, "
+            f"n_wavelength), found shape {c.shape}"
+        )
+    flat = c.reshape(n_image, -1)
+    first: dict[bytes, int] = {}
+    index = np.empty(n_image, dtype=np.int64)
+    kept: list[int] = []
+    for m in range(n_image):
+        key = np.ascontiguousarray(flat[m]).tobytes()
+        if key not in first:
+            first[key] = len(kept)
+            kept.append(m)
+        index[m] = first[key]
+    return np.ascontiguousarray(c[kept]), index
 
 
 def _describe(array: xr.DataArray) -> str:
@@ -136,7 +200,14 @@ def inputs_from_xarray(
         Dims ``(channel, wavelength)`` with a ``wavelength`` coordinate [nm]; 3 channels.
         Every band wavelength must be one of its wavelengths (within
         :data:`WAVELENGTH_TOLERANCE_NM`); wavelengths without a band shot are left out, so
-        the spectra live on the bands' wavelengths.
+        the spectra live on the bands' wavelengths. One ``C`` per image (images of several
+        RGB cameras): dims ``(image, channel, wavelength)``, matched to ``rgb``'s images by
+        the ``image`` coordinate (by position where either has none), or ``(camera,
+        channel, wavelength)`` with a ``camera`` coordinate, picked per image by ``rgb``'s
+        ``camera`` coordinate along ``image``. The neighbour search, the chromaticities
+        and the warm start compare the images' RGB as given, so give the images' RGB in
+        one camera's space where their cameras differ much (e.g. each mapped by a 3 x 3
+        ``T_m`` onto one camera, with ``T_m C_m`` as its ``C``).
 
     Returns
     -------
@@ -148,10 +219,14 @@ def inputs_from_xarray(
         Listing every problem found.
     """
     problems: list[str] = []
+    c_dims: tuple[str, ...] = ("channel", "wavelength")
+    if isinstance(camera_matrix, xr.DataArray) and camera_matrix.ndim == 3:
+        extra = [d for d in camera_matrix.dims if d not in c_dims]
+        c_dims = (extra[0] if extra and extra[0] in ("image", "camera") else "image", *c_dims)
     ok = [
         _check_dims("rgb", rgb, ("image", "y", "x", "channel"), problems),
         _check_dims("bands", bands, ("shot", "y", "x"), problems),
-        _check_dims("camera_matrix", camera_matrix, ("channel", "wavelength"), problems),
+        _check_dims("camera_matrix", camera_matrix, c_dims, problems),
     ]
     if not all(ok):
         raise ReconstructionError(
@@ -159,7 +234,13 @@ def inputs_from_xarray(
         )
     rgb = rgb.transpose("image", "y", "x", "channel")
     bands = bands.transpose("shot", "y", "x")
-    camera_matrix = camera_matrix.transpose("channel", "wavelength")
+    camera_matrix = camera_matrix.transpose(*c_dims)
+    if len(c_dims) == 3:
+        camera_matrix = _per_image_camera(camera_matrix, rgb, problems)
+        if problems:
+            raise ReconstructionError(
+                "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
+            )
 
     # -- channels ---------------------------------------------------------------------------
     if rgb.sizes["channel"] != 3:
@@ -271,15 +352,20 @@ def inputs_from_xarray(
     _check_finite("rgb", rgb_values, problems)
     _check_finite("bands", band_values, problems)
     _check_finite("camera_matrix", c_values, problems)
-    if np.all(np.isfinite(c_values)) and np.linalg.matrix_rank(c_values) < 3:
-        problems.append(
-            "camera_matrix: expected rank 3 (three independent channels), found "
-            f"rank {np.linalg.matrix_rank(c_values)}"
-        )
+    if np.all(np.isfinite(c_values)):
+        for m, c in enumerate(c_values if c_values.ndim == 3 else [c_values]):
+            if np.linalg.matrix_rank(c) < 3:
+                which = f" of image {labels[m]!r}" if c_values.ndim == 3 else ""
+                problems.append(
+                    f"camera_matrix{which}: expected rank 3 (three independent channels), "
+                    f"found rank {np.linalg.matrix_rank(c)}"
+                )
     if problems:
         raise ReconstructionError(
             "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
         )
+    if c_values.ndim == 3 and all(np.array_equal(c, c_values[0]) for c in c_values[1:]):
+        c_values = c_values[0]  # one camera for every image: the 2-D C (the same solve)
     return ReconstructionInputs(
         rgb=rgb_values,
         band_data=band_values,
@@ -289,6 +375,54 @@ def inputs_from_xarray(
         camera_matrix=c_values,
         wavelength=wavelength,
     )
+
+
+def _per_image_camera(
+    camera_matrix: xr.DataArray, rgb: xr.DataArray, problems: list[str]
+) -> xr.DataArray:
+    """A 3-D ``camera_matrix`` (image or camera, channel, wavelength) as ``(image, channel,
+    wavelength)`` in ``rgb``'s image order; problems appended."""
+    n_image = rgb.sizes["image"]
+    if camera_matrix.dims[0] == "camera":
+        if "camera" not in rgb.coords or rgb["camera"].dims != ("image",):
+            problems.append(
+                "camera_matrix: dims (camera, channel, wavelength) need rgb's per-image "
+                f"coordinate 'camera' along 'image', found rgb coords {sorted(rgb.coords)}"
+            )
+            return camera_matrix
+        if "camera" not in camera_matrix.coords:
+            problems.append("camera_matrix: expected a 'camera' coordinate, found none")
+            return camera_matrix
+        cameras = np.asarray(rgb["camera"].values).tolist()
+        known = np.asarray(camera_matrix["camera"].values).tolist()
+        missing = sorted({c for c in cameras if c not in known}, key=str)
+        if missing:
+            problems.append(
+                f"camera_matrix: expected a matrix for every camera of rgb's images "
+                f"{sorted(set(cameras), key=str)}, found none for camera(s) {missing} "
+                f"(camera_matrix has {known})"
+            )
+            return camera_matrix
+        picked = camera_matrix.sel(camera=xr.DataArray(cameras, dims="image"))
+        return picked.drop_vars([c for c in picked.coords if "image" in picked[c].dims or c == "camera"])
+    if camera_matrix.sizes["image"] != n_image:
+        problems.append(
+            f"camera_matrix: expected one matrix per rgb image ({n_image}), found "
+            f"{camera_matrix.sizes['image']} along 'image'"
+        )
+        return camera_matrix
+    if "image" in camera_matrix.coords and "image" in rgb.coords:
+        labels = np.asarray(rgb["image"].values).tolist()
+        known = np.asarray(camera_matrix["image"].values).tolist()
+        missing = [lab for lab in labels if lab not in known]
+        if missing:
+            problems.append(
+                f"camera_matrix: has no matrix for rgb images {missing[:10]} (its images: "
+                f"{known[:10]}{' ...' if len(known) > 10 else ''})"
+            )
+            return camera_matrix
+        camera_matrix = camera_matrix.sel(image=labels)
+    return camera_matrix.drop_vars([c for c in camera_matrix.coords if "image" in camera_matrix[c].dims])
 
 
 def in_paired_camera(hdr: xr.Dataset, calibration: xr.Dataset) -> xr.Dataset:

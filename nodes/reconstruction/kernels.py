@@ -44,16 +44,18 @@ _JIT = {"cache": True, "nogil": True, "fastmath": True, "error_model": "numpy"}
 
 @njit(**_JIT)
 def normal_pixels(
-    x, camera, beta, indptr, indices, data, gamma, epsilon, image, out
+    x, camera, camera_index, beta, indptr, indices, data, gamma, epsilon, image, out
 ):  # pragma: no cover - compiled
-    """``out = beta C^T C x + gamma L x + epsilon x`` per pixel (no filter term).
+    """``out = beta C_m^T C_m x + gamma L x + epsilon x`` per pixel (no filter term).
 
     Parameters
     ----------
     x, out
         ``(n_pixels, n_wavelength)`` float32, pixel-major; ``out`` is overwritten.
     camera
-        ``C``, ``(3, n_wavelength)``.
+        The distinct camera matrices ``C``, ``(n_camera, 3, n_wavelength)``.
+    camera_index
+        ``(n_image,)``: image ``m`` is seen through ``camera[camera_index[m]]``.
     beta, gamma
         Weights of the RGB and neighbour terms (eq. 4).
     indptr, indices, data
@@ -66,21 +68,20 @@ def normal_pixels(
     n_pixels, n_wavelength = x.shape
     for p in range(n_pixels):
         m = image[p]
+        c = camera[camera_index[m]]
         v0 = 0.0
         v1 = 0.0
         v2 = 0.0
         for w in range(n_wavelength):
             value = x[p, w]
-            v0 += camera[0, w] * value
-            v1 += camera[1, w] * value
-            v2 += camera[2, w] * value
+            v0 += c[0, w] * value
+            v1 += c[1, w] * value
+            v2 += c[2, w] * value
         v0 *= beta
         v1 *= beta
         v2 *= beta
         for w in range(n_wavelength):
-            out[p, w] = (
-                camera[0, w] * v0 + camera[1, w] * v1 + camera[2, w] * v2 + epsilon[m, w] * x[p, w]
-            )
+            out[p, w] = c[0, w] * v0 + c[1, w] * v1 + c[2, w] * v2 + epsilon[m, w] * x[p, w]
         for j in range(indptr[p], indptr[p + 1]):
             column = indices[j]
             weight = gamma * data[j]
@@ -89,34 +90,51 @@ def normal_pixels(
 
 
 @njit(**_JIT)
-def block_jacobi_pixels(r, inverse_diagonal, camera, small_inverse, out):  # pragma: no cover - compiled
+def block_jacobi_pixels(
+    r, inverse_diagonal, camera, camera_index, image, small_inverse, out
+):  # pragma: no cover - compiled
     """``out = M^-1 r`` for the block-Jacobi preconditioner; returns ``r . out``.
 
     The per-pixel block ``diag(a) + beta C^T C`` is inverted with the Woodbury identity:
     ``M^-1 r = u - a^-1 C^T T C u`` with ``u = r / a`` and ``T`` the pixel's 3 x 3
-    ``(I / beta + C a^-1 C^T)^-1`` (``small_inverse``, ``(n_pixels, 3, 3)``).
+    ``(I / beta + C a^-1 C^T)^-1`` (``small_inverse``, ``(n_pixels, 3, 3)``). ``C`` of
+    pixel ``p`` is ``camera[camera_index[image[p]]]`` (as :func:`normal_pixels`).
     """
-    n_pixels, n_wavelength = r.shape
     total = 0.0
-    for p in range(n_pixels):
-        v0 = 0.0
-        v1 = 0.0
-        v2 = 0.0
-        for w in range(n_wavelength):
-            u = r[p, w] * inverse_diagonal[p, w]
-            out[p, w] = u
-            v0 += camera[0, w] * u
-            v1 += camera[1, w] * u
-            v2 += camera[2, w] * u
-        t0 = small_inverse[p, 0, 0] * v0 + small_inverse[p, 0, 1] * v1 + small_inverse[p, 0, 2] * v2
-        t1 = small_inverse[p, 1, 0] * v0 + small_inverse[p, 1, 1] * v1 + small_inverse[p, 1, 2] * v2
-        t2 = small_inverse[p, 2, 0] * v0 + small_inverse[p, 2, 1] * v1 + small_inverse[p, 2, 2] * v2
-        for w in range(n_wavelength):
-            z = out[p, w] - inverse_diagonal[p, w] * (
-                camera[0, w] * t0 + camera[1, w] * t1 + camera[2, w] * t2
-            )
-            out[p, w] = z
-            total += r[p, w] * z
+    if camera.shape[0] == 1:  # one C for every pixel: looked up once
+        only = camera[0]
+        for p in range(r.shape[0]):
+            total = _block_jacobi_pixel(p, r, inverse_diagonal, only, small_inverse, out, total)
+    else:
+        for p in range(r.shape[0]):
+            c = camera[camera_index[image[p]]]
+            total = _block_jacobi_pixel(p, r, inverse_diagonal, c, small_inverse, out, total)
+    return total
+
+
+@njit(inline="always", **_JIT)
+def _block_jacobi_pixel(p, r, inverse_diagonal, camera, small_inverse, out, total):  # pragma: no cover
+    """:func:`block_jacobi_pixels` on pixel ``p`` with its ``C`` ``(3, n_wavelength)``;
+    returns ``total`` plus its share of ``r . out`` (summed in the same order as one loop)."""
+    n_wavelength = r.shape[1]
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for w in range(n_wavelength):
+        u = r[p, w] * inverse_diagonal[p, w]
+        out[p, w] = u
+        v0 += camera[0, w] * u
+        v1 += camera[1, w] * u
+        v2 += camera[2, w] * u
+    t0 = small_inverse[p, 0, 0] * v0 + small_inverse[p, 0, 1] * v1 + small_inverse[p, 0, 2] * v2
+    t1 = small_inverse[p, 1, 0] * v0 + small_inverse[p, 1, 1] * v1 + small_inverse[p, 1, 2] * v2
+    t2 = small_inverse[p, 2, 0] * v0 + small_inverse[p, 2, 1] * v1 + small_inverse[p, 2, 2] * v2
+    for w in range(n_wavelength):
+        z = out[p, w] - inverse_diagonal[p, w] * (
+            camera[0, w] * t0 + camera[1, w] * t1 + camera[2, w] * t2
+        )
+        out[p, w] = z
+        total += r[p, w] * z
     return total
 
 

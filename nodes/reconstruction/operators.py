@@ -35,7 +35,7 @@ import scipy.sparse as sp
 from spectralize.nodes.filter_size import filter_radius, filter_sigma
 from spectralize.schemas.errors import ReconstructionError
 
-from .inputs import ReconstructionInputs
+from .inputs import ReconstructionInputs, camera_blocks
 from .neighbourhoods import (
     NeighbourGraph,
     appearance_features,
@@ -395,16 +395,29 @@ class PixelOrder:
 def rgb_forward(cube: np.ndarray, camera_matrix: np.ndarray) -> np.ndarray:
     """``C S(p)`` for every pixel: ``(3, n_pixels)`` from a cube ``(n_wavelength, ...)``.
 
+    ``camera_matrix`` is ``C`` ``(3, n_wavelength)``, or one ``C_m`` per image
+    ``(n_image, 3, n_wavelength)``: then the cube's pixels are ``n_image`` equal runs
+    (image by image, as :attr:`ReconstructionProblem.shape` lays them out) and each run is
+    mapped by its image's ``C_m``.
+
     References
     ----------
     .. [1] Fast Capture of Spectral Image Series, eq. 1, second term.
     """
     n_wavelength = cube.shape[0]
+    if camera_matrix.ndim == 3:
+        n_image = camera_matrix.shape[0]
+        per_image = _einsum("mcw,wmn->cmn", camera_matrix, cube.reshape(n_wavelength, n_image, -1))
+        return per_image.reshape(3, -1)
     return _einsum("cw,wn->cn", camera_matrix, cube.reshape(n_wavelength, -1))
 
 
 def rgb_adjoint(rgb: np.ndarray, camera_matrix: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """``C^T r`` for every pixel, shaped like the cube (``shape``)."""
+    """``C^T r`` for every pixel, shaped like the cube (``shape``); per image ``C_m^T r``
+    for a 3-D ``camera_matrix`` (see :func:`rgb_forward`)."""
+    if camera_matrix.ndim == 3:
+        n_image = camera_matrix.shape[0]
+        return _einsum("mcw,cmn->wmn", camera_matrix, rgb.reshape(3, n_image, -1)).reshape(shape)
     return _einsum("cw,cn->wn", camera_matrix, rgb).reshape(shape)
 
 
@@ -423,7 +436,8 @@ class ReconstructionProblem:
     filter_targets
         Per shot the filter responses of the noisy band data, ``F_i D_{b_i}``.
     camera_matrix
-        ``C``, ``(3, n_wavelength)``, already in the units the RGB term uses.
+        ``C``, ``(3, n_wavelength)``, already in the units the RGB term uses; or one
+        ``C_m`` per image, ``(n_image, 3, n_wavelength)`` (:func:`rgb_forward`).
     rgb
         ``R``, ``(3, n_pixels)``, in the same units.
     neighbours
@@ -558,9 +572,11 @@ class ReconstructionProblem:
             out = np.empty_like(cube)
         ridge = np.broadcast_to(np.asarray(epsilon, dtype=dtype), (n_wavelength, n_image, 1, 1))
         laplacian = order.laplacian(dtype)
+        blocks, index = self.camera_blocks()
         normal_pixels(
             cube,
-            self.camera_matrix,
+            blocks,
+            index,
             dtype.type(w.beta),
             laplacian.indptr,
             laplacian.indices,
@@ -572,6 +588,14 @@ class ReconstructionProblem:
         )
         self.filters.normal(cube, out=out, scale=w.alpha, positions=order.positions)
         return out
+
+    def camera_blocks(self) -> tuple[np.ndarray, np.ndarray]:
+        """The distinct camera matrices ``(n_camera, 3, n_wavelength)`` in :attr:`dtype` and
+        per image the index of its own (:func:`~.inputs.camera_blocks`); built once."""
+        cache = self.extras.setdefault("camera_blocks", {})
+        if self.dtype.name not in cache:
+            cache[self.dtype.name] = camera_blocks(self.camera_matrix, self.shape[1])
+        return cache[self.dtype.name]
 
     def normal_rhs(self) -> np.ndarray:
         """``A^T b = alpha F^T (F D) + beta C^T R``."""
@@ -597,9 +621,11 @@ def camera_scale(camera_matrix: np.ndarray) -> float:
 
     The mean over channels of ``sum_lambda |C(c, lambda)|``: a flat unit spectrum then maps
     to RGB of about 1, so ``C S - R`` is measured in spectral radiance like the other two
-    terms and the result does not depend on the overall gain of ``C`` and ``R``.
+    terms and the result does not depend on the overall gain of ``C`` and ``R``. With one
+    ``C_m`` per image ``(n_image, 3, n_wavelength)``, the mean over images and channels
+    (one factor for the set: the images' RGB keep their ratios).
     """
-    scale = float(np.mean(np.abs(camera_matrix).sum(axis=1)))
+    scale = float(np.mean(np.abs(camera_matrix).sum(axis=-1)))
     return scale if scale > 0 else 1.0
 
 

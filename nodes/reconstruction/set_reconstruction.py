@@ -33,6 +33,7 @@ import xarray as xr
 from pydantic import AfterValidator, Field
 
 from spectralize.engine import Choices
+from spectralize.schemas.errors import ReconstructionError
 from spectralize.schemas.run import SPECTRA
 
 from .confidence import neighbourhood_spread
@@ -130,11 +131,59 @@ def _set_inputs(
     return rgb, shots
 
 
-def _camera_matrix(calibration: xr.Dataset, wavelength: np.ndarray) -> xr.DataArray:
-    """``C`` of a group of schema ``camera_matrix`` on the bands' wavelengths (within 0.5 nm)."""
-    matrix = calibration["camera_matrix"].load()
-    return matrix.sel(wavelength=wavelength, method="nearest", tolerance=0.5).assign_coords(
-        wavelength=wavelength
+def _camera_matrix(
+    calibration: xr.Dataset, wavelength: np.ndarray, hdr: xr.Dataset | None = None
+) -> xr.DataArray:
+    """``C`` of a group of schema ``camera_matrix`` on the bands' wavelengths (within 0.5 nm).
+
+    With ``hdr`` whose images carry a ``camera`` coordinate and a calibration with one
+    ``camera_matrices`` (camera, channel, wavelength) per RGB camera: one matrix per camera,
+    ``T_k C_k`` (dims ``camera, channel, wavelength``), with ``T_k`` the calibration's
+    ``rgb_transform`` of camera ``k`` onto the paired camera. :func:`in_paired_camera` maps
+    every image's RGB by that ``T_k``, so ``T_k C_k S`` is exactly what camera ``k``'s image
+    holds after the map: each image is reconstructed through its own camera's ``C``, and
+    the neighbour search, chromaticities and warm start still compare all images in the
+    paired camera's RGB (the 3 x 3 map, exact only on the calibration spectra, decides
+    only who is whose neighbour). Where every camera of ``hdr`` has the paired camera's
+    ``C`` (one camera, or a ``camera_matrix`` given alone, e.g. the truth): the paired
+    camera's ``C`` ``(channel, wavelength)``.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, eq. 1 (``C S(p) - R(p)``) and sec. 4.
+    """
+
+    def on_bands(matrix: xr.DataArray) -> xr.DataArray:
+        matrix = matrix.sel(wavelength=wavelength, method="nearest", tolerance=0.5)
+        return matrix.assign_coords(wavelength=wavelength)
+
+    paired = on_bands(calibration["camera_matrix"].load())
+    if hdr is None or "camera_matrices" not in calibration or "camera" not in hdr["radiance"].coords:
+        return paired
+    matrices = on_bands(calibration["camera_matrices"].load())
+    matrices = matrices.drop_vars([c for c in matrices.coords if c not in matrices.dims])
+    cameras = sorted({int(c) for c in np.asarray(hdr["camera"].values).ravel()})
+    known = [int(c) for c in matrices["camera"].values]
+    if any(c not in known for c in cameras):
+        raise ReconstructionError(
+            f"calibration: camera_matrices has no matrix for RGB camera(s) "
+            f"{sorted(set(cameras) - set(known))} of hdr (it has {known})"
+        )
+    per_camera = []
+    for k in cameras:
+        c_k = np.asarray(matrices.sel(camera=k).transpose("channel", "wavelength").values, float)
+        if "rgb_transform" in calibration:
+            t_k = calibration["rgb_transform"].sel(camera=k).transpose("channel", "channel_in").values
+            if not np.allclose(t_k, np.eye(3), atol=1e-9, rtol=0):  # as in_paired_camera
+                c_k = np.asarray(t_k, float) @ c_k
+        per_camera.append(c_k)
+    if all(np.array_equal(c, paired.transpose("channel", "wavelength").values) for c in per_camera):
+        return paired
+    return xr.DataArray(
+        np.stack(per_camera),
+        dims=("camera", "channel", "wavelength"),
+        coords={"camera": cameras, "channel": paired["channel"].values, "wavelength": wavelength},
+        attrs={"long_name": "per RGB camera T_k C_k: its C in the paired camera's RGB"},
     )
 
 
@@ -206,9 +255,9 @@ def reconstruct_seed_set(
     seed = int(image_sets.attrs["seed_set"])
     members, _ = set_members(image_sets, seed)
     wavelength = _wavelengths(bands)
-    hdr = in_paired_camera(hdr, calibration)  # each image through its own camera's C
+    camera_matrix = _camera_matrix(calibration, wavelength, hdr)  # T_k C_k per camera k
+    hdr = in_paired_camera(hdr, calibration)  # each image's RGB by its T_k
     rgb, shots = _set_inputs(hdr, bands, members)
-    camera_matrix = _camera_matrix(calibration, wavelength)
     settings = {
         "method": method,
         "gamma_hat": gamma_hat,
@@ -364,8 +413,8 @@ def reconstruct_image_sets(
     """
     seed = int(spectra_seed.attrs["seed_set"])
     wavelength = _wavelengths(bands)
-    camera_matrix = _camera_matrix(calibration, wavelength)
-    hdr = in_paired_camera(hdr, calibration)  # each image through its own camera's C
+    camera_matrix = _camera_matrix(calibration, wavelength, hdr)  # T_k C_k per camera k
+    hdr = in_paired_camera(hdr, calibration)  # each image's RGB by its T_k
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     seed_members, seed_owned = set_members(image_sets, seed)
     seed_rgb = hdr["radiance"].sel(image=seed_members).transpose("image", "y", "x", "channel")

@@ -41,5 +41,11 @@ def mallett2019_basis(inputs: ReconstructionInputs) -> np.ndarray:
     )  # (n_wavelength, 3)
     reflectances = training_reflectances(inputs.wavelength)
     lit = estimate_illuminant(inputs, reflectances)[:, None] * basis
-    coefficients = np.linalg.solve(inputs.camera_matrix @ lit, inputs.rgb_pixels())
-    return (lit @ coefficients).reshape(inputs.cube_shape)
+    if not inputs.per_image_camera:
+        coefficients = np.linalg.solve(inputs.camera_matrix @ lit, inputs.rgb_pixels())
+        return (lit @ coefficients).reshape(inputs.cube_shape)
+    rgb = inputs.rgb_pixels().reshape(3, inputs.n_image, -1)
+    per_image = [
+        lit @ np.linalg.solve(inputs.camera_of(m) @ lit, rgb[:, m]) for m in range(inputs.n_image)
+    ]
+    return np.stack(per_image, axis=1).reshape(inputs.cube_shape)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from spectralize.schemas.errors import ReconstructionError
+
 __all__ = ["project_onto_rgb"]
 
 
@@ -28,7 +30,8 @@ def project_onto_rgb(
     cube
         ``(n_wavelength, ...)`` spectra ``B``.
     camera_matrix
-        ``C``, ``(3, n_wavelength)``.
+        ``C``, ``(3, n_wavelength)``; or one ``C_m`` per image ``(n_image, 3,
+        n_wavelength)``, then ``cube`` is ``(n_wavelength, n_image, ...)``.
     rgb
         ``R``, ``(3, ...)`` with the same trailing shape as ``cube``.
     overwrite
@@ -41,15 +44,30 @@ def project_onto_rgb(
     """
     out = cube if overwrite else np.array(cube, dtype=np.result_type(cube, np.float32))
     n_wavelength = out.shape[0]
-    flat = out.reshape(n_wavelength, -1)
-    targets = rgb.reshape(3, -1)
     c = np.asarray(camera_matrix, dtype=np.float64)
+    if c.ndim == 2:
+        _project(out.reshape(n_wavelength, -1), rgb.reshape(3, -1), c)
+        return out
+    n_image = c.shape[0]
+    if out.ndim < 2 or out.shape[1] != n_image:
+        raise ReconstructionError(
+            f"cube: expected (n_wavelength, n_image={n_image}, ...) for a camera_matrix per "
+            f"image, found shape {out.shape}"
+        )
+    per_image = out.reshape(n_wavelength, n_image, -1)  # a view: ``out`` is C-contiguous
+    targets = rgb.reshape(3, n_image, -1)
+    for m in range(n_image):
+        _project(per_image[:, m], targets[:, m], c[m])
+    return out
+
+
+def _project(flat: np.ndarray, targets: np.ndarray, c: np.ndarray) -> None:
+    """``flat`` ``(n_wavelength, n)`` projected onto ``c flat = targets`` in place."""
     pseudo = c.T @ np.linalg.inv(c @ c.T)  # (n_wavelength, 3)
     for start in range(0, flat.shape[1], _CHUNK):
         here = slice(start, start + _CHUNK)
         gap = targets[:, here] - c @ flat[:, here]
         flat[:, here] += (pseudo @ gap).astype(flat.dtype, copy=False)
-    return out
 
 
 _CHUNK = 1 << 16

@@ -28,4 +28,8 @@ def pseudo_inverse(inputs: ReconstructionInputs) -> np.ndarray:
     .. [1] Imai and Berns (1998); Fast Capture of Spectral Image Series, section 2.
     """
     rgb = inputs.rgb_pixels()
-    return (np.linalg.pinv(inputs.camera_matrix) @ rgb).reshape(inputs.cube_shape)
+    if not inputs.per_image_camera:
+        return (np.linalg.pinv(inputs.camera_matrix) @ rgb).reshape(inputs.cube_shape)
+    rgb = rgb.reshape(3, inputs.n_image, -1)
+    per_image = [np.linalg.pinv(inputs.camera_of(m)) @ rgb[:, m] for m in range(inputs.n_image)]
+    return np.stack(per_image, axis=1).reshape(inputs.cube_shape)

@@ -278,6 +278,9 @@ def rgb_abundances(
     """Step 2: per pixel ``w >= 0`` minimising ``||C E_near w - R||^2`` (plus a tiny ridge,
     :data:`ABUNDANCE_RIDGE`, that keeps it unique); ``(n, K + 1)`` beside ``near``.
 
+    ``camera_matrix`` is ``C`` ``(3, n_wavelength)``, or one ``C_m`` per image ``(n_image,
+    3, n_wavelength)``: then the pixels are ``n_image`` equal runs, image by image.
+
     Exact NNLS by enumerating the active sets (compiled,
     :func:`~spectralize.nodes.reconstruction.kernels.mixture_abundances`): the solution is
     the unconstrained least-squares solution on its support, which is feasible, and no
@@ -286,15 +289,16 @@ def rgb_abundances(
     from ..kernels import mixture_abundances
 
     c = np.asarray(camera_matrix, dtype=np.float64)
-    projected = np.ascontiguousarray(endmembers.atoms @ c.T)  # (J + 1, 3): each atom's RGB
     weights = np.empty(near.shape)
-    mixture_abundances(
-        projected,
-        np.ascontiguousarray(near, dtype=np.int64),
-        np.ascontiguousarray(rgb_pixels, dtype=np.float64),
-        ABUNDANCE_RIDGE,
-        weights,
-    )
+    near = np.ascontiguousarray(near, dtype=np.int64)
+    rgb_pixels = np.ascontiguousarray(rgb_pixels, dtype=np.float64)
+    runs = [(slice(None), c)] if c.ndim == 2 else []
+    if c.ndim == 3:
+        per_image = rgb_pixels.shape[0] // c.shape[0]
+        runs = [(slice(m * per_image, (m + 1) * per_image), c[m]) for m in range(c.shape[0])]
+    for here, c_m in runs:
+        projected = np.ascontiguousarray(endmembers.atoms @ c_m.T)  # (J + 1, 3): atoms' RGB
+        mixture_abundances(projected, near[here], rgb_pixels[here], ABUNDANCE_RIDGE, weights[here])
     return weights
 
 

@@ -36,13 +36,16 @@ def normal_mean_diagonal(problem: ReconstructionProblem) -> float:
     c = problem.camera_matrix.astype(np.float64)
     total = w.alpha * problem.filters.normal_diagonal_total()
     total += w.gamma * n_wavelength * float(degree.sum(dtype=np.float64))
-    return total / (n_wavelength * degree.size) + w.beta * float(np.sum(c * c)) / n_wavelength
+    # one C_m per image (3-D): every image has as many pixels, so the mean over images
+    c_energy = float(np.sum(c * c)) if c.ndim == 2 else float(np.sum(c * c, axis=(1, 2)).mean())
+    return total / (n_wavelength * degree.size) + w.beta * c_energy / n_wavelength
 
 
 class BlockJacobiPreconditioner:
     """Exact inverse of the per-pixel diagonal blocks of ``A^T A + epsilon I``.
 
-    The block of pixel ``p`` is ``diag(a_p) + beta C^T C`` with
+    The block of pixel ``p`` is ``diag(a_p) + beta C^T C`` (``C``: its image's ``C_m``
+    where every image has its own) with
     ``a_p(b) = alpha (F^T F)_{pp,b} + gamma L_pp + epsilon`` (filter and neighbour terms are
     diagonal in the wavelength). Its inverse follows from the Woodbury identity with one
     3 x 3 solve per pixel: ``M^-1 r = u - a^-1 C^T (I / beta + C a^-1 C^T)^-1 C u`` with
@@ -78,7 +81,8 @@ class BlockJacobiPreconditioner:
         self.dtype = np.dtype(dtype)
         self.order = problem.pixel_order("natural") if order is None else order
         self.shape = problem.shape
-        c = problem.camera_matrix.astype(np.float64)
+        blocks, self.camera_index = problem.camera_blocks()
+        c = blocks.astype(np.float64)  # (n_camera, 3, n_wavelength): one C, or one per camera
         degree = problem.neighbours.degree
         n_pixels = degree.size
         mean_diagonal = normal_mean_diagonal(problem)
@@ -106,10 +110,21 @@ class BlockJacobiPreconditioner:
         # (I / beta + C a^-1 C^T)^-1 per pixel, (n_pixels, 3, 3), in float64 chunks
         self.small_inverse = np.empty((n_pixels, 3, 3), dtype=self.dtype)
         identity = np.eye(3) / max(w.beta, 1e-300)
+        #: per pixel (in ``order``) the index of its camera matrix in :attr:`camera_matrix`
+        pixel_camera = self.camera_index[self.order.image]
         for start in range(0, n_pixels, _CHUNK):
             inverse = self.inverse_diagonal[start : start + _CHUNK].astype(np.float64)
-            small = np.einsum("cw,pw,dw->pcd", c, inverse, c, optimize=True) + identity
+            if c.shape[0] == 1:
+                small = np.einsum("cw,pw,dw->pcd", c[0], inverse, c[0], optimize=True) + identity
+            else:
+                cameras = pixel_camera[start : start + _CHUNK]
+                small = np.empty((inverse.shape[0], 3, 3))
+                for k in np.unique(cameras):
+                    here = cameras == k
+                    small[here] = np.einsum("cw,pw,dw->pcd", c[k], inverse[here], c[k], optimize=True)
+                small += identity
             self.small_inverse[start : start + _CHUNK] = np.linalg.inv(small)
+        #: the distinct camera matrices ``(n_camera, 3, n_wavelength)`` in ``dtype``
         self.camera_matrix = np.ascontiguousarray(c.astype(self.dtype))
         self._beta = w.beta
 
@@ -118,7 +133,11 @@ class BlockJacobiPreconditioner:
         :attr:`order` (plain Jacobi scaling of the compiled solvers)."""
         c = self.camera_matrix.astype(np.float64)
         full = np.divide(1.0, self.inverse_diagonal, dtype=self.dtype)  # one buffer, in place
-        full += (self._beta * np.sum(c * c, axis=0)).astype(self.dtype)[None, :]
+        rgb_diagonal = (self._beta * np.sum(c * c, axis=1)).astype(self.dtype)  # (n_camera, w)
+        if c.shape[0] == 1:
+            full += rgb_diagonal[0][None, :]
+        else:
+            full += rgb_diagonal[self.camera_index[self.order.image]]
         return np.divide(1.0, full, out=full)
 
     def ridge_of(self, relative: float) -> float:
@@ -132,7 +151,15 @@ class BlockJacobiPreconditioner:
 
         if out is None:
             out = np.empty_like(residual)
-        block_jacobi_pixels(residual, self.inverse_diagonal, self.camera_matrix, self.small_inverse, out)
+        block_jacobi_pixels(
+            residual,
+            self.inverse_diagonal,
+            self.camera_matrix,
+            self.camera_index,
+            self.order.image,
+            self.small_inverse,
+            out,
+        )
         return out
 
     def __call__(self, residual: np.ndarray) -> np.ndarray:

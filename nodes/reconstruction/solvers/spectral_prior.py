@@ -44,7 +44,7 @@ import numpy as np
 from spectralize.schemas import ReconstructionError
 
 from ..baselines.training import estimate_illuminant, training_reflectances
-from ..baselines.wiener import WIENER_RELATIVE_NOISE
+from ..baselines.wiener import WIENER_RELATIVE_NOISE, wiener_from_rgb
 from ..estimators import endmember_mixture
 from ..estimators.endmember_mixture import Endmembers
 from ..operators import ReconstructionProblem
@@ -195,11 +195,7 @@ def spectral_prior_term(
         return SpectralPrior(precision, w, mixture)
     # Wiener estimate from RGB with the samples' second moment
     second_moment = samples @ samples.T / samples.shape[1]
-    c = inputs.camera_matrix
-    projected = c @ second_moment @ c.T
-    noise = WIENER_RELATIVE_NOISE * np.trace(projected) / 3
-    operator = second_moment @ c.T @ np.linalg.inv(projected + noise * np.eye(3))
-    centre = (operator @ inputs.rgb_pixels()).reshape(problem.shape)
+    centre = wiener_from_rgb(inputs, second_moment, WIENER_RELATIVE_NOISE).reshape(problem.shape)
     return SpectralPrior(precision, w, centre)
 
 
