@@ -111,6 +111,28 @@ def merge_robertson(
     return x.astype(np.float32)
 
 
+BLOCK_BYTES = 4 * 2**20
+"""Counts merged per task at least (whole images, when one image's chunks are smaller)."""
+
+
+def _image_block(counts: xr.DataArray) -> tuple[int, ...]:
+    """Image chunks of ``counts`` joined up to :data:`BLOCK_BYTES` (a chunk's whole frame
+    only: frames split in y or x keep their chunks)."""
+    chunks = dict(zip(counts.dims, counts.chunks or (), strict=True))
+    image = chunks["image"]
+    if any(len(chunks[d]) > 1 for d in ("y", "x")):
+        return image
+    per_image = counts.dtype.itemsize * counts.size // max(counts.sizes["image"], 1)
+    most = max(1, BLOCK_BYTES // max(per_image, 1))
+    joined: list[int] = []
+    for size in image:
+        if joined and joined[-1] + size <= most:
+            joined[-1] += size
+        else:
+            joined.append(size)
+    return tuple(joined)
+
+
 def _validate(raw: xr.Dataset, where: str) -> xr.DataArray:
     if not isinstance(raw, xr.Dataset) or "counts" not in raw.data_vars:
         found = sorted(map(str, raw.data_vars)) if isinstance(raw, xr.Dataset) else type(raw)
@@ -281,6 +303,12 @@ def merge_hdr(
         counts = counts.chunk({**size, "exposure": -1, "channel": -1})
     else:
         counts = counts.chunk({"exposure": -1, "channel": -1})
+    # Small frames (a full run's geometry with tiny frames): chunks of one image make one
+    # task per image and step; merge whole blocks of images instead (the estimate is per
+    # pixel, so the blocks do not change a value), and give the radiance the chunks of the
+    # input back (one image per chunk on disk, as a set's reads want it).
+    image_chunks = counts.chunks[counts.get_axis_num("image")]
+    counts = counts.chunk({"image": _image_block(counts)})
 
     # One pass for the checks and the counts that go into attrs. A pixel-channel saturated
     # (or dark) in every exposure has no weighted sample; "other" ones mix both.
@@ -334,6 +362,8 @@ def merge_hdr(
     ).transpose("image", "y", "x", "channel")
     if not lazy:
         radiance = radiance.compute()
+    else:
+        radiance = radiance.chunk({"image": image_chunks})
     radiance.attrs = {"units": "1", "long_name": "relative RGB radiance"}
     coords = {
         k: v
