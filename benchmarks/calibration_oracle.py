@@ -19,7 +19,9 @@ Reported per lab, per RGB camera, for images with and without band shots: per-pi
 and the calibration's own errors: C per channel (RMS over wavelength of ``s C - C_true``
 relative to the channel's peak), the chart cross-check per camera, band radiance bias per
 band against the writer's radiance, the LED scale error left with and without the LED power
-table, and the second camera model's images against the paired model's; where the cost is
+table, and the second camera model's images against the paired model's (each image through
+its own camera's C, and, side by side, through the paired camera's C after the 3 x 3 map,
+as before issue 25's per-image C); where the cost is
 (the truth injected on the band side only, and on the RGB side only) and how far the 3 x 3
 map of each camera onto the paired one is from exact on the scene's own spectra.
 
@@ -248,6 +250,18 @@ def measure_lab(root: Path, lab: str) -> dict:
     start = time.perf_counter()
     oracle = reconstruct(hdr_oracle, bands_oracle, oracle_cal, image_sets)
     timings["reconstruct_oracle_s"] = time.perf_counter() - start
+    # before one C per image: every image through the paired camera's C, its RGB mapped by
+    # the 3 x 3 map (the calibration group without camera_matrices), calibrated and oracle
+    one_c = {}
+    if "camera_matrices" in calibration:
+        one_c = {
+            "calibrated": reconstruct(
+                read["hdr"], read["bands"], calibration.drop_vars("camera_matrices"), image_sets
+            ),
+            "oracle": reconstruct(
+                hdr_oracle, bands_oracle, oracle_cal.drop_vars("camera_matrices"), image_sets
+            ),
+        }
 
     has = image_sets["has_bands"]
     result: dict = {"cameras": cameras, "paired_camera": cameras[paired], "spectra": {}}
@@ -336,17 +350,38 @@ def measure_lab(root: Path, lab: str) -> dict:
         ).items()
         if k in ("led_scale", "led_scale_spread")
     }
-    # the second camera model's images (without bands) against the paired model's
+    # the second camera model's images (without bands) against the paired model's: with
+    # one C per image (the chain), and with one C and the 3 x 3 map (before), side by side
     spectra = result["spectra"]
     paired_key = f"{cameras[paired]} without bands"
+    for variant, spectra_of in one_c.items():
+        per_key = {}
+        for k, name in enumerate(cameras):
+            labels = [
+                int(v)
+                for v in has["image"].values[~has.values.astype(bool)]
+                if int(rgb["camera"].sel(image=int(v))) == k
+            ]
+            if labels:
+                e = errors(spectra_of, base, rgb, labels)
+                per_key[f"{name} without bands"] = {"median": e["median"], "p95": e["p95"]}
+        result.setdefault("one_c_with_3x3_map", {})[variant] = per_key
     for name in cameras:
         key = f"{name} without bands"
         if model_of[name] != model_of[cameras[paired]] and key in spectra and paired_key in spectra:
-            result.setdefault("second_model_over_paired_model", {})[name] = {
-                "median": spectra[key]["calibrated"]["median"]
-                / spectra[paired_key]["calibrated"]["median"],
-                "p95": spectra[key]["calibrated"]["p95"] / spectra[paired_key]["calibrated"]["p95"],
-            }
+            for variant, suffix in (("calibrated", ""), ("oracle", "_oracle")):
+                result.setdefault(f"second_model_over_paired_model{suffix}", {})[name] = {
+                    stat: spectra[key][variant][stat] / spectra[paired_key][variant][stat]
+                    for stat in ("median", "p95")
+                }
+            for variant, per_key in result.get("one_c_with_3x3_map", {}).items():
+                if key in per_key and paired_key in per_key:
+                    result.setdefault("second_model_over_paired_model_one_c", {}).setdefault(
+                        variant, {}
+                    )[name] = {
+                        stat: per_key[key][stat] / per_key[paired_key][stat]
+                        for stat in ("median", "p95")
+                    }
     result["seconds"] = timings | {"oracle_groups_s": oracle_seconds}
     return result
 
@@ -383,6 +418,9 @@ def main(argv: list[str] | None = None) -> dict:
             "oracle": "true OECF and black offset per camera, true C per camera (and its maps onto "
             "the paired camera), true spectral response, dark pattern and QE, true LED powers; "
             "estimated registration in both",
+            "one_c_with_3x3_map": "the same two reconstructions with one C (the paired camera's) "
+            "for every image and each image's RGB mapped by the 3 x 3 map onto the paired camera "
+            "(the chain before one C per image), images without bands",
             "nrmse": "per pixel |S - T| / |T| against the writer's radiance of the image "
             f"({BORDER} px border off); shape: the same after one scale per pixel",
             "c_error": "per channel RMS over wavelength of (s C - C_true) / max(C_true)",
@@ -420,7 +458,12 @@ def _print_lab(lab: str, result: dict) -> None:
         "  bands:", {k: v for k, v in result["band_radiance"].items() if k != "band_ratio_by_wavelength"}
     )
     print("  without LED table:", result["band_radiance_without_led_table"])
-    print("  second model:", result.get("second_model_over_paired_model"))
+    print(
+        "  second model (calibrated, oracle; one C + 3x3 map):",
+        result.get("second_model_over_paired_model"),
+        result.get("second_model_over_paired_model_oracle"),
+        result.get("second_model_over_paired_model_one_c"),
+    )
     print("  ablation:", json.dumps(result["ablation"]))
     print("  3x3 map on the scene:", result["map_error_on_scene"], flush=True)
 

@@ -300,7 +300,11 @@ def reconstruct(
     camera_matrix
         ``C``, dims ``(channel, wavelength)``: maps a spectrum to RGB. Its grid must contain
         every band's wavelength (within 0.01 nm); a wider grid is restricted to the bands'
-        wavelengths, on which the spectra are reconstructed.
+        wavelengths, on which the spectra are reconstructed. Images of several RGB cameras:
+        one ``C_m`` per image, dims ``(image, channel, wavelength)`` (matched by the
+        ``image`` coordinate), or ``(camera, channel, wavelength)`` picked per image by
+        ``rgb``'s ``camera`` coordinate; the RGB term is then ``||C_m S(p) - R(p)||^2``
+        (:func:`~.inputs.inputs_from_xarray`).
     method
         A production method of
         :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`: the

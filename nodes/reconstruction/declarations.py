@@ -38,7 +38,8 @@ RECONSTRUCT_SEED_SET = Node(
     # 4: the mixture's band-noise estimate robust to texture, brightness-weighted prior;
     # 5: gamma_hat and max_iterations default to the method's settings, no baselines;
     # 6: each image's RGB mapped into the paired camera's (calibration/spectral rgb_transform)
-    version="6",
+    # 7: each image through its own camera's C (T_k C_k from camera_matrices)
+    version="7",
     function=reconstruct_seed_set,
     inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix", "image_sets": "image_sets"},
     outputs=("spectra_seed",),
@@ -49,8 +50,9 @@ RECONSTRUCT_SEED_SET = Node(
 RECONSTRUCT_IMAGE_SETS = Node(
     name="reconstruct_image_sets",
     # 2: tiled (parameter ``tile``), warm start from a strided seed sample; 3: as the seed
-    # set's version 4; 4: as the seed set's version 5; 5: as the seed set's version 6
-    version="5",
+    # set's version 4; 4: as the seed set's version 5; 5: as the seed set's version 6;
+    # 6: as the seed set's version 7
+    version="6",
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",

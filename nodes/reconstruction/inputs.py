@@ -433,7 +433,10 @@ def in_paired_camera(hdr: xr.Dataset, calibration: xr.Dataset) -> xr.Dataset:
     ``rgb_transform`` (camera, channel, channel_in), the least-squares 3 x 3 map of ``C_k``
     onto ``C`` over the calibration spectra
     (:func:`~spectralize.nodes.calibration.rgb_transform.rgb_transform`), puts it into the
-    paired camera's RGB, so each image is reconstructed through its own camera's ``C``.
+    paired camera's RGB, where all images compare (neighbours, chromaticities, warm start).
+    The run reconstructs the mapped image through ``T_k C_k``, which holds for it exactly
+    (:func:`~.set_reconstruction._camera_matrix`); with the paired camera's ``C`` alone the
+    map is taken as exact, which it is only on the calibration spectra.
     Unchanged when the calibration has no ``rgb_transform`` (one camera matrix given, e.g.
     the truth) or ``hdr`` no per-image ``camera``.
 

@@ -229,7 +229,9 @@ def reconstruct_seed_set(
         ``filter_size``.
     calibration
         A group with ``camera_matrix`` (channel, wavelength): ``calibration/spectral`` (the
-        flows' default binding) or, to isolate the reconstruction, ``truth/camera``.
+        flows' default binding) or, to isolate the reconstruction, ``truth/camera``. With
+        ``camera_matrices`` (camera, channel, wavelength) and ``rgb_transform`` too, each
+        image is reconstructed through its own camera's ``C`` (:func:`_camera_matrix`).
     image_sets
         Group ``image_sets``; its ``seed_set`` attr names the set solved here.
     method, gamma_hat, tolerance, max_iterations, k, prior
