@@ -9,7 +9,8 @@ lobes (one main lobe per channel, a small secondary one in the red) that fall to
 both ends of the visible. :func:`lobe_camera_matrix` therefore writes every row of ``C`` as a
 non-negative combination of Gaussian lobes of several widths centred on a fine grid,
 
-``C_c = G a_c``, ``a_c >= 0``, ``min ||W (S G a_c - R_c)||^2 + mu ||a_c||^2``,
+``C_c = G a_c``, ``a_c >= 0``,
+``min ||W (S G a_c - R_c)||^2 + mu ||a_c||^2 + nu ||V G a_c||^2``,
 
 where ``S`` (patch, wavelength) holds the patches' known spectral radiance, ``R`` (patch,
 channel) their measured RGB, ``W`` weights each patch by ``1 / |R_p|`` (relative errors, so
@@ -17,6 +18,19 @@ that a white reference does not outweigh the dark patches) and the ridge ``mu`` 
 lobe the data do not ask for to zero. Non-negativity and smoothness hold by construction;
 non-negative least squares keeps few lobes. ``mu`` is chosen per channel by leaving each patch
 out in turn (:func:`cross_validated_ridge`, with the one-standard-error rule).
+
+The last term holds ``C`` to zero where the calibration had no light
+(:func:`weak_light_weights`): ``V = diag(v)``, ``v_lambda = 1 / (L_lambda + e)^2`` with
+``L_lambda`` the patches' (weighted) light at ``lambda`` relative to the best-lit band. Under a
+phosphor LED the chart's 410 nm band gets under 1 % of the peak; nothing there tells a
+sensitivity of 0.6 from one of 0.02, and the ridge on lobe amplitudes prefers the broadest
+lobes (the most RGB per unit of amplitude), whose tails then reach into that band. Such a
+``C`` reproduces every patch, but the reconstruction projects every pixel onto ``C S = R``
+along the rows of ``C``: its RGB residuals land, as large relative errors, in the bands where
+the light is weak (on a foreign gantry the weakest bands came out far too bright through a
+``C`` whose only fault was its value there). No patch left out can see this
+term, so its weight ``nu`` (relative, :data:`WEAK_LIGHT_WEIGHT`) and floor ``e``
+(:data:`WEAK_LIGHT_FLOOR`) are fixed and stored with the fit.
 
 The benchmark ``benchmarks/calibration.py --camera-matrix`` measures the shape error of ``C``
 per channel against measured camera sensitivities.
@@ -47,7 +61,10 @@ from spectralize.schemas.errors import Problem
 __all__ = [
     "LOBE_WIDTHS",
     "RIDGE_CANDIDATES",
+    "WEAK_LIGHT_WEIGHT",
+    "WEAK_LIGHT_FLOOR",
     "lobe_basis",
+    "weak_light_weights",
     "lobe_camera_matrix",
     "cross_validated_ridge",
     "check_chart_pair",
@@ -66,6 +83,15 @@ bands gives a tail inside them)."""
 
 RIDGE_CANDIDATES: tuple[float, ...] = tuple(float(v) for v in np.logspace(-6, 0, 13))
 """Relative ridge weights :func:`cross_validated_ridge` chooses from (1e-6 .. 1, half decades)."""
+
+WEAK_LIGHT_WEIGHT = 3e-3
+"""Relative weight ``nu`` of the penalty on ``C`` where the calibration had little light
+(0: none). Chosen on the two tuned foreign gantries (``tests/support``), never on the held-out
+one."""
+
+WEAK_LIGHT_FLOOR = 0.01
+"""Floor ``e`` of :func:`weak_light_weights`: the relative light below which the penalty on
+``C`` is at its strongest (1 % of the best-lit band)."""
 
 
 def lobe_basis(
@@ -86,6 +112,35 @@ def lobe_basis(
     return np.concatenate(lobes, axis=1)
 
 
+def weak_light_weights(spectra: np.ndarray, floor: float = WEAK_LIGHT_FLOOR) -> np.ndarray:
+    """(wavelength,) ``v^2 = 1 / (L + floor)^4``: how strongly ``C`` is held to zero per band.
+
+    ``L_lambda = sqrt(sum_p S_p,lambda^2)`` over the (weighted) patch spectra, relative to
+    its best-lit band: the light the calibration saw at ``lambda``. The fourth power keeps the
+    penalty on the bands the patches barely see (a few per cent of the best) and off the
+    moderately lit ones, such as the dip between an LED's blue peak and its phosphor, where
+    the patches do tell ``C``; a square pulled ``C`` down in that dip too, and the fit
+    compensated with wiggles.
+
+    Parameters
+    ----------
+    spectra
+        (patch, wavelength) patch spectra as fitted (weighted rows).
+    floor
+        ``e`` > 0.
+
+    References
+    ----------
+    .. [1] A. N. Tikhonov, V. Y. Arsenin, Solutions of Ill-Posed Problems, Winston 1977
+       (weighted regularisation of an underdetermined fit).
+    """
+    if not floor > 0:
+        raise CalibrationError(f"weak_light_weights: floor must be > 0, got {floor}")
+    light = np.sqrt(np.sum(np.asarray(spectra, dtype=np.float64) ** 2, axis=0))
+    light = light / max(float(light.max()), 1e-300)
+    return 1.0 / (light + floor) ** 4
+
+
 def _weighted(rgb: np.ndarray, spectra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rows scaled by ``1 / |R_p|`` (relative errors per patch)."""
     norm = np.linalg.norm(rgb, axis=1)
@@ -96,12 +151,28 @@ def _weighted(rgb: np.ndarray, spectra: np.ndarray) -> tuple[np.ndarray, np.ndar
     return rgb * w[:, None], spectra * w[:, None]
 
 
-def _ridge_nnls(design: np.ndarray, target: np.ndarray, ridge: float) -> np.ndarray:
-    """``argmin_{a >= 0} ||design a - target||^2 + mu ||a||^2``, ``mu = ridge * ||design||_F^2 / n``."""
+def _weak_rows(
+    design: np.ndarray, spectra: np.ndarray, basis: np.ndarray, weight: float, floor: float
+) -> np.ndarray:
+    """Rows ``sqrt(nu) V G`` of the weak-light penalty, ``nu = weight ||design||_F^2 / ||V G||_F^2``
+    (none when ``weight`` is 0)."""
+    if weight == 0:
+        return np.zeros((0, basis.shape[1]))
+    rows = np.sqrt(weak_light_weights(spectra, floor))[:, None] * basis
+    nu = weight * float(np.sum(design**2)) / max(float(np.sum(rows**2)), 1e-300)
+    return np.sqrt(nu) * rows
+
+
+def _ridge_nnls(
+    design: np.ndarray, target: np.ndarray, ridge: float, extra: np.ndarray | None = None
+) -> np.ndarray:
+    """``argmin_{a >= 0} ||design a - target||^2 + mu ||a||^2 + ||extra a||^2``,
+    ``mu = ridge * ||design||_F^2 / n``."""
     n = design.shape[1]
     mu = ridge * float(np.sum(design**2)) / n
-    a = np.vstack([design, np.sqrt(mu) * np.eye(n)])
-    b = np.concatenate([target, np.zeros(n)])
+    extra = np.zeros((0, n)) if extra is None else extra
+    a = np.vstack([design, np.sqrt(mu) * np.eye(n), extra])
+    b = np.concatenate([target, np.zeros(n + extra.shape[0])])
     return optimize.nnls(a, b, maxiter=50 * n)[0]
 
 
@@ -112,6 +183,8 @@ def cross_validated_ridge(
     *,
     candidates: tuple[float, ...] = RIDGE_CANDIDATES,
     one_se: float = 1.0,
+    weak_light: float = WEAK_LIGHT_WEIGHT,
+    weak_light_floor: float = WEAK_LIGHT_FLOOR,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per channel, the ridge weight whose fit best predicts a patch left out.
 
@@ -135,6 +208,8 @@ def cross_validated_ridge(
     one_se
         How many standard errors of the smallest score a larger weight may lose (0: the
         minimum itself).
+    weak_light, weak_light_floor
+        The penalty on ``C`` where the light is weak (module docstring), in every fit.
 
     Returns
     -------
@@ -155,11 +230,12 @@ def cross_validated_ridge(
     r, s = _weighted(rgb, spectra)
     design = s @ basis
     errors = np.zeros((len(candidates), n, r.shape[1]))
+    folds = [np.arange(n) != p for p in range(n)]
+    extras = [_weak_rows(design[k], s[k], basis, weak_light, weak_light_floor) for k in folds]
     for i, ridge in enumerate(candidates):
-        for p in range(n):
-            keep = np.arange(n) != p
+        for p, keep in enumerate(folds):
             for c in range(r.shape[1]):
-                a = _ridge_nnls(design[keep], r[keep, c], ridge)
+                a = _ridge_nnls(design[keep], r[keep, c], ridge, extras[p])
                 errors[i, p, c] = (design[p] @ a - r[p, c]) ** 2
     scores = errors.mean(axis=1)
     spread = errors.std(axis=1, ddof=1) / np.sqrt(n)
@@ -177,6 +253,8 @@ def lobe_camera_matrix(
     *,
     ridge: float | Sequence[float] | None = None,
     widths: tuple[float, ...] = LOBE_WIDTHS,
+    weak_light: float = WEAK_LIGHT_WEIGHT,
+    weak_light_floor: float = WEAK_LIGHT_FLOOR,
 ) -> xr.Dataset:
     """``C`` (channel, wavelength) as a non-negative sum of smooth lobes fitted to the patches.
 
@@ -193,6 +271,11 @@ def lobe_camera_matrix(
         per channel; ``None``: chosen per channel by leaving each patch out in turn.
     widths
         Standard deviations [nm] of the lobes.
+    weak_light
+        Relative weight ``nu`` of the penalty on ``C`` where the patches had little light
+        (module docstring); 0: none.
+    weak_light_floor
+        Its floor ``e`` (:func:`weak_light_weights`).
 
     Returns
     -------
@@ -200,7 +283,8 @@ def lobe_camera_matrix(
         ``camera_matrix`` (channel, wavelength) float64 >= 0, units ``"1"``; ``residual``
         (patch, channel) ``C S - R``; ``ridge`` (channel), the weight used; ``ridge_cv``
         (ridge_candidate, channel), the leave-one-patch-out scores when chosen. Attrs
-        ``method``, ``widths``, ``lobes``, ``relative_rms_residual``.
+        ``method``, ``widths``, ``lobes``, ``relative_rms_residual``, ``weak_light``,
+        ``weak_light_floor``.
 
     Raises
     ------
@@ -208,7 +292,7 @@ def lobe_camera_matrix(
         Wrong dims.
     CalibrationError
         Patches that do not match, fewer than 3 bands or patches, NaN or inf, a patch
-        without RGB signal, a negative ridge.
+        without RGB signal, a negative ridge or weak-light weight, a floor not positive.
 
     Notes
     -----
@@ -224,6 +308,10 @@ def lobe_camera_matrix(
     check_chart_pair(rgb, spectra, where)
     if ridge is not None and np.any(~(np.asarray(ridge, dtype=float) >= 0)):
         raise CalibrationError(f"{where}: ridge must be >= 0, got {ridge}")
+    if not weak_light >= 0:
+        raise CalibrationError(f"{where}: weak_light must be >= 0, got {weak_light}")
+    if not weak_light_floor > 0:
+        raise CalibrationError(f"{where}: weak_light_floor must be > 0, got {weak_light_floor}")
     s = np.asarray(spectra.transpose("patch", "wavelength").values, dtype=np.float64)
     r = np.asarray(rgb.transpose("patch", "channel").values, dtype=np.float64)
     if not (np.all(np.isfinite(s)) and np.all(np.isfinite(r))):
@@ -236,12 +324,15 @@ def lobe_camera_matrix(
     basis = lobe_basis(wavelength, widths=widths)
     scores = None
     if ridge is None:
-        ridges, scores = cross_validated_ridge(r, s, basis)
+        ridges, scores = cross_validated_ridge(
+            r, s, basis, weak_light=weak_light, weak_light_floor=weak_light_floor
+        )
     else:
         ridges = np.broadcast_to(np.asarray(ridge, dtype=float), (r.shape[1],)).copy()
     rw, sw = _weighted(r, s)
     design = sw @ basis
-    c = np.stack([basis @ _ridge_nnls(design, rw[:, k], ridges[k]) for k in range(r.shape[1])])
+    extra = _weak_rows(design, sw, basis, weak_light, weak_light_floor)
+    c = np.stack([basis @ _ridge_nnls(design, rw[:, k], ridges[k], extra) for k in range(r.shape[1])])
     residual = s @ c.T - r
     rel = float(np.sqrt(np.mean(residual**2)) / max(np.sqrt(np.mean(r**2)), 1e-300))
     channel = rgb["channel"].values if "channel" in rgb.coords else np.arange(r.shape[1])
@@ -267,10 +358,13 @@ def lobe_camera_matrix(
         },
         coords={**coords, **patch},
         attrs={
-            "method": "non-negative sum of Gaussian lobes, ridge on amplitudes",
+            "method": "non-negative sum of Gaussian lobes, ridge on amplitudes"
+            + (", held to zero where the light is weak" if weak_light else ""),
             "widths": [float(w) for w in widths],
             "lobes": int(basis.shape[1]),
             "relative_rms_residual": rel,
+            "weak_light": float(weak_light),
+            "weak_light_floor": float(weak_light_floor),
         },
     )
     if scores is not None:

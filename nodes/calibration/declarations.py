@@ -201,7 +201,8 @@ RECOVER_SPECTRAL_OECF = Node(
 
 CALIBRATE_SPECTRAL = Node(
     name="calibrate_spectral",
-    version="3",  # 3: C, its map onto the paired camera and the cross-check per RGB camera
+    version="4",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
+    # 4: C held to zero where the targets had little light (weak_light)
     function=calibrate_spectral,
     inputs={
         "white_reference": "raw/white_reference",

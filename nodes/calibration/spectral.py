@@ -32,7 +32,11 @@ import xarray as xr
 from pydantic import Field
 
 from spectralize.engine import Choices
-from spectralize.nodes.calibration.camera_lobes import check_chart_pair, lobe_camera_matrix
+from spectralize.nodes.calibration.camera_lobes import (
+    WEAK_LIGHT_WEIGHT,
+    check_chart_pair,
+    lobe_camera_matrix,
+)
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import (
     check_bit_depth,
@@ -850,6 +854,8 @@ def _method_settings(method, cm, smoothness, ridge, cv_scores, nonnegative) -> d
             "ridge": [float(v) for v in cm["ridge"].values],
             "ridge_choice": "given" if ridge is not None else "leave-one-patch-out cross-validation",
             "lobe_widths_nm": cm.attrs["widths"],
+            "weak_light": cm.attrs["weak_light"],
+            "weak_light_floor": cm.attrs["weak_light_floor"],
         }
     return {
         "smoothness": float(smoothness),
@@ -883,6 +889,14 @@ def calibrate_spectral(
             "None: chosen per channel by leaving each patch out in turn",
         ),
     ] = None,
+    weak_light: Annotated[
+        float,
+        Field(
+            ge=0,
+            description="'lobes': relative weight of the penalty holding C to zero in bands "
+            "where the calibration targets had little light (0: none)",
+        ),
+    ] = WEAK_LIGHT_WEIGHT,
     smoothness: Annotated[
         float | None,
         Field(
@@ -933,7 +947,8 @@ def calibrate_spectral(
       illuminant is one more patch, the one spectrum a chart of pigments lacks (flat). By
       default ``C`` is a non-negative sum of smooth lobes
       (:func:`~spectralize.nodes.calibration.camera_lobes.lobe_camera_matrix`, the ridge
-      chosen per channel by leaving each patch out in turn): a second-difference penalty
+      chosen per channel by leaving each patch out in turn, held to zero by ``weak_light``
+      where the targets had little light): a second-difference penalty
       (``camera_matrix_method="smooth"``, :func:`camera_matrix`) extrapolates linearly where
       the light is weak and lets a row keep rising to the end of the bands.
     - Cross-validation: the spectral camera's capture of the checker (longest unsaturated
@@ -950,8 +965,9 @@ def calibrate_spectral(
         ``ridge_cv`` (ridge_candidate, channel) or ``smoothness_cv`` (smoothness) [1] (the
         cross-validation scores, when chosen). Attrs ``mean_relative_error``,
         ``max_relative_error``, ``worst_patch``, ``c_relative_rms_residual`` and the chosen
-        settings: ``camera_matrix_method``, ``white_patch``, ``ridge`` (per channel) and
-        ``lobe_widths_nm``, or ``smoothness`` and ``nonnegative``.
+        settings: ``camera_matrix_method``, ``white_patch``, ``ridge`` (per channel),
+        ``lobe_widths_nm``, ``weak_light`` and ``weak_light_floor``, or ``smoothness`` and
+        ``nonnegative``.
 
     Raises
     ------
@@ -993,6 +1009,7 @@ def calibrate_spectral(
     fit = {
         "method": camera_matrix_method,
         "ridge": ridge,
+        "weak_light": weak_light,
         "smoothness": smoothness,
         "nonnegative": nonnegative,
         "white_patch": white_patch,
@@ -1136,6 +1153,7 @@ def _fit_camera(
     *,
     method: str,
     ridge: float | None,
+    weak_light: float,
     smoothness: float | None,
     nonnegative: bool,
     white_patch: bool,
@@ -1178,7 +1196,7 @@ def _fit_camera(
         fit_spectra = fit_spectra.transpose("patch", "wavelength")
     cv_scores = None
     if method == "lobes":
-        cm = lobe_camera_matrix(fit_rgb, fit_spectra, ridge=ridge)
+        cm = lobe_camera_matrix(fit_rgb, fit_spectra, ridge=ridge, weak_light=weak_light)
     else:
         if smoothness is None:
             smoothness, cv_scores = cross_validated_smoothness(

@@ -125,3 +125,43 @@ def test_lobe_basis_is_smooth_non_negative_and_reaches_beyond_the_bands():
 def test_the_node_takes_either_method_from_its_table():
     assert set(sc.CAMERA_MATRIX_METHODS) == {"lobes", "smooth"}
     assert sc.CAMERA_MATRIX_METHODS["lobes"] is cl.lobe_camera_matrix
+
+
+def test_c_is_held_to_zero_where_the_patches_had_no_light():
+    """A camera with no sensitivity at the LED's unlit blue end (410-420 nm: 0.1 % of the
+    peak): the patches cannot tell, the weak-light penalty can. Without it, the broad lobes
+    of the blue row reach into those bands; with it they do not, at the same fit to the
+    patches (the penalty acts where the patches see nothing)."""
+    rgb, spectra, _ = patches(noise=0.002)
+    truth = smooth_camera(BANDS) * (BANDS >= 430)  # a sensor blind below 430 nm
+    dim = spectra.where(spectra["wavelength"] >= 430, spectra * 0.1)  # its LED dark there
+    rgb = rgb.copy(data=dim.values @ truth.T)
+    held = cl.lobe_camera_matrix(rgb, dim, ridge=1e-3)
+    free = cl.lobe_camera_matrix(rgb, dim, ridge=1e-3, weak_light=0.0)
+    assert held.attrs["weak_light"] == cl.WEAK_LIGHT_WEIGHT and free.attrs["weak_light"] == 0.0
+    assert held.attrs["weak_light_floor"] == cl.WEAK_LIGHT_FLOOR
+    blue = [
+        c.sel(channel="B", wavelength=410).item() / c.sel(channel="B").max().item()
+        for c in (held["camera_matrix"], free["camera_matrix"])
+    ]
+    assert blue[0] < 0.5 * blue[1], blue
+    assert held.attrs["relative_rms_residual"] < free.attrs["relative_rms_residual"] + 0.005
+    assert (
+        shape_error(held["camera_matrix"].values, truth).max()
+        < shape_error(free["camera_matrix"].values, truth).max()
+    )
+
+
+def test_weak_light_weights_grow_where_the_light_falls_and_refuse_bad_settings():
+    _, spectra, _ = patches(noise=0.0)
+    w = cl.weak_light_weights(spectra.values)
+    light = np.sqrt((spectra.values**2).sum(0))
+    assert w.shape == BANDS.shape and np.all(w > 0)
+    assert w[np.argmin(light)] == w.max() and w[np.argmax(light)] == w.min()
+    with pytest.raises(CalibrationError, match="floor must be > 0"):
+        cl.weak_light_weights(spectra.values, floor=0.0)
+    rgb, _, _ = patches(noise=0.0)
+    with pytest.raises(CalibrationError, match="weak_light must be >= 0"):
+        cl.lobe_camera_matrix(rgb, spectra, weak_light=-1.0)
+    with pytest.raises(CalibrationError, match="weak_light_floor must be > 0"):
+        cl.lobe_camera_matrix(rgb, spectra, weak_light_floor=0.0)
