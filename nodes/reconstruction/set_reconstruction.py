@@ -9,7 +9,10 @@ with the tasks of :func:`~spectralize.nodes.reconstruction.tiling.tile_tasks`: o
 per set and tile, so memory is bounded by tile x set, and for a method with an endmember
 dictionary (the default) one more task per set that learns it from a strided sample of the
 set, shared by the set's tiles. The cube is written set by set: each set is one resumable
-region of the ``spectra`` group, so a crash loses at most the sets in flight.
+region of the ``spectra`` group, so a crash loses at most the sets in flight. A run of more
+than :data:`BATCH_SETS_ABOVE` sets of tiny frames (every set in one tile) solves consecutive
+sets in batches of about :data:`BATCH_BYTES` of spectra, one task and one resumable region
+per batch, each set solved exactly as its own task would (a full run has thousands of sets).
 
 The node functions' keyword-only arguments are the nodes' parameters (the engine derives
 the parameter models from them; :mod:`~spectralize.nodes.reconstruction.declarations`
@@ -40,7 +43,15 @@ from .confidence import neighbourhood_spread
 from .image_sets import set_members
 from .inputs import in_paired_camera
 from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
-from .tiling import core_chunks, join_tiles, method_options, set_windows, solve_set, tile_tasks
+from .tiling import (
+    core_chunks,
+    join_tiles,
+    method_options,
+    set_windows,
+    solve_set,
+    solve_tile,
+    tile_tasks,
+)
 
 __all__ = [
     "reconstruct_seed_set",
@@ -123,11 +134,13 @@ Tile = Annotated[
 
 
 def _set_inputs(
-    hdr: xr.Dataset, bands: xr.Dataset, labels: np.ndarray
+    hdr: xr.Dataset, bands: xr.Dataset, labels: np.ndarray, shot_image: np.ndarray | None = None
 ) -> tuple[xr.DataArray, xr.DataArray]:
-    """The HDR RGB of the images ``labels`` and the band shots that pair with them."""
+    """The HDR RGB of the images ``labels`` and the band shots that pair with them
+    (``shot_image``: the bands' per-shot image labels, if already read)."""
+    shot_image = np.asarray(bands["image"].values) if shot_image is None else shot_image
     rgb = hdr["radiance"].sel(image=labels)
-    shots = bands["radiance"].isel(shot=np.flatnonzero(np.isin(bands["image"].values, labels)))
+    shots = bands["radiance"].isel(shot=np.flatnonzero(np.isin(shot_image, labels)))
     return rgb, shots
 
 
@@ -364,6 +377,110 @@ def _warm_sample(
     return source_rgb, spectra, list(computed[len(pieces) :])
 
 
+BATCH_SETS_ABOVE = 64
+"""A run with more sets than this, each solved in one tile (tiny frames), solves consecutive
+sets in batches (:func:`_solve_sets`): one task and one read of the inputs per batch, not
+per set, so that the cost per set does not dominate a run of thousands of sets."""
+BATCH_BYTES = 32 * 2**20
+"""Spectra a batch of sets returns at most (at least one set)."""
+
+
+def _solve_sets(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    shot_image: np.ndarray,
+    camera_matrix: xr.DataArray,
+    sets: list[tuple[np.ndarray, np.ndarray]],
+    *,
+    settings: dict[str, Any],
+    warm: Any,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Solve a batch of sets, each whole in one tile, one after the other (one dask task).
+
+    Each set is :func:`~.tiling.solve_tile` on its own images' RGB and band shots, cut
+    from the batch's inputs, exactly as its own tile task would (:func:`~.tiling.tile_tasks`
+    with one window): the results do not depend on the batching.
+
+    Parameters
+    ----------
+    rgb
+        HDR RGB ``(image, y, x, channel)`` of every image of the batch's sets.
+    shots, shot_image
+        Their band shots ``(shot, y, x)`` and each shot's image label.
+    camera_matrix
+        ``C`` (as :func:`~.tiling.tile_tasks` takes it).
+    sets
+        Per set ``(labels, owned)`` (:func:`~.image_sets.set_members`), in order.
+    settings, warm
+        As for :func:`~.tiling.solve_tile`.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        The owned images' spectra ``(image, wavelength, y, x)`` float32, iterations
+        ``(image,)`` int32 and confidence ``(image, y, x)`` float32, set after set.
+    """
+    cubes, counts, spreads = [], [], []
+    for members, owned in sets:
+        set_rgb = rgb.sel(image=members)
+        set_shots = shots.isel(shot=np.flatnonzero(np.isin(shot_image, members)))
+        (window,), _ = set_windows(set_shots, rgb.sizes["y"], rgb.sizes["x"], None)
+        oy, ox = window.outer
+        cube, count, spread = solve_tile(
+            set_rgb.isel(y=oy, x=ox),
+            set_shots.isel(y=oy, x=ox),
+            camera_matrix,
+            window.inner,
+            settings=settings,
+            keep=owned,
+            warm=warm,
+            confidence=True,
+        )
+        cubes.append(cube)
+        counts.append(count)
+        spreads.append(spread)
+    return np.concatenate(cubes), np.concatenate(counts), np.concatenate(spreads)
+
+
+def _batch_tasks(
+    hdr: xr.Dataset,
+    bands: xr.Dataset,
+    shot_image: np.ndarray,
+    camera_matrix: xr.DataArray,
+    sets: list[tuple[np.ndarray, np.ndarray]],
+    *,
+    settings: dict[str, Any],
+    warm: Any,
+    name: str,
+) -> tuple[da.Array, da.Array, da.Array]:
+    """The lazy results of :func:`_solve_sets` on a batch: spectra, iterations, confidence."""
+    labels = np.unique(np.concatenate([members for members, _ in sets]))
+    rgb = hdr["radiance"].sel(image=labels)
+    picked = np.flatnonzero(np.isin(shot_image, labels))
+    shots = bands["radiance"].isel(shot=picked)
+    token = dask.base.tokenize(
+        rgb.data, shots.data, camera_matrix.values, settings, [tuple(m) for m, _ in sets], warm
+    )
+    task = dask.delayed(_solve_sets, pure=True, nout=3)(
+        rgb,
+        shots,
+        shot_image[picked],
+        camera_matrix,
+        sets,
+        settings=settings,
+        warm=warm,
+        dask_key_name=f"{name}-{token}",
+    )
+    n_owned = sum(int(owned.sum()) for _, owned in sets)
+    ny, nx = hdr.sizes["y"], hdr.sizes["x"]
+    shape = (n_owned, camera_matrix.sizes["wavelength"], ny, nx)
+    return (
+        da.from_delayed(task[0], shape=shape, dtype=np.float32),
+        da.from_delayed(task[1], shape=shape[:1], dtype=np.int32),
+        da.from_delayed(task[2], shape=(n_owned, ny, nx), dtype=np.float32),
+    )
+
+
 def reconstruct_image_sets(
     hdr: xr.Dataset,
     bands: xr.Dataset,
@@ -380,7 +497,8 @@ def reconstruct_image_sets(
     warm_start_pixels: WarmStartPixels = 200_000,
     tile: Tile = DISK_TILE,
 ) -> xr.Dataset:
-    """The spectral cube of the whole run, lazy: one dask task per image set and tile.
+    """The spectral cube of the whole run, lazy: one dask task per image set and tile
+    (per batch of sets, for many sets of tiny frames: :data:`BATCH_SETS_ABOVE`).
 
     The seed set's owned images are copied from ``spectra_seed``; every other set is solved
     warm-started from the seed through appearance neighbourhoods in RGB (paper sec. 4), tile
@@ -442,13 +560,48 @@ def reconstruct_image_sets(
         method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
     )  # fail before any solve
 
+    image_sets = image_sets.load()  # small: read once, not once per set
+    shot_image = np.asarray(bands["image"].values)
+    owned_sets = [i for i in range(image_sets.sizes["set"]) if set_members(image_sets, i)[1].any()]
+    whole = tile is None or (ny <= tile and nx <= tile)  # every set solved in one tile
+    per_image = (
+        camera_matrix.sizes["wavelength"] * ny * nx * np.dtype(np.float32).itemsize
+        + ny * nx * np.dtype(np.float32).itemsize
+    )
+    batch_images = BATCH_BYTES // per_image if whole and len(owned_sets) > BATCH_SETS_ABOVE else 0
     pieces, counts, labels, set_of, confidences = [], [], [], [], []
-    for index in range(image_sets.sizes["set"]):
+    batch: list[tuple[int, np.ndarray, np.ndarray]] = []
+
+    def flush() -> None:
+        if not batch:
+            return
+        block, count, confidence = _batch_tasks(
+            hdr,
+            bands,
+            shot_image,
+            camera_matrix,
+            [(members, owned) for _, members, owned in batch],
+            settings=settings,
+            warm=warm_task,
+            name=f"solve-sets-{batch[0][0]}-{batch[-1][0]}",
+        )
+        pieces.append(block)
+        counts.append(count)
+        confidences.append(confidence)
+        batch.clear()
+
+    for index in owned_sets:
         members, owned = set_members(image_sets, index)
-        if not owned.any():
-            continue
         n_owned = int(owned.sum())
-        rgb, shots = _set_inputs(hdr, bands, members)
+        if index != seed and batch_images:
+            if batch and sum(int(o.sum()) for _, _, o in batch) + n_owned > batch_images:
+                flush()
+            batch.append((index, members, owned))
+            labels.extend(members[owned].tolist())
+            set_of.extend([index] * n_owned)
+            continue
+        flush()
+        rgb, shots = _set_inputs(hdr, bands, members, shot_image)
         windows, _ = set_windows(shots, ny, nx, tile)
         if index == seed:
             block = (
@@ -496,6 +649,7 @@ def reconstruct_image_sets(
         confidences.append(confidence)
         labels.extend(members[owned].tolist())
         set_of.extend([index] * n_owned)
+    flush()
     cube = da.concatenate(pieces, axis=0)
     per_image = hdr.drop_vars([v for v in hdr.data_vars]).sel(image=labels).load()
     coords = {name: per_image[name] for name in (*_PER_IMAGE, "image") if name in per_image.coords}
