@@ -633,6 +633,16 @@ def calibration_oracle(data: Json) -> list[str]:
                     f"{name} {num(v['median'])} / {num(v['p95'])}"
                     for name, v in result["second_model_over_paired_model"].items()
                 )
+                + "".join(
+                    f"; oracle {name} {num(v['median'])} / {num(v['p95'])}"
+                    for name, v in result.get("second_model_over_paired_model_oracle", {}).items()
+                )
+                + "".join(
+                    f"; with one C and the 3 x 3 map ({variant}) {name} {num(v['median'])} / "
+                    f"{num(v['p95'])}"
+                    for variant, ratios in result.get("second_model_over_paired_model_one_c", {}).items()
+                    for name, v in ratios.items()
+                )
                 + "."
                 if result.get("second_model_over_paired_model")
                 else ""
