@@ -6,6 +6,16 @@ with floating-point accuracy (the paper uses 200 per exposure time). Every later
 subtracts the mean dark frame of the *same* exposure time; :func:`dark_frames_at` is the one
 place that looks it up.
 
+A lab that takes a handful of frames per exposure time leaves about ``sigma_read / sqrt(N)``
+of noise in each mean, as much as the signal of a weak band (a band a few DN above the dark
+level is then dominated by its dark frame's noise, and its radiance ripples from band to band).
+A pixel's dark level is, to well within that noise, an offset plus a dark current times the
+exposure time, ``d(t) = a + b t``; fitted per pixel over the frames of *all* exposure times
+(:func:`linear_dark`, ``model="linear"``, the default), it averages every frame of the
+series. Pixels where the line does not hold within the frames' own noise (a hot pixel that
+saturates, a response that bends), and pixels with a frame at the ADC's maximum, keep their
+mean per exposure time.
+
 References
 ----------
 .. [1] Fast Capture of Spectral Image Series, section 4 (dark frames, 200 per exposure time).
@@ -24,10 +34,85 @@ from pydantic import Field
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["average_dark_frames", "dark_frames_at", "EXPOSURE_TIME_RTOL"]
+__all__ = [
+    "average_dark_frames",
+    "dark_frames_at",
+    "linear_dark",
+    "DARK_MODELS",
+    "EXPOSURE_TIME_RTOL",
+    "LINEAR_DARK_TOLERANCE",
+]
 
 EXPOSURE_TIME_RTOL: float = 1e-6
 """Relative tolerance within which a dark frame's exposure time matches a shot's."""
+
+DARK_MODELS = ("linear", "per-time")
+"""How :func:`average_dark_frames` gives the mean dark frame: a line in exposure time per pixel
+over all frames (:func:`linear_dark`) or the mean of each exposure time's frames alone."""
+
+LINEAR_DARK_TOLERANCE: float = 3.0
+"""A pixel keeps its per-exposure-time means where the line's squared residuals exceed this
+many times the noise of those means (chi-square per degree of freedom)."""
+
+
+def linear_dark(
+    mean: np.ndarray,
+    variance: np.ndarray,
+    exposure_time: np.ndarray,
+    frames: int,
+    usable: np.ndarray,
+    *,
+    tolerance: float = LINEAR_DARK_TOLERANCE,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the line ``a + b t`` through the dark means of all exposure times.
+
+    Least squares over the exposure times ``t_k`` a pixel has ``usable`` (no frame at the
+    ADC's maximum), every mean of ``frames`` frames; where fewer than three are usable, or
+    where ``chi2 = sum_k r_k^2 / sum_k (s_k^2 / N) * K / (K - 2)`` exceeds ``tolerance`` (the
+    line's residuals ``r_k`` against the means' own noise, ``s_k^2`` the frames' sample
+    variance), the pixel keeps its means per exposure time.
+
+    Parameters
+    ----------
+    mean, variance
+        (exposure_time, y, x) per-time mean [DN] and sample variance [DN^2] of the frames.
+    exposure_time
+        (exposure_time,) [s].
+    frames
+        ``N``, frames per exposure time.
+    usable
+        (exposure_time, y, x) bool.
+    tolerance
+        Largest accepted ``chi2`` per degree of freedom.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        The mean dark frames (exposure_time, y, x) [DN] and the (y, x) bool map of pixels
+        on the line.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 (dark frames).
+    .. [2] European Machine Vision Association, Standard 1288 (release 4.0, 2021), section 6
+       (dark signal linear in exposure time: offset plus dark current).
+    """
+    t = np.asarray(exposure_time, dtype=np.float64)[:, None, None]
+    w = np.asarray(usable, dtype=np.float64)
+    m = np.asarray(mean, dtype=np.float64)
+    s0, s1, s2 = w.sum(0), (w * t).sum(0), (w * t * t).sum(0)
+    y0, y1 = (w * m).sum(0), (w * t * m).sum(0)
+    det = s0 * s2 - s1 * s1
+    ok = (s0 >= 3) & (det > 1e-12 * np.maximum(s2 * s0, 1e-300))
+    safe = np.where(ok, det, 1.0)
+    slope = np.where(ok, (s0 * y1 - s1 * y0) / safe, 0.0)
+    offset = np.where(ok, (y0 - slope * s1) / np.maximum(s0, 1.0), 0.0)
+    line = offset[None] + slope[None] * t
+    residual = (w * (m - line) ** 2).sum(0)
+    expected = (w * np.asarray(variance, dtype=np.float64) / frames).sum(0)
+    dof = np.maximum(s0 - 2.0, 1.0) / np.maximum(s0, 1.0)
+    ok &= residual <= tolerance * dof * np.maximum(expected, 1e-300)
+    return np.where(ok[None], line, m), ok
 
 
 def average_dark_frames(
@@ -37,13 +122,25 @@ def average_dark_frames(
     ddof: Annotated[
         int, Field(ge=0, le=1, description="delta degrees of freedom of the std (1: sample)")
     ] = 1,
+    model: Annotated[
+        str,
+        Field(
+            pattern="^(linear|per-time)$",
+            description="'linear': per pixel a line in exposure time through the frames of all "
+            "exposure times (where it holds within their noise); 'per-time': the mean of each "
+            "exposure time's frames alone",
+        ),
+    ] = "linear",
 ) -> xr.Dataset:
     """Per-pixel mean and standard deviation of raw dark frames, per exposure time.
 
-    ``mean[t, y, x] = (1/N) sum_k frames[t, k, y, x]`` and the sample standard deviation
-    over the ``N`` frames ``k`` of exposure time ``t``. The mean is the dark frame
-    subtracted from every shot of the same exposure time before the low-SNR OECF recovery
-    (paper section 4) and before band radiance is computed.
+    ``model="per-time"``: ``mean[t, y, x] = (1/N) sum_k frames[t, k, y, x]``; ``"linear"``
+    (default): per pixel the line ``a + b t`` through those means (:func:`linear_dark`),
+    which averages the frames of every exposure time, where it holds within their noise
+    (three or more exposure times). ``std`` is the sample standard deviation over the ``N``
+    frames ``k`` of exposure time ``t`` in both. The mean is the dark frame subtracted from
+    every shot of the same exposure time before the low-SNR OECF recovery (paper section 4)
+    and before band radiance is computed.
     The frames are streamed with dask ``frames_per_chunk`` at a time and reduced in float64,
     so the whole stack is never in memory.
 
@@ -56,11 +153,15 @@ def average_dark_frames(
         Frames per dask chunk while streaming.
     ddof
         Delta degrees of freedom of the standard deviation (1: unbiased sample variance).
+    model
+        ``"linear"`` or ``"per-time"`` (:data:`DARK_MODELS`).
 
     Returns
     -------
     xarray.Dataset
-        Group ``dark``: ``mean`` and ``std`` (exposure_time, y, x) float32 [DN], lazy.
+        Group ``dark``: ``mean`` and ``std`` (exposure_time, y, x) float32 [DN]. Attrs
+        ``dark_model`` and, for ``"linear"``, ``pixels_on_line`` (the share of pixels whose
+        mean is the line).
 
     Raises
     ------
@@ -70,8 +171,10 @@ def average_dark_frames(
     Warns
     -----
     RuntimeWarning
-        When frames at the ADC's maximum code are found (a light leak or a wrong bit depth):
-        the mean is then biased, and is reported rather than silently clipped.
+        When frames at the ADC's maximum code are found (hot pixels in long darks, a light
+        leak or a wrong bit depth): the mean per exposure time is then biased there, and is
+        reported rather than silently clipped (``"linear"`` leaves those frames out of the
+        pixel's line).
 
     References
     ----------
@@ -93,18 +196,33 @@ def average_dark_frames(
     max_code = 2 ** int(raw_dark.attrs["bit_depth"]) - 1
     frames = raw_dark["frames"].chunk({"frame": frames_per_chunk}).data
     as_float = frames.astype(np.float64)
-    # One pass over the stack: mean, std and the saturation count share the same reads.
-    mean, std, saturated = dask.compute(
-        as_float.mean(axis=1), as_float.std(axis=1, ddof=ddof), (frames >= max_code).sum()
+    if model not in DARK_MODELS:
+        raise CalibrationError(f"average_dark_frames: model must be one of {DARK_MODELS}, got {model!r}")
+    # One pass over the stack: mean, std and the saturation counts share the same reads.
+    mean, std, at_max = dask.compute(
+        as_float.mean(axis=1), as_float.std(axis=1, ddof=ddof), (frames >= max_code).sum(axis=1)
     )
+    saturated = int(at_max.sum())
     if saturated:
+        pixels = int((at_max > 0).any(axis=0).sum())
         warnings.warn(
-            f"raw/dark:frames has {int(saturated)} pixel value(s) at the maximum code "
-            f"{max_code}: the dark mean is biased low there (light leak or wrong "
-            "bit_depth?)",
+            f"raw/dark:frames has {saturated} pixel value(s) at the maximum code {max_code} "
+            f"in {pixels} pixel(s): hot pixels in long darks, a light leak or a wrong "
+            "bit_depth; the mean of those frames is biased low there",
             RuntimeWarning,
             stacklevel=2,
         )
+    attrs: dict = {"dark_model": "mean of each exposure time's frames"}
+    times = np.asarray(raw_dark["exposure_time"].values, dtype=np.float64)
+    if model == "linear" and np.unique(times).size >= 3:
+        n = int(raw_dark.sizes["frame"])
+        variance = std**2 * (n - ddof) / max(n - 1, 1)  # the sample variance
+        mean, on_line = linear_dark(mean, variance, times, n, at_max == 0)
+        attrs = {
+            "dark_model": "per pixel a line in exposure time through all frames "
+            "(linear_dark), the per-time mean where it does not hold",
+            "pixels_on_line": float(on_line.mean()),
+        }
     dims = ("exposure_time", "y", "x")
 
     out = xr.Dataset(
@@ -122,6 +240,7 @@ def average_dark_frames(
             "camera": str(raw_dark.attrs["camera"]),
             "bit_depth": int(raw_dark.attrs["bit_depth"]),
             "std_ddof": ddof,
+            **attrs,
         },
     )
     return out

@@ -166,7 +166,7 @@ def calibrate_spectral_check(
 # -- nodes --------------------------------------------------------------------------------
 DARK_AVERAGE = Node(
     name="dark_average",
-    version="1",
+    version="2",  # 2: per pixel a line in exposure time through all frames (model="linear")
     function=average_dark_frames,
     inputs={"raw_dark": "raw/dark"},
     outputs=("dark",),

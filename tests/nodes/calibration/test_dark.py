@@ -107,3 +107,52 @@ def test_dark_frames_of_another_size_or_shape(dark):
         dark_frames_at(dark, [0.5], used_by="x", frame_shape=(8, 11))
     with pytest.raises(SchemaError, match=r"dark:mean: expected dims \(exposure_time, y, x\)"):
         dark_frames_at(dark["mean"].rename(y="row"), [0.5], used_by="x")
+
+
+# -- the dark level as a line in exposure time ------------------------------------------------
+def _few_frames(frames: int = 6, hot_saturates: bool = False) -> tuple[xr.Dataset, np.ndarray]:
+    """Dark frames of 12 exposure times, ``frames`` each: offset + current * t + read noise
+    (3 DN); pixel (0, 0) hot, at the maximum code in the longest darks when ``hot_saturates``."""
+    rng = np.random.default_rng(3)
+    times = np.geomspace(0.01, 5.0, 12)
+    offset = 60 + rng.normal(0, 2, (8, 10))
+    current = rng.gamma(4.0, 0.5, (8, 10))
+    current[0, 0] = 400.0 if hot_saturates else current[0, 0]
+    level = offset[None] + current[None] * times[:, None, None]
+    stack = level[:, None] + rng.normal(0, 3.0, (times.size, frames, 8, 10))
+    counts = np.clip(np.round(stack), 0, 1023).astype(np.uint16)
+    raw = xr.Dataset(
+        {"frames": (("exposure_time", "frame", "y", "x"), counts, {"units": "DN"})},
+        coords={"exposure_time": ("exposure_time", times, {"units": "s"})},
+        attrs={"bit_depth": 10, "camera": "mono"},
+    )
+    return raw, np.minimum(level, 1023.0)
+
+
+def test_a_line_in_exposure_time_averages_every_frame_of_the_series():
+    """Six frames per exposure time: the per-time mean is off by about 3 / sqrt(6) DN; the
+    line through all 72 frames per pixel is several times closer to the true dark level."""
+    raw, truth = _few_frames()
+    line = average_dark_frames(raw)
+    alone = average_dark_frames(raw, model="per-time")
+    assert line.attrs["dark_model"].startswith("per pixel a line")
+    assert line.attrs["pixels_on_line"] > 0.95
+    assert validate_dataset(line, DARK) == []
+    err_line = np.sqrt(np.mean((line["mean"].values - truth) ** 2))
+    err_alone = np.sqrt(np.mean((alone["mean"].values - truth) ** 2))
+    assert err_line < 0.5 * err_alone, (err_line, err_alone)
+    np.testing.assert_allclose(line["std"].values, alone["std"].values)
+
+
+def test_a_hot_pixel_at_the_maximum_code_keeps_its_own_means():
+    raw, _ = _few_frames(hot_saturates=True)
+    with pytest.warns(RuntimeWarning, match=r"in 1 pixel\(s\): hot pixels in long darks"):
+        line = average_dark_frames(raw)
+    alone = average_dark_frames(raw, model="per-time")
+    # the line holds for the frames below the maximum; where it does not, its own means
+    hot = line["mean"].values[:, 0, 0]
+    assert np.all(np.isfinite(hot)) and hot.max() <= 1023.0
+    on = line["mean"].values[:, 1:, 1:] != alone["mean"].values[:, 1:, 1:]
+    assert on.any()
+    with pytest.raises(CalibrationError, match="model must be one of"):
+        average_dark_frames(raw, model="spline")

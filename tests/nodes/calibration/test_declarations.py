@@ -10,7 +10,7 @@ from spectralize.schemas import ParameterError
 
 # every parameter of every calibration node and its default (the former explicit models)
 DEFAULTS = {
-    "DARK_AVERAGE": {"frames_per_chunk": 16, "ddof": 1},
+    "DARK_AVERAGE": {"frames_per_chunk": 16, "ddof": 1, "model": "linear"},
     "RECOVER_RGB_OECF": {
         "calibration_targets": True,
         "per_camera": True,
@@ -73,6 +73,7 @@ def test_weighting_is_validated_from_its_table() -> None:
         ("CALIBRATE_SPECTRAL", {"camera_matrix_method": "splines"}),
         ("CALIBRATE_SPECTRAL", {"ridge": -1.0}),
         ("DARK_AVERAGE", {"ddof": 2}),
+        ("DARK_AVERAGE", {"model": "spline"}),
         ("ESTIMATE_REGISTRATION", {"upsample_factor": 0}),
         ("CALIBRATE_BANDS", {"order": 6}),
         ("HDR_MERGE", {"saturation": 0}),
