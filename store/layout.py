@@ -134,13 +134,16 @@ def regular_chunks(
     return ds.chunk(sizes) if sizes else ds
 
 
-def region_encoding(ds: xr.Dataset, dim: str, encoding: dict[str, dict[str, Any]]) -> None:
-    """On-disk chunks of 1 along the region dim, the dask chunks elsewhere."""
+def region_encoding(
+    ds: xr.Dataset, dim: str, encoding: dict[str, dict[str, Any]], along: int = 1
+) -> None:
+    """On-disk chunks of ``along`` along the region dim (a divisor of every region's start,
+    so no two regions share a chunk), the dask chunks elsewhere."""
     for name, var in ds.variables.items():
         if dim not in var.dims or name in ds.indexes:
             continue
         chunks = var.chunks or tuple((size,) for size in var.shape)
-        disk = tuple(1 if d == dim else max(c) for d, c in zip(var.dims, chunks, strict=True))
+        disk = tuple(along if d == dim else max(c) for d, c in zip(var.dims, chunks, strict=True))
         encoding.setdefault(str(name), {}).setdefault("chunks", disk)
 
 

@@ -88,6 +88,7 @@ from .staging import (
     adopt_abandoned,
     flags_path,
     pack_staged,
+    region_chunk,
     remove_tree,
     replace_group,
     replaced_group,
@@ -639,7 +640,8 @@ class RunStore:
                         encoding=enc or None,
                     )
                 else:
-                    region_encoding(ds, resumable_along, enc)
+                    along = region_chunk(ds, resumable_along)
+                    region_encoding(ds, resumable_along, enc, along)
                     adopt_abandoned(self._staging_dirs(), prefix, staged)
                     write_regions(
                         ds,
@@ -649,7 +651,7 @@ class RunStore:
                         progress,
                         max(1, int(concurrent_regions)),
                     )
-                    pack_staged(staged, keep=chunks or ())
+                    pack_staged(staged, keep=chunks or (), dim=resumable_along)
                 self._commit(staged, target, group, records or {})
             except BaseException as error:
                 keep = resumable_along is not None and not (

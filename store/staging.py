@@ -21,6 +21,7 @@ layout (:func:`~.layout.shard_layout`).
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import shutil
 import time
@@ -47,6 +48,8 @@ __all__ = [
     "remove_tree",
     "adopt_abandoned",
     "write_regions",
+    "plan_regions",
+    "region_chunk",
     "pack_staged",
     "REGION_BYTES",
     "replace_group",
@@ -125,17 +128,7 @@ def write_regions(
     ``concurrent`` of them are computed and written at a time. The flag array is removed
     when every region is written.
     """
-    dim_chunks = next(
-        (
-            dict(zip(v.dims, v.chunks, strict=True))[dim]
-            for v in ds.variables.values()
-            if v.chunks and dim in v.dims
-        ),
-        (ds.sizes[dim],),
-    )
-    per_index = sum(v.nbytes // max(v.sizes[dim], 1) for v in ds.variables.values() if dim in v.dims)
-    joined = len(dim_chunks) > JOIN_REGIONS_ABOVE
-    regions = join_regions(dim_chunks, REGION_BYTES // max(per_index, 1) if joined else 0)
+    regions = plan_regions(ds, dim)
     flags_at = flags_path(staged)
     flags = None
     if staged.exists() and flags_at.exists():
@@ -194,6 +187,37 @@ def write_regions(
     shutil.rmtree(flags_at)
 
 
+def _dim_chunks(ds: xr.Dataset, dim: str) -> tuple[int, ...]:
+    """The dask chunks of ``ds`` along ``dim`` (one chunk if it has none)."""
+    return next(
+        (
+            dict(zip(v.dims, v.chunks, strict=True))[dim]
+            for v in ds.variables.values()
+            if v.chunks and dim in v.dims
+        ),
+        (ds.sizes[dim],),
+    )
+
+
+def plan_regions(ds: xr.Dataset, dim: str) -> list[slice]:
+    """The regions of a resumable write of ``ds`` along ``dim`` (:func:`write_regions`): its
+    dask chunks along the dim, joined up to :data:`REGION_BYTES` when there are more than
+    :data:`JOIN_REGIONS_ABOVE`."""
+    dim_chunks = _dim_chunks(ds, dim)
+    per_index = sum(v.nbytes // max(v.sizes[dim], 1) for v in ds.variables.values() if dim in v.dims)
+    joined = len(dim_chunks) > JOIN_REGIONS_ABOVE
+    return join_regions(dim_chunks, REGION_BYTES // max(per_index, 1) if joined else 0)
+
+
+def region_chunk(ds: xr.Dataset, dim: str) -> int:
+    """The largest staged chunk along the region dim that no two dask chunks (so no two
+    regions) share: the greatest common divisor of the chunks' starts (the whole dim for one
+    chunk). Chunks of equal size (ingest's chunks of frames) stage in chunks of a region, not
+    of one index, so the staged copy has a file per region, not one per image."""
+    starts = np.cumsum(_dim_chunks(ds, dim))[:-1].tolist()
+    return math.gcd(*starts) if starts else max(1, ds.sizes[dim])
+
+
 def join_regions(sizes: Iterable[int], most: int) -> list[slice]:
     """Slices of consecutive chunks of ``sizes``, each chunk whole, joined up to ``most`` indices."""
     regions: list[slice] = []
@@ -208,13 +232,14 @@ def join_regions(sizes: Iterable[int], most: int) -> list[slice]:
     return regions
 
 
-def pack_staged(staged: Path, keep: Iterable[str] = ()) -> None:
+def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) -> None:
     """Rewrite a staged group complete in its regions in the finished layout, in label order.
 
     The regions were written with chunks of 1 along their dim, in the order they were
     computed; the packed copy (beside it, then renamed over it) has every dim whose index was
     not increasing sorted and the chunks and shards of :func:`~.layout.shard_layout` (the
-    staged chunks kept along the dims of ``keep``, which the writer chunked on request). The
+    staged chunks kept along the dims of ``keep``, which the writer chunked on request;
+    along the region dim ``dim``, chunks of 1 inside the shards, however it was staged). The
     arrays are copied shard by shard with zarr, never all in memory.
     """
     source = xr.open_zarr(str(staged), consolidated=False, chunks={})
@@ -224,6 +249,13 @@ def pack_staged(staged: Path, keep: Iterable[str] = ()) -> None:
         for key in ("chunks", "preferred_chunks", "shards"):
             var.encoding.pop(key, None)
     encoding: dict[str, dict[str, Any]] = {}
+    for name, var in template.variables.items():
+        if dim is not None and dim in var.dims and name not in template.indexes and var.chunks:
+            encoding[str(name)] = {
+                "chunks": tuple(
+                    1 if d == dim else max(c) for d, c in zip(var.dims, var.chunks, strict=True)
+                )
+            }
     template = shard_layout(template, encoding, keep=keep)
     packed = staged.with_name(f"{staged.name}.packed")
     shutil.rmtree(packed, ignore_errors=True)
