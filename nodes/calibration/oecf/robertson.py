@@ -852,7 +852,8 @@ def recover_rgb_oecf(
     weighting
         A key of :data:`~spectralize.nodes.calibration.oecf.weighting.WEIGHTING_FUNCTIONS`.
     tolerance, max_pixels
-        See :func:`recover_oecf`.
+        See :func:`recover_oecf`; ``max_pixels`` is lowered for a camera with so many
+        images that images x positions exceed :data:`MAX_SAMPLES` (a full run's tiny frames).
 
     Returns
     -------
@@ -882,16 +883,14 @@ def recover_rgb_oecf(
     data = raw_rgb[["counts"]].assign_attrs(bit_depth=depth)
     options = {"weighting": weighting, "tolerance": tolerance, "max_pixels": max_pixels}
     targets = [t for t in (colour_checker, white_reference) if t is not None and calibration_targets]
-    own = {  # one response per camera, each with its own black level (and target series)
-        c: recover_oecf(
-            with_target_series(
-                data.isel(image=np.flatnonzero(cameras == c)), targets, c, level, 2**depth - 1
-            ),
-            black_level=level,
-            **options,
+    own = {}  # one response per camera, each with its own black level (and target series)
+    for c, level in levels.items():
+        series = with_target_series(
+            data.isel(image=np.flatnonzero(cameras == c)), targets, c, level, 2**depth - 1
         )
-        for c, level in levels.items()
-    }
+        own[c] = recover_oecf(
+            series, black_level=level, **{**options, "max_pixels": _capped(series, max_pixels)}
+        )
     black_level = min(levels.values())
     if per_camera:
         result = xr.concat([own[c] for c in levels], dim="camera", combine_attrs="override")
@@ -902,7 +901,10 @@ def recover_rgb_oecf(
             bool(r["response"].attrs.get("converged", True)) for r in own.values()
         )
     else:
-        result = recover_oecf(data.drop_vars("camera"), black_level=black_level, **options)
+        pooled = data.drop_vars("camera")
+        result = recover_oecf(
+            pooled, black_level=black_level, **{**options, "max_pixels": _capped(pooled, max_pixels)}
+        )
         _warn_pooled(own, result, "recover_rgb_oecf: raw/rgb")
     response = result["response"]
     samples = response["samples"].drop_vars("samples", errors="ignore")
@@ -950,6 +952,24 @@ def camera_black_levels(raw_rgb: xr.Dataset) -> dict[int, int]:
         else:
             out[c] = default_black_level(raw_rgb.isel(image=np.flatnonzero(cameras == c)))
     return out
+
+
+MAX_SAMPLES = 2_000_000
+"""Pixel positions (over all images of a series) one response is recovered from at most:
+a run of more images than ``MAX_SAMPLES / pixels per image`` per camera (a full run of tiny
+frames: 4,752 images of 1,024 px) uses fewer positions per image, so the recovery's time and
+memory stop growing with the image count. Below, nothing changes."""
+
+
+def _capped(series: xr.Dataset, max_pixels: int | None) -> int | None:
+    """``max_pixels`` per image, lowered so that images x positions <= :data:`MAX_SAMPLES`."""
+    n_image = series.sizes.get("image", 1)
+    per_image = series.sizes["y"] * series.sizes["x"]
+    if max_pixels is not None:
+        per_image = min(per_image, max_pixels)
+    if n_image * per_image <= MAX_SAMPLES:
+        return max_pixels
+    return max(100, MAX_SAMPLES // n_image)
 
 
 POOLING_TOLERANCE = 0.02
