@@ -28,8 +28,10 @@ from numba import njit
 
 __all__ = [
     "normal_pixels",
+    "prior_normal_pixels",
     "block_jacobi_pixels",
     "cg_step",
+    "cg_step_block_jacobi",
     "cg_direction",
     "dot",
     "projected_step",
@@ -87,6 +89,92 @@ def normal_pixels(
             weight = gamma * data[j]
             for w in range(n_wavelength):
                 out[p, w] += weight * x[column, w]
+
+
+@njit(**_JIT)
+def prior_normal_pixels(
+    x,
+    camera,
+    camera_index,
+    beta,
+    indptr,
+    indices,
+    data,
+    gamma,
+    epsilon,
+    image,
+    precision,
+    weight,
+    brightness,
+    shots,
+    subtract,
+    out,
+):  # pragma: no cover - compiled
+    """:func:`normal_pixels` plus the priors' per-pixel terms in the same pass; returns
+    ``x . out`` (float64).
+
+    ``out = beta C_m^T C_m x + gamma L x + epsilon x + w_p Q x_p + f_p shots[m] x_p -
+    subtract``, per pixel ``p`` of image ``m``: the spectral prior ``w_p Q`` (``precision``
+    ``Q`` ``(n_wavelength, n_wavelength)``, ``weight`` ``w_p`` ``(n_pixels,)``), the
+    brightness-weighted guided prior (``brightness`` ``f_p`` ``(n_pixels,)``, ``shots``
+    ``(n_image, n_wavelength)``) and a vector to subtract (``(n_pixels, n_wavelength)``, the
+    right-hand side of a gradient ``H x - b``). An empty ``weight``, ``brightness`` or
+    ``subtract`` (size 0) leaves its term out. Without ``subtract``, the returned
+    ``x . out`` is the curvature ``x^T H x`` CG needs (the filter term's share is added by
+    its own pass); with it, the value means nothing.
+    """
+    n_pixels, n_wavelength = x.shape
+    use_prior = weight.size > 0
+    use_brightness = brightness.size > 0
+    use_subtract = subtract.size > 0
+    row = np.empty(n_wavelength, dtype=out.dtype)  # the pixel's result, written once
+    here = np.empty(n_wavelength, dtype=out.dtype)
+    total = 0.0
+    block = 64
+    prior_block = np.zeros((block, n_wavelength), dtype=out.dtype)
+    for p in range(n_pixels):
+        if use_prior and p % block == 0:  # Q x for a block of pixels: one small GEMM
+            last = min(p + block, n_pixels)
+            prior_block[: last - p] = np.dot(x[p:last], precision)
+        m = image[p]
+        c = camera[camera_index[m]]
+        v0 = 0.0
+        v1 = 0.0
+        v2 = 0.0
+        for w in range(n_wavelength):
+            value = x[p, w]
+            here[w] = value
+            v0 += c[0, w] * value
+            v1 += c[1, w] * value
+            v2 += c[2, w] * value
+        v0 *= beta
+        v1 *= beta
+        v2 *= beta
+        for w in range(n_wavelength):
+            row[w] = c[0, w] * v0 + c[1, w] * v1 + c[2, w] * v2 + epsilon[m, w] * here[w]
+        for j in range(indptr[p], indptr[p + 1]):
+            column = indices[j]
+            coupling = gamma * data[j]
+            for w in range(n_wavelength):
+                row[w] += coupling * x[column, w]
+        if use_prior:  # Q is symmetric: its rows scaled by x_p, added (vectorises)
+            wp = weight[p]
+            qx = prior_block[p % block]
+            for w in range(n_wavelength):
+                row[w] += wp * qx[w]
+        if use_brightness:
+            fp = brightness[p]
+            for w in range(n_wavelength):
+                row[w] += fp * shots[m, w] * here[w]
+        if use_subtract:
+            for w in range(n_wavelength):
+                row[w] -= subtract[p, w]
+        part = 0.0
+        for w in range(n_wavelength):
+            out[p, w] = row[w]
+            part += here[w] * row[w]
+        total += part
+    return total
 
 
 @njit(**_JIT)
@@ -149,6 +237,29 @@ def cg_step(x, r, p, q, step):  # pragma: no cover - compiled
         rf[i] = value
         total += value * value
     return total
+
+
+@njit(**_JIT)
+def cg_step_block_jacobi(
+    x, r, p, q, step, inverse_diagonal, camera, camera_index, image, small_inverse
+):  # pragma: no cover - compiled
+    """:func:`cg_step` and :func:`block_jacobi_pixels` in one pass: ``x += step p``,
+    ``r -= step q``, then ``q = M^-1 r`` (the preconditioned residual ``z`` takes the place
+    of ``q``, used up by then); returns ``(r . r, r . z)``."""
+    n_pixels, n_wavelength = r.shape
+    rr = 0.0
+    rz = 0.0
+    for i in range(n_pixels):
+        part = 0.0
+        for w in range(n_wavelength):
+            x[i, w] += step * p[i, w]
+            value = r[i, w] - step * q[i, w]
+            r[i, w] = value
+            part += value * value
+        rr += part
+        c = camera[camera_index[image[i]]]
+        rz = _block_jacobi_pixel(i, r, inverse_diagonal, c, small_inverse, q, rz)
+    return rr, rz
 
 
 @njit(**_JIT)

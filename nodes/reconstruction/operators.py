@@ -286,17 +286,28 @@ class FilterConstraints:
         """
         if out is None:
             out = np.zeros(cube.shape, dtype=self.dtype)
+        self.add_normal(cube, out, scale, positions=positions)
+        return out
+
+    def add_normal(
+        self, cube: np.ndarray, out: np.ndarray, scale: float, *, positions: np.ndarray | None = None
+    ) -> float:
+        """Add ``scale * F^T F S`` to ``out`` as :meth:`normal` does; returns ``S . (scale
+        F^T F S) = scale ||F S||^2`` (float64), from the filter responses (no pass over the
+        cube)."""
         factor = self.dtype.type(scale)
         plane_shape = self.shape[2:]
+        total = 0.0
         for i in range(self.n_shots):
             b, m = self.band[i], self.image[i]
             index = (b, m) if positions is None else (positions[m], b)
             responses = self.apply_plane(i, cube[index].reshape(plane_shape))
+            total += float(scale) * float(np.einsum("ij,ij->", responses, responses, dtype=np.float64))
             if scale != 1.0:
                 responses *= factor
             adjoint = self.adjoint_plane(i, responses)
             out[index] += adjoint if positions is None else adjoint.ravel()
-        return out
+        return total
 
     def normal_diagonal(self) -> np.ndarray:
         """Diagonal of ``F^T F`` as a cube of :attr:`shape` (separable: an outer product)."""
@@ -588,6 +599,62 @@ class ReconstructionProblem:
         )
         self.filters.normal(cube, out=out, scale=w.alpha, positions=order.positions)
         return out
+
+    def prior_normal_pixels(
+        self,
+        cube: np.ndarray,
+        *,
+        order: PixelOrder,
+        epsilon: np.ndarray | float,
+        out: np.ndarray,
+        precision: np.ndarray | None = None,
+        weight: np.ndarray | None = None,
+        brightness: np.ndarray | None = None,
+        shots: np.ndarray | None = None,
+        subtract: np.ndarray | None = None,
+    ) -> float:
+        """``out = (A^T A + epsilon I + w_p Q + f_p M_m) S - subtract`` on a pixel-major
+        cube; returns ``S . out`` (the curvature CG needs, meaningless with ``subtract``).
+
+        :meth:`normal_pixels` with the priors' per-pixel terms of
+        :func:`~.solvers.prior_pcg.prior_pcg` fused into its compiled pass
+        (:func:`~.kernels.prior_normal_pixels`): one pass over the cube for the RGB term,
+        the neighbour Laplacian, the ridge, the spectral prior ``w_p Q S_p`` (``precision``
+        ``(n_wavelength, n_wavelength)``, ``weight`` ``(n_pixels,)`` in ``order``), the
+        brightness-weighted guided prior ``f_p M_m S_p`` (``brightness`` ``(n_pixels,)``,
+        ``shots`` ``(n_image, n_wavelength)``) and ``- subtract`` (a gradient's right-hand
+        side), then the filter term on the band planes, whose share of ``S . out`` comes
+        from its responses. Terms given as None are left out.
+        """
+        from .kernels import prior_normal_pixels
+
+        w = self.weights
+        n_wavelength, n_image = self.shape[:2]
+        dtype = self.dtype
+        ridge = np.broadcast_to(np.asarray(epsilon, dtype=dtype), (n_wavelength, n_image, 1, 1))
+        laplacian = order.laplacian(dtype)
+        blocks, index = self.camera_blocks()
+        empty = np.empty(0, dtype=dtype)
+        total = prior_normal_pixels(
+            cube,
+            blocks,
+            index,
+            dtype.type(w.beta),
+            laplacian.indptr,
+            laplacian.indices,
+            laplacian.data,
+            dtype.type(w.gamma),
+            np.ascontiguousarray(ridge[:, :, 0, 0].T),
+            order.image,
+            np.empty((0, 0), dtype=dtype) if precision is None else precision,
+            empty if weight is None else weight,
+            empty if brightness is None else brightness,
+            np.empty((0, 0), dtype=dtype) if shots is None else shots,
+            np.empty((0, 0), dtype=dtype) if subtract is None else subtract,
+            out,
+        )
+        total += self.filters.add_normal(cube, out, w.alpha, positions=order.positions)
+        return float(total)
 
     def camera_blocks(self) -> tuple[np.ndarray, np.ndarray]:
         """The distinct camera matrices ``(n_camera, 3, n_wavelength)`` in :attr:`dtype` and

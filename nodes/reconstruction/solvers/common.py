@@ -220,9 +220,11 @@ def preconditioned_cg(
     return x, history, iterations
 
 
-PixelOperator = Callable[[np.ndarray, np.ndarray], np.ndarray]
+PixelOperator = Callable[[np.ndarray, np.ndarray], "np.ndarray | tuple[np.ndarray, float]"]
 """``operator(vector, out) -> out``: the regularised normal operator ``H`` applied to a
-pixel-major vector ``(n_pixels, n_wavelength)``, written into ``out``."""
+pixel-major vector ``(n_pixels, n_wavelength)``, written into ``out``; or ``-> (out,
+vector . out)`` where its pass computes the curvature too (:func:`pixel_pcg` then skips a
+dot)."""
 
 
 def pixel_pcg(
@@ -273,10 +275,21 @@ def pixel_pcg(
     buffer = np.empty_like(x)
 
     def apply_operator(direction: np.ndarray) -> np.ndarray:
-        return operator(direction, buffer)
+        return _applied(operator(direction, buffer))[0]
 
     rhs_norm = np.sqrt(COMPILED.dot(rhs, rhs)) or 1.0
-    r = rhs - operator(x, buffer)
+    r = rhs - _applied(operator(x, buffer))[0]
+    cube_wanted = needs_cube(callback)
+
+    def band_major_callback(iteration: int, vector: np.ndarray, *relative: float) -> None:
+        callback(iteration, order.to_cube(vector) if cube_wanted else None, *relative)
+
+    band_major_callback.wants_residual = wants_residual(callback)  # type: ignore[attr-defined]
+    wrapped = None if callback is None else band_major_callback
+    if precondition is True:
+        return _block_jacobi_cg(
+            operator, x, r, rhs_norm, preconditioner, buffer, tolerance, max_iterations, wrapped
+        )
     if precondition == "jacobi":
         scalar = preconditioner.inverse_scalar_diagonal_pixels()
 
@@ -293,13 +306,6 @@ def pixel_pcg(
         def apply_preconditioner(residual: np.ndarray) -> np.ndarray:
             return residual.copy()
 
-    cube_wanted = needs_cube(callback)
-
-    def band_major_callback(iteration: int, vector: np.ndarray, *relative: float) -> None:
-        callback(iteration, order.to_cube(vector) if cube_wanted else None, *relative)
-
-    band_major_callback.wants_residual = wants_residual(callback)  # type: ignore[attr-defined]
-
     return preconditioned_cg(
         apply_operator,
         x,
@@ -309,6 +315,55 @@ def pixel_pcg(
         tolerance=tolerance,
         max_iterations=max_iterations,
         dtype=x.dtype,
-        callback=None if callback is None else band_major_callback,
+        callback=wrapped,
         vectors=COMPILED,
     )
+
+
+def _applied(result: np.ndarray | tuple[np.ndarray, float]) -> tuple[np.ndarray, float | None]:
+    """A :data:`PixelOperator`'s ``out``, and ``vector . out`` where it returned it too."""
+    if isinstance(result, tuple):
+        return result
+    return result, None
+
+
+def _block_jacobi_cg(
+    operator: PixelOperator,
+    x: np.ndarray,
+    r: np.ndarray,
+    rhs_norm: float,
+    preconditioner: BlockJacobiPreconditioner,
+    buffer: np.ndarray,
+    tolerance: float,
+    max_iterations: int,
+    callback: Callback | None,
+) -> tuple[np.ndarray, list[float], int]:
+    """:func:`preconditioned_cg` with the block-Jacobi preconditioner, in fewer passes.
+
+    The same iteration, its passes fused: ``p . H p`` from the operator's own pass where it
+    returns it (else one dot), CG's update of ``x`` and ``r`` with ``M^-1 r`` and both dots
+    in one pass (:meth:`~.preconditioner.BlockJacobiPreconditioner.step_pixels`, ``z`` in
+    the operator's buffer), then the new direction: three passes over the cube per
+    iteration besides the operator, instead of six.
+    """
+    z = preconditioner.apply_pixels(r, out=buffer)
+    rz = COMPILED.dot(r, z)
+    p = z.copy()
+    history = [np.sqrt(COMPILED.dot(r, r)) / rhs_norm]
+    iterations = 0
+    while history[-1] > tolerance and iterations < max_iterations:
+        q, pq = _applied(operator(p, buffer))
+        if pq is None:
+            pq = COMPILED.dot(p, q)
+        if not pq > 0:
+            break
+        rr, rz_new = preconditioner.step_pixels(x, r, p, q, rz / pq)  # z now in ``buffer``
+        iterations += 1
+        history.append(np.sqrt(max(rr, 0.0)) / rhs_norm)
+        if callback is not None:
+            callback(iterations, x, *history[-1:] if wants_residual(callback) else ())
+        if history[-1] <= tolerance:
+            break
+        COMPILED.direction(p, buffer, x.dtype.type(rz_new / rz))
+        rz = rz_new
+    return x, history, iterations

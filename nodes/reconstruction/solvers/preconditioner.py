@@ -162,6 +162,28 @@ class BlockJacobiPreconditioner:
         )
         return out
 
+    def step_pixels(
+        self, x: np.ndarray, r: np.ndarray, p: np.ndarray, q: np.ndarray, step: float
+    ) -> tuple[float, float]:
+        """CG's update and this preconditioner in one compiled pass
+        (:func:`~..kernels.cg_step_block_jacobi`): ``x += step p``, ``r -= step q``, then
+        ``q = M^-1 r``; returns ``(r . r, r . M^-1 r)``. Pixel-major arrays in :attr:`order`."""
+        from ..kernels import cg_step_block_jacobi
+
+        rr, rz = cg_step_block_jacobi(
+            x,
+            r,
+            p,
+            q,
+            x.dtype.type(step),
+            self.inverse_diagonal,
+            self.camera_matrix,
+            self.camera_index,
+            self.order.image,
+            self.small_inverse,
+        )
+        return float(rr), float(rz)
+
     def __call__(self, residual: np.ndarray) -> np.ndarray:
         """``M^-1 r`` for a residual of the problem's :attr:`shape`."""
         pixels = self.order.to_pixels(np.asarray(residual, dtype=self.dtype).reshape(self.shape))

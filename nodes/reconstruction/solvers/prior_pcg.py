@@ -53,9 +53,6 @@ from .spectral_prior import PRIOR_WEIGHTINGS, prior_brightness, spectral_prior_t
 
 __all__ = ["prior_pcg"]
 
-_CHUNK = 1 << 15
-"""Pixels per chunk of the per-pixel terms ``w_p Q S_p`` (bounds their temporary)."""
-
 
 def prior_pcg(
     problem: ReconstructionProblem,
@@ -169,21 +166,17 @@ def prior_pcg(
     towards = dtype.type(ridge * mean_diagonal)
     start = centre if initial is None else np.asarray(initial, dtype=dtype).reshape(work.shape)
     rhs = work.normal_rhs() + towards * start
-    pixel_prior = None
+    brightness_pixels = shots = None  # epsilon_p f_p M per pixel: f_p and epsilon_p M per image
     if brightness is None:  # uniform per (band, image): a ridge of the compiled operator
         epsilon = ((ridge + prior * mask) * mean_diagonal).astype(dtype)
         rhs += (guided * mean_diagonal).astype(dtype) * centre  # + epsilon_p M c
-    else:  # per pixel: epsilon_p f_p M, applied chunk by chunk beside ``w_p Q``
+    else:  # per pixel: epsilon_p f_p M, applied in the operator's pass beside ``w_p Q``
         epsilon = np.asarray(ridge * mean_diagonal, dtype=dtype)
         guided *= dtype.type(mean_diagonal)  # + epsilon_p f_p M c, in the weights' cube
         guided *= centre
         rhs += guided
-        pixel_image = order.order // (problem.shape[2] * problem.shape[3])
-        pixel_prior = (
-            brightness.reshape(-1)[order.order],
-            (mask[:, :, 0, 0].T * (prior * mean_diagonal)).astype(dtype),  # (m, w)
-            pixel_image,
-        )
+        brightness_pixels = np.ascontiguousarray(brightness.reshape(-1)[order.order], dtype=dtype)
+        shots = np.ascontiguousarray((mask[:, :, 0, 0].T * (prior * mean_diagonal)).astype(dtype))
         del brightness
     del guided
     if term is not None:
@@ -194,21 +187,27 @@ def prior_pcg(
     rhs = order.to_pixels(rhs)
     precision = weight = None
     if term is not None:  # Q and w_p, pixel-major
-        precision = np.ascontiguousarray(term.precision)
-        weight = term.weight.reshape(-1)[order.order]
+        precision = np.ascontiguousarray(term.precision, dtype=dtype)
+        weight = np.ascontiguousarray(term.weight.reshape(-1)[order.order], dtype=dtype)
         del term
 
-    def operator(vector: np.ndarray, out: np.ndarray) -> np.ndarray:
-        work.normal_pixels(vector, order=order, epsilon=epsilon, out=out)
-        if weight is not None or pixel_prior is not None:
-            for first in range(0, vector.shape[0], _CHUNK):  # + w_p Q S_p, chunk by chunk
-                here = slice(first, first + _CHUNK)
-                if weight is not None:
-                    out[here] += (vector[here] @ precision) * weight[here, None]
-                if pixel_prior is not None:  # + epsilon_p f_p M S_p
-                    f, shots, image = pixel_prior
-                    out[here] += vector[here] * (f[here, None] * shots[image[here]])
-        return out
+    def operator(
+        vector: np.ndarray, out: np.ndarray, subtract: np.ndarray | None = None
+    ) -> tuple[np.ndarray, float]:
+        # eq. 1's normal operator, the ridges and the per-pixel priors ``w_p Q S_p`` and
+        # ``epsilon_p f_p M S_p`` in one compiled pass (and ``S . H S`` with it)
+        curvature = work.prior_normal_pixels(
+            vector,
+            order=order,
+            epsilon=epsilon,
+            out=out,
+            precision=precision,
+            weight=weight,
+            brightness=brightness_pixels,
+            shots=shots,
+            subtract=subtract,
+        )
+        return out, curvature
 
     x, history, iterations = pixel_pcg(
         operator,
@@ -227,7 +226,14 @@ def prior_pcg(
         # the preconditioner is done with: the refinement's buffers take its place (the
         # peak is the larger of the two stages, not their sum)
         del preconditioner
-        x = projected_refinement(operator, rhs, scale, x, int(projected_iterations))
+        x = projected_refinement(
+            operator,
+            rhs,
+            scale,
+            x,
+            int(projected_iterations),
+            gradient=lambda vector, out: operator(vector, out, rhs)[0],
+        )
     return SolverResult(
         order.to_cube(x),
         iterations + int(projected_iterations),

@@ -13,6 +13,8 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .common import PixelOperator
@@ -27,7 +29,13 @@ MAX_STEP = 10.0
 
 
 def projected_refinement(
-    operator: PixelOperator, rhs: np.ndarray, scale: np.ndarray, x: np.ndarray, iterations: int
+    operator: PixelOperator,
+    rhs: np.ndarray,
+    scale: np.ndarray,
+    x: np.ndarray,
+    iterations: int,
+    *,
+    gradient: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Minimise ``x^T H x / 2 - rhs^T x`` over ``x >= 0`` from ``x``; returns the result.
 
@@ -48,6 +56,9 @@ def projected_refinement(
         Start (e.g. the PCG's solution), C-contiguous float; overwritten.
     iterations
         Projected-gradient steps.
+    gradient
+        ``gradient(vector, out) -> out``, ``out = H vector - rhs`` in one pass (e.g. the
+        operator's compiled pass subtracting ``rhs``); None: ``operator`` then a subtraction.
 
     Notes
     -----
@@ -58,13 +69,20 @@ def projected_refinement(
     """
     from ..kernels import projected_step, step_dots
 
+    if gradient is None:
+
+        def gradient(vector: np.ndarray, out: np.ndarray) -> np.ndarray:
+            applied = operator(vector, out)
+            applied = applied[0] if isinstance(applied, tuple) else applied
+            return np.subtract(applied, rhs, out=out)
+
     np.maximum(x, 0, out=x)
     g, new, new_g = np.empty_like(x), np.empty_like(x), np.empty_like(x)
-    g = np.subtract(operator(x, g), rhs, out=g)
+    g = gradient(x, g)
     step = 1.0
     for _ in range(iterations):
         projected_step(x, g, scale, step, new)
-        np.subtract(operator(new, new_g), rhs, out=new_g)
+        gradient(new, new_g)
         sy, ss = step_dots(new, x, new_g, g, scale)
         step = float(ss / sy) if sy > 0 else step
         step = min(max(step, MIN_STEP), MAX_STEP)
