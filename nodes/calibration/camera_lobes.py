@@ -10,7 +10,7 @@ both ends of the visible. :func:`lobe_camera_matrix` therefore writes every row 
 non-negative combination of Gaussian lobes of several widths centred on a fine grid,
 
 ``C_c = G a_c``, ``a_c >= 0``,
-``min ||W (S G a_c - R_c)||^2 + mu ||a_c||^2 + nu ||V G a_c||^2``,
+``min ||W (S G a_c - R_c)||^2 + mu ||a_c||^2 + nu sum_lambda u_lambda (G a_c)_lambda^2``,
 
 where ``S`` (patch, wavelength) holds the patches' known spectral radiance, ``R`` (patch,
 channel) their measured RGB, ``W`` weights each patch by ``1 / |R_p|`` (relative errors, so
@@ -20,8 +20,10 @@ non-negative least squares keeps few lobes. ``mu`` is chosen per channel by leav
 out in turn (:func:`cross_validated_ridge`, with the one-standard-error rule).
 
 The last term holds ``C`` to zero where the calibration had no light
-(:func:`weak_light_weights`): ``V = diag(v)``, ``v_lambda = 1 / (L_lambda + e)^2`` with
-``L_lambda`` the patches' (weighted) light at ``lambda`` relative to the best-lit band. Under a
+(:func:`weak_light_weights`): ``u_lambda = (e / (L_lambda + e))^4`` with ``L_lambda`` the
+patches' (weighted) light at ``lambda`` relative to the best-lit band, 1 where they had none
+and vanishing where they had some; ``nu`` is relative to the data (``||W S G||_F^2 /
+||G||_F^2``), so a bright chart or a dim one is held alike. Under a
 phosphor LED the chart's 410 nm band gets under 1 % of the peak; nothing there tells a
 sensitivity of 0.6 from one of 0.02, and the ridge on lobe amplitudes prefers the broadest
 lobes (the most RGB per unit of amplitude), whose tails then reach into that band. Such a
@@ -84,10 +86,11 @@ bands gives a tail inside them)."""
 RIDGE_CANDIDATES: tuple[float, ...] = tuple(float(v) for v in np.logspace(-6, 0, 13))
 """Relative ridge weights :func:`cross_validated_ridge` chooses from (1e-6 .. 1, half decades)."""
 
-WEAK_LIGHT_WEIGHT = 3e-3
+WEAK_LIGHT_WEIGHT = 0.15
 """Relative weight ``nu`` of the penalty on ``C`` where the calibration had little light
-(0: none). Chosen on the two tuned foreign gantries (``tests/support``), never on the held-out
-one."""
+(0: none). Chosen on the two tuned foreign gantries (``tests/support``: band bias of the
+spectra, C per channel), the project's simulator and ``benchmarks/calibration.py
+--camera-matrix``'s tuned cameras under three lights, never on a held-out one."""
 
 WEAK_LIGHT_FLOOR = 0.01
 """Floor ``e`` of :func:`weak_light_weights`: the relative light below which the penalty on
@@ -113,14 +116,14 @@ def lobe_basis(
 
 
 def weak_light_weights(spectra: np.ndarray, floor: float = WEAK_LIGHT_FLOOR) -> np.ndarray:
-    """(wavelength,) ``v^2 = 1 / (L + floor)^4``: how strongly ``C`` is held to zero per band.
+    """(wavelength,) ``u = (e / (L + e))^4``: how strongly ``C`` is held to zero per band.
 
     ``L_lambda = sqrt(sum_p S_p,lambda^2)`` over the (weighted) patch spectra, relative to
-    its best-lit band: the light the calibration saw at ``lambda``. The fourth power keeps the
-    penalty on the bands the patches barely see (a few per cent of the best) and off the
-    moderately lit ones, such as the dip between an LED's blue peak and its phosphor, where
-    the patches do tell ``C``; a square pulled ``C`` down in that dip too, and the fit
-    compensated with wiggles.
+    its best-lit band: the light the calibration saw at ``lambda``. ``u`` is 1 in a band
+    without light, 1/16 in one lit at ``e`` and below ``(e / L)^4`` above: the fourth power
+    keeps the penalty on the bands the patches barely see (a few ``e``) and off the moderately
+    lit ones, such as the dip between an LED's blue peak and its phosphor, where the patches
+    do tell ``C`` (a square pulled ``C`` down in that dip too, and the fit wiggled).
 
     Parameters
     ----------
@@ -138,7 +141,7 @@ def weak_light_weights(spectra: np.ndarray, floor: float = WEAK_LIGHT_FLOOR) -> 
         raise CalibrationError(f"weak_light_weights: floor must be > 0, got {floor}")
     light = np.sqrt(np.sum(np.asarray(spectra, dtype=np.float64) ** 2, axis=0))
     light = light / max(float(light.max()), 1e-300)
-    return 1.0 / (light + floor) ** 4
+    return (floor / (light + floor)) ** 4
 
 
 def _weighted(rgb: np.ndarray, spectra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -154,13 +157,12 @@ def _weighted(rgb: np.ndarray, spectra: np.ndarray) -> tuple[np.ndarray, np.ndar
 def _weak_rows(
     design: np.ndarray, spectra: np.ndarray, basis: np.ndarray, weight: float, floor: float
 ) -> np.ndarray:
-    """Rows ``sqrt(nu) V G`` of the weak-light penalty, ``nu = weight ||design||_F^2 / ||V G||_F^2``
-    (none when ``weight`` is 0)."""
+    """Rows ``sqrt(nu u) G`` of the weak-light penalty, ``nu = weight ||design||_F^2 / ||G||_F^2``
+    and ``u`` from :func:`weak_light_weights` (none when ``weight`` is 0)."""
     if weight == 0:
         return np.zeros((0, basis.shape[1]))
-    rows = np.sqrt(weak_light_weights(spectra, floor))[:, None] * basis
-    nu = weight * float(np.sum(design**2)) / max(float(np.sum(rows**2)), 1e-300)
-    return np.sqrt(nu) * rows
+    nu = weight * float(np.sum(design**2)) / max(float(np.sum(basis**2)), 1e-300)
+    return np.sqrt(nu * weak_light_weights(spectra, floor))[:, None] * basis
 
 
 def _ridge_nnls(

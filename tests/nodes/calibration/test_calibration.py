@@ -87,12 +87,10 @@ def test_qe_and_camera_matrix_match_truth(cal):
     ct = truth["camera_matrix"].sel(channel=s["channel"].values).values
     assert np.linalg.norm(_scale(c, ct) * c - ct) / np.linalg.norm(ct) < 0.25
     # per channel, RMS over wavelength relative to the channel's peak (one scale per channel):
-    # lobes with the white reference as a patch (the second-difference fit: 0.085 in R); B up
-    # to 0.11: this sensor keeps a third of its blue at 420 nm, where this LED gives 6 % of its
-    # peak, and the weak-light penalty (camera_lobes) holds C down where the light is that weak
+    # lobes with the white reference as a patch (the second-difference fit: 0.085 in R)
     per_channel = (c * ct).sum(1) / (c * c).sum(1)
     error = np.sqrt(np.mean((per_channel[:, None] * c - ct) ** 2, axis=1)) / ct.max(1)
-    assert np.all(c >= 0) and error[0] < 0.06 and error[1] < 0.06 and error.max() < 0.11, error
+    assert np.all(c >= 0) and error[0] < 0.06 and error.max() < 0.1, error
     assert s.attrs["camera_matrix_method"] == "lobes" and s.attrs["white_patch"]
     assert len(s.attrs["ridge"]) == 3 and s["ridge_cv"].dims == ("ridge_candidate", "channel")
     # cross-validation (Fig. 4): RGB through C from the spectral capture

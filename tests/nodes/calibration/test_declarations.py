@@ -29,7 +29,7 @@ DEFAULTS = {
     "CALIBRATE_SPECTRAL": {
         "camera_matrix_method": "lobes",
         "ridge": None,
-        "weak_light": 0.003,
+        "weak_light": 0.15,
         "smoothness": None,
         "nonnegative": True,
         "white_patch": True,
