@@ -25,9 +25,6 @@ __all__ = ["neighbourhood_spread", "CONFIDENCE_NEIGHBOURS"]
 CONFIDENCE_NEIGHBOURS = 6
 """``k`` of the spread (the default solver's own neighbourhood size, so its graph serves)."""
 
-_CHUNK = 1 << 15
-"""Pixels per chunk of the spread's float64 temporaries."""
-
 
 def neighbourhood_spread(
     cube: np.ndarray,
@@ -66,16 +63,14 @@ def neighbourhood_spread(
         del features
     ratios = brightness_ratios(pixels, neighbours)
     del pixels
-    flat = cube.reshape(n_wavelength, -1)
+    from .kernels import neighbour_spread
+
+    flat = np.ascontiguousarray(cube.reshape(n_wavelength, -1))
     squared = np.zeros(flat.shape[1])
-    for start in range(0, flat.shape[1], _CHUNK):  # float64 temporaries of one chunk only
-        here = slice(start, start + _CHUNK)
-        values = flat[:, here].astype(np.float64)
-        for j in range(neighbours.shape[1]):
-            gap = flat[:, neighbours[here, j]].astype(np.float64)
-            gap *= ratios[here, j]
-            gap -= values
-            squared[here] += np.einsum("wp,wp->p", gap, gap) / n_wavelength
+    # one compiled pass per band, accumulated in float64 (no cube-sized temporaries)
+    neighbour_spread(
+        flat, np.ascontiguousarray(neighbours), np.ascontiguousarray(ratios, dtype=np.float64), squared
+    )
     spread = np.sqrt(squared / max(neighbours.shape[1], 1)).reshape(n_image, height, width)
     mean = np.array([np.abs(cube[:, m]).mean(dtype=np.float64) for m in range(n_image)])
     return (spread / np.maximum(mean, 1e-30)[:, None, None]).astype(np.float32)

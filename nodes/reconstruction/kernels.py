@@ -30,6 +30,8 @@ __all__ = [
     "normal_pixels",
     "prior_normal_pixels",
     "block_jacobi_pixels",
+    "block_jacobi_setup",
+    "neighbour_spread",
     "cg_step",
     "cg_step_block_jacobi",
     "cg_direction",
@@ -224,6 +226,68 @@ def _block_jacobi_pixel(p, r, inverse_diagonal, camera, small_inverse, out, tota
         out[p, w] = z
         total += r[p, w] * z
     return total
+
+
+@njit(**_JIT)
+def block_jacobi_setup(
+    inverse_diagonal, camera, pixel_camera, beta, small_inverse
+):  # pragma: no cover - compiled
+    """``small_inverse[p] = (I / beta + C a_p^-1 C^T)^-1`` per pixel, in float64 by the
+    closed-form inverse of a symmetric 3 x 3 matrix (cofactors), stored in the dtype of
+    ``small_inverse`` ``(n_pixels, 3, 3)``; ``C`` of pixel ``p`` is
+    ``camera[pixel_camera[p]]`` (``camera`` float64 ``(n_camera, 3, n_wavelength)``)."""
+    n_pixels, n_wavelength = inverse_diagonal.shape
+    floor = 1.0 / beta
+    for p in range(n_pixels):
+        c = camera[pixel_camera[p]]
+        s00 = s01 = s02 = s11 = s12 = s22 = 0.0
+        for w in range(n_wavelength):
+            a = np.float64(inverse_diagonal[p, w])
+            c0 = c[0, w] * a
+            c1 = c[1, w] * a
+            s00 += c0 * c[0, w]
+            s01 += c0 * c[1, w]
+            s02 += c0 * c[2, w]
+            s11 += c1 * c[1, w]
+            s12 += c1 * c[2, w]
+            s22 += c[2, w] * a * c[2, w]
+        s00 += floor
+        s11 += floor
+        s22 += floor
+        i00 = s11 * s22 - s12 * s12
+        i01 = s02 * s12 - s01 * s22
+        i02 = s01 * s12 - s02 * s11
+        i11 = s00 * s22 - s02 * s02
+        i12 = s01 * s02 - s00 * s12
+        i22 = s00 * s11 - s01 * s01
+        scale = 1.0 / (s00 * i00 + s01 * i01 + s02 * i02)
+        small_inverse[p, 0, 0] = i00 * scale
+        small_inverse[p, 0, 1] = i01 * scale
+        small_inverse[p, 0, 2] = i02 * scale
+        small_inverse[p, 1, 0] = i01 * scale
+        small_inverse[p, 1, 1] = i11 * scale
+        small_inverse[p, 1, 2] = i12 * scale
+        small_inverse[p, 2, 0] = i02 * scale
+        small_inverse[p, 2, 1] = i12 * scale
+        small_inverse[p, 2, 2] = i22 * scale
+
+
+@njit(**_JIT)
+def neighbour_spread(flat, neighbours, ratios, squared):  # pragma: no cover - compiled
+    """``squared[p] += sum_j mean_w (r_pj S_w(n_j) - S_w(p))^2`` in float64, band by band
+    (``flat`` ``(n_wavelength, n_pixels)`` band-major: each band's row is gathered, no
+    strided columns); ``neighbours``, ``ratios`` ``(n_pixels, k)``."""
+    n_wavelength, n_pixels = flat.shape
+    k = neighbours.shape[1]
+    for w in range(n_wavelength):
+        band = flat[w]
+        for p in range(n_pixels):
+            value = np.float64(band[p])
+            total = 0.0
+            for j in range(k):
+                gap = ratios[p, j] * np.float64(band[neighbours[p, j]]) - value
+                total += gap * gap
+            squared[p] += total / n_wavelength
 
 
 @njit(**_JIT)

@@ -22,9 +22,6 @@ from ..operators import PixelOrder, ReconstructionProblem
 
 __all__ = ["BlockJacobiPreconditioner", "normal_mean_diagonal"]
 
-_CHUNK = 1 << 16
-"""Pixels per chunk of the preconditioner's 3 x 3 inverses (bounds their float64 temporaries)."""
-
 
 def normal_mean_diagonal(problem: ReconstructionProblem) -> float:
     """The mean of the diagonal of ``A^T A`` (the unit of relative ridges and priors), from
@@ -107,23 +104,18 @@ class BlockJacobiPreconditioner:
         diagonal += (w.gamma * degree[self.order.order]).astype(self.dtype)[:, None]
         problem.filters.add_normal_diagonal(diagonal, w.alpha, self.order.positions)
         self.inverse_diagonal = np.divide(1.0, diagonal, out=diagonal)
-        # (I / beta + C a^-1 C^T)^-1 per pixel, (n_pixels, 3, 3), in float64 chunks
+        # (I / beta + C a^-1 C^T)^-1 per pixel, (n_pixels, 3, 3): one compiled pass, each
+        # 3 x 3 in float64 (closed form)
+        from ..kernels import block_jacobi_setup
+
         self.small_inverse = np.empty((n_pixels, 3, 3), dtype=self.dtype)
-        identity = np.eye(3) / max(w.beta, 1e-300)
-        #: per pixel (in ``order``) the index of its camera matrix in :attr:`camera_matrix`
-        pixel_camera = self.camera_index[self.order.image]
-        for start in range(0, n_pixels, _CHUNK):
-            inverse = self.inverse_diagonal[start : start + _CHUNK].astype(np.float64)
-            if c.shape[0] == 1:
-                small = np.einsum("cw,pw,dw->pcd", c[0], inverse, c[0], optimize=True) + identity
-            else:
-                cameras = pixel_camera[start : start + _CHUNK]
-                small = np.empty((inverse.shape[0], 3, 3))
-                for k in np.unique(cameras):
-                    here = cameras == k
-                    small[here] = np.einsum("cw,pw,dw->pcd", c[k], inverse[here], c[k], optimize=True)
-                small += identity
-            self.small_inverse[start : start + _CHUNK] = np.linalg.inv(small)
+        block_jacobi_setup(
+            self.inverse_diagonal,
+            np.ascontiguousarray(c),
+            np.ascontiguousarray(self.camera_index[self.order.image]),
+            float(max(w.beta, 1e-300)),
+            self.small_inverse,
+        )
         #: the distinct camera matrices ``(n_camera, 3, n_wavelength)`` in ``dtype``
         self.camera_matrix = np.ascontiguousarray(c.astype(self.dtype))
         self._beta = w.beta
