@@ -138,11 +138,15 @@ def region_encoding(
     ds: xr.Dataset, dim: str, encoding: dict[str, dict[str, Any]], along: int = 1
 ) -> None:
     """On-disk chunks of ``along`` along the region dim (a divisor of every region's start,
-    so no two regions share a chunk), the dask chunks elsewhere."""
+    so no two regions share a chunk), the dask chunks elsewhere; a variable in memory (written
+    whole when the staged group is created, never by a region) is one chunk."""
     for name, var in ds.variables.items():
         if dim not in var.dims or name in ds.indexes:
             continue
-        chunks = var.chunks or tuple((size,) for size in var.shape)
+        if var.chunks is None:
+            encoding.setdefault(str(name), {}).setdefault("chunks", tuple(var.shape))
+            continue
+        chunks = var.chunks
         disk = tuple(along if d == dim else max(c) for d, c in zip(var.dims, chunks, strict=True))
         encoding.setdefault(str(name), {}).setdefault("chunks", disk)
 

@@ -153,7 +153,10 @@ def write_regions(
     remove_partial_chunks(staged)
     remove_partial_chunks(flags_at)
     done = np.asarray(flags[:], dtype=bool)
-    along = [name for name, var in ds.variables.items() if dim in var.dims]
+    # variables in memory were written whole with the staged group (``to_zarr`` above): a
+    # region writes the lazy ones only (so a full run's per-image coordinates are one chunk,
+    # not one file per image, and no two regions write the same chunk)
+    along = [name for name, var in ds.variables.items() if dim in var.dims and var.chunks is not None]
     total = len(regions)
     skipped = [i for i in range(total) if done[i]]
     if skipped and progress:
@@ -162,9 +165,12 @@ def write_regions(
     def write_region(index: int) -> int:
         region = regions[index]
         piece = ds[along].isel({dim: region})
-        piece = piece.drop_vars([n for n in piece.variables if dim not in piece[n].dims])
+        piece = piece.drop_vars(
+            [n for n in piece.variables if dim not in piece[n].dims or piece[n].chunks is None]
+        )
         piece.attrs = {}
-        piece.to_zarr(str(staged), mode="r+", region={dim: region}, consolidated=False)
+        if piece.variables:
+            piece.to_zarr(str(staged), mode="r+", region={dim: region}, consolidated=False)
         flags[index] = True  # its own chunk of the flag array: no two writers share one
         return index
 
