@@ -20,6 +20,9 @@ object, also kept in ``benchmarks/results/full_run.json`` (one entry per image c
 ``ingest_s``, ``flow_s``            wall time of the ingest and of the ``btf`` flow
 ``seconds_per_1000_images``         (ingest + flow) per 1,000 images
 ``peak_rss_gb``                     the largest resident set of the ingest and flow processes
+``*_cpu_s``, ``load_average``       CPU seconds of capture, ingest and flow, and the machine's
+                                    1-minute load at the end (a shared machine's wall times
+                                    count the other work too)
 ``open_and_read_coordinates_s``     a fresh process: ``open_run(store).read("spectra")`` and
                                     its per-image coordinates in memory (imports excluded)
 """
@@ -71,6 +74,12 @@ def recipe_overrides(images: int, frame: int) -> dict:
         "n_dark_frames": 4,
         "frames_per_chunk": 64,
     }
+
+
+def cpu_seconds(who: int = resource.RUSAGE_CHILDREN) -> float:
+    """User + system CPU seconds so far (of the finished children, or of this process)."""
+    usage = resource.getrusage(who)
+    return usage.ru_utime + usage.ru_stime
 
 
 def run(command: list[str], env: dict[str, str], log_file: Path) -> tuple[float, str]:
@@ -159,10 +168,11 @@ def main(argv: list[str] | None = None) -> dict:
     capture, store = root / "capture", root / "run.zarr"
     overrides = recipe_overrides(args.images, args.frame)
     log(f"capture folder: {len(overrides['leds'])} LED(s) x {ROTATIONS} rotations x {CAMERAS} cameras")
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), cpu_seconds(resource.RUSAGE_SELF)
     if not (capture / "capture.toml").is_file():  # a --workdir of an earlier run keeps it
         write_capture_folder(capture, recipe="paper", overrides=overrides)
     capture_s = time.perf_counter() - start
+    capture_cpu_s = cpu_seconds(resource.RUSAGE_SELF) - start_cpu
     log(f"capture folder written in {capture_s:.1f} s")
     shutil.rmtree(store, ignore_errors=True)
     shutil.rmtree(store.parent / f".{store.name}.spectralize", ignore_errors=True)
@@ -171,8 +181,10 @@ def main(argv: list[str] | None = None) -> dict:
     ingest_s, _ = run(
         [str(BIN / "spectralize"), "ingest", str(capture), str(store)], env, root / "ingest.log"
     )
+    ingest_cpu_s = cpu_seconds()
     log(f"ingested in {ingest_s:.1f} s")
     flow_s, summary = run([str(BIN / "spectralize"), "run", "btf", str(store)], env, root / "flow.log")
+    flow_cpu_s = cpu_seconds() - ingest_cpu_s
     log(f"btf flow in {flow_s:.1f} s")
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6  # kB -> GB
 
@@ -202,6 +214,11 @@ def main(argv: list[str] | None = None) -> dict:
         "ingest_s": round(ingest_s, 1),
         "flow_s": round(flow_s, 1),
         "seconds_per_1000_images": round((ingest_s + flow_s) / images * 1000, 1),
+        # CPU seconds (user + system): on a shared machine, wall time also counts the others
+        "capture_cpu_s": round(capture_cpu_s, 1),
+        "ingest_cpu_s": round(ingest_cpu_s, 1),
+        "flow_cpu_s": round(flow_cpu_s, 1),
+        "load_average": round(os.getloadavg()[0], 1),
         "node_s": node_seconds(summary),
         "peak_rss_gb": round(peak, 2),
         "open_and_read_coordinates_s": round(opened["seconds"], 2),
