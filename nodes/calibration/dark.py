@@ -50,6 +50,9 @@ DARK_MODELS = ("linear", "per-time")
 """How :func:`average_dark_frames` gives the mean dark frame: a line in exposure time per pixel
 over all frames (:func:`linear_dark`) or the mean of each exposure time's frames alone."""
 
+LINEAR_DARK_BLOCK = 2**22
+"""Values (exposure time x pixel) :func:`average_dark_frames` fits a line through at a time."""
+
 LINEAR_DARK_TOLERANCE: float = 3.0
 """A pixel keeps its per-exposure-time means where the line's squared residuals exceed this
 many times the noise of those means (chi-square per degree of freedom)."""
@@ -216,8 +219,15 @@ def average_dark_frames(
     times = np.asarray(raw_dark["exposure_time"].values, dtype=np.float64)
     if model == "linear" and np.unique(times).size >= 3:
         n = int(raw_dark.sizes["frame"])
-        variance = std**2 * (n - ddof) / max(n - 1, 1)  # the sample variance
-        mean, on_line = linear_dark(mean, variance, times, n, at_max == 0)
+        mean = np.array(mean, dtype=np.float64)
+        on_line = np.zeros(mean.shape[1:], dtype=bool)
+        rows = max(1, LINEAR_DARK_BLOCK // max(mean.shape[0] * mean.shape[2], 1))
+        for y in range(0, mean.shape[1], rows):  # a block of rows at a time: bounded memory
+            block = slice(y, y + rows)
+            variance = std[:, block] ** 2 * (n - ddof) / max(n - 1, 1)  # the sample variance
+            mean[:, block], on_line[block] = linear_dark(
+                mean[:, block], variance, times, n, at_max[:, block] == 0
+            )
         attrs = {
             "dark_model": "per pixel a line in exposure time through all frames "
             "(linear_dark), the per-time mean where it does not hold",

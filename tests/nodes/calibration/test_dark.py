@@ -156,3 +156,12 @@ def test_a_hot_pixel_at_the_maximum_code_keeps_its_own_means():
     assert on.any()
     with pytest.raises(CalibrationError, match="model must be one of"):
         average_dark_frames(raw, model="spline")
+
+
+def test_the_line_is_fitted_a_block_of_rows_at_a_time_with_the_same_result(monkeypatch):
+    from spectralize.nodes.calibration import dark as module
+
+    raw, _ = _few_frames()
+    whole = average_dark_frames(raw)
+    monkeypatch.setattr(module, "LINEAR_DARK_BLOCK", 12 * 10 * 3)  # three rows per block
+    xr.testing.assert_identical(average_dark_frames(raw), whole)
