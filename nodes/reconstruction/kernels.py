@@ -39,6 +39,7 @@ __all__ = [
     "projected_step",
     "step_dots",
     "mixture_abundances",
+    "project_rgb_nonnegative",
     "mixture_gram",
     "mixture_rhs",
 ]
@@ -366,6 +367,57 @@ def step_dots(new, x, new_g, g, scale):  # pragma: no cover - compiled
         sy += d * (np.float64(ngf[i]) - gf[i])
         ss += d * d / sf[i]
     return sy, ss
+
+
+@njit(**_JIT)
+def project_rgb_nonnegative(
+    cube, camera, pseudo, camera_of_image, rgb, rounds
+):  # pragma: no cover - compiled
+    """``rounds`` times, per pixel: ``S += C^+ (R - C S)`` (the smallest change that makes
+    ``C S = R``), then ``S = max(S, 0)``; in place, in one pass over the cube.
+
+    Parameters
+    ----------
+    cube
+        ``(n_wavelength, n_image, n_pixels)`` float64, C-contiguous (each image's pixels).
+    camera, pseudo
+        Per camera ``C`` ``(n_camera, 3, n_wavelength)`` and its pseudo-inverse ``C^T (C
+        C^T)^-1`` ``(n_camera, n_wavelength, 3)``, float64.
+    camera_of_image
+        ``(n_image,)``: the camera of each image.
+    rgb
+        ``(n_image, n_pixels, 3)``: ``R``.
+    rounds
+        Alternations of the projection and the clipping.
+
+    Every pixel's alternation is its own (no pixel looks at another), so one pass that
+    alternates each pixel ``rounds`` times in registers is the same as ``rounds`` passes of
+    each step over the whole cube.
+    """
+    n_wavelength, n_image, n_pixels = cube.shape
+    s = np.empty(n_wavelength)
+    for m in range(n_image):
+        c = camera[camera_of_image[m]]
+        inverse = pseudo[camera_of_image[m]]
+        for q in range(n_pixels):
+            for w in range(n_wavelength):
+                s[w] = cube[w, m, q]
+            r0 = np.float64(rgb[m, q, 0])
+            r1 = np.float64(rgb[m, q, 1])
+            r2 = np.float64(rgb[m, q, 2])
+            for _ in range(rounds):
+                g0 = r0
+                g1 = r1
+                g2 = r2
+                for w in range(n_wavelength):
+                    g0 -= c[0, w] * s[w]
+                    g1 -= c[1, w] * s[w]
+                    g2 -= c[2, w] * s[w]
+                for w in range(n_wavelength):
+                    value = s[w] + inverse[w, 0] * g0 + inverse[w, 1] * g1 + inverse[w, 2] * g2
+                    s[w] = value if value > 0.0 else 0.0
+            for w in range(n_wavelength):
+                cube[w, m, q] = s[w]
 
 
 @njit(**_JIT)

@@ -479,7 +479,30 @@ def neighbourhood_candidates(
 
 
 def _project(cube: np.ndarray, inputs: ReconstructionInputs) -> np.ndarray:
-    """Step 4: alternate ``C S = R`` and ``S >= 0``; ends non-negative."""
+    """Step 4: alternate ``C S = R`` and ``S >= 0``; ends non-negative.
+
+    Each pixel alternates on its own: one compiled pass does every round per pixel
+    (:func:`~..kernels.project_rgb_nonnegative`) instead of ``2 * PROJECTION_ROUNDS``
+    passes over the cube.
+    """
+    if cube.dtype == np.float64 and cube.flags.c_contiguous:
+        from ..kernels import project_rgb_nonnegative
+
+        c = np.asarray(inputs.camera_matrix, dtype=np.float64)
+        cameras = np.ascontiguousarray(c[None] if c.ndim == 2 else c)  # (n_camera, 3, w)
+        transposed = np.transpose(cameras, (0, 2, 1))
+        pseudo = np.ascontiguousarray(transposed @ np.linalg.inv(cameras @ transposed))
+        n_image = inputs.n_image
+        index = np.zeros(n_image, np.intp) if c.ndim == 2 else np.arange(n_image)
+        project_rgb_nonnegative(
+            cube.reshape(cube.shape[0], n_image, -1),
+            cameras,
+            pseudo,
+            index,
+            np.ascontiguousarray(inputs.rgb).reshape(n_image, -1, 3),
+            PROJECTION_ROUNDS,
+        )
+        return cube
     rgb = np.moveaxis(inputs.rgb, -1, 0)
     for _ in range(PROJECTION_ROUNDS):
         project_onto_rgb(cube, inputs.camera_matrix, rgb, overwrite=True)
