@@ -33,6 +33,8 @@ __all__ = [
     "block_jacobi_setup",
     "neighbour_spread",
     "cg_step",
+    "gather_bands",
+    "scatter_add_bands",
     "cg_step_block_jacobi",
     "cg_direction",
     "dot",
@@ -289,6 +291,26 @@ def neighbour_spread(flat, neighbours, ratios, squared):  # pragma: no cover - c
                 gap = ratios[p, j] * np.float64(band[neighbours[p, j]]) - value
                 total += gap * gap
             squared[p] += total / n_wavelength
+
+
+@njit(**_JIT)
+def gather_bands(x, positions, bands, planes):  # pragma: no cover - compiled
+    """``planes[j, i] = x[positions[i], bands[j]]``: an image's band planes out of a
+    pixel-major cube, every pixel's row visited once for all its bands."""
+    for i in range(positions.size):
+        row = positions[i]
+        for j in range(bands.size):
+            planes[j, i] = x[row, bands[j]]
+
+
+@njit(**_JIT)
+def scatter_add_bands(out, positions, bands, planes):  # pragma: no cover - compiled
+    """``out[positions[i], bands[j]] += planes[j, i]`` (the adjoint of
+    :func:`gather_bands`), in the order of ``bands`` per pixel."""
+    for i in range(positions.size):
+        row = positions[i]
+        for j in range(bands.size):
+            out[row, bands[j]] += planes[j, i]
 
 
 @njit(**_JIT)

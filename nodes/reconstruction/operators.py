@@ -298,6 +298,25 @@ class FilterConstraints:
         factor = self.dtype.type(scale)
         plane_shape = self.shape[2:]
         total = 0.0
+        if positions is not None:  # pixel-major: each image's bands gathered in one pass
+            from .kernels import gather_bands, scatter_add_bands
+
+            for m in np.unique(self.image):
+                shots = np.flatnonzero(self.image == m)
+                bands = np.ascontiguousarray(self.band[shots])
+                where = positions[m]
+                planes = np.empty((shots.size, where.size), dtype=cube.dtype)
+                gather_bands(cube, where, bands, planes)
+                for j, i in enumerate(shots):
+                    responses = self.apply_plane(i, planes[j].reshape(plane_shape))
+                    total += float(scale) * float(
+                        np.einsum("ij,ij->", responses, responses, dtype=np.float64)
+                    )
+                    if scale != 1.0:
+                        responses *= factor
+                    planes[j] = self.adjoint_plane(i, responses).ravel()
+                scatter_add_bands(out, where, bands, planes)
+            return total
         for i in range(self.n_shots):
             b, m = self.band[i], self.image[i]
             index = (b, m) if positions is None else (positions[m], b)
