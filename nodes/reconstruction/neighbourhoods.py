@@ -57,7 +57,9 @@ def appearance_neighbours(appearance: np.ndarray, *, k: int = 3) -> np.ndarray:
     An exact k-d tree search over all pixels (``pykdtree``, float32 features, its queries
     on OpenMP threads: ``OMP_NUM_THREADS``, all cores by default), chosen over
     :class:`scipy.spatial.cKDTree` because this search is the largest step of a tile's
-    set-up and pykdtree's is the faster on a tile's features. The query asks for ``k + 1``
+    set-up and pykdtree's is the faster on a tile's features. The queries are asked in
+    Morton order (:func:`appearance_order`: the same answers, read from a tree that stays
+    in cache). The query asks for ``k + 1``
     points and drops the pixel itself (or, when ``k + 1`` duplicates tie, the last of them).
     """
     appearance = np.ascontiguousarray(appearance, dtype=np.float32)
@@ -66,8 +68,14 @@ def appearance_neighbours(appearance: np.ndarray, *, k: int = 3) -> np.ndarray:
     if k <= 0:
         return np.zeros((n_pixels, 0), dtype=np.intp)
     tree = KDTree(appearance, leafsize=32)
-    _, found = tree.query(appearance, k=k + 1)
-    found = np.asarray(found, dtype=np.intp).reshape(n_pixels, k + 1)
+    # queried along a Morton curve through appearance (:func:`appearance_order`):
+    # consecutive queries walk the same branches of the tree, so its nodes stay in cache
+    # (each query's answer does not depend on the order they are asked in)
+    order = appearance_order(appearance)
+    _, answers = tree.query(np.ascontiguousarray(appearance[order]), k=k + 1)
+    found = np.empty((n_pixels, k + 1), dtype=np.intp)
+    found[order] = np.asarray(answers, dtype=np.intp).reshape(n_pixels, k + 1)
+    del answers
     is_other = found != np.arange(n_pixels)[:, None]
     # stable sort puts the other pixels first, in distance order; keep the first k
     order = np.argsort(~is_other, axis=1, kind="stable")
