@@ -118,3 +118,70 @@ def test_projected_step_and_its_dots_equal_numpy():
     s, y = new.astype(np.float64) - x, new_g.astype(np.float64) - g
     sy, ss = step_dots(new, x, new_g, g, scale)
     np.testing.assert_allclose([sy, ss], [np.sum(s * y), np.sum(s * s / scale)], rtol=1e-6)
+
+
+def test_prior_normal_pass_equals_its_terms_one_by_one_and_returns_the_curvature(problem):
+    # the fused pass of prior_pcg: A^T A + ridge + w_p Q + f_p M_m, minus a vector
+    order = problem.pixel_order("appearance")
+    rng = np.random.default_rng(3)
+    n_wavelength, n_image = problem.shape[:2]
+    pixels = order.to_pixels(rng.normal(size=problem.shape))
+    epsilon = rng.uniform(0, 0.3, size=(n_wavelength, n_image, 1, 1))
+    root = rng.normal(size=(n_wavelength, n_wavelength))
+    precision = root @ root.T
+    weight = rng.uniform(0.5, 2.0, size=pixels.shape[0])
+    brightness = rng.uniform(0.1, 3.0, size=pixels.shape[0])
+    shots = rng.uniform(0, 1, size=(n_image, n_wavelength))
+    subtract = rng.normal(size=pixels.shape)
+    expected = problem.normal_pixels(pixels, order=order, epsilon=epsilon)
+    expected += weight[:, None] * (pixels @ precision)
+    expected += brightness[:, None] * shots[order.image] * pixels
+    terms = {"precision": precision, "weight": weight, "brightness": brightness, "shots": shots}
+    out = np.empty_like(pixels)
+    curvature = problem.prior_normal_pixels(pixels, order=order, epsilon=epsilon, out=out, **terms)
+    np.testing.assert_allclose(out, expected, rtol=1e-9, atol=1e-9)
+    assert curvature == pytest.approx(float(np.sum(pixels * expected)), rel=1e-9)
+    problem.prior_normal_pixels(
+        pixels, order=order, epsilon=epsilon, out=out, subtract=subtract, **terms
+    )
+    np.testing.assert_allclose(out, expected - subtract, rtol=1e-9, atol=1e-9)
+
+
+def test_fused_cg_step_equals_the_step_then_the_preconditioner(problem):
+    from spectralize.nodes.reconstruction.kernels import cg_step
+
+    order = problem.pixel_order("appearance")
+    preconditioner = BlockJacobiPreconditioner(problem, np.float64, ridge=1e-3, order=order)
+    rng = np.random.default_rng(4)
+    x, r, p, q = (order.to_pixels(rng.normal(size=problem.shape)) for _ in range(4))
+    x_ref, r_ref = x.copy(), r.copy()
+    rr_ref = cg_step(x_ref, r_ref, p, q.copy(), 0.3)
+    z_ref = preconditioner.apply_pixels(r_ref)
+    rr, rz = preconditioner.step_pixels(x, r, p, q, 0.3)
+    np.testing.assert_allclose(x, x_ref, rtol=1e-12)
+    np.testing.assert_allclose(r, r_ref, rtol=1e-12)
+    np.testing.assert_allclose(q, z_ref, rtol=1e-10, atol=1e-12)
+    assert rr == pytest.approx(rr_ref, rel=1e-10)
+    assert rz == pytest.approx(float(np.sum(r_ref * z_ref)), rel=1e-10)
+
+
+@pytest.mark.parametrize("per_image", [False, True])
+def test_one_pass_projection_equals_alternating_passes(per_image):
+    from spectralize.nodes.reconstruction.baselines.projection import project_onto_rgb
+    from spectralize.nodes.reconstruction.kernels import project_rgb_nonnegative
+
+    rng = np.random.default_rng(5)
+    n_wavelength, n_image, n_pixels = 7, 3, 50
+    cube = rng.normal(size=(n_wavelength, n_image, n_pixels))
+    rgb = rng.uniform(0, 1, size=(n_image, n_pixels, 3))
+    c = rng.uniform(0, 1, size=(n_image, 3, n_wavelength) if per_image else (3, n_wavelength))
+    expected = cube.copy()
+    for _ in range(4):
+        project_onto_rgb(expected, c, np.moveaxis(rgb, -1, 0), overwrite=True)
+        np.maximum(expected, 0, out=expected)
+    cameras = c if per_image else c[None]
+    transposed = np.transpose(cameras, (0, 2, 1))
+    pseudo = np.ascontiguousarray(transposed @ np.linalg.inv(cameras @ transposed))
+    index = np.arange(n_image) if per_image else np.zeros(n_image, dtype=np.intp)
+    project_rgb_nonnegative(cube, np.ascontiguousarray(cameras), pseudo, index, rgb, 4)
+    np.testing.assert_allclose(cube, expected, rtol=1e-12, atol=1e-12)
