@@ -176,8 +176,9 @@ DARK_AVERAGE = Node(
 RECOVER_RGB_OECF = Node(
     name="recover_rgb_oecf",
     # 2: one response per camera by default, each camera's own black level, and its series of
-    # the calibration targets with its raw/rgb series
-    version="2",
+    # the calibration targets with its raw/rgb series; 3: the response a cubic spline of
+    # SMOOTH_RGB coefficients (Robertson's solution over that space)
+    version="3",
     function=recover_rgb_oecf,
     inputs={
         "raw_rgb": "raw/rgb",

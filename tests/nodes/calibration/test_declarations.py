@@ -18,6 +18,7 @@ DEFAULTS = {
         "weighting": "gaussian",
         "tolerance": 1e-6,
         "max_pixels": 200_000,
+        "smooth": 16,
     },
     "RECOVER_SPECTRAL_OECF": {
         "band": None,
