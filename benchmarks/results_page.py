@@ -498,6 +498,52 @@ def paper_scale_2048_rerun(data: Json) -> list[str]:
     ]
 
 
+def paper_scale_throughput(data: Json) -> list[str]:
+    rows = []
+    for key in ("before", "after"):
+        v = data[key]
+        accuracy = v.get("accuracy_128", {})
+        rows.append(
+            [
+                v["commit"],
+                v["seconds_per_mpx_image"],
+                "/".join(str(s) for s in v["seconds_per_tile"]),
+                v["peak_rss_gb"],
+                "-".join(str(i) for i in sorted(set(v["iterations"]))),
+                v.get("endmembers_s", "-"),
+                f"{num(accuracy.get('median'), 4)} / {num(accuracy.get('p95'), 4)}",
+            ]
+        )
+    return [
+        f"The 2048^2 throughput case of `paper_scale.py` ({data['method']}, {data['scene']}, "
+        f"{data['set']}; 2 interior 256 px tiles on 2 threads), before and after in one run; "
+        f"accuracy: the 128^2 set solved whole. Speed-up {data['speedup']}x.",
+        table(
+            [
+                "code",
+                "s per Mpx-image",
+                "s per tile",
+                "peak RSS GB",
+                "iterations per tile",
+                "endmembers s",
+                "128^2 nRMSE median / p95",
+            ],
+            rows,
+        ),
+        f"Note from the JSON: {data['note']}",
+    ] + _throughput_profile(data.get("profile_256"))
+
+
+def _throughput_profile(profile: Json | None) -> list[str]:
+    if not profile:
+        return []
+    rows = [[r["section"], num(r["before_s"]), num(r["after_s"])] for r in profile["sections"]]
+    return [
+        f"**Where a tile's time goes** ({profile['note']})",
+        table(["section", "before s", "after s"], rows),
+    ]
+
+
 def paper_slice(data: Json) -> list[str]:
     return [
         f"The paper recipe at {data['size']}^2 through every node of the `btf` flow (a real Prefect "
@@ -753,6 +799,12 @@ SECTIONS: tuple[Section, ...] = (
         "Paper scale: 2048^2 per method",
         "python benchmarks/paper_scale_default.py",
         paper_scale_2048_rerun,
+    ),
+    (
+        "paper_scale_throughput",
+        "Paper scale: 2048^2 throughput before and after",
+        "python benchmarks/paper_scale_throughput.py --baseline-commit REV",
+        paper_scale_throughput,
     ),
     (
         "paper_slice",
