@@ -595,16 +595,23 @@ class ReconstructionProblem:
         """
         from .kernels import normal_pixels
 
+        if out is None:
+            out = np.empty_like(cube)
+        normal_pixels(cube, *self._pixel_terms(order, epsilon), out)
+        self.filters.normal(cube, out=out, scale=self.weights.alpha, positions=order.positions)
+        return out
+
+    def _pixel_terms(self, order: PixelOrder, epsilon: np.ndarray | float) -> tuple:
+        """The compiled pixel passes' leading arguments: the camera blocks and each image's
+        index, ``beta``, the neighbour Laplacian (CSR), ``gamma``, the ridge per image and
+        wavelength, and each pixel's image."""
         w = self.weights
         n_wavelength, n_image = self.shape[:2]
         dtype = self.dtype
-        if out is None:
-            out = np.empty_like(cube)
         ridge = np.broadcast_to(np.asarray(epsilon, dtype=dtype), (n_wavelength, n_image, 1, 1))
         laplacian = order.laplacian(dtype)
         blocks, index = self.camera_blocks()
-        normal_pixels(
-            cube,
+        return (
             blocks,
             index,
             dtype.type(w.beta),
@@ -614,10 +621,7 @@ class ReconstructionProblem:
             dtype.type(w.gamma),
             np.ascontiguousarray(ridge[:, :, 0, 0].T),
             order.image,
-            out,
         )
-        self.filters.normal(cube, out=out, scale=w.alpha, positions=order.positions)
-        return out
 
     def prior_normal_pixels(
         self,
@@ -647,24 +651,11 @@ class ReconstructionProblem:
         """
         from .kernels import prior_normal_pixels
 
-        w = self.weights
-        n_wavelength, n_image = self.shape[:2]
         dtype = self.dtype
-        ridge = np.broadcast_to(np.asarray(epsilon, dtype=dtype), (n_wavelength, n_image, 1, 1))
-        laplacian = order.laplacian(dtype)
-        blocks, index = self.camera_blocks()
         empty = np.empty(0, dtype=dtype)
         total = prior_normal_pixels(
             cube,
-            blocks,
-            index,
-            dtype.type(w.beta),
-            laplacian.indptr,
-            laplacian.indices,
-            laplacian.data,
-            dtype.type(w.gamma),
-            np.ascontiguousarray(ridge[:, :, 0, 0].T),
-            order.image,
+            *self._pixel_terms(order, epsilon),
             np.empty((0, 0), dtype=dtype) if precision is None else precision,
             empty if weight is None else weight,
             empty if brightness is None else brightness,
@@ -672,7 +663,7 @@ class ReconstructionProblem:
             np.empty((0, 0), dtype=dtype) if subtract is None else subtract,
             out,
         )
-        total += self.filters.add_normal(cube, out, w.alpha, positions=order.positions)
+        total += self.filters.add_normal(cube, out, self.weights.alpha, positions=order.positions)
         return float(total)
 
     def camera_blocks(self) -> tuple[np.ndarray, np.ndarray]:
