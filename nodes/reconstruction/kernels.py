@@ -44,6 +44,12 @@ __all__ = [
     "project_rgb_nonnegative",
     "mixture_gram",
     "mixture_rhs",
+    "nearest_centres",
+    "share_planes",
+    "top_planes",
+    "mix_atoms",
+    "box_mean_rows",
+    "box_mean_columns",
 ]
 
 _JIT = {"cache": True, "nogil": True, "fastmath": True, "error_model": "numpy"}
@@ -604,3 +610,198 @@ def mixture_rhs(near, weights, data, rhs):  # pragma: no cover - compiled
         d = data[p]
         for a in range(k):
             rhs[near[p, a]] += weights[p, a] * d
+
+
+@njit(**_JIT)
+def nearest_centres(chroma, centres, k, near):  # pragma: no cover - compiled
+    """Per pixel the ``k`` centres nearest in (squared Euclidean) distance, nearest first.
+
+    Ties go to the lower centre index (a stable insertion into the running ``k`` best), as
+    numpy's stable sort of the distances would order them.
+
+    Parameters
+    ----------
+    chroma
+        ``(n_pixels, 2)`` points.
+    centres
+        ``(n_centres, 2)``, ``n_centres >= k``.
+    k
+        Centres per pixel.
+    near
+        ``(n_pixels, >= k)`` int64; its first ``k`` columns are overwritten.
+    """
+    n_pixels = chroma.shape[0]
+    n_centres = centres.shape[0]
+    best = np.empty(k)
+    for p in range(n_pixels):
+        x0 = chroma[p, 0]
+        x1 = chroma[p, 1]
+        for c in range(k):
+            best[c] = np.inf
+        for j in range(n_centres):
+            d0 = x0 - centres[j, 0]
+            d1 = x1 - centres[j, 1]
+            d = d0 * d0 + d1 * d1
+            if not d < best[k - 1]:
+                continue
+            c = k - 1
+            while c > 0 and d < best[c - 1]:
+                best[c] = best[c - 1]
+                near[p, c] = near[p, c - 1]
+                c -= 1
+            best[c] = d
+            near[p, c] = j
+
+
+@njit(**_JIT)
+def share_planes(near, weights, skip, planes):  # pragma: no cover - compiled
+    """``planes[j, p] += w_pa / sum_a w_pa`` for every candidate ``a`` of pixel ``p`` with
+    ``near[p, a] = j != skip``: each atom's abundance share map, in one pass.
+
+    Parameters
+    ----------
+    near, weights
+        ``(n_pixels, k)`` candidate atoms and their abundances.
+    skip
+        An atom left out (the highlight atom).
+    planes
+        ``(n_atoms, n_pixels)``, zeroed by the caller, added to.
+    """
+    n_pixels, k = near.shape
+    for p in range(n_pixels):
+        total = 0.0
+        for a in range(k):
+            total += weights[p, a]
+        total = max(total, 1e-300)
+        for a in range(k):
+            j = near[p, a]
+            if j != skip:
+                planes[j, p] += weights[p, a] / total
+
+
+@njit(**_JIT)
+def top_planes(planes, skip, index):  # pragma: no cover - compiled
+    """Per pixel the ``count`` planes with the largest values, largest first; ties go to
+    the lower plane index.
+
+    Parameters
+    ----------
+    planes
+        ``(n_planes, n_pixels)``, values ``>= 0``.
+    skip
+        A plane left out.
+    index
+        ``(n_pixels, count)`` int64, overwritten (``0`` where fewer planes than ``count``).
+    """
+    n_planes, n_pixels = planes.shape
+    count = index.shape[1]
+    best = np.empty(count)
+    for p in range(n_pixels):
+        for c in range(count):
+            best[c] = -1.0
+            index[p, c] = 0
+        for j in range(n_planes):
+            if j == skip:
+                continue
+            v = planes[j, p]
+            if not v > best[count - 1]:
+                continue
+            c = count - 1
+            while c > 0 and v > best[c - 1]:
+                best[c] = best[c - 1]
+                index[p, c] = index[p, c - 1]
+                c -= 1
+            best[c] = v
+            index[p, c] = j
+
+
+@njit(**_JIT)
+def mix_atoms(weights, near, atoms, cube):  # pragma: no cover - compiled
+    """``cube[w, p] = sum_a weights[p, a] atoms[near[p, a], w]``: the band-major mixture.
+
+    Parameters
+    ----------
+    weights, near
+        ``(n_pixels, k)`` abundances and their atoms.
+    atoms
+        ``(n_atoms, n_wavelength)``.
+    cube
+        ``(n_wavelength, n_pixels)``, overwritten.
+    """
+    n_pixels, k = near.shape
+    n_wavelength = atoms.shape[1]
+    block = 64  # pixels mixed pixel-major in a small buffer, written band-major in runs
+    s = np.empty((block, n_wavelength))
+    for start in range(0, n_pixels, block):
+        stop = min(start + block, n_pixels)
+        for q in range(stop - start):
+            p = start + q
+            for w in range(n_wavelength):
+                s[q, w] = 0.0
+            for a in range(k):
+                wa = weights[p, a]
+                if wa == 0.0:
+                    continue
+                row = near[p, a]
+                for w in range(n_wavelength):
+                    s[q, w] += wa * atoms[row, w]
+        for w in range(n_wavelength):
+            for q in range(stop - start):
+                cube[w, start + q] = s[q, w]
+
+
+@njit(inline="always", **_JIT)
+def _reflect(i, n):  # pragma: no cover - compiled
+    """Index ``i`` reflected into ``[0, n)`` about the half-sample edges (``d c b a | a b c
+    d | d c b a``: scipy.ndimage's ``"reflect"``)."""
+    i = i % (2 * n)
+    return 2 * n - 1 - i if i >= n else i
+
+
+@njit(**_JIT)
+def box_mean_rows(planes, width, out):  # pragma: no cover - compiled
+    """Mean over ``width`` (odd) neighbours along the last axis of ``(n, height, width)``
+    planes, reflecting borders: a running sum in float64, as scipy.ndimage's
+    ``uniform_filter1d(planes, width, axis=-1, mode="reflect")``."""
+    n, height, size = planes.shape
+    radius = width // 2
+    scale = 1.0 / width
+    entering = np.empty(size, dtype=np.int64)  # the reflected indices, once per call
+    leaving = np.empty(size, dtype=np.int64)
+    for x in range(size):
+        entering[x] = _reflect(x + radius, size)
+        leaving[x] = _reflect(x - radius - 1, size)
+    for k in range(n):
+        for y in range(height):
+            total = 0.0
+            for i in range(-radius, radius + 1):
+                total += planes[k, y, _reflect(i, size)]
+            out[k, y, 0] = total * scale
+            for x in range(1, size):
+                total += planes[k, y, entering[x]] - planes[k, y, leaving[x]]
+                out[k, y, x] = total * scale
+
+
+@njit(**_JIT)
+def box_mean_columns(planes, width, out):  # pragma: no cover - compiled
+    """As :func:`box_mean_rows` along the middle axis (``axis=-2``), one row of running
+    sums at a time (contiguous reads)."""
+    n, height, size = planes.shape
+    radius = width // 2
+    scale = 1.0 / width
+    total = np.empty(size)
+    for k in range(n):
+        for x in range(size):
+            total[x] = 0.0
+        for i in range(-radius, radius + 1):
+            row = _reflect(i, height)
+            for x in range(size):
+                total[x] += planes[k, row, x]
+        for x in range(size):
+            out[k, 0, x] = total[x] * scale
+        for y in range(1, height):
+            entering = _reflect(y + radius, height)
+            leaving = _reflect(y - radius - 1, height)
+            for x in range(size):
+                total[x] += planes[k, entering, x] - planes[k, leaving, x]
+                out[k, y, x] = total[x] * scale

@@ -83,8 +83,9 @@ def gaussian_window(planes: np.ndarray, sigma: float) -> np.ndarray:
 
     From :data:`BOX_WINDOW_SIGMA` on, three box filters of the same variance (a quadratic
     B-spline window; its peak differs from the Gaussian's by about 12 %), each a running sum
-    whose cost does not grow with ``sigma`` (scipy's ``uniform_filter1d``); below it, the
-    Gaussian.
+    whose cost does not grow with ``sigma`` (compiled, :func:`~..kernels.box_mean_columns`
+    and :func:`~..kernels.box_mean_rows`: scipy's ``uniform_filter1d`` in float64 running
+    sums, one row at a time along the columns); below it, the Gaussian.
     """
     from scipy import ndimage
 
@@ -93,11 +94,19 @@ def gaussian_window(planes: np.ndarray, sigma: float) -> np.ndarray:
         return ndimage.gaussian_filter(
             planes, sigma=sigmas, mode="reflect", truncate=GUIDED_WINDOW_TRUNCATE
         )
-    out = np.asarray(planes)
+    from ..kernels import box_mean_columns, box_mean_rows
+
+    planes = np.asarray(planes)
+    if planes.dtype not in (np.float32, np.float64):
+        planes = planes.astype(np.float64)
+    source = np.ascontiguousarray(planes).reshape((-1,) + planes.shape[-2:])
+    between, out = np.empty_like(source), np.empty_like(source)
+    current = source  # never written into
     for width in _box_widths(sigma):
-        for axis in (-2, -1):
-            out = ndimage.uniform_filter1d(out, width, axis=axis, mode="reflect")
-    return out
+        box_mean_columns(current, width, between)
+        box_mean_rows(between, width, out)
+        current = out
+    return out.reshape(planes.shape)
 
 
 def guided_filtered_bands(
@@ -189,12 +198,13 @@ def guided_filtered_stacks(
             mean = gaussian_window(guide, sigma)
             # the 6 distinct second moments of the symmetric 3 x 3 covariance
             second = gaussian_window(guide[upper[0]] * guide[upper[1]], sigma)
-            covariance = np.empty((3, 3) + guide.shape[1:], dtype=np.float64)
+            covariance = {}
             for n, (c, d) in enumerate(zip(*upper, strict=True)):
-                covariance[c, d] = covariance[d, c] = second[n] - mean[c] * mean[d]
+                covariance[c, d] = second[n] - mean[c].astype(np.float64) * mean[d]
             ridge = epsilon * np.sum(mean.astype(np.float64) ** 2, axis=0) / 3 + 1e-300
-            covariance[[0, 1, 2], [0, 1, 2]] += ridge
-            inverse = np.linalg.inv(np.moveaxis(covariance, (0, 1), (2, 3))).astype(np.float32)
+            for c in range(3):
+                covariance[c, c] += ridge
+            inverse = _symmetric_inverse(covariance)
             statistics = ((m, sigma), mean, inverse)
         _, mean, inverse = statistics
         guide = rgb[m]
@@ -202,11 +212,45 @@ def guided_filtered_stacks(
             band = stack[i].astype(np.float32)
             band_mean = gaussian_window(band, sigma)
             cross = gaussian_window(guide * band[None], sigma) - mean * band_mean[None]
-            slope = np.einsum("yxcd,dyx->cyx", inverse, cross)
+            slope = np.empty_like(cross)
+            for c in range(3):  # inverse @ cross per pixel (inverse is symmetric)
+                slope[c] = inverse[_UPPER[c, 0]] * cross[0]
+                slope[c] += inverse[_UPPER[c, 1]] * cross[1]
+                slope[c] += inverse[_UPPER[c, 2]] * cross[2]
             offset = band_mean - np.sum(slope * mean, axis=0)
             coefficients = gaussian_window(np.concatenate([slope, offset[None]]), sigma)
             out[i] = np.sum(coefficients[:3] * guide, axis=0) + coefficients[3]
     return outputs
+
+
+_UPPER = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
+"""Position of entry ``(c, d)`` of a symmetric 3 x 3 matrix among its 6 distinct entries
+``(0,0), (0,1), (0,2), (1,1), (1,2), (2,2)``."""
+
+
+def _symmetric_inverse(matrix: dict[tuple[int, int], np.ndarray]) -> np.ndarray:
+    """Per pixel the inverse of a symmetric 3 x 3 matrix by its adjugate.
+
+    ``matrix[c, d]`` (``c <= d``) are float64 planes; returns the inverse's 6 distinct
+    entries ``(6, ...)`` (order of :data:`_UPPER`) as float32. The matrices are covariances
+    plus a ridge (positive definite), so the determinant does not vanish; it is computed
+    in float64, a vectorised closed form instead of a batched LU per pixel.
+    """
+    a, b, c = matrix[0, 0], matrix[0, 1], matrix[0, 2]
+    d, e, f = matrix[1, 1], matrix[1, 2], matrix[2, 2]
+    cofactors = [
+        d * f - e * e,
+        c * e - b * f,
+        b * e - c * d,
+        a * f - c * c,
+        b * c - a * e,
+        a * d - b * b,
+    ]
+    determinant = a * cofactors[0] + b * cofactors[1] + c * cofactors[2]
+    inverse = np.empty((6,) + a.shape, dtype=np.float32)
+    for n, cofactor in enumerate(cofactors):
+        np.divide(cofactor, determinant, out=inverse[n], casting="same_kind")
+    return inverse
 
 
 def guided_filtered_projected(

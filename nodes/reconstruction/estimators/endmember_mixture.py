@@ -129,10 +129,6 @@ endmember pooled over fewer pixels carries their band noise)."""
 _SAMPLE = 20000
 """Pixels the k-means sees at most (a strided, seeded sample)."""
 
-_CHUNK = 1 << 14
-"""Pixels per chunk of the candidate search and the mixing (bounds their temporaries: the
-mixing gathers ``K + 3`` atoms per pixel, about 25 MB a chunk)."""
-
 
 def chromaticity(
     rgb_pixels: np.ndarray, scale: np.ndarray | None = None
@@ -176,19 +172,18 @@ class Endmembers:
         return self.atoms.shape[0] - 1
 
     def candidates(self, chroma: np.ndarray, k: int) -> np.ndarray:
-        """``(n, min(k, J) + 1)``: the ``k`` atoms nearest in chromaticity, and the
-        highlight atom."""
+        """``(n, min(k, J) + 1)``: the ``k`` atoms nearest in chromaticity (nearest first),
+        and the highlight atom (one compiled pass, :func:`~..kernels.nearest_centres`)."""
+        from ..kernels import nearest_centres
+
         k = min(k, self.centres.shape[0])
-        near = np.empty((chroma.shape[0], k + 1), dtype=np.intp)
-        for start in range(0, chroma.shape[0], _CHUNK):
-            here = slice(start, start + _CHUNK)
-            d2 = ((chroma[here, None, :] - self.centres[None]) ** 2).sum(axis=-1)
-            if k < d2.shape[1]:  # the k nearest, then in order of distance
-                part = np.argpartition(d2, k - 1, axis=1)[:, :k]
-                rank = np.argsort(np.take_along_axis(d2, part, axis=1), axis=1, kind="stable")
-                near[here, :k] = np.take_along_axis(part, rank, axis=1)
-            else:
-                near[here, :k] = np.argsort(d2, axis=1, kind="stable")
+        near = np.empty((chroma.shape[0], k + 1), dtype=np.int64)
+        nearest_centres(
+            np.ascontiguousarray(chroma, dtype=np.float64),
+            np.ascontiguousarray(self.centres, dtype=np.float64),
+            k,
+            near,
+        )
         near[:, k] = self.highlight
         return near
 
@@ -450,31 +445,29 @@ def neighbourhood_candidates(
     A pixel that straddles two yarns or print dots has a chromaticity between theirs, and
     the endmembers nearest to it in chromaticity may be other mixtures; the materials of the
     pixels around it are the ones it most likely holds. The highlight atom is left out (it
-    is always a candidate).
+    is always a candidate). Per image, all share maps in one compiled pass
+    (:func:`~..kernels.share_planes`), one Gaussian filter over them, and the running
+    top-``count`` in another (:func:`~..kernels.top_planes`; ties to the lower atom).
     """
     from scipy import ndimage
 
+    from ..kernels import share_planes, top_planes
+
     n_atoms = int(near.max()) + 1
-    shape = (inputs.n_image, inputs.height, inputs.width)
-    share = weights / np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
-    best = np.full((near.shape[0], count), -1.0)
-    index = np.zeros((near.shape[0], count), dtype=np.intp)
     highlight = n_atoms - 1
-    for j in range(n_atoms):
-        if j == highlight:
-            continue
-        plane = np.zeros(near.shape[0])
-        for a in range(near.shape[1]):
-            plane += np.where(near[:, a] == j, share[:, a], 0.0)
-        plane = ndimage.gaussian_filter(plane.reshape(shape), (0, sigma, sigma), mode="reflect").ravel()
-        for c in range(count):  # insert into the running top-``count``
-            better = plane > best[:, c]
-            if c + 1 < count:
-                best[better, c + 1 :] = best[better, c:-1]
-                index[better, c + 1 :] = index[better, c:-1]
-            best[better, c] = plane[better]
-            index[better, c] = j
-            plane = np.where(better, -1.0, plane)
+    per_image = inputs.height * inputs.width
+    near = np.ascontiguousarray(near, dtype=np.int64)
+    weights = np.ascontiguousarray(weights, dtype=np.float64)
+    index = np.zeros((near.shape[0], count), dtype=np.int64)
+    planes = np.empty((n_atoms, per_image))
+    for m in range(inputs.n_image):  # one image's share maps at a time (bounded memory)
+        here = slice(m * per_image, (m + 1) * per_image)
+        planes[:] = 0.0
+        share_planes(near[here], weights[here], highlight, planes)
+        smooth = ndimage.gaussian_filter(
+            planes.reshape(n_atoms, inputs.height, inputs.width), (0, sigma, sigma), mode="reflect"
+        )
+        top_planes(smooth.reshape(n_atoms, per_image), highlight, index[here])
     return index
 
 
@@ -635,10 +628,15 @@ def endmember_mixture(
         near = np.hstack([near, nearby])
         del nearby
         weights = rgb_abundances(endmembers, near, inputs.camera_matrix, rgb)
+    from ..kernels import mix_atoms
+
     cube = np.empty((inputs.n_wavelength, rgb.shape[0]))
-    for start in range(0, rgb.shape[0], _CHUNK):
-        here = slice(start, start + _CHUNK)
-        cube[:, here] = np.einsum("pk,pkw->wp", weights[here], endmembers.atoms[near[here]])
+    mix_atoms(
+        weights,
+        np.ascontiguousarray(near, dtype=np.int64),
+        np.ascontiguousarray(endmembers.atoms, dtype=np.float64),
+        cube,
+    )
     cube = cube.reshape(inputs.cube_shape)
     if local:
         _project(cube, inputs)
