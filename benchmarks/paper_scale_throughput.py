@@ -11,6 +11,12 @@ threads, inputs memory-mapped) for the default method, first with the code of
 then both solve a 128^2 capture with truth whole (nRMSE: the speed-up must not change the
 result). The LAST line is one JSON object, also written to
 ``benchmarks/results/paper_scale_throughput.json``.
+
+``--mixture-tile`` instead times the mixture prior's centre (the endmember mixture) and the
+whole tile (``solve_tile``, with the set's endmembers and the confidence) on one 256^2 x
+20-image tile, before and after, each in a fresh process, with a cProfile of the mixture's
+sections; the 128^2 accuracy of both; and stores them under the key ``mixture_tile`` of
+the same file (the 2048^2 rows are kept).
 """
 
 from __future__ import annotations
@@ -33,15 +39,146 @@ def log(message: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {message}", flush=True)
 
 
-def main() -> None:
-    from spectralize.nodes.reconstruction import DEFAULT_METHOD
+MIXTURE_SECTIONS = {
+    "endmember_mixture": "mixture (whole, profiled)",
+    "local_correction": "  local correction (guided filters, shrinkage)",
+    "guided_filtered_stacks": "    guided filters (2 window scales x 3 stacks)",
+    "gaussian_window": "    box / Gaussian windows",
+    "neighbourhood_candidates": "  spatial candidates (step 2b)",
+    "candidates": "  chromaticity candidates",
+    "rgb_abundances": "  abundance solves (2)",
+    "_project": "  projection onto C S = R, S >= 0 (2)",
+}
 
+
+def mixture_tile_case(path: str, package: str | None) -> dict:
+    """In this process: the mixture and the whole tile of the 256^2 set at ``path``."""
+    import cProfile
+    import importlib
+    import pstats
+
+    if package:
+        sys.path.insert(0, str(HERE))
+        from paper_scale import use_package
+
+        use_package(package)
+    sys.path.insert(0, str(HERE))
+    from paper_scale import load_inputs
+
+    from spectralize.nodes.reconstruction import DEFAULT_METHOD
+    from spectralize.nodes.reconstruction.inputs import inputs_from_xarray
+    from spectralize.nodes.reconstruction.tiling import sample_grid, shared_endmembers, solve_tile
+
+    mixture = importlib.import_module("spectralize.nodes.reconstruction.estimators.endmember_mixture")
+    rgb, shots, camera, _ = load_inputs(Path(path))
+    endmembers = shared_endmembers(rgb.isel(sample_grid(rgb)), shots.isel(sample_grid(rgb)), camera)
+    corner = {"y": slice(0, 64), "x": slice(0, 64)}  # compiles every kernel before the timing
+    small = inputs_from_xarray(rgb.isel(corner), shots.isel(corner), camera)
+    mixture.endmember_mixture(small, endmembers=endmembers)
+    inputs = inputs_from_xarray(rgb, shots, camera)
+    started = time.perf_counter()
+    mixture.endmember_mixture(inputs, endmembers=endmembers)
+    seconds = time.perf_counter() - started
+    profile = cProfile.Profile()
+    profile.enable()
+    mixture.endmember_mixture(inputs, endmembers=endmembers)
+    profile.disable()
+    stats = pstats.Stats(profile).stats
+    sections = {}
+    for (filename, _, name), (_, _, _, cumulative, _) in stats.items():
+        if name in MIXTURE_SECTIONS and "reconstruction" in filename:
+            sections[MIXTURE_SECTIONS[name]] = round(
+                sections.get(MIXTURE_SECTIONS[name], 0.0) + cumulative, 3
+            )
+    size = rgb.sizes["y"]
+    started = time.perf_counter()
+    _, iterations, _ = solve_tile(
+        rgb,
+        shots,
+        camera,
+        (slice(0, size), slice(0, rgb.sizes["x"])),
+        settings={"method": DEFAULT_METHOD},
+        confidence=True,
+        endmembers=endmembers,
+    )
+    tile = time.perf_counter() - started
+    return {
+        "mixture_s": round(seconds, 3),
+        "tile_s": round(tile, 3),
+        "iterations": int(iterations.max()),
+        "sections_s": sections,
+    }
+
+
+def mixture_tile(args: argparse.Namespace, report: dict) -> None:
+    """``--mixture-tile``: before and after on one 256^2 tile, each in a fresh process."""
+    from paper_scale import baseline_package, capture_inputs, run_case
+
+    previous = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        package = baseline_package(args.baseline_commit, work)
+        log(f"capturing {args.scene} at 256^2 and 128^2 (20 images)")
+        capture_inputs(args.scene, 256, 0, work / "set256.npz", truth=False)
+        capture_inputs(args.scene, 128, 0, work / "set128.npz", truth=True)
+        for key, where in (("before", package), ("after", None)):
+            accuracy = run_case("accuracy", work / "set128.npz", package=where)
+            command = [
+                sys.executable,
+                str(Path(__file__).resolve()),
+                "--tile-case",
+                str(work / "set256.npz"),
+            ]
+            if where is not None:
+                command += ["--package", str(where)]
+            out = subprocess.run(command, capture_output=True, text=True, check=False)
+            if out.returncode != 0:
+                raise RuntimeError(f"tile case ({key}) failed:\n{out.stderr[-4000:]}")
+            row = json.loads(out.stdout.strip().splitlines()[-1])
+            row["accuracy_128"] = accuracy
+            log(f"{key}: {row}")
+            rows[key] = row
+        subprocess.run(["git", "worktree", "remove", "--force", str(work / "baseline")], check=False)
+    before, after = rows["before"], rows["after"]
+    previous["mixture_tile"] = {
+        "command": report["command"],
+        "commit": report["commit"],
+        "baseline_commit": args.baseline_commit,
+        "date": report["date"],
+        "note": args.note,
+        "set": f"{args.scene}, 256^2 x 20 images (10 with 3 band shots each), one tile, whole",
+        "before": before,
+        "after": after,
+        "mixture_speedup": round(before["mixture_s"] / after["mixture_s"], 2),
+        "tile_speedup": round(before["tile_s"] / after["tile_s"], 2),
+    }
+    RESULTS.write_text(json.dumps(previous, indent=1) + "\n")
+    print(json.dumps(previous["mixture_tile"]))
+
+
+def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--baseline-commit", required=True)
+    parser.add_argument("--baseline-commit")
+    parser.add_argument("--mixture-tile", action="store_true", help="the 256^2 tile case")
+    parser.add_argument("--tile-case", help=argparse.SUPPRESS)
+    parser.add_argument("--package", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--into-mixture-tile",
+        action="store_true",
+        help="store the 2048^2 rows under mixture_tile/throughput_2048 (keep the rest)",
+    )
     parser.add_argument("--scene", default="glossy-mosaic")
     parser.add_argument("--size", type=int, default=2048)
     parser.add_argument("--note", default="")
     args = parser.parse_args()
+    if args.tile_case:
+        print(json.dumps(mixture_tile_case(args.tile_case, args.package)))
+        return
+    if not args.baseline_commit:
+        parser.error("--baseline-commit is required")
+    from spectralize.nodes.reconstruction import DEFAULT_METHOD
+
     sys.path.insert(0, str(HERE))
     from paper_scale import baseline_package, capture_inputs, run_case
 
@@ -59,6 +196,9 @@ def main() -> None:
         "set": "20 images, 10 with 3 band shots each",
         "note": args.note,
     }
+    if args.mixture_tile:
+        mixture_tile(args, report)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         package = baseline_package(args.baseline_commit, work)
@@ -80,6 +220,12 @@ def main() -> None:
         subprocess.run(["git", "worktree", "remove", "--force", str(work / "baseline")], check=False)
     before, after = report["before"], report["after"]
     report["speedup"] = round(before["seconds_per_mpx_image"] / after["seconds_per_mpx_image"], 2)
+    if args.into_mixture_tile:  # the 2048^2 rows of the mixture-tile change, beside its tile rows
+        previous = json.loads(RESULTS.read_text())
+        previous["mixture_tile"]["throughput_2048"] = report
+        RESULTS.write_text(json.dumps(previous, indent=1) + "\n")
+        print(json.dumps(report))
+        return
     RESULTS.write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps(report))
 

@@ -514,24 +514,80 @@ def paper_scale_throughput(data: Json) -> list[str]:
                 f"{num(accuracy.get('median'), 4)} / {num(accuracy.get('p95'), 4)}",
             ]
         )
-    return [
-        f"The 2048^2 throughput case of `paper_scale.py` ({data['method']}, {data['scene']}, "
-        f"{data['set']}; 2 interior 256 px tiles on 2 threads), before and after in one run; "
-        f"accuracy: the 128^2 set solved whole. Speed-up {data['speedup']}x.",
-        table(
+    return (
+        [
+            f"The 2048^2 throughput case of `paper_scale.py` ({data['method']}, {data['scene']}, "
+            f"{data['set']}; 2 interior 256 px tiles on 2 threads), before and after in one run; "
+            f"accuracy: the 128^2 set solved whole. Speed-up {data['speedup']}x.",
+            table(
+                [
+                    "code",
+                    "s per Mpx-image",
+                    "s per tile",
+                    "peak RSS GB",
+                    "iterations per tile",
+                    "endmembers s",
+                    "128^2 nRMSE median / p95",
+                ],
+                rows,
+            ),
+            f"Note from the JSON: {data['note']}",
+        ]
+        + _throughput_profile(data.get("profile_256"))
+        + _mixture_tile(data.get("mixture_tile"))
+    )
+
+
+def _mixture_tile(case: Json | None) -> list[str]:
+    if not case:
+        return []
+    before, after = case["before"], case["after"]
+    rows = [
+        ["mixture (timed, unprofiled)", num(before["mixture_s"]), num(after["mixture_s"])],
+        ["whole tile (solve_tile)", num(before["tile_s"]), num(after["tile_s"])],
+        ["iterations", before["iterations"], after["iterations"]],
+    ]
+    for section in before["sections_s"]:
+        depth = (len(section) - len(section.lstrip())) // 2  # sub-sections indented
+        name = "&nbsp;&nbsp;" * depth + section.strip()
+        rows.append([name, num(before["sections_s"][section]), num(after["sections_s"].get(section))])
+    for key in ("median", "p95"):
+        rows.append(
             [
-                "code",
-                "s per Mpx-image",
-                "s per tile",
-                "peak RSS GB",
-                "iterations per tile",
-                "endmembers s",
-                "128^2 nRMSE median / p95",
-            ],
-            rows,
+                f"128^2 nRMSE {key}",
+                num(before["accuracy_128"][key], 5),
+                num(after["accuracy_128"][key], 5),
+            ]
+        )
+    return [
+        f"**The endmember mixture on one tile** ({case['set']}; before `{case['baseline_commit']}`, "
+        f"after `{case['commit']}`, one run; mixture {case['mixture_speedup']}x, tile "
+        f"{case['tile_speedup']}x; the sections are cProfile's cumulative seconds of a second, "
+        "profiled call). Note from the JSON: " + case["note"],
+        table(["seconds", "before", "after"], rows),
+    ] + _mixture_throughput(case.get("throughput_2048"))
+
+
+def _mixture_throughput(run: Json | None) -> list[str]:
+    if not run:
+        return []
+    rows = [
+        [
+            run[key]["commit"],
+            run[key]["seconds_per_mpx_image"],
+            "/".join(str(s) for s in run[key]["seconds_per_tile"]),
+            run[key]["peak_rss_gb"],
+            "{} / {}".format(*(num(run[key]["accuracy_128"].get(q), 4) for q in ("median", "p95"))),
+        ]
+        for key in ("before", "after")
+    ]
+    return [
+        f"The same change at 2048^2 (as above: 2 interior 256 px tiles on 2 threads), before and "
+        f"after in one run: {run['speedup']}x. Note from the JSON: {run['note']}",
+        table(
+            ["code", "s per Mpx-image", "s per tile", "peak RSS GB", "128^2 nRMSE median / p95"], rows
         ),
-        f"Note from the JSON: {data['note']}",
-    ] + _throughput_profile(data.get("profile_256"))
+    ]
 
 
 def _throughput_profile(profile: Json | None) -> list[str]:
