@@ -167,10 +167,16 @@ def gaussian_filter_matrix(
     )
 
 
+DENSE_AXIS_BELOW = 96
+"""Axes shorter than this many pixels keep their filter matrices dense: on tiny tiles a
+sparse product's fixed cost per call (~20 us) outweighs its arithmetic (the same products,
+summed in another order: equal within float rounding)."""
+
+
 @dataclass(frozen=True)
 class _Axis:
-    forward: sp.csr_array  # (n_centres, length)
-    adjoint: sp.csr_array  # (length, n_centres)
+    forward: sp.csr_array | np.ndarray  # (n_centres, length); dense below DENSE_AXIS_BELOW
+    adjoint: sp.csr_array | np.ndarray  # (length, n_centres)
     diagonal: np.ndarray  # column sums of forward**2, (length,)
 
 
@@ -220,11 +226,12 @@ class FilterConstraints:
                 forward = gaussian_filter_matrix(
                     length, size, centre_spacing=self.centre_spacing, dtype=self.dtype
                 )
-                cache[key] = _Axis(
-                    forward,
-                    forward.T.tocsr(),
-                    np.asarray((forward.multiply(forward)).sum(axis=0)).ravel(),
-                )
+                diagonal = np.asarray((forward.multiply(forward)).sum(axis=0)).ravel()
+                if length < DENSE_AXIS_BELOW:
+                    dense = forward.toarray()
+                    cache[key] = _Axis(dense, np.ascontiguousarray(dense.T), diagonal)
+                else:
+                    cache[key] = _Axis(forward, forward.T.tocsr(), diagonal)
             return cache[key]
 
         self._rows = [axis(height, s) for s in self.filter_size]

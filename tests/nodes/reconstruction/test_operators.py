@@ -102,6 +102,24 @@ def test_filter_normal_and_diagonal_match_the_dense_operator():
     np.testing.assert_allclose(filters.normal_diagonal().ravel(), np.diag(dense.T @ dense), atol=1e-12)
 
 
+@pytest.mark.parametrize("height", [40, 120])  # below and above DENSE_AXIS_BELOW (96)
+def test_filter_responses_are_the_sparse_filter_matrices_products(height):
+    """Short axes keep their filter matrices dense (a tiny tile's fixed cost), long ones
+    sparse: either way one shot's responses are ``G_y X G_x^T`` and its adjoint ``G_y^T R G_x``."""
+    rng = np.random.default_rng(3)
+    width = 90
+    filters = FilterConstraints((1, 1, height, width), np.array([0]), np.array([0]), np.array([7.0]))
+    g_y = gaussian_filter_matrix(height, 7.0).toarray()
+    g_x = gaussian_filter_matrix(width, 7.0).toarray()
+    plane = rng.normal(size=(height, width))
+    responses = filters.apply_plane(0, plane)
+    np.testing.assert_allclose(responses, g_y @ plane @ g_x.T, rtol=1e-12, atol=1e-12)
+    back = rng.normal(size=responses.shape)
+    np.testing.assert_allclose(
+        filters.adjoint_plane(0, back), g_y.T @ back @ g_x, rtol=1e-12, atol=1e-12
+    )
+
+
 def test_rgb_operator_adjoint():
     rng = np.random.default_rng(3)
     c = rng.normal(size=(3, 6))
