@@ -23,6 +23,7 @@ from spectralize.engine import Node, RegisteredNode, Step
 from spectralize.engine import discovery as engine
 from spectralize.flows import cli
 from spectralize.flows.runtime import run_steps
+from spectralize.nodes.calibration.dark import average_dark_frames
 from spectralize.schemas import SchemaError
 from spectralize.store import RunStore, work_dir
 
@@ -74,10 +75,10 @@ def test_second_concurrent_run_fails_clearly_and_the_first_result_is_complete(tm
     assert first.returncode == 0, err
     assert "dark_average             ran" in out
     # the committed result is complete and equal to a single run's
-    frames = store.read("raw/dark").frames.values.astype(np.float64)
     dark = store.read("dark")
-    np.testing.assert_allclose(dark["mean"].values, frames.mean(axis=1), rtol=1e-6)
-    np.testing.assert_allclose(dark["std"].values, frames.std(axis=1, ddof=1), rtol=1e-5)
+    alone = average_dark_frames(store.read("raw/dark").load())
+    np.testing.assert_allclose(dark["mean"].values, alone["mean"].values, rtol=1e-6)
+    np.testing.assert_allclose(dark["std"].values, alone["std"].values, rtol=1e-5)
     assert store.validate(deep=True) == [] and store.staging_leftovers() == []
 
 
