@@ -172,6 +172,15 @@ def errors(spectra: xr.DataArray, base, rgb: xr.Dataset, labels: list[int]) -> d
     }
 
 
+def camera_images(has: xr.DataArray, rgb: xr.Dataset, camera: int, with_bands: bool) -> list[int]:
+    """The labels of RGB camera ``camera``'s images with (or without) band shots."""
+    return [
+        int(v)
+        for v in has["image"].values[has.values == with_bands]
+        if int(rgb["camera"].sel(image=int(v))) == camera
+    ]
+
+
 def c_error(c: np.ndarray, truth: np.ndarray) -> list[float]:
     """Per channel RMS over wavelength of ``s C - truth`` relative to the truth's peak."""
     scale = (c * truth).sum(1) / np.maximum((c * c).sum(1), 1e-30)
@@ -275,11 +284,7 @@ def measure_lab(root: Path, lab: str) -> dict:
     for variant, spectra in ablation.items():
         for k, name in enumerate(cameras):
             for flag in (True, False):
-                labels = [
-                    int(v)
-                    for v in has["image"].values[has.values == flag]
-                    if int(rgb["camera"].sel(image=int(v))) == k
-                ]
+                labels = camera_images(has, rgb, k, flag)
                 if labels:
                     e = errors(spectra, base, rgb, labels)
                     key = f"{name} {'with' if flag else 'without'} bands"
@@ -302,11 +307,7 @@ def measure_lab(root: Path, lab: str) -> dict:
         }
     for k, name in enumerate(cameras):
         for flag in (True, False):
-            labels = [
-                int(v)
-                for v in has["image"].values[has.values == flag]
-                if int(rgb["camera"].sel(image=int(v))) == k
-            ]
+            labels = camera_images(has, rgb, k, flag)
             if not labels:
                 continue
             cal, orc = errors(calibrated, base, rgb, labels), errors(oracle, base, rgb, labels)
