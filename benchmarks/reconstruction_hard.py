@@ -25,17 +25,23 @@ from spectralize.nodes.reconstruction import (
 )
 from spectralize.nodes.simulation.scenes import SCENES, get_scene
 
-__all__ = ["run_suite", "BASELINES", "TARGETS"]
+__all__ = ["run_suite", "BASELINES", "RGB_ONLY_BASELINES", "TARGETS"]
 
 BASELINES = tuple(BASELINE_METHODS)
 
+RGB_ONLY_BASELINES = ("wiener", "mallett2019", "pseudo-inverse")
+"""The baselines that use the RGB alone (no band shot)."""
+
 TARGETS = {
-    "single_median_max": 0.02,
-    "single_p95_max": 0.05,
-    "set_fraction_under_0.03_min": 0.90,
-    "without_vs_with_bands_max_ratio": 1.2,
-    "beats_best_baseline_factor": 1.5,
+    # issue 29, on every row (scene x mode, the worse seed)
+    "default_vs_every_other_method_max_ratio": 1.0,  # median and p95, baselines and presets
+    "median_gain_vs_best_rgb_only_min": 1.3,
+    "set_fraction_under_0.03_min_glossy_dark": 0.75,
+    "set_fraction_under_0.03_min_woven_halftone": 0.40,
+    "without_vs_with_bands_max_ratio": 1.1,
+    "cost_vs_previous_default_max": 1.5,  # per Mpx-image, paper_scale_throughput's check
 }
+"""Issue 29's targets (the cost target is checked by ``paper_scale_throughput``)."""
 
 
 def log(message: str) -> None:
@@ -155,32 +161,50 @@ def summarise(cases: list[dict]) -> dict:
                 for m in RECONSTRUCTION_METHODS
                 if worst(m, "median") is not None
             }
+            rgb_only = {b: v for b, v in baselines.items() if b in RGB_ONLY_BASELINES}
+            best_rgb = min(rgb_only.items(), key=lambda kv: kv[1][0])
+            others = {
+                **{b: {"median": v[0], "p95": v[1]} for b, v in baselines.items()},
+                **{m: v for m, v in solvers.items() if m != DEFAULT_METHOD},
+            }
             row = {
                 "default": default,
                 "solvers": solvers,
                 "best_baseline_median": {"method": best_median[0], "value": best_median[1][0]},
                 "best_baseline_p95": {"method": best_p95[0], "value": best_p95[1][1]},
+                "best_rgb_only_median": {"method": best_rgb[0], "value": best_rgb[1][0]},
                 "median_gain_vs_best_baseline": round(best_median[1][0] / default["median"], 3),
                 "p95_gain_vs_best_baseline": round(best_p95[1][1] / default["p95"], 3),
+                "median_gain_vs_best_rgb_only": round(best_rgb[1][0] / default["median"], 3),
+                "beaten_by": sorted(
+                    f"{m} ({k})"
+                    for m, v in others.items()
+                    for k in ("median", "p95")
+                    if v[k] * TARGETS["default_vs_every_other_method_max_ratio"] < default[k]
+                ),
                 "default_negative_fraction": max(
                     c["methods"][DEFAULT_METHOD]["negative_fraction"] for c in chosen
                 ),
             }
             targets = {
-                "beats_best_baseline_1.5x": row["median_gain_vs_best_baseline"] >= 1.5
-                and row["p95_gain_vs_best_baseline"] >= 1.5,
+                "le_every_other_method": not row["beaten_by"],
+                "rgb_only_gain_ge_1.3": row["median_gain_vs_best_rgb_only"]
+                >= TARGETS["median_gain_vs_best_rgb_only_min"],
                 "no_negative_radiance": row["default_negative_fraction"] == 0,
             }
-            if n == 1:
-                targets["median_le_0.02"] = default["median"] <= TARGETS["single_median_max"]
-                targets["p95_le_0.05"] = default["p95"] <= TARGETS["single_p95_max"]
-            else:
+            if n != 1:
                 with_ = {k: worst(DEFAULT_METHOD, k, "with_bands") for k in ("median", "p95")}
                 without = {k: worst(DEFAULT_METHOD, k, "without_bands") for k in ("median", "p95")}
                 row["default_with_bands"], row["default_without_bands"] = with_, without
-                targets["fraction_under_0.03_ge_0.9"] = default["fraction_under_0.03"] >= 0.9
-                targets["without_within_1.2x_of_with"] = all(
-                    without[k] <= 1.2 * with_[k] for k in ("median", "p95")
+                wanted = TARGETS[
+                    "set_fraction_under_0.03_min_glossy_dark"
+                    if name in ("glossy-mosaic", "dark-still-life")
+                    else "set_fraction_under_0.03_min_woven_halftone"
+                ]
+                targets[f"fraction_under_0.03_ge_{wanted}"] = default["fraction_under_0.03"] >= wanted
+                targets["without_within_1.1x_of_with"] = all(
+                    without[k] <= TARGETS["without_vs_with_bands_max_ratio"] * with_[k]
+                    for k in ("median", "p95")
                 )
             row["targets"] = targets
             out.setdefault(mode, {})[name] = row

@@ -6,14 +6,16 @@
     Eq. 1, plus an optional guided prior, by block-Jacobi preconditioned CG on ``A^T A``
     in float32.
 ``prior_pcg`` (:mod:`.prior_pcg`)
-    The same PCG on eq. 1 plus the guided and spectral priors (scene, mixture or training
-    samples), then the non-negativity refinement.
+    The same PCG on eq. 1 plus the guided and spectral priors (scene, mixture, training
+    samples, or the mixture with the natural-spectra prior), then the non-negativity
+    refinement.
 
-The named presets that run them (``"mixture-prior-pcg"``, the default, and the others)
+The named presets that run them (``"natural-prior-pcg"``, the default, and the others)
 are data in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
 Shared parts: :mod:`.common` (result record, the PCG loop and its pixel-major run),
 :mod:`.preconditioner` (block Jacobi), :mod:`.guided_estimate` (starts and the guided
-prior's centre), :mod:`.spectral_prior` (the spectral prior term) and
+prior's centre), :mod:`.spectral_prior` (the spectral prior term), :mod:`.natural_prior`
+(the natural-spectra prior) with :mod:`.band_evidence` (its per-pixel weight) and
 :mod:`.projected_refinement` (``S >= 0``).
 
 References

@@ -19,11 +19,16 @@ priors, then refined on ``S >= 0``:
 * the spectral prior ``sum_p w_p (S_p - m_p)^T Q (S_p - m_p)``
   (:mod:`.spectral_prior`), learnt from the scene, the endmember mixture or training
   reflectances; ``Q`` couples a pixel's wavelengths, the preconditioner takes its diagonal;
+  with ``prior_source="natural"`` the natural-spectra prior (:mod:`.natural_prior`, a
+  Gaussian learnt from natural reflectances under the run's illuminant, given the pixel's
+  RGB: the Wiener estimate) joins it, weighed per pixel by the band evidence for it over
+  the mixture (:mod:`.band_evidence`);
 * radiance is never negative: the projected refinement of the same energy
   (:mod:`.projected_refinement`).
 
 With ``spectral_prior=0`` it is eq. 1 with the guided prior on this set-up, refined on
-``S >= 0``. The presets ``"spectral-prior-pcg"`` and ``"mixture-prior-pcg"`` (the default)
+``S >= 0``. The presets ``"spectral-prior-pcg"``, ``"mixture-prior-pcg"`` and
+``"natural-prior-pcg"`` (the default)
 of :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS` run it; why the
 mixture preset stops earlier and refines fewer steps: it starts at its prior's centre, and
 the iterations past that drift towards eq. 1's answer, which on sets carries the highlight
@@ -71,6 +76,7 @@ def prior_pcg(
     projected_iterations: int = 40,
     endmembers: Endmembers | None = None,
     prior_weighting: str = "uniform",
+    natural_prior: float = 0.0,
 ) -> SolverResult:
     """Eq. 1 + guided prior + spectral prior by block-Jacobi PCG, then ``S >= 0``.
 
@@ -109,6 +115,13 @@ def prior_pcg(
         One of :data:`~.spectral_prior.PRIOR_WEIGHTINGS`: ``"brightness"`` weighs the
         guided prior of each pixel by its relative brightness ``f_p`` (mean 1,
         :func:`~.spectral_prior.prior_brightness`); ``"uniform"``: ``f_p = 1``.
+    natural_prior
+        With ``prior_source="natural"``: weight of the natural-spectra prior
+        (:mod:`.natural_prior`) relative to the mean diagonal of ``A^T A``, per pixel times
+        the band evidence for it (:mod:`.band_evidence`) and ``1 / max(b_p, b_min)^2``;
+        it joins the spectral prior, whose centre (and the guided prior's and the start)
+        moves towards the Wiener estimate by the pixel's share of the two weights
+        (:func:`~.spectral_prior.spectral_prior_term`). 0: the ``"mixture"`` source.
 
     Returns
     -------
@@ -147,6 +160,7 @@ def prior_pcg(
             covariance_floor=covariance_floor,
             source=prior_source,
             endmembers=endmembers,
+            natural_prior=natural_prior,
         )
     if term is not None:  # the prior's diagonal joins the ridges, one float32 cube
         term = term.astype(dtype)
@@ -155,7 +169,7 @@ def prior_pcg(
         diagonal += np.asarray(relative, dtype=dtype)
         relative = diagonal
         del diagonal
-    if term is not None and prior_source == "mixture":
+    if term is not None and prior_source in ("mixture", "natural"):
         centre = term.centre  # the guided prior pulls towards the same estimate (read only)
     else:
         centre = np.asarray(guided_initial(problem), dtype=dtype).reshape(work.shape)
@@ -247,6 +261,7 @@ def prior_pcg(
             "spectral_prior": float(spectral_prior) if weight is not None else 0.0,
             "prior_source": prior_source,
             "prior_weighting": prior_weighting,
+            "natural_prior": float(natural_prior) if prior_source == "natural" else 0.0,
             "projected_iterations": int(projected_iterations),
         },
     )

@@ -48,8 +48,10 @@ from ..baselines.wiener import WIENER_RELATIVE_NOISE, wiener_from_rgb
 from ..estimators import endmember_mixture
 from ..estimators.endmember_mixture import Endmembers
 from ..operators import ReconstructionProblem
+from .band_evidence import band_evidence
 from .common import vdot
 from .guided_estimate import guided_initial, shot_mask
+from .natural_prior import natural_prior
 
 __all__ = [
     "SpectralPrior",
@@ -73,7 +75,7 @@ PRIOR_WEIGHTINGS = ("uniform", "brightness")
 """How the guided prior's weight ``epsilon_p`` is spread over the pixels (see
 :func:`~.prior_pcg.prior_pcg`)."""
 
-PRIOR_SOURCES = ("scene", "mixture", "training")
+PRIOR_SOURCES = ("scene", "mixture", "training", "natural")
 """Where the spectral prior is learnt (:func:`spectral_prior_term`)."""
 
 
@@ -148,6 +150,7 @@ def spectral_prior_term(
     covariance_floor: float,
     source: str,
     endmembers: Endmembers | None = None,
+    natural_prior: float = 0.0,
 ) -> SpectralPrior | None:
     """The spectral prior of a problem built with its inputs (see the module docstring).
 
@@ -160,13 +163,20 @@ def spectral_prior_term(
     ``"mixture"``: the covariance of the :func:`~..estimators.endmember_mixture` estimate of
     every pixel (level-normalised), and that estimate itself as the centre ``m`` instead of
     the Wiener estimate (any set has one); ``endmembers``: its dictionary, learnt before
-    (e.g. once per set for all its tiles), with ``"mixture"`` only.
+    (e.g. once per set for all its tiles), with ``"mixture"`` and ``"natural"`` only.
+    ``"natural"``: the ``"mixture"`` term plus the natural-spectra prior
+    (:mod:`.natural_prior`) ``sum_p v_p (S_p - m^W_p)^T Q (S_p - m^W_p)``, centred on the
+    Wiener estimate ``m^W`` with ``v_p = natural_prior * mean_diagonal * pi_p /
+    max(b_p, b_min)^2``, ``pi_p`` the band evidence for the Wiener estimate over the
+    mixture (:mod:`.band_evidence`); both share ``Q``, so their sum is one term
+    ``(w_p + v_p) (S_p - c_p)^T Q (S_p - c_p)`` (plus a constant) with
+    ``c_p = (w_p m^X_p + v_p m^W_p) / (w_p + v_p)``.
     """
     inputs = problem.extras.get("inputs")
     if inputs is None:
         raise ValueError("the spectral prior needs a problem built from inputs")
     mixture = None
-    if endmembers is not None and source != "mixture":
+    if endmembers is not None and source not in ("mixture", "natural"):
         raise ReconstructionError(
             f"endmembers: only the 'mixture' prior source takes a dictionary, found source {source!r}"
         )
@@ -174,7 +184,7 @@ def spectral_prior_term(
         samples = _scene_spectra(problem)
         if samples is None:
             return None
-    elif source == "mixture":
+    elif source in ("mixture", "natural"):
         mixture = endmember_mixture(inputs, endmembers=endmembers).reshape(problem.shape)
         samples = _level_normalised(mixture.reshape(problem.shape[0], -1))
     elif source == "training":
@@ -190,13 +200,36 @@ def spectral_prior_term(
     rgb = np.asarray(inputs.rgb, dtype=np.float64)  # (image, y, x, channel)
     brightness = np.abs(rgb.sum(axis=-1))
     brightness = brightness / np.maximum(brightness.mean(axis=(1, 2), keepdims=True), 1e-300)
-    w = weight * mean_diagonal / np.maximum(brightness, MIN_BRIGHTNESS) ** 2
+    inverse_level = 1.0 / np.maximum(brightness, MIN_BRIGHTNESS) ** 2
+    w = weight * mean_diagonal * inverse_level
+    if mixture is not None and source == "natural" and natural_prior > 0:
+        return _with_natural(inputs, precision, w, inverse_level, mixture, natural_prior * mean_diagonal)
     if mixture is not None:
         return SpectralPrior(precision, w, mixture)
     # Wiener estimate from RGB with the samples' second moment
     second_moment = samples @ samples.T / samples.shape[1]
     centre = wiener_from_rgb(inputs, second_moment, WIENER_RELATIVE_NOISE).reshape(problem.shape)
     return SpectralPrior(precision, w, centre)
+
+
+def _with_natural(
+    inputs: object,
+    precision: np.ndarray,
+    w: np.ndarray,
+    inverse_level: np.ndarray,
+    mixture: np.ndarray,
+    scale: float,
+) -> SpectralPrior:
+    """The mixture term plus the natural prior, folded into one term (see
+    :func:`spectral_prior_term`); ``inverse_level`` is ``1 / max(b_p, b_min)^2`` and
+    ``scale`` is ``natural_prior * mean_diagonal``."""
+    natural, _ = natural_prior(inputs)
+    evidence = band_evidence(inputs, natural, mixture)  # pi_p
+    total = w + scale * evidence * inverse_level  # w_p + v_p
+    natural -= mixture
+    natural *= evidence[None]
+    natural += mixture  # c_p = m^X_p + pi_p (m^W_p - m^X_p)
+    return SpectralPrior(precision, total, natural)
 
 
 def prior_brightness(rgb: np.ndarray) -> np.ndarray:

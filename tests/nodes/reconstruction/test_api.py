@@ -44,7 +44,7 @@ def test_output_dims_dtype_coords_and_attrs(scene):
     assert out["rotation"].values.tolist() == [3, 4]
     assert out.attrs["units"] == "1"
     assert "long_name" in out.attrs
-    assert out.attrs["method"] == DEFAULT_METHOD == "mixture-prior-pcg"
+    assert out.attrs["method"] == DEFAULT_METHOD == "natural-prior-pcg"
     assert out.attrs["iterations"] >= 1
     # the default's iterations are its CG iterations plus those of its S >= 0 refinement
     cg_iterations = out.attrs["iterations"] - out.attrs["projected_iterations"]
@@ -115,7 +115,9 @@ def test_every_method_of_the_tables_runs_through_reconstruct(scene, method):
         assert result.iterations >= 1 and result.problem is not None
         assert result.problem.dtype == record.dtype
         assert out.attrs["tolerance"] == record.defaults()["tolerance"]  # the method's own
-        assert out.attrs["tolerance"] == (3e-3 if method == "mixture-prior-pcg" else 1e-3)
+        assert out.attrs["tolerance"] == (
+            3e-3 if method in ("mixture-prior-pcg", "natural-prior-pcg") else 1e-3
+        )
     else:
         assert result.iterations == 0 and result.problem is None
     # every setting of the method is reachable and recorded

@@ -145,7 +145,7 @@ def test_the_mixture_prior_exists_for_a_sparse_set_and_is_centred_on_the_estimat
 
 
 def test_default_is_the_mixture_prior_solver_and_beats_its_predecessor_on_noisy_bands():
-    assert DEFAULT_METHOD == "mixture-prior-pcg"
+    assert DEFAULT_METHOD == "natural-prior-pcg"  # the mixture preset plus the natural prior
     record = RECONSTRUCTION_METHODS[DEFAULT_METHOD]
     assert record.kind == "solver" and record.defaults()["appearance"] == "chromaticity-spatial"
     assert RECONSTRUCTION_METHODS["endmember-mixture"].kind == "estimator"

@@ -88,9 +88,14 @@ def test_each_image_through_its_own_camera_beats_the_3x3_map(two_cameras):
         dims=("image", "channel", "wavelength"),
         coords={"image": [0, 1], "channel": c["channel"].values, "wavelength": c["wavelength"].values},
     )
-    one_c = reconstruct(mapped, scene.bands, c).values  # the 3 x 3 map taken as exact
-    per_image_c = reconstruct(mapped, scene.bands, own).values
-    same_camera = reconstruct(scene.rgb, scene.bands, c).values  # both images of the paired camera
+    # the mixture preset: the default's natural prior (a Wiener estimate, through the same
+    # camera matrix) reduces the 3 x 3 map's error, and with it this margin
+    method = "mixture-prior-pcg"
+    one_c = reconstruct(mapped, scene.bands, c, method=method).values  # the 3 x 3 map taken as exact
+    per_image_c = reconstruct(mapped, scene.bands, own, method=method).values
+    same_camera = reconstruct(
+        scene.rgb, scene.bands, c, method=method
+    ).values  # both images of the paired camera
     # the other camera's image: its own C fits its RGB, the 3 x 3 map (1 % off) does not
     shared_error = _nrmse(one_c[1], scene.truth[1])
     own_error = _nrmse(per_image_c[1], scene.truth[1])
