@@ -20,6 +20,9 @@ object, also kept in ``benchmarks/results/full_run.json`` (one entry per image c
 ``ingest_s``, ``flow_s``            wall time of the ingest and of the ``btf`` flow
 ``seconds_per_1000_images``         (ingest + flow) per 1,000 images
 ``peak_rss_gb``                     the largest resident set of the ingest and flow processes
+``node_s``, ``node_peak_rss_gb``    per node of the flow: its seconds, and the flow process's
+                                    peak resident set while it ran (GB; threads included,
+                                    dask workers of other processes not)
 ``*_cpu_s``, ``load_average``       CPU seconds of capture, ingest and flow, and the machine's
                                     1-minute load at the end (a shared machine's wall times
                                     count the other work too)
@@ -100,6 +103,21 @@ def node_seconds(summary: str) -> dict[str, float]:
     """Per node, the seconds of the flow's summary lines (``  node  ran  8.1 s  -> group``)."""
     found = re.findall(r"^  (\w+)\s+ran\s+([0-9.]+) s", summary, flags=re.MULTILINE)
     return {name: float(seconds) for name, seconds in found}
+
+
+def node_peak_rss_gb(summary: str) -> dict[str, float]:
+    """Per node, the peak resident set of the flow's process while it ran, from the summary
+    lines (``  node  ran  8.1 s  1.23 GB  -> group``; flows/memory.py)."""
+    found = re.findall(r"^  (\w+)\s+ran\s+[0-9.]+ s\s+([0-9.]+) GB", summary, flags=re.MULTILINE)
+    return {name: float(gb) for name, gb in found}
+
+
+def process_peak_rss_gb(summary: str) -> float | None:
+    """The flow process's own peak resident set (its summary's last lines), resets included."""
+    found = re.search(
+        r"^peak resident memory of this process: ([0-9.]+) GB", summary, flags=re.MULTILINE
+    )
+    return float(found[1]) if found else None
 
 
 def group_metadata_bytes(store: Path) -> dict[str, int]:
@@ -186,7 +204,11 @@ def main(argv: list[str] | None = None) -> dict:
     flow_s, summary = run([str(BIN / "spectralize"), "run", "btf", str(store)], env, root / "flow.log")
     flow_cpu_s = cpu_seconds() - ingest_cpu_s
     log(f"btf flow in {flow_s:.1f} s")
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6  # kB -> GB
+    # kB -> GB; the flow resets its high-water mark per node (flows/memory.py), which getrusage
+    # does not see past, so the flow's own peak (resets included) counts too
+    peak = max(
+        resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6, process_peak_rss_gb(summary) or 0.0
+    )
 
     done = subprocess.run(
         [sys.executable, "-c", OPEN_AND_READ, str(store)], cwd=ROOT, capture_output=True, text=True
@@ -220,6 +242,7 @@ def main(argv: list[str] | None = None) -> dict:
         "flow_cpu_s": round(flow_cpu_s, 1),
         "load_average": round(os.getloadavg()[0], 1),
         "node_s": node_seconds(summary),
+        "node_peak_rss_gb": node_peak_rss_gb(summary),
         "peak_rss_gb": round(peak, 2),
         "open_and_read_coordinates_s": round(opened["seconds"], 2),
         "cpu_count": os.cpu_count(),

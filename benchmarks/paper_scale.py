@@ -443,7 +443,12 @@ def case_paper_slice(size: int, dark_frames: int, folder: Path) -> dict:
         "processing_s": round(processing, 1),
         "processing_seconds_per_mpx_image": round(processing / mpx_images, 2),
         "node_seconds": nodes,
-        "peak_rss_gb": round(resident_gb(), 3),
+        # per node, this process's peak resident set while it ran (flows/memory.py); the
+        # flow resets VmHWM per node, so the whole peak is the run report's (resets included)
+        "node_peak_rss_gb": {
+            step.node: step.peak_rss_gb for step in report.steps if getattr(step, "peak_rss_gb", None)
+        },
+        "peak_rss_gb": round(max(resident_gb(), getattr(report, "peak_rss_gb", None) or 0.0), 3),
         "store_gb": round(store_gb, 2),
         "accuracy": accuracy,
     }

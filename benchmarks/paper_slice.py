@@ -13,6 +13,10 @@ needs two rotations), solved as one set of 10 + 12, with the calibration shots a
 ``btf`` flow runs (a real Prefect run on a zarr store on disk, dask threads), from the
 simulation to the evaluation, in a fresh process whose peak resident set is measured.
 
+``node_peak_rss_gb``: per node, the peak resident set of the process while it ran (GB of
+1e9 bytes; the flow resets the process's high-water mark before each node, see
+``flows/memory.py``; dask threads count, workers in other processes would not).
+
 The LAST line is one JSON object, also written to ``benchmarks/results/paper_slice.json``;
 ``paper_scale.py`` reports its ``paper_slice_wall_s`` and ``paper_slice_peak_rss_gb`` from
 there. ``full_run_hours_at_100_cores`` extrapolates the whole flow's processing time (every
@@ -85,6 +89,7 @@ def main(argv: list[str] | None = None) -> dict:
         f"{row['wall_s']} s wall ({row['processing_s']} s after the simulation), peak "
         f"{row['peak_rss_gb']} GB, nodes {row['node_seconds']}"
     )
+    log(f"peak resident set per node [GB]: {row.get('node_peak_rss_gb')}")
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(row, indent=1) + "\n")
     print(json.dumps(row))

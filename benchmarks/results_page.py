@@ -600,6 +600,16 @@ def _throughput_profile(profile: Json | None) -> list[str]:
     ]
 
 
+def node_table(seconds: dict[str, float], peaks: dict[str, float] | None) -> str:
+    """Per node its seconds and, where the run recorded them, the process's peak resident set
+    while it ran (flows/memory.py)."""
+    if not peaks:
+        return table(["node", "s"], ([f"`{k}`", v] for k, v in seconds.items()))
+    return table(
+        ["node", "s", "peak resident GB"], ([f"`{k}`", v, peaks.get(k, "")] for k, v in seconds.items())
+    )
+
+
 def paper_slice(data: Json) -> list[str]:
     return [
         f"The paper recipe at {data['size']}^2 through every node of the `btf` flow (a real Prefect "
@@ -617,7 +627,7 @@ def paper_slice(data: Json) -> list[str]:
                 ["full run on 100 cores, extrapolated", f"{num(data['full_run_hours_at_100_cores'])} h"],
             ],
         ),
-        table(["node", "s"], ([f"`{k}`", v] for k, v in data["node_seconds"].items())),
+        node_table(data["node_seconds"], data.get("node_peak_rss_gb")),
         table(
             ["images", "median / p95 nRMSE"],
             ([k.replace("_", " "), pair(v)] for k, v in data["accuracy"].items()),
@@ -805,6 +815,15 @@ def full_run(data: Json) -> list[str]:
             table(
                 ["images", *nodes],
                 [[run["images"], *(run["node_s"].get(n) for n in nodes)] for run in timed],
+            )
+        )
+    weighed = [run for run in data["runs"] if run.get("node_peak_rss_gb")]
+    if weighed:  # per node, the flow process's peak resident set while it ran
+        nodes = list(weighed[-1]["node_peak_rss_gb"])
+        out.append(
+            table(
+                ["images", *(f"{n} GB" for n in nodes)],
+                [[run["images"], *(run["node_peak_rss_gb"].get(n) for n in nodes)] for run in weighed],
             )
         )
     return out

@@ -100,9 +100,15 @@ def _print_report(report) -> None:
     print(f"flow {report.flow!r} on {report.store}")
     for step in report.steps:
         timing = f"{step.seconds:.1f} s" if step.status == "ran" else "up to date"
-        print(f"  {step.node:<24} {step.status:<8} {timing:<12} -> {', '.join(step.outputs)}")
+        peak = getattr(step, "peak_rss_gb", None)  # the node's peak resident set (this process)
+        memory = f"{peak:.2f} GB" if peak is not None else ""
+        print(
+            f"  {step.node:<24} {step.status:<8} {timing:<12} {memory:<9} -> {', '.join(step.outputs)}"
+        )
         if getattr(step, "reason", ""):
             print(f"      ran again: {step.reason}")
+    if getattr(report, "peak_rss_gb", None) is not None:
+        print(f"peak resident memory of this process: {report.peak_rss_gb:.2f} GB")
     if report.report:
         print(f"report: {report.report}")
 

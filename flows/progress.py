@@ -81,6 +81,16 @@ class Listener(Protocol):
 
     def task_finished(self, node: str, key: int, done: int) -> None: ...
 
+    # Optional: a node's peak resident set in GB (flows/memory.py; None where it cannot be
+    # measured), told just before its ``step_finished``.
+
+    def step_peak(self, node: str, peak_gb: float | None) -> None: ...
+
+
+def _peak_text(peak_gb: float | None) -> str:
+    """``, peak 1.23 GB resident`` (nothing where it was not measured)."""
+    return "" if peak_gb is None else f", peak {peak_gb:.2f} GB resident"
+
 
 _DISPLAYS: list = []  # the one Listeners registry, made on first use
 _LOCK = threading.Lock()
@@ -302,7 +312,12 @@ class PlainProgress:
         self.sets = SetClock()
         # (node, key) -> [label, start time, time of the last line or None]
         self._tasks: dict[tuple[str, int], list[Any]] = {}
+        self._peaks: dict[str, float | None] = {}  # node -> its peak resident set [GB]
         self._lock = threading.Lock()
+
+    def step_peak(self, node: str, peak_gb: float | None) -> None:
+        with self._lock:
+            self._peaks[node] = peak_gb
 
     def _print(self, text: str) -> None:
         print(text, file=self.stream or sys.stderr, flush=True)
@@ -363,8 +378,9 @@ class PlainProgress:
             self.sets.forget(node)
             for key in [k for k in self._tasks if k[0] == node]:
                 del self._tasks[key]
+            peak = self._peaks.pop(node, None)
         if status == "ran":
-            self._print(f"    {node}: done in {format_seconds(seconds)}")
+            self._print(f"    {node}: done in {format_seconds(seconds)}{_peak_text(peak)}")
         else:
             self._print(f"    {node}: up to date")
 
@@ -431,7 +447,12 @@ class RichProgress:
         self._labels: dict[str, str] = {}
         self._bars: dict[tuple[str, str], Any] = {}
         self._tasks: dict[tuple[str, int], Any] = {}  # (node, key) -> task id
+        self._peaks: dict[str, float | None] = {}  # node -> its peak resident set [GB]
         self._lock = threading.Lock()
+
+    def step_peak(self, node: str, peak_gb: float | None) -> None:
+        with self._lock:
+            self._peaks[node] = peak_gb
 
     def __enter__(self) -> RichProgress:
         self.progress.start()
@@ -504,7 +525,10 @@ class RichProgress:
             if node in self._steps:
                 self.progress.remove_task(self._steps.pop(node))
             label = self._labels.pop(node, node)
-        done = f"done in {format_seconds(seconds)}" if status == "ran" else "up to date"
+            peak = self._peaks.pop(node, None)
+        done = (
+            f"done in {format_seconds(seconds)}{_peak_text(peak)}" if status == "ran" else "up to date"
+        )
         self.progress.console.print(f"{label}: {done}", highlight=False)
 
 

@@ -70,6 +70,7 @@ from spectralize.store import (
     compute_fingerprint,
 )
 
+from .memory import PeakMemory, process_peak_bytes
 from .signals import sigterm_as_interrupt
 
 __all__ = [
@@ -118,6 +119,9 @@ class StepReport:
     seconds: float
     outputs: dict[str, str]  # group -> fingerprint
     reason: str = ""  # why a step with a known result ran again (damaged output, repaired input)
+    # the largest resident set of this process while the node ran [GB] (flows/memory.py);
+    # None: skipped, or not measurable here. dask workers in other processes are not counted
+    peak_rss_gb: float | None = None
 
 
 @dataclass
@@ -128,6 +132,9 @@ class RunReport:
     flow: str
     steps: list[StepReport] = field(default_factory=list)
     report: str | None = None  # path of the HTML report, when one was written
+    # this process's peak resident set since it started [GB], the nodes' peaks included
+    # (resetting the high-water mark per node hides it from getrusage; flows/memory.py)
+    peak_rss_gb: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -537,48 +544,56 @@ def run_node(
 
     start = time.perf_counter()
     stage = "checking its inputs"
-    try:
-        _check_input_values(store, node.name, list(inputs.values()))
-        # a re-run needs at least the room its previous result took
-        store.check_free_space(sum(store.size_on_disk(g) for g in expected), group=", ".join(expected))
-        stage = f"reading {', '.join(sorted(inputs.values())) or 'no inputs'}"
-        log(f"{node.name}: {stage}")
-        progress.notify("stage", node.name, stage)
-        # the node's solver runs (spectralize.engine.progress) become bars under its line
-        with progress.node_tasks(node.name), dask_scheduler(dask_address, log) as parallel:
-            data = {argument: store.read(group, friendly=False) for argument, group in inputs.items()}
-            stage = "computing"
+    # one node at a time in this process (the steps run in order), so its peak is its own
+    with PeakMemory() as measured:
+        try:
+            _check_input_values(store, node.name, list(inputs.values()))
+            # a re-run needs at least the room its previous result took
+            store.check_free_space(
+                sum(store.size_on_disk(g) for g in expected), group=", ".join(expected)
+            )
+            stage = f"reading {', '.join(sorted(inputs.values())) or 'no inputs'}"
+            log(f"{node.name}: {stage}")
             progress.notify("stage", node.name, stage)
-            results = node(data, params)
-            for schema, ds in results.items():
-                group = outputs[schema]
-                stage = f"writing group {group!r}"
-                log(f"{node.name}: writing {group}")
-                progress.notify("stage", node.name, f"computing and writing {group}")
-                provenance = {
-                    "node": node.name,
-                    "version": node.version,
-                    "parameters": params.model_dump(mode="json"),
-                    "inputs": dict(input_fingerprints),
+            # the node's solver runs (spectralize.engine.progress) become bars under its line
+            with progress.node_tasks(node.name), dask_scheduler(dask_address, log) as parallel:
+                data = {
+                    argument: store.read(group, friendly=False) for argument, group in inputs.items()
                 }
-                store.write(
-                    group,
-                    ds,
-                    schema=schema if schema in GROUP_SCHEMAS else None,
-                    fingerprint=expected[group],
-                    provenance=provenance,
-                    chunks=node.chunks.get(schema),
-                    resumable_along=node.resumable_along.get(schema),
-                    concurrent_regions=parallel,
-                    progress=_region_progress(log, node.name, group),
-                )
-    except Exception as error:
-        error.add_note(f"in node {node.name!r} ({stage}) on run store {store_path}")
-        raise
+                stage = "computing"
+                progress.notify("stage", node.name, stage)
+                results = node(data, params)
+                for schema, ds in results.items():
+                    group = outputs[schema]
+                    stage = f"writing group {group!r}"
+                    log(f"{node.name}: writing {group}")
+                    progress.notify("stage", node.name, f"computing and writing {group}")
+                    provenance = {
+                        "node": node.name,
+                        "version": node.version,
+                        "parameters": params.model_dump(mode="json"),
+                        "inputs": dict(input_fingerprints),
+                    }
+                    store.write(
+                        group,
+                        ds,
+                        schema=schema if schema in GROUP_SCHEMAS else None,
+                        fingerprint=expected[group],
+                        provenance=provenance,
+                        chunks=node.chunks.get(schema),
+                        resumable_along=node.resumable_along.get(schema),
+                        concurrent_regions=parallel,
+                        progress=_region_progress(log, node.name, group),
+                    )
+        except Exception as error:
+            error.add_note(f"in node {node.name!r} ({stage}) on run store {store_path}")
+            raise
     seconds = time.perf_counter() - start
-    log(f"{node.name}: done in {seconds:.1f} s")
+    peak = None if measured.peak_gb is None else round(measured.peak_gb, 3)
+    log(f"{node.name}: done in {seconds:.1f} s" + (f", peak resident {peak:.2f} GB" if peak else ""))
+    progress.notify("step_peak", node.name, peak)
     progress.notify("step_finished", node.name, "ran", seconds)
-    return StepReport(node.name, "ran", seconds, expected, reason)
+    return StepReport(node.name, "ran", seconds, expected, reason, peak)
 
 
 def _region_progress(log: Callable[[str], None], node: str, group: str) -> Callable[[str], None]:
@@ -972,4 +987,6 @@ def _run_planned(
         start = time.perf_counter()
         run_report.report = write_report_task(store_path)
         progress.notify("step_finished", "report", "ran", time.perf_counter() - start)
+    peak = process_peak_bytes()
+    run_report.peak_rss_gb = None if peak is None else round(peak / 1e9, 3)
     return run_report

@@ -1,0 +1,115 @@
+"""The peak resident memory of a block, and of each node of a flow run (flows/memory.py)."""
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from spectralize.datasets.dark_stack import make_raw_dark
+from spectralize.engine import Node, RegisteredNode, Step
+from spectralize.engine import discovery as engine
+from spectralize.flows.memory import PeakMemory, process_peak_bytes, resident_bytes
+from spectralize.flows.runtime import run_steps
+from spectralize.store import RunStore
+
+BALLAST = 200_000_000  # bytes allocated (and touched) inside the measured block
+
+measurable = resident_bytes() is not None and PeakMemory().__enter__()._measuring
+
+
+def allocate(nbytes: int) -> float:
+    """Allocate ``nbytes``, touch every page, free it; a checksum keeps it from being skipped."""
+    ballast = np.ones(nbytes // 8)
+    return float(ballast[:: 4096 // 8].sum())
+
+
+def test_a_block_sees_its_own_allocation_and_the_next_one_does_not():
+    if not measurable:  # not Linux: nothing is measured, and nothing fails
+        with PeakMemory() as measured:
+            allocate(BALLAST)
+        assert measured.peak_bytes is None and measured.peak_gb is None
+        return
+    with PeakMemory() as first:
+        allocate(BALLAST)
+    with PeakMemory() as second:
+        allocate(BALLAST // 100)
+    assert first.peak_bytes - second.peak_bytes > 0.75 * BALLAST
+    assert first.peak_gb == pytest.approx(first.peak_bytes / 1e9)
+    # the whole process's peak keeps what the resets hid from VmHWM
+    assert process_peak_bytes() >= first.peak_bytes > resident_bytes("VmHWM")
+
+
+def dark_level(dark: xr.Dataset) -> xr.Dataset:
+    """A small downstream node: one dark level per exposure time."""
+    level = dark["mean"].median(dim=("y", "x"))
+    return xr.Dataset({"level": level.astype(np.float32).assign_attrs(units="DN")})
+
+
+@pytest.fixture
+def ballast_node(monkeypatch):
+    """The installed nodes, ``dark_average`` allocating 200 MB while it runs."""
+    installed = dict(engine.registry(refresh=True))
+    dark = installed["dark_average"].node
+
+    def heavy(raw_dark, **kwargs):
+        allocate(BALLAST)
+        return dark.function(raw_dark, **kwargs)
+
+    heavy.__signature__ = __import__("inspect").signature(dark.function)
+    installed["dark_average"] = RegisteredNode(Node(**{**dark.__dict__, "function": heavy}), "test")
+    level = Node(
+        name="dark_level", function=dark_level, inputs={"dark": "dark"}, outputs=("dark_level",)
+    )
+    installed["dark_level"] = RegisteredNode(level, "test")
+    monkeypatch.setattr(engine, "_installed", lambda: installed)
+    return installed
+
+
+def test_each_node_reports_its_own_peak(prefect_api, ballast_node, tmp_path):
+    store = RunStore.create(tmp_path / "run.zarr")
+    raw = make_raw_dark(frames=4, shape=(6, 8), exposure_times=(0.1, 0.3))
+    store.write("raw/dark", raw, fingerprint="raw-v1")
+    report = run_steps(store.path, [Step("dark_average"), Step("dark_level")])
+    peaks = {step.node: step.peak_rss_gb for step in report.steps}
+    assert [step.status for step in report.steps] == ["ran", "ran"]
+    if not measurable:
+        assert peaks == {"dark_average": None, "dark_level": None}
+        return
+    # the 200 MB show in dark_average's peak, not in the next node's
+    assert peaks["dark_average"] - peaks["dark_level"] > 0.75 * BALLAST / 1e9
+    assert report.peak_rss_gb >= peaks["dark_average"]
+
+
+def test_the_summary_lines_carry_each_node_s_peak_for_the_benchmarks(capsys):
+    """The CLI's summary and the full-run benchmark's parser agree (benchmarks/full_run.py)."""
+    import importlib.util
+    import io
+    from pathlib import Path
+
+    from spectralize.flows.cli import _print_report
+    from spectralize.flows.progress import PlainProgress
+    from spectralize.flows.runtime import RunReport, StepReport
+
+    steps = [
+        StepReport("dark_average", "ran", 1.3, {"dark": "f1"}, peak_rss_gb=0.321),
+        StepReport("hdr_merge", "skipped", 0.0, {"hdr": "f2"}),
+        StepReport("reconstruct_image_sets", "ran", 239.4, {"spectra": "f3"}, peak_rss_gb=1.06),
+    ]
+    _print_report(RunReport("run.zarr", "btf", steps, peak_rss_gb=1.2))
+    summary = capsys.readouterr().out
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "full_run.py"
+    spec = importlib.util.spec_from_file_location("full_run_benchmark", path)
+    full_run = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(full_run)
+    assert full_run.node_seconds(summary) == {"dark_average": 1.3, "reconstruct_image_sets": 239.4}
+    assert full_run.node_peak_rss_gb(summary) == {"dark_average": 0.32, "reconstruct_image_sets": 1.06}
+    assert full_run.process_peak_rss_gb(summary) == 1.2
+
+    out = io.StringIO()
+    display = PlainProgress(out)
+    display.step_peak("hdr_merge", 0.5)
+    display.step_finished("hdr_merge", "ran", 3.0)
+    display.step_finished("dark_average", "ran", 2.0)  # not measured: no peak
+    assert out.getvalue().splitlines() == [
+        "    hdr_merge: done in 3 s, peak 0.50 GB resident",
+        "    dark_average: done in 2 s",
+    ]
