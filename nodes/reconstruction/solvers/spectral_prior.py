@@ -19,7 +19,9 @@ filtered bands ``S_0`` of every image that has a shot of every band (the scene's
 materials under its own illuminant; none for a sparse set, which then gets no spectral
 prior); ``"mixture"``, the :func:`~..estimators.endmember_mixture` estimate of every pixel
 (any set has one); ``"training"``, colour-science's RAW-to-ACES reflectances lit by the
-illuminant estimated from the bands (biased where the collection and the estimate are).
+illuminant estimated from the bands (biased where the collection and the estimate are);
+``"natural"``, the ``"mixture"`` source with the natural-spectra prior beside it, per
+pixel as the band shots favour either (:mod:`.natural_prior`, :mod:`.band_evidence`).
 
 A soft term, not a hard subspace: the band shots and the neighbour term move a spectrum off
 the samples' span where they say so. :func:`~.prior_pcg.prior_pcg` adds it to eq. 1.
@@ -47,6 +49,7 @@ from ..baselines.training import estimate_illuminant, training_reflectances
 from ..baselines.wiener import WIENER_RELATIVE_NOISE, wiener_from_rgb
 from ..estimators import endmember_mixture
 from ..estimators.endmember_mixture import Endmembers
+from ..inputs import ReconstructionInputs
 from ..operators import ReconstructionProblem
 from .band_evidence import band_evidence
 from .common import vdot
@@ -164,13 +167,14 @@ def spectral_prior_term(
     every pixel (level-normalised), and that estimate itself as the centre ``m`` instead of
     the Wiener estimate (any set has one); ``endmembers``: its dictionary, learnt before
     (e.g. once per set for all its tiles), with ``"mixture"`` and ``"natural"`` only.
-    ``"natural"``: the ``"mixture"`` term plus the natural-spectra prior
-    (:mod:`.natural_prior`) ``sum_p v_p (S_p - m^W_p)^T Q (S_p - m^W_p)``, centred on the
-    Wiener estimate ``m^W`` with ``v_p = natural_prior * mean_diagonal * pi_p /
-    max(b_p, b_min)^2``, ``pi_p`` the band evidence for the Wiener estimate over the
-    mixture (:mod:`.band_evidence`); both share ``Q``, so their sum is one term
-    ``(w_p + v_p) (S_p - c_p)^T Q (S_p - c_p)`` (plus a constant) with
-    ``c_p = (w_p m^X_p + v_p m^W_p) / (w_p + v_p)``.
+    ``"natural"``: the ``"mixture"`` term and the natural-spectra prior
+    (:mod:`.natural_prior`), the Gaussian centred on the Wiener estimate ``m^W``, as one
+    prior per pixel: the mixture of the two, ``pi_p N(m^W_p) + (1 - pi_p) N(m^X_p)``, with
+    ``pi_p`` the band evidence for the Wiener estimate over the mixture ``m^X``
+    (:mod:`.band_evidence`), approximated by one Gaussian with its mean
+    ``c_p = m^X_p + pi_p (m^W_p - m^X_p)`` and the shared ``Q``, weighed
+    ``w_p + v_p`` with ``v_p = natural_prior * mean_diagonal * pi_p / max(b_p, b_min)^2``
+    (the natural prior holds a pixel harder where the bands favour it).
     """
     inputs = problem.extras.get("inputs")
     if inputs is None:
@@ -213,14 +217,14 @@ def spectral_prior_term(
 
 
 def _with_natural(
-    inputs: object,
+    inputs: ReconstructionInputs,
     precision: np.ndarray,
     w: np.ndarray,
     inverse_level: np.ndarray,
     mixture: np.ndarray,
     scale: float,
 ) -> SpectralPrior:
-    """The mixture term plus the natural prior, folded into one term (see
+    """The mixture term and the natural prior as one Gaussian term per pixel (see
     :func:`spectral_prior_term`); ``inverse_level`` is ``1 / max(b_p, b_min)^2`` and
     ``scale`` is ``natural_prior * mean_diagonal``."""
     natural, _ = natural_prior(inputs)
