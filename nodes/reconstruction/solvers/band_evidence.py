@@ -11,17 +11,17 @@ log-likelihood ratio of ``b`` over ``a`` at a pixel, over its shots (pooled over
 ``Lambda_p = sum_i sum_{q in W(p)} [(D_i(q) - a_{b_i}(q))^2 - (D_i(q) - b_{b_i}(q))^2]
 / (2 sigma_i^2)``.
 
-An image of a set has shots of a few of its ``n_b`` wavelengths only (or none), so its own
-evidence is weak. The wavelengths a pixel has no shot of are taken as giving the evidence
-of an average shot of the pixels with shots that look alike, the same chromaticity
-``(r, g) / (r + g + b)`` and relative brightness (an ``n_c x n_c x n_l`` histogram, the
-brightness bins in log2 steps; the same material, maybe under other light):
+Pixels that look alike, the same chromaticity ``(r, g) / (r + g + b)`` and relative
+brightness (an ``n_c x n_c x n_l`` histogram, the brightness bins in log2 steps), are
+mostly the same material, maybe under other light, so the estimate that fits one fits the
+others more often than not. Each pixel's prior log-odds are the evidence of an average
+pixel of its bin with a shot of each of the ``n_b`` wavelengths (empirical Bayes [2]_):
 
-``Lambda_p <- Lambda_p + (n_b - n_p) lambda_bin(p)``,  ``lambda_bin = mean_q Lambda_q / n_q``
+``Lambda_p <- Lambda_p + n_b lambda_bin(p)``,  ``lambda_bin = mean_q Lambda_q / n_q``
 
-over the pixels ``q`` with shots in the bin, ``n_p`` the pixel's own shots (a single
-image with a shot of every band keeps its own evidence; 0 where no pixel with shots looks
-alike).
+over the pixels ``q`` with shots in the bin, ``n_q`` their shots (0 where none looks
+alike). A pixel with shots weighs its own evidence against its material's typical one; an
+image of a set without band shots takes its evidence from the latter alone.
 
 ``b`` was learnt from the same shots, so it is only as credible as the information they
 carry: the prior odds of ``a`` are ``1 + 1 / I_bin(p)``, with
@@ -43,7 +43,9 @@ References
 ----------
 .. [1] Kass, R. E., Raftery, A. E. (1995). Bayes factors. Journal of the American
    Statistical Association 90(430).
-.. [2] Fast Capture of Spectral Image Series, section 3 (band shots, eq. 2).
+.. [2] Efron, B., Morris, C. (1975). Data analysis using Stein's estimator and its
+   generalizations. Journal of the American Statistical Association 70(350).
+.. [3] Fast Capture of Spectral Image Series, section 3 (band shots, eq. 2).
 """
 
 from __future__ import annotations
@@ -133,12 +135,11 @@ def band_evidence(
     bins = _appearance_bins(inputs.rgb)
     size = int(np.prod(TRANSFER_BINS[:1]) ** 2 * TRANSFER_BINS[1])
     known = shots > 0
-    if known.any() and (shots < inputs.n_wavelength).any():
+    if known.any():
         per_shot = log_ratio[known] / shots[known][:, None, None]
         sums = np.bincount(bins[known].ravel(), weights=per_shot.ravel(), minlength=size)
         counts = np.bincount(bins[known].ravel(), minlength=size)
-        missing = np.maximum(inputs.n_wavelength - shots, 0)
-        log_ratio += missing[:, None, None] * (sums / np.maximum(counts, 1))[bins]
+        log_ratio += inputs.n_wavelength * (sums / np.maximum(counts, 1))[bins]
     pooled = np.bincount(bins[known].ravel(), weights=information[known].ravel(), minlength=size)
     log_ratio -= np.log1p(1.0 / np.maximum(pooled[bins], 1e-300))  # prior odds of ``natural``
     np.clip(log_ratio, -MAX_LOG_RATIO, MAX_LOG_RATIO, out=log_ratio)
