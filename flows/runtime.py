@@ -70,7 +70,7 @@ from spectralize.store import (
     compute_fingerprint,
 )
 
-from .memory import PeakMemory, process_peak_bytes
+from .memory import PeakMemory, process_peak_bytes, release_free_memory
 from .signals import sigterm_as_interrupt
 
 __all__ = [
@@ -544,7 +544,10 @@ def run_node(
 
     start = time.perf_counter()
     stage = "checking its inputs"
-    # one node at a time in this process (the steps run in order), so its peak is its own
+    # one node at a time in this process (the steps run in order), so its peak is its own;
+    # what the nodes before it freed goes back to the system first, so that it does not
+    # carry over (the heap kept grew with the images: issue 27, flows/memory.py)
+    release_free_memory()
     with PeakMemory() as measured:
         try:
             _check_input_values(store, node.name, list(inputs.values()))
