@@ -55,7 +55,6 @@ from collections.abc import Sequence
 
 import numpy as np
 import xarray as xr
-from scipy import optimize
 
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
@@ -175,6 +174,8 @@ def _ridge_nnls(
     extra = np.zeros((0, n)) if extra is None else extra
     a = np.vstack([design, np.sqrt(mu) * np.eye(n), extra])
     b = np.concatenate([target, np.zeros(n + extra.shape[0])])
+    from scipy import optimize  # not at import: `spectralize nodes` lists nodes without it
+
     return optimize.nnls(a, b, maxiter=50 * n)[0]
 
 
