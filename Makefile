@@ -19,14 +19,19 @@ $(STAMP): pyproject.toml setup.py | $(BIN)/python
 demo: $(STAMP)
 	$(BIN)/spectralize demo --capture demo/capture
 
-# Lint, types and the whole suite, as CI runs it (.ci/run).
+# Lint, types and the whole suite, as CI runs it (.ci/run): one pytest worker per core (a test
+# module stays on one worker, so its fixtures are built once), then the tests marked `timing`
+# (they assert on wall time or an ETA) alone, so that no other test's load skews them.
+PYTEST_WORKERS ?= auto
 test: lint typecheck browser
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile -m "not timing"
+	$(BIN)/python -m pytest -m timing
 
 # The inner loop: the suite without the tests marked `slow` (real flows, killed processes,
 # the wheel install); about a third of the time.
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -m "not slow"
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile -m "not slow and not timing"
+	$(BIN)/python -m pytest -m "timing and not slow"
 
 # A real headless browser for the report's test (tests/flows/test_report.py takes a screenshot):
 # Debian's chromium-headless-shell, installed only when no Chromium is there (PyPI has no

@@ -261,6 +261,7 @@ ERRORS = {
 }
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize("case", ERRORS)
 def test_command_line_errors_come_in_under_a_second_and_a_half(case, store, cache, tmp_path):
     (tmp_path / "capture").mkdir()

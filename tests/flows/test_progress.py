@@ -367,6 +367,7 @@ def within_twice(estimates, start, end):
 
 
 @pytest.mark.slow
+@pytest.mark.timing
 def test_a_real_solves_eta_is_within_twice_the_time_it_really_took():
     rgb, shots, camera = small_set(size=96, n_wavelength=16)
     seen = []
@@ -387,6 +388,7 @@ def test_a_real_solves_eta_is_within_twice_the_time_it_really_took():
 
 
 @pytest.mark.slow
+@pytest.mark.timing
 def test_the_image_sets_eta_of_a_flow_run_is_within_twice_the_time_really_left(tmp_path):
     from spectralize.flows import run_flow
 

@@ -398,6 +398,7 @@ def test_labels_are_escaped_by_the_template(run, tmp_path):
     assert attack in page.cells and f"{attack}.zarr" in page.cells
 
 
+@pytest.mark.timing
 def test_the_report_of_a_demo_sized_run_takes_under_five_seconds(tmp_path):
     """99 images of 64 x 64 px with confidence, the colour checker and the registration, as
     the demo's capture path makes them; 24 images with figures."""
