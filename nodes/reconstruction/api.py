@@ -24,11 +24,14 @@ import xarray as xr
 from spectralize.schemas.errors import ReconstructionError
 
 from .confidence import CONFIDENCE_NEIGHBOURS, neighbourhood_spread
+from .estimators.shared_texel import shared_texel_refine
 from .inputs import ReconstructionInputs, inputs_from_xarray
 from .methods import (
     BASELINE_METHODS,
     DEFAULT_METHOD,
     RECONSTRUCTION_METHODS,
+    SET_MODEL_OPTIONS,
+    SET_MODELS,
     SETUP_OPTIONS,
     get_method,
 )
@@ -192,6 +195,10 @@ def _checked_options(method: str, options: dict[str, Any]) -> dict[str, Any]:
             and not (_is_real(value) and np.isfinite(value) and value >= 0)
         ):
             raise ReconstructionError(f"{name}: expected a finite number >= 0, found {value!r}")
+        if name == "set_model" and value not in SET_MODELS:
+            raise ReconstructionError(
+                f"set_model: expected one of {', '.join(map(repr, SET_MODELS))}, found {value!r}"
+            )
         if name in _INTEGER and not (
             _is_real(value) and int(value) == value and value >= _INTEGER[name]
         ):
@@ -266,6 +273,21 @@ def _initial_cube(initial: xr.DataArray | None, inputs: ReconstructionInputs) ->
     return np.moveaxis(values, 1, 0)
 
 
+def _set_model_applies(set_model: str, inputs: ReconstructionInputs, method: str) -> bool:
+    """Whether ``set_model`` refits the solver's spectra (a set of more than one image);
+    raises for ``"shared-texel"`` on a set without the illuminant, before any solve."""
+    if set_model != "shared-texel" or inputs.n_image < 2:
+        return False  # one image: nothing to share
+    if inputs.illuminant is None:
+        raise ReconstructionError(
+            f"set_model: 'shared-texel' (method {method!r}) needs the illuminant L, the "
+            f"spectrum of the set's highlights, on the {inputs.n_wavelength} band wavelengths; "
+            "found none: pass reconstruct(..., illuminant=L) (e.g. a calibration's "
+            "'illuminant', dims (wavelength,)) or use set_model='independent'"
+        )
+    return True
+
+
 # -- the entry point -------------------------------------------------------------------------
 def reconstruct(
     rgb: xr.DataArray,
@@ -274,6 +296,7 @@ def reconstruct(
     *,
     method: str = DEFAULT_METHOD,
     filter_size: float | Sequence[float] | None = None,
+    illuminant: xr.DataArray | np.ndarray | None = None,
     full_output: bool = False,
     confidence: bool = True,
     **method_options: Any,
@@ -318,6 +341,12 @@ def reconstruct(
     filter_size
         ``s_i`` [px] of the bands of a ``(y, x, wavelength)`` band cube: one number, or one
         per wavelength.
+    illuminant
+        ``L``, the light's relative spectral radiance (any scale, ``>= 0``): dims
+        ``(wavelength,)`` with a ``wavelength`` coordinate [nm] (a calibration's
+        ``illuminant``; interpolated onto the bands' wavelengths) or one value per band
+        wavelength (:func:`~.inputs.inputs_from_xarray`). Needed by
+        ``set_model="shared-texel"`` on a set, unused otherwise.
     full_output
         Return a :class:`ReconstructionResult` (spectra, iterations, residual history,
         timings, the problem, the confidence) instead of the spectra alone.
@@ -347,10 +376,16 @@ def reconstruct(
         and its own: ``tolerance`` (stop when ``||A^T b - A^T A S|| / ||A^T b||`` is below
         it), ``max_iterations``, ``initial`` (a warm start, dims ``(image, wavelength, y,
         x)``, e.g. spectra transported from a previous image set, paper section 4),
-        ``callback(iteration, cube)``; the PCG solvers also ``dtype``, ``ridge``, ``prior``
-        (the guided prior's weight) and ``precondition``, the prior PCG the spectral
-        prior's settings (:func:`~.solvers.prior_pcg.prior_pcg`). Baselines: ``"wiener"``
-        takes ``relative_noise``, ``"guided-projected"`` ``window_scale`` and ``epsilon``.
+        ``callback(iteration, cube)``, ``set_model`` (``"independent"``, the presets'
+        setting, or ``"shared-texel"``: on a set of more than one image, refit the solver's
+        spectra with per-texel spectral shapes shared by the set's images, a per-image
+        shading and a highlight in the illuminant's spectrum,
+        :func:`~.estimators.shared_texel.shared_texel_refine` with its defaults; needs
+        ``illuminant``; a single image is left as solved); the PCG solvers also ``dtype``,
+        ``ridge``, ``prior`` (the guided prior's weight) and ``precondition``, the prior
+        PCG the spectral prior's settings (:func:`~.solvers.prior_pcg.prior_pcg`).
+        Baselines: ``"wiener"`` takes ``relative_noise``, ``"guided-projected"``
+        ``window_scale`` and ``epsilon``.
 
     Returns
     -------
@@ -382,14 +417,19 @@ def reconstruct(
     record = get_method(method)
     options = _checked_options(method, dict(method_options))
     rgb, bands, single = _one_form(rgb, bands, filter_size)
-    inputs = inputs_from_xarray(rgb, bands, camera_matrix)
+    inputs = inputs_from_xarray(rgb, bands, camera_matrix, illuminant)
     rgb = rgb.transpose("image", "y", "x", "channel")
     used = {**record.defaults(), **options}
     problem = None
     if record.kind == "solver":
+        refit = _set_model_applies(used["set_model"], inputs, method)  # fail before the solve
         setup = {name: used[name] for name in SETUP_OPTIONS}
         setup["k"] = int(setup["k"])
-        own = {name: used[name] for name in record.options if name not in SETUP_OPTIONS}
+        own = {
+            name: used[name]
+            for name in record.options
+            if name not in SETUP_OPTIONS and name not in SET_MODEL_OPTIONS
+        }
         own["max_iterations"] = int(own["max_iterations"])
         own["initial"] = _initial_cube(own["initial"], inputs)
         problem = build_problem(inputs, **setup, dtype=used.get("dtype", record.dtype))
@@ -401,6 +441,11 @@ def reconstruct(
             solved.residual_history,
             solved.converged,
         )
+        set_model_time = 0.0
+        if refit:  # the set model: a texel's spectral shapes shared by the set's images
+            refit_started = time.perf_counter()
+            cube = shared_texel_refine(inputs, cube, inputs.illuminant)
+            set_model_time = time.perf_counter() - refit_started
         wall_time = time.perf_counter() - started
         weights = problem.weights
         if used["gamma_hat"] is None:
@@ -412,6 +457,7 @@ def reconstruct(
             "final_relative_residual": float(history[-1]),
             "converged": int(converged),
             "wall_time_s": float(wall_time),
+            **({"set_model_time_s": float(set_model_time)} if refit else {}),
             "alpha": float(weights.alpha),
             "beta": float(weights.beta),
             "gamma": float(weights.gamma),

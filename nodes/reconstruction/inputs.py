@@ -23,6 +23,8 @@ __all__ = [
     "camera_blocks",
     "inputs_from_xarray",
     "in_paired_camera",
+    "checked_illuminant",
+    "illuminant_on_bands",
     "WAVELENGTH_TOLERANCE_NM",
 ]
 
@@ -52,6 +54,13 @@ class ReconstructionInputs:
         its own camera's matrix; :func:`camera_blocks`).
     wavelength
         The spectral grid in nm, increasing: the wavelengths of the band shots.
+    illuminant
+        ``L``, ``(n_wavelength,)`` float64 on :attr:`wavelength`, or None: the relative
+        spectral radiance of the light (any scale; finite, ``>= 0``, not all zero), the
+        spectrum of highlights (dichromatic model). Only the set model ``"shared-texel"``
+        (:func:`~.estimators.shared_texel.shared_texel_refine`) uses it. Checked on
+        construction (:class:`~spectralize.schemas.errors.ReconstructionError` naming
+        ``illuminant``, the expected and the found).
     """
 
     rgb: np.ndarray
@@ -61,6 +70,13 @@ class ReconstructionInputs:
     filter_size: np.ndarray
     camera_matrix: np.ndarray
     wavelength: np.ndarray
+    illuminant: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.illuminant is not None:
+            object.__setattr__(
+                self, "illuminant", checked_illuminant(self.illuminant, self.wavelength.size)
+            )
 
     @property
     def n_image(self) -> int:
@@ -99,6 +115,84 @@ class ReconstructionInputs:
     def rgb_pixels(self) -> np.ndarray:
         """``R`` as ``(3, n_pixels)`` over all pixels of all images (solver pixel order)."""
         return np.moveaxis(self.rgb, -1, 0).reshape(3, -1)
+
+
+def checked_illuminant(illuminant: object, n_wavelength: int) -> np.ndarray:
+    """``L`` as a checked ``(n_wavelength,)`` float64 array.
+
+    Raises
+    ------
+    ReconstructionError
+        Naming ``illuminant``, what was expected and what was found: not a real 1-D array
+        of ``n_wavelength`` values, a NaN or inf, a negative value, or all zero.
+    """
+    try:
+        values = np.asarray(illuminant, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ReconstructionError(
+            f"illuminant: expected ({n_wavelength},) real values (relative spectral radiance "
+            f"of the light on the bands' wavelengths), found {type(illuminant).__name__} ({error})"
+        ) from None
+    if values.shape != (n_wavelength,):
+        raise ReconstructionError(
+            f"illuminant: expected shape ({n_wavelength},) (one value per band wavelength), "
+            f"found shape {values.shape}"
+        )
+    problems: list[str] = []
+    _check_finite("illuminant", values, problems)
+    if problems:
+        raise ReconstructionError(problems[0])
+    if np.any(values < 0):
+        raise ReconstructionError(
+            f"illuminant: expected values >= 0 (relative spectral radiance), found "
+            f"{int((values < 0).sum())} negative (smallest {float(values.min()):g})"
+        )
+    if not np.any(values > 0):
+        raise ReconstructionError("illuminant: expected a positive value, found all zero")
+    return values
+
+
+def illuminant_on_bands(
+    illuminant: xr.DataArray | np.ndarray | None, wavelength: np.ndarray
+) -> np.ndarray | None:
+    """``L`` on the bands' ``wavelength`` ``(n_wavelength,)``, checked: a DataArray
+    ``(wavelength,)`` with a ``wavelength`` coordinate [nm] at them (within
+    :data:`WAVELENGTH_TOLERANCE_NM`) or, on another grid that covers them, linearly
+    interpolated; an array as given (then it must be on the bands' wavelengths already);
+    None stays None.
+
+    Raises
+    ------
+    ReconstructionError
+        Naming ``illuminant``: other dims, no wavelength coordinate, a grid that does not
+        cover the bands' wavelengths, or values :func:`checked_illuminant` refuses.
+    """
+    if illuminant is None or not isinstance(illuminant, xr.DataArray):
+        return None if illuminant is None else checked_illuminant(illuminant, wavelength.size)
+    if illuminant.dims != ("wavelength",) or "wavelength" not in illuminant.coords:
+        raise ReconstructionError(
+            f"illuminant: expected dims ('wavelength',) with a 'wavelength' coordinate [nm], "
+            f"found {_describe(illuminant)} with coords {sorted(illuminant.coords)}"
+        )
+    grid = np.asarray(illuminant["wavelength"].values, dtype=np.float64)
+    values = np.asarray(illuminant.values, dtype=np.float64)
+    order = np.argsort(grid, kind="stable")
+    grid, values = grid[order], values[order]
+    if wavelength.min() < grid.min() - WAVELENGTH_TOLERANCE_NM or (
+        wavelength.max() > grid.max() + WAVELENGTH_TOLERANCE_NM
+    ):
+        raise ReconstructionError(
+            f"illuminant: expected a wavelength grid covering the bands' "
+            f"{wavelength.min():g}-{wavelength.max():g} nm, found {grid.min():g}-{grid.max():g} nm"
+        )
+    problems: list[str] = []
+    _check_finite("illuminant", values, problems)
+    if problems:
+        raise ReconstructionError(problems[0])
+    nearest = np.abs(grid[:, None] - wavelength[None]).argmin(axis=0)
+    if np.all(np.abs(grid[nearest] - wavelength) <= WAVELENGTH_TOLERANCE_NM):
+        return checked_illuminant(values[nearest], wavelength.size)
+    return checked_illuminant(np.interp(wavelength, grid, values), wavelength.size)
 
 
 def camera_blocks(camera_matrix: np.ndarray, n_image: int) -> tuple[np.ndarray, np.ndarray]:
@@ -184,7 +278,10 @@ def _check_finite(name: str, values: np.ndarray, problems: list[str]) -> None:
 
 
 def inputs_from_xarray(
-    rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataArray
+    rgb: xr.DataArray,
+    bands: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    illuminant: xr.DataArray | np.ndarray | None = None,
 ) -> ReconstructionInputs:
     """Check the three input arrays against each other and convert them to plain arrays.
 
@@ -208,6 +305,12 @@ def inputs_from_xarray(
         and the warm start compare the images' RGB as given, so give the images' RGB in
         one camera's space where their cameras differ much (e.g. each mapped by a 3 x 3
         ``T_m`` onto one camera, with ``T_m C_m`` as its ``C``).
+    illuminant
+        Optional ``L``, the light's relative spectral radiance (any scale, ``>= 0``): dims
+        ``(wavelength,)`` with a ``wavelength`` coordinate [nm] (e.g. a calibration's
+        ``illuminant``), taken at the bands' wavelengths or linearly interpolated onto them
+        from a grid that covers them; or an array of one value per band wavelength
+        (increasing). Used by the set model ``"shared-texel"`` only.
 
     Returns
     -------
@@ -366,6 +469,7 @@ def inputs_from_xarray(
         )
     if c_values.ndim == 3 and all(np.array_equal(c, c_values[0]) for c in c_values[1:]):
         c_values = c_values[0]  # one camera for every image: the 2-D C (the same solve)
+    light = illuminant_on_bands(illuminant, wavelength)
     return ReconstructionInputs(
         rgb=rgb_values,
         band_data=band_values,
@@ -374,6 +478,7 @@ def inputs_from_xarray(
         filter_size=filter_size,
         camera_matrix=c_values,
         wavelength=wavelength,
+        illuminant=light,
     )
 
 

@@ -50,6 +50,8 @@ __all__ = [
     "DEFAULT_METHOD",
     "RUN_INPUTS",
     "SETUP_OPTIONS",
+    "SET_MODEL_OPTIONS",
+    "SET_MODELS",
     "get_method",
 ]
 
@@ -74,6 +76,18 @@ SETUP_OPTIONS: Mapping[str, inspect.Parameter] = MappingProxyType(
 """Options every solver takes for setting up eq. 1 (:func:`~.operators.build_problem`):
 ``alpha_hat``, ``beta_hat``, ``gamma_hat``, ``k``, ``centre_spacing``,
 ``normalize_camera_matrix``, ``appearance``, ``scale_invariant``."""
+
+
+SET_MODELS = ("independent", "shared-texel")
+"""The values of a solver's ``set_model`` setting: ``"independent"`` keeps the solver's
+spectra; ``"shared-texel"`` refits a set of more than one image with per-texel spectral
+shapes shared by its images (:func:`~.estimators.shared_texel.shared_texel_refine`, which
+needs the illuminant; :func:`~spectralize.nodes.reconstruction.reconstruct`)."""
+
+SET_MODEL_OPTIONS: Mapping[str, inspect.Parameter] = MappingProxyType(
+    {"set_model": inspect.Parameter("set_model", inspect.Parameter.KEYWORD_ONLY, default="independent")}
+)
+"""The option every solver takes after its solve: ``set_model`` (:data:`SET_MODELS`)."""
 
 
 @dataclass(frozen=True)
@@ -114,7 +128,7 @@ class ReconstructionMethod:
         """Every option :func:`~spectralize.nodes.reconstruction.reconstruct` takes for this
         method, by name (set-up options first for a solver)."""
         own = _keyword_options(self.function)
-        return {**SETUP_OPTIONS, **own} if self.kind == "solver" else own
+        return {**SETUP_OPTIONS, **own, **SET_MODEL_OPTIONS} if self.kind == "solver" else own
 
     def defaults(self) -> dict[str, Any]:
         """Option name -> the value a run uses unless the caller gives one: the settings,
@@ -165,6 +179,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
                 "max_iterations": 2000,
                 "precondition": True,
                 "dtype": np.float32,
+                "set_model": "independent",
             },
         ),
         _method(
@@ -188,6 +203,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
                 "max_iterations": 2000,
                 "precondition": True,
                 "dtype": np.float32,
+                "set_model": "independent",
             },
         ),
         _method(
@@ -218,6 +234,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
                 "projected_iterations": 40,
                 "precondition": True,
                 "dtype": np.float32,
+                "set_model": "independent",
             },
         ),
         _method(
@@ -252,6 +269,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
                 "projected_iterations": 10,
                 "precondition": True,
                 "dtype": np.float32,
+                "set_model": "independent",
             },
         ),
         _method(
@@ -285,6 +303,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
                 "projected_iterations": 10,
                 "precondition": True,
                 "dtype": np.float32,
+                "set_model": "independent",
             },
         ),
         _method(
@@ -311,6 +330,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
                 "scale_invariant": False,
                 "tolerance": 1e-3,
                 "max_iterations": 2000,
+                "set_model": "independent",
             },
         ),
     )
@@ -338,6 +358,9 @@ reason:
 ``"endmember-mixture"``
     The default's spectral prior on its own: non-iterative, several times faster, close
     to the default at the median.
+
+Every solver preset's ``set_model`` is ``"independent"``; ``"shared-texel"`` (opt-in,
+needs the illuminant) refits a set's spectra after the solve (:data:`SET_MODELS`).
 
 Retired: ``"material-prior-pcg"``, the prior PCG without the spectral prior, never best on
 the benchmark; it is ``method="spectral-prior-pcg", spectral_prior=0``. The figures are in

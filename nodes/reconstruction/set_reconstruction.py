@@ -41,8 +41,8 @@ from spectralize.schemas.run import SPECTRA
 
 from .confidence import neighbourhood_spread
 from .image_sets import set_members
-from .inputs import in_paired_camera
-from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
+from .inputs import illuminant_on_bands, in_paired_camera
+from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, SET_MODELS, get_method
 from .tiling import (
     core_chunks,
     join_tiles,
@@ -100,6 +100,15 @@ Prior = Annotated[
     Field(
         ge=0,
         description="weight of the guided prior (None: the method's); only methods with a prior",
+    ),
+]
+SetModel = Annotated[
+    str | None,
+    Choices(SET_MODELS, "set model"),
+    Field(
+        description="how a set's images share spectra after the solve: 'independent' or "
+        "'shared-texel' (per-texel shapes shared by the set's images; needs the "
+        "calibration's illuminant); None: the method's; solvers only",
     ),
 ]
 WarmStartPixels = Annotated[
@@ -200,6 +209,51 @@ def _camera_matrix(
     )
 
 
+def _set_model_settings(
+    method: str, set_model: str | None, calibration: xr.Dataset, wavelength: np.ndarray
+) -> dict[str, Any]:
+    """``set_model`` and the calibration's ``illuminant`` ``L`` (wavelength,) for
+    :func:`~.tiling.solve_set`: ``L`` on the bands' ``wavelength`` (linear), where the
+    calibration group has one (``truth/camera`` does; an unusable one is left out unless
+    ``"shared-texel"`` needs it). Checked before any solve.
+
+    Raises
+    ------
+    ReconstructionError
+        A ``set_model`` for a method without one, or ``"shared-texel"`` without an
+        illuminant in the calibration.
+    """
+    record = get_method(method)
+    if set_model is not None and "set_model" not in record.options:
+        takers = [name for name, m in RECONSTRUCTION_METHODS.items() if "set_model" in m.options]
+        raise ReconstructionError(
+            f"set_model: method {method!r} has no set model; methods with one: {', '.join(takers)}"
+        )
+    used = set_model or record.defaults().get("set_model")
+    light = None
+    if "illuminant" in calibration:
+        light = calibration["illuminant"].load()
+        light = light.drop_vars([c for c in light.coords if c != "wavelength"])
+        try:
+            on_bands = illuminant_on_bands(light, wavelength)
+        except ReconstructionError as error:
+            if used == "shared-texel":
+                raise ReconstructionError(f"calibration: {error}") from None
+            return {"set_model": set_model, "illuminant": None}  # unused: not needed
+        light = xr.DataArray(on_bands, dims="wavelength", coords={"wavelength": wavelength})
+    elif used == "shared-texel":
+        raise ReconstructionError(
+            f"set_model: 'shared-texel' needs the illuminant L; the calibration group has no "
+            f"'illuminant' (wavelength,) (found variables {sorted(calibration.data_vars)})"
+        )
+    return {"set_model": set_model, "illuminant": light}
+
+
+def _given(**values: Any) -> dict[str, Any]:
+    """The values that are not None."""
+    return {name: value for name, value in values.items() if value is not None}
+
+
 def _wavelengths(bands: xr.Dataset) -> np.ndarray:
     """The distinct band wavelengths [nm] of a ``bands`` group, increasing."""
     return np.unique(np.asarray(bands["wavelength"].values, dtype=float))
@@ -229,6 +283,7 @@ def reconstruct_seed_set(
     max_iterations: MaxIterations = None,
     k: Neighbours = None,
     prior: Prior = None,
+    set_model: SetModel = None,
     tile: Tile = DISK_TILE,
 ) -> xr.Dataset:
     """Solve the seed set from a cold start (eq. 1 by any solver, or a baseline), tile by tile.
@@ -245,11 +300,17 @@ def reconstruct_seed_set(
         flows' default binding) or, to isolate the reconstruction, ``truth/camera``. With
         ``camera_matrices`` (camera, channel, wavelength) and ``rgb_transform`` too, each
         image is reconstructed through its own camera's ``C`` (:func:`_camera_matrix`).
+        Its ``illuminant`` (wavelength,), where it has one (``truth/camera``), is passed to
+        the solve as ``L`` (interpolated onto the bands' wavelengths) for ``set_model``.
     image_sets
         Group ``image_sets``; its ``seed_set`` attr names the set solved here.
     method, gamma_hat, tolerance, max_iterations, k, prior
         Method and solver settings (see :func:`spectralize.nodes.reconstruction.reconstruct`);
         a baseline takes none of the solver settings.
+    set_model
+        ``"independent"`` or ``"shared-texel"`` (a solver's set model, see
+        :func:`~spectralize.nodes.reconstruction.reconstruct`; needs the calibration's
+        ``illuminant``); None: the method's setting.
     tile
         Tile size [px] (:mod:`~.tiling`): every tile is solved with all images of the set on
         its core plus a halo of the set's largest filter, and its core kept. ``None``, or a
@@ -280,6 +341,7 @@ def reconstruct_seed_set(
         "max_iterations": max_iterations,
         "k": k,
         "prior": prior,
+        **_set_model_settings(method, set_model, calibration, wavelength),
     }
     options = method_options(
         method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
@@ -289,6 +351,7 @@ def reconstruct_seed_set(
         "seed_set": seed,
         "method": method,
         **({} if prior is None else {"prior": prior}),
+        **_given(set_model=set_model),
         "tiles": len(windows),
         **({"tile": tile, "halo": halo} if len(windows) > 1 else {}),
     }
@@ -317,7 +380,11 @@ def reconstruct_seed_set(
             cube,
             dims=("image", "wavelength", "y", "x"),
             coords=coords,
-            attrs={**_recorded_settings(method, options), "tile": tile, "halo": halo},
+            attrs={
+                **_recorded_settings(method, {**options, **_given(set_model=set_model)}),
+                "tile": tile,
+                "halo": halo,
+            },
         )
     return xr.Dataset(
         {
@@ -494,6 +561,7 @@ def reconstruct_image_sets(
     max_iterations: MaxIterations = None,
     k: Neighbours = None,
     prior: Prior = None,
+    set_model: SetModel = None,
     warm_start_pixels: WarmStartPixels = 200_000,
     tile: Tile = DISK_TILE,
 ) -> xr.Dataset:
@@ -517,7 +585,7 @@ def reconstruct_image_sets(
         As for :func:`reconstruct_seed_set`.
     spectra_seed
         Group ``spectra_seed`` (:func:`reconstruct_seed_set`): the seed set's spectra.
-    method, gamma_hat, tolerance, max_iterations, k, prior, tile
+    method, gamma_hat, tolerance, max_iterations, k, prior, set_model, tile
         As for :func:`reconstruct_seed_set`.
     warm_start_pixels
         At most this many seed pixels (read on a strided grid, not the whole seed set)
@@ -555,6 +623,7 @@ def reconstruct_image_sets(
         "max_iterations": max_iterations,
         "k": k,
         "prior": prior,
+        **_set_model_settings(method, set_model, calibration, wavelength),
     }
     method_options(
         method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
@@ -682,6 +751,7 @@ def reconstruct_image_sets(
             "method": method,
             **({} if gamma_hat is None else {"gamma_hat": gamma_hat}),
             **({} if prior is None else {"prior": prior}),
+            **_given(set_model=set_model),
             "seed_iterations": seed_iterations,
             **({} if tile is None else {"tile": tile}),
             "ordering": "images ordered by image set; use .sel(image=label)",

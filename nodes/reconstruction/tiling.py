@@ -398,6 +398,8 @@ def solve_set(
     where: str | None = None,
     endmembers: Endmembers | None = None,
     confidence: bool = False,
+    set_model: str | None = None,
+    illuminant: xr.DataArray | None = None,
 ) -> tuple[xr.DataArray, int, float]:
     """Reconstruct one image set on one window (eq. 1 or a baseline), in memory.
 
@@ -427,6 +429,10 @@ def solve_set(
         Also compute the per-pixel confidence (:func:`~.confidence.neighbourhood_spread`,
         from the solver's own neighbourhoods where it has them), as the coordinate
         ``confidence`` ``(image, y, x)`` of ``spectra``.
+    set_model
+        A solver's set model (:data:`~.methods.SET_MODELS`; None: the method's setting).
+    illuminant
+        ``L`` ``(wavelength,)`` for ``set_model="shared-texel"`` (None: none).
 
     Returns
     -------
@@ -455,6 +461,8 @@ def solve_set(
         options["initial"] = initial
     if endmembers is not None and "endmembers" in record.options:
         options["endmembers"] = endmembers
+    if set_model is not None and "set_model" in record.options:
+        options["set_model"] = set_model
     start = time.perf_counter()
     # named by its images without band shots (the anchors with shots are in every set)
     images = rgb["image"].values.tolist()
@@ -479,6 +487,7 @@ def solve_set(
             shots.load(),
             camera_matrix,
             method=method,
+            illuminant=illuminant,
             full_output=True,
             confidence=confidence,
             **options,
