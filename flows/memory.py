@@ -86,16 +86,19 @@ def process_peak_bytes() -> int | None:
     return max(now, _EARLIER_PEAK[0])
 
 
-def release_free_memory() -> bool:
-    """Collect Python's garbage, then give the free pages of glibc's heaps back to the system
-    (``malloc_trim(0)``); ``False`` where the C library is not glibc (only the collection).
+def release_free_memory(collect: bool = True) -> bool:
+    """Collect Python's garbage (unless ``collect`` is false), then give the free pages of
+    glibc's heaps back to the system (``malloc_trim(0)``); ``False`` where the C library is
+    not glibc.
 
     Costs a full garbage collection (tens of ms in a flow's process) and a walk over malloc's
-    free lists; call it between nodes, not inside loops.
+    free lists (milliseconds); call it between nodes or between the regions of a write, not
+    inside loops over pixels or images.
     """
-    import gc
+    if collect:
+        import gc
 
-    gc.collect()
+        gc.collect()
     if not sys.platform.startswith("linux"):
         return False
     import ctypes

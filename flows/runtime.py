@@ -606,6 +606,8 @@ def _region_progress(log: Callable[[str], None], node: str, group: str) -> Calla
     def report(message: str) -> None:
         log(f"{node}: {group}: {message}")
         progress.store_message(node, group, message, resumed)
+        if " written (" in message:  # a region done: what its computation freed goes back
+            release_free_memory(collect=False)  # (the heap crept up region by region: issue 27)
 
     return report
 
