@@ -229,8 +229,12 @@ def shared_texel_refine(
     band_sigma = np.maximum(np.asarray(band_sigma, dtype=np.float64), 1e-12)
     ell = highlight / np.linalg.norm(highlight)
 
-    x0 = np.ascontiguousarray(initial.reshape(n_w, n_m, n).transpose(2, 1, 0))  # (n, m, w)
-    rgb = inputs.rgb.reshape(n_m, n, 3).transpose(1, 0, 2)  # (n, m, 3)
+    # only the texels the model can fit are refitted (the others keep S^0): the cost is
+    # per refitted texel
+    keep = None if misfit is None else (rgb_misfit(inputs, rank) > misfit).ravel()  # (n,)
+    active = np.arange(n) if keep is None else np.flatnonzero(~keep)
+    x0 = np.ascontiguousarray(initial.reshape(n_w, n_m, n)[:, :, active].transpose(2, 1, 0))
+    rgb = inputs.rgb.reshape(n_m, n, 3)[:, active].transpose(1, 0, 2)  # (n_active, m, 3)
     cams = np.stack([inputs.camera_of(m) for m in range(n_m)]).astype(np.float64)  # (m, 3, w)
     rgb_sigma = RGB_RELATIVE_SIGMA * np.maximum(
         np.abs(inputs.rgb.reshape(n_m, -1, 3).mean(axis=1)), 1e-12
@@ -241,7 +245,7 @@ def shared_texel_refine(
 
     shot_image = np.asarray(inputs.image, dtype=np.int64)
     shot_band = np.asarray(inputs.band, dtype=np.int64)
-    data = inputs.band_data.reshape(len(shot_band), n).T.astype(np.float64)  # (n, shots)
+    data = inputs.band_data.reshape(len(shot_band), n)[:, active].T.astype(np.float64)
     shot_weight = 1.0 / band_sigma**2  # (shots,)
 
     # initial shapes: the texel's rank-r SVD of S^0 (L is not projected out: every
@@ -274,12 +278,12 @@ def shared_texel_refine(
     weights = _weights_step(
         shapes, ell, cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight
     )
-    basis = np.concatenate([shapes, np.broadcast_to(ell, (n, 1, n_w))], axis=1)  # (n, r+1, w)
-    fit = np.einsum("nmk,nkw->wmn", weights, basis).reshape(n_w, n_m, h, w)
-    fit = _project(np.ascontiguousarray(fit), inputs)
-    if misfit is not None:
-        keep = rgb_misfit(inputs, rank) > misfit  # (h, w): the model cannot fit these
-        fit[:, :, keep] = initial[:, :, keep]
+    basis = np.concatenate([shapes, np.broadcast_to(ell, (active.size, 1, n_w))], axis=1)
+    fit = initial.reshape(n_w, n_m, n).copy()
+    fit[:, :, active] = np.einsum("nmk,nkw->wmn", weights, basis)  # (w, m, n_active)
+    fit = _project(np.ascontiguousarray(fit.reshape(n_w, n_m, h, w)), inputs)  # per texel
+    if keep is not None:  # the model cannot fit these: S^0 as given
+        fit.reshape(n_w, n_m, n)[:, :, keep] = initial.reshape(n_w, n_m, n)[:, :, keep]
     return fit
 
 
@@ -325,7 +329,19 @@ def _weights_step(
         rhs[:, m] += shot_weight[i] * g * data[:, i, None]
     k = basis.shape[1]
     gram += 1e-9 * np.trace(gram, axis1=2, axis2=3)[..., None, None] / k * np.eye(k)
-    solved = np.linalg.solve(gram, rhs[..., None])[..., 0]
+    if k == 2:  # rank 1 (the default): 2 x 2 systems in closed form (Cramer's rule)
+        g00, g01, g10, g11 = gram[..., 0, 0], gram[..., 0, 1], gram[..., 1, 0], gram[..., 1, 1]
+        det = g00 * g11 - g01 * g10
+        det = np.where(det > 0, det, 1e-300)
+        solved = np.stack(
+            [
+                (g11 * rhs[..., 0] - g01 * rhs[..., 1]) / det,
+                (g00 * rhs[..., 1] - g10 * rhs[..., 0]) / det,
+            ],
+            axis=-1,
+        )
+    else:
+        solved = np.linalg.solve(gram, rhs[..., None])[..., 0]
     return np.maximum(solved, 0.0)
 
 
