@@ -3,9 +3,13 @@
 Scenes: :data:`spectralize.nodes.simulation.scenes.SCENES` (many real materials mixed below
 a pixel, dim, glossy, metamers placed apart, band SNR at or below 1), each with two noise
 seeds, as a single image with all 32 band shots and as a 20-image BTF-like set (10 images
-with bands, 10 without). Per method: median, p95, p99 and the fraction under 0.03 of the
-per-pixel nRMSE (RMSE over bands / the image's mean truth, paper Fig. 5), for a set also
-split into images with and without band shots; wall time, iterations, tracemalloc peak,
+with bands, 10 without). The sets are given the scene's true illuminant (the simulation's
+LED, :func:`~spectralize.nodes.simulation.scenes.materials.sharp_led`, as a run's
+calibration would measure it), and the default runs on them a second time with the set model
+``"shared-texel"`` (:data:`SET_VARIANTS`), side by side with the plain default. Per
+method: median, p95, p99 and the fraction under 0.03 of the per-pixel nRMSE (RMSE over
+bands / the image's mean truth, paper Fig. 5), for a set also split into images with and
+without band shots; wall time, iterations, tracemalloc peak,
 and the fraction of negative output values. Run through ``benchmarks/reconstruction.py``.
 """
 
@@ -24,13 +28,18 @@ from spectralize.nodes.reconstruction import (
     reconstruct,
 )
 from spectralize.nodes.simulation.scenes import SCENES, get_scene
+from spectralize.nodes.simulation.scenes.materials import sharp_led
 
-__all__ = ["run_suite", "BASELINES", "RGB_ONLY_BASELINES", "TARGETS"]
+__all__ = ["run_suite", "BASELINES", "RGB_ONLY_BASELINES", "TARGETS", "SET_VARIANTS"]
 
 BASELINES = tuple(BASELINE_METHODS)
 
 RGB_ONLY_BASELINES = ("wiener", "mallett2019", "pseudo-inverse")
 """The baselines that use the RGB alone (no band shot)."""
+
+SET_VARIANTS = {f"{DEFAULT_METHOD}+shared-texel": (DEFAULT_METHOD, {"set_model": "shared-texel"})}
+"""Extra set rows: a name -> (method, options); the default with the set model that shares
+a texel's spectral shapes across the set's images (issue 29, part 2)."""
 
 TARGETS = {
     # issue 29, on every row (scene x mode, the worse seed)
@@ -66,12 +75,24 @@ def statistics(nrmse: np.ndarray) -> dict:
     }
 
 
-def run_method(capture, method: str, **options) -> dict:
+def scene_illuminant(capture) -> np.ndarray:
+    """The scene's true illuminant on its wavelengths (simulated: the LED the scene was
+    rendered and captured under, as a run's calibration measures it)."""
+    return sharp_led(capture.camera_matrix["wavelength"].values)
+
+
+def run_method(capture, method: str, illuminant: np.ndarray | None = None, **options) -> dict:
     tracemalloc.start()
     tracemalloc.reset_peak()
     wall = time.perf_counter()
     result = reconstruct(
-        capture.rgb, capture.bands, capture.camera_matrix, method=method, full_output=True, **options
+        capture.rgb,
+        capture.bands,
+        capture.camera_matrix,
+        method=method,
+        illuminant=illuminant,
+        full_output=True,
+        **options,
     )
     wall = time.perf_counter() - wall
     _, peak = tracemalloc.get_traced_memory()
@@ -108,8 +129,12 @@ def run_case(name: str, seed: int, size: int, n_images: int, methods: list[str])
         k: (round(v, 4) if isinstance(v, float) else v) for k, v in capture.properties.items()
     }
     rows: dict[str, dict] = {}
-    for method in methods:
-        rows[method] = run_method(capture, method)
+    illuminant = None if n_images == 1 else scene_illuminant(capture)  # simulated: the true one
+    runs = [(m, m, {}) for m in methods]
+    if n_images > 1:
+        runs += [(name, m, options) for name, (m, options) in SET_VARIANTS.items()]
+    for method, function, options in runs:
+        rows[method] = run_method(capture, function, illuminant, **options)
         r = rows[method]
         log(
             f"{name:16s} seed {seed} {n_images:2d}x{size} {method:20s} median {r['median']:.4f} "
@@ -158,14 +183,15 @@ def summarise(cases: list[dict]) -> dict:
             best_p95 = min(baselines.items(), key=lambda kv: kv[1][1])
             solvers = {
                 m: {k: worst(m, k) for k in ("median", "p95", "fraction_under_0.03")}
-                for m in RECONSTRUCTION_METHODS
+                for m in (*RECONSTRUCTION_METHODS, *SET_VARIANTS)
                 if worst(m, "median") is not None
             }
             rgb_only = {b: v for b, v in baselines.items() if b in RGB_ONLY_BASELINES}
             best_rgb = min(rgb_only.items(), key=lambda kv: kv[1][0])
             others = {
                 **{b: {"median": v[0], "p95": v[1]} for b, v in baselines.items()},
-                **{m: v for m, v in solvers.items() if m != DEFAULT_METHOD},
+                # the default's own set-model variants are reported beside it, not as rivals
+                **{m: v for m, v in solvers.items() if m != DEFAULT_METHOD and m not in SET_VARIANTS},
             }
             row = {
                 "default": default,
@@ -206,6 +232,27 @@ def summarise(cases: list[dict]) -> dict:
                     without[k] <= TARGETS["without_vs_with_bands_max_ratio"] * with_[k]
                     for k in ("median", "p95")
                 )
+                row["set_variants"] = {
+                    variant: {
+                        **solvers[variant],
+                        "with_bands": {k: worst(variant, k, "with_bands") for k in ("median", "p95")},
+                        "without_bands": {
+                            k: worst(variant, k, "without_bands") for k in ("median", "p95")
+                        },
+                        # seconds of the whole call against the plain default's, per seed
+                        "wall_s": [c["methods"][variant]["wall_s"] for c in chosen],
+                        "default_wall_s": [c["methods"][DEFAULT_METHOD]["wall_s"] for c in chosen],
+                        "wall_ratio_vs_default_max": round(
+                            max(
+                                c["methods"][variant]["wall_s"] / c["methods"][DEFAULT_METHOD]["wall_s"]
+                                for c in chosen
+                            ),
+                            3,
+                        ),
+                    }
+                    for variant in SET_VARIANTS
+                    if variant in solvers
+                }
             row["targets"] = targets
             out.setdefault(mode, {})[name] = row
     return out
@@ -229,6 +276,9 @@ def run_suite(
         "seeds": list(seeds),
         "default_method": DEFAULT_METHOD,
         "targets": TARGETS,
+        "set_variants": {name: {"method": m, **o} for name, (m, o) in SET_VARIANTS.items()},
+        "note_set_illuminant": "sets are given the scene's true illuminant (simulated: the LED "
+        "the scene is rendered under), which set_model='shared-texel' needs",
         "note_paper_cg_sets": None
         if paper_cg_sets
         else "paper-cg is left out of the sets (about 1500 unpreconditioned iterations, ~8 min "
