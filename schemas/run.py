@@ -568,6 +568,16 @@ CALIBRATION_SPECTRAL = GroupSchema(
     ),
     # per RGB camera (raw/rgb camera index); camera_matrix above is the paired camera's
     optional_variables=(
+        # calibrate_spectral v5 on: stores written before lack it
+        ArraySpec(
+            "illuminant",
+            ("wavelength",),
+            "kind:f",
+            "1",
+            "measured illuminant L on the band wavelengths (band radiance of a white diffuser)",
+            (0, 1e6),
+            finite=True,
+        ),
         ArraySpec(
             "camera_matrices",
             ("camera", "channel", "wavelength"),

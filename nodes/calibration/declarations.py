@@ -45,6 +45,8 @@ response, and ``Q`` divides the white reference's band signal by its reflectance
 diffuser of reflectance 1 under it has band radiance ``L(lambda)``). ``C`` is fitted from the
 colour checker's HDR RGB against patch reflectance times the same illuminant, so it maps band
 radiance units to HDR units, which is what the reconstruction needs (``RGB = C @ spectrum``).
+``calibration/spectral`` carries that ``L`` on the band wavelengths (``illuminant``, units
+``"1"``), the illuminant the set model ``"shared-texel"`` of the reconstruction needs.
 """
 
 from __future__ import annotations
@@ -202,8 +204,9 @@ RECOVER_SPECTRAL_OECF = Node(
 
 CALIBRATE_SPECTRAL = Node(
     name="calibrate_spectral",
-    version="4",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
-    # 4: C held to zero where the targets had little light (weak_light)
+    version="5",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
+    # 4: C held to zero where the targets had little light (weak_light); 5: the measured
+    # illuminant L on the band wavelengths (illuminant), which set_model 'shared-texel' reads
     function=calibrate_spectral,
     inputs={
         "white_reference": "raw/white_reference",

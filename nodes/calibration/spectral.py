@@ -54,6 +54,7 @@ from spectralize.schemas.errors import Problem
 __all__ = [
     "band_signal",
     "quantum_efficiency",
+    "measured_illuminant_on_bands",
     "camera_matrix",
     "cross_validated_smoothness",
     "SMOOTHNESS_CANDIDATES",
@@ -325,6 +326,59 @@ def quantum_efficiency(
         attrs={
             "method": "white reference / (reflectance * illuminant)",
             "shots": int(counts.sizes["shot"]),
+        },
+    )
+
+
+def measured_illuminant_on_bands(illuminant: xr.DataArray, wavelength: np.ndarray) -> xr.DataArray:
+    """The measured illuminant ``L`` (wavelength,) on the band wavelengths, in band radiance units.
+
+    ``Q_lambda`` divides the white reference's band signal by ``rho_lambda L_lambda`` (eq. 5,
+    :func:`quantum_efficiency`), so band radiance ``x = I / (t Q)`` is relative to the measured
+    illuminant: a white diffuser of reflectance 1 has band radiance ``L_lambda``. ``L`` in band
+    radiance units is therefore the measured spectrum itself, taken where ``Q`` took it: linearly
+    interpolated onto the band centres (the white reference's band series carries no bandpass;
+    the identity where the raw group already holds it on the bands, as ingest writes it).
+
+    Parameters
+    ----------
+    illuminant
+        ``raw/white_reference`` ``illuminant`` (wavelength,), relative spectral radiance.
+    wavelength
+        The band centre wavelengths [nm] of ``Q``.
+
+    Returns
+    -------
+    xarray.DataArray
+        ``illuminant`` (wavelength,) float64, units ``"1"`` (relative spectral radiance, the
+        unit of band radiance), attrs ``source`` and ``method``.
+
+    Raises
+    ------
+    CalibrationError
+        The illuminant does not cover a band or is not positive there (naming
+        ``raw/white_reference:illuminant``, the bands and values).
+    SchemaError
+        Not a spectrum over ``wavelength``.
+
+    References
+    ----------
+    Fast Capture of Spectral Image Series, section 4 and eq. 5 ("dividing the response by the
+    LED spectrum").
+    """
+    bands = np.asarray(wavelength, dtype=np.float64)
+    where = "raw/white_reference:illuminant"
+    values = _on_wavelengths(illuminant, bands, "illuminant", where)
+    return xr.DataArray(
+        values,
+        dims="wavelength",
+        coords={"wavelength": ("wavelength", bands, {"units": "nm", "long_name": "wavelength"})},
+        attrs={
+            "units": "1",
+            "long_name": "measured illuminant L on the band wavelengths (relative spectral "
+            "radiance: the band radiance of a white diffuser of reflectance 1)",
+            "source": where,
+            "method": "linear interpolation onto the band centres (as Q divides by it, eq. 5)",
         },
     )
 
@@ -959,6 +1013,8 @@ def calibrate_spectral(
     -------
     xarray.Dataset
         Group ``calibration/spectral``: ``quantum_efficiency`` (wavelength) [1],
+        ``illuminant`` (wavelength) [1] (the measured illuminant ``L`` on the band
+        wavelengths, :func:`measured_illuminant_on_bands`: a white diffuser's band radiance),
         ``camera_matrix`` (channel, wavelength) [1], ``measured_rgb`` / ``predicted_rgb``
         (patch, channel) [1], ``relative_error`` (patch) [1], ``patch_spectra`` (patch,
         wavelength) [1] (from the spectral camera), ``qe_snr`` (wavelength) [1],
@@ -997,6 +1053,7 @@ def calibrate_spectral(
     except CalibrationError as error:
         raise CalibrationError(f"raw/white_reference:spectral_counts: {error}") from None
     q = qe["quantum_efficiency"]
+    band_illuminant = measured_illuminant_on_bands(illuminant, q["wavelength"].values)
     light = (white_reference["target_reflectance"] * illuminant).sel(
         wavelength=white_counts["wavelength"].values
     )
@@ -1072,6 +1129,7 @@ def calibrate_spectral(
                 "measured illuminant)",
             ),
             "qe_snr": qe["snr"].assign_attrs(**unit, long_name="per-pixel SNR of the white reference"),
+            "illuminant": band_illuminant,
             "camera_matrix": cm["camera_matrix"].assign_attrs(
                 **unit, long_name="RGB camera matrix C (HDR units per band radiance unit)"
             ),
