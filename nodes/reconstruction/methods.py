@@ -155,6 +155,36 @@ def _method(
     )
 
 
+_MIXTURE_PRIOR_SETTINGS: dict[str, Any] = {
+    # the problem (eq. 4 and neighbourhoods that separate materials)
+    "alpha_hat": 1.0,
+    "beta_hat": 1.0,
+    "gamma_hat": None,
+    "k": 6,
+    "centre_spacing": 2.5,
+    "normalize_camera_matrix": True,
+    "appearance": "chromaticity-spatial",
+    "scale_invariant": True,
+    # the priors
+    "prior": 0.3,
+    "prior_weighting": "brightness",
+    "spectral_prior": 0.003,
+    "prior_source": "mixture",
+    "natural_prior": 0.0,
+    "covariance_floor": 1e-2,
+    "ridge": 1e-4,
+    # the solve
+    "tolerance": 3e-3,
+    "max_iterations": 2000,
+    "projected_iterations": 10,
+    "precondition": True,
+    "dtype": np.float32,
+    "set_model": "independent",
+}
+"""The settings of ``"mixture-prior-pcg"``; ``"natural-prior-pcg"`` differs only in its prior's
+centre (``prior_source``, ``natural_prior``)."""
+
+
 RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
     method.name: method
     for method in (
@@ -245,32 +275,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             "eq. 1 on material neighbourhoods, a brightness-weighted guided prior and a "
             "spectral prior centred per pixel between the endmember mixture and the natural-"
             "spectra (Wiener) estimate by the band evidence, then S >= 0",
-            {
-                # the problem (eq. 4 and neighbourhoods that separate materials)
-                "alpha_hat": 1.0,
-                "beta_hat": 1.0,
-                "gamma_hat": None,
-                "k": 6,
-                "centre_spacing": 2.5,
-                "normalize_camera_matrix": True,
-                "appearance": "chromaticity-spatial",
-                "scale_invariant": True,
-                # the priors
-                "prior": 0.3,
-                "prior_weighting": "brightness",
-                "spectral_prior": 0.003,
-                "prior_source": "natural",
-                "natural_prior": 0.001,
-                "covariance_floor": 1e-2,
-                "ridge": 1e-4,
-                # the solve
-                "tolerance": 3e-3,
-                "max_iterations": 2000,
-                "projected_iterations": 10,
-                "precondition": True,
-                "dtype": np.float32,
-                "set_model": "independent",
-            },
+            {**_MIXTURE_PRIOR_SETTINGS, "prior_source": "natural", "natural_prior": 0.001},
         ),
         _method(
             "mixture-prior-pcg",
@@ -279,32 +284,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             np.float32,
             "eq. 1 on material neighbourhoods, a brightness-weighted guided prior and a "
             "spectral prior centred on the endmember mixture, then S >= 0",
-            {
-                # the problem (eq. 4 and neighbourhoods that separate materials)
-                "alpha_hat": 1.0,
-                "beta_hat": 1.0,
-                "gamma_hat": None,
-                "k": 6,
-                "centre_spacing": 2.5,
-                "normalize_camera_matrix": True,
-                "appearance": "chromaticity-spatial",
-                "scale_invariant": True,
-                # the priors
-                "prior": 0.3,
-                "prior_weighting": "brightness",
-                "spectral_prior": 0.003,
-                "prior_source": "mixture",
-                "natural_prior": 0.0,
-                "covariance_floor": 1e-2,
-                "ridge": 1e-4,
-                # the solve
-                "tolerance": 3e-3,
-                "max_iterations": 2000,
-                "projected_iterations": 10,
-                "precondition": True,
-                "dtype": np.float32,
-                "set_model": "independent",
-            },
+            _MIXTURE_PRIOR_SETTINGS,
         ),
         _method(
             "endmember-mixture",
