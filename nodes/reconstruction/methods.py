@@ -182,7 +182,8 @@ _MIXTURE_PRIOR_SETTINGS: dict[str, Any] = {
     "set_model": "independent",
 }
 """The settings of ``"mixture-prior-pcg"``; ``"natural-prior-pcg"`` differs only in its prior's
-centre (``prior_source``, ``natural_prior``)."""
+centre (``prior_source``, ``natural_prior``), ``"spectral-prior-pcg"`` in its priors' source
+and weighting and its stopping rule."""
 
 
 RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
@@ -244,27 +245,12 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             "eq. 1 on material neighbourhoods, the guided prior and a spectral prior learnt "
             "from the scene's guided estimate, then S >= 0",
             {
-                "alpha_hat": 1.0,
-                "beta_hat": 1.0,
-                "gamma_hat": None,
-                "k": 6,
-                "centre_spacing": 2.5,
-                "normalize_camera_matrix": True,
-                "appearance": "chromaticity-spatial",
-                "scale_invariant": True,
+                **_MIXTURE_PRIOR_SETTINGS,
                 "prior": 0.1,
                 "prior_weighting": "uniform",
-                "spectral_prior": 0.003,
                 "prior_source": "scene",
-                "natural_prior": 0.0,
-                "covariance_floor": 1e-2,
-                "ridge": 1e-4,
                 "tolerance": 1e-3,
-                "max_iterations": 2000,
                 "projected_iterations": 40,
-                "precondition": True,
-                "dtype": np.float32,
-                "set_model": "independent",
             },
         ),
         _method(
