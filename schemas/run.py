@@ -494,6 +494,15 @@ CALIBRATION_OECF_RGB = GroupSchema(
             finite=True,
         ),
     ),
+    optional_variables=(
+        ArraySpec(
+            "black_level",
+            ("camera",),
+            "kind:iu",
+            "DN",
+            "each camera's black level: codes at or below it get weight 0 (the HDR merge's too)",
+        ),
+    ),
     coords=(
         ArraySpec("camera", ("camera",), "kind:iu", None, "RGB camera index"),
         _CHANNEL,
@@ -501,7 +510,7 @@ CALIBRATION_OECF_RGB = GroupSchema(
     ),
     attrs={
         "bit_depth": "ADC bit depth",
-        "black_level": "under-exposed codes (weight 0)",
+        "black_level": "under-exposed codes (weight 0): the lowest camera's",
         "saturation": "saturated codes (weight 0)",
     },
 )

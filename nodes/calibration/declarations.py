@@ -91,17 +91,24 @@ def merge_hdr_node(
     oecf_rgb: xr.Dataset,
     *,
     black_level: Annotated[
-        int | None, Field(ge=0, description="under-exposed codes [DN]; None: the response's black_level")
+        int | None,
+        Field(
+            ge=0,
+            description="under-exposed codes [DN], for every camera; None: each camera's own "
+            "(calibration/oecf_rgb's black_level)",
+        ),
     ] = None,
     saturation: Annotated[
-        int | None, Field(ge=1, description="saturated codes [DN]; None: the response's")
+        int | None,
+        Field(ge=1, description="saturated codes [DN], for every camera; None: the response's"),
     ] = None,
 ) -> xr.Dataset:
     """HDR RGB radiance of every raw/rgb image (Robertson's estimator), lazy per chunk.
 
-    Wires the groups to :func:`~spectralize.nodes.calibration.hdr.merge_hdr`: the response's
-    group attrs (``black_level``, ``saturation``, ``weighting``) set the weighting unless
-    given here.
+    Wires the groups to :func:`~spectralize.nodes.calibration.hdr.merge_hdr`: each image's
+    codes are weighted with its own camera's levels, ``calibration/oecf_rgb``'s
+    ``black_level`` (camera) [DN] and ``saturation``, and the group's ``weighting``, unless
+    ``black_level``/``saturation`` are given here (then for every camera).
 
     Returns
     -------
@@ -109,11 +116,7 @@ def merge_hdr_node(
         Group ``hdr``: ``radiance`` (image, y, x, channel) float32 [1] and the per-image
         coords of raw/rgb.
     """
-    response = oecf_rgb["response"]
-    response = response.assign_attrs({**oecf_rgb.attrs, **response.attrs})
-    if black_level is None:
-        black_level = int(oecf_rgb.attrs.get("black_level", 0))
-    out = merge_hdr(raw_rgb, response, black_level=black_level, saturation=saturation)
+    out = merge_hdr(raw_rgb, oecf_rgb, black_level=black_level, saturation=saturation)
     out["radiance"] = (
         out["radiance"].astype(np.float32).assign_attrs(units="1", long_name="relative RGB radiance")
     )
@@ -129,17 +132,17 @@ def rgb_oecf_check(inputs: Mapping[str, xr.Dataset], parameters: Parameters) -> 
 
 
 def hdr_merge_check(inputs: Mapping[str, xr.Dataset], parameters: Parameters) -> list[SpectralizeError]:
-    """``hdr_merge``: raw/rgb's series, with the levels :func:`merge_hdr_node` would use."""
+    """``hdr_merge``: raw/rgb's series, with the levels :func:`merge_hdr_node` would use (each
+    image's camera's, from calibration/oecf_rgb, unless the parameters set them)."""
     if "raw_rgb" not in inputs:
         return []
     values = parameters.model_dump()
-    black, saturation = values["black_level"], values["saturation"]
-    oecf_rgb = inputs.get("oecf_rgb")
-    if oecf_rgb is not None:  # before the response is made, the dark rule waits for it
-        attrs = {**oecf_rgb.attrs, **oecf_rgb["response"].attrs}
-        black = int(attrs.get("black_level", 0)) if black is None else black
-        saturation = attrs.get("saturation") if saturation is None else saturation
-    return merge_hdr_refusals(inputs["raw_rgb"], black_level=black, saturation=saturation)
+    return merge_hdr_refusals(
+        inputs["raw_rgb"],
+        black_level=values["black_level"],
+        saturation=values["saturation"],
+        response=inputs.get("oecf_rgb"),  # before the response is made, the dark rule waits
+    )
 
 
 def spectral_oecf_check(
@@ -179,8 +182,10 @@ RECOVER_RGB_OECF = Node(
     name="recover_rgb_oecf",
     # 2: one response per camera by default, each camera's own black level, and its series of
     # the calibration targets with its raw/rgb series; 3: the response a cubic spline of
-    # SMOOTH_RGB coefficients (Robertson's solution over that space)
-    version="3",
+    # SMOOTH_RGB coefficients (Robertson's solution over that space); 4: the black level per
+    # camera as a variable (black_level over camera, DN) for the HDR merge, and the series read
+    # once, at most MAX_IMAGES images per camera (a deterministic spread)
+    version="4",
     function=recover_rgb_oecf,
     inputs={
         "raw_rgb": "raw/rgb",
@@ -222,7 +227,9 @@ CALIBRATE_SPECTRAL = Node(
 
 HDR_MERGE = Node(
     name="hdr_merge",
-    version="1",
+    # 2: each image's codes weighted with its own camera's black level (calibration/oecf_rgb's
+    # black_level over camera), not the lowest camera's for all
+    version="2",
     function=merge_hdr_node,
     inputs={"raw_rgb": "raw/rgb", "oecf_rgb": "calibration/oecf_rgb"},
     outputs=("hdr",),

@@ -21,7 +21,7 @@ to form HDR images using Robertson's algorithm").
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import dask
 import numpy as np
@@ -30,7 +30,6 @@ import xarray as xr
 from spectralize.nodes.calibration.exposure_series import (
     check_bit_depth,
     check_exposure_times,
-    frame_extremes,
     raise_for_frames,
     refused,
 )
@@ -39,7 +38,13 @@ from spectralize.nodes.calibration.oecf.weighting import Weighting, weighting_fu
 from spectralize.schemas import CalibrationError, SchemaError, SpectralizeError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["merge_hdr", "merge_robertson", "merge_hdr_refusals"]
+__all__ = [
+    "merge_hdr",
+    "merge_robertson",
+    "merge_hdr_refusals",
+    "camera_levels",
+    "raise_for_camera_frames",
+]
 
 _DIMS = ("image", "exposure", "y", "x", "channel")
 
@@ -50,8 +55,8 @@ def merge_robertson(
     response: np.ndarray,
     weights: np.ndarray,
     *,
-    black_level: int,
-    saturation: int,
+    black_level: int | np.ndarray,
+    saturation: int | np.ndarray,
 ) -> np.ndarray:
     """Robertson's radiance estimate for one block (numpy core).
 
@@ -64,9 +69,11 @@ def merge_robertson(
     response
         ``f(code)`` with codes on the last axis, broadcastable to ``counts[..., :1]``.
     weights
-        ``w(code)`` ``(n_codes,)`` (0 at saturated and under-exposed codes).
+        ``w(code)``: ``(n_codes,)``, or with codes on the last axis broadcastable to
+        ``counts[..., :1]`` (one weighting per camera); 0 at saturated and under-exposed codes.
     black_level, saturation
-        Codes ``<= black_level`` are under-exposed, codes ``>= saturation`` saturated.
+        Codes ``<= black_level`` are under-exposed, codes ``>= saturation`` saturated [DN]:
+        ints, or arrays broadcastable to ``counts[..., 0]`` (each image its camera's levels).
 
     Returns
     -------
@@ -79,8 +86,8 @@ def merge_robertson(
 
     Notes
     -----
-    Domain: integer codes ``0 .. len(weights)-1``. Range: non-negative relative radiance
-    for a non-negative response.
+    Domain: integer codes ``0 .. n_codes-1``. Range: non-negative relative radiance for a
+    non-negative response.
 
     References
     ----------
@@ -89,26 +96,51 @@ def merge_robertson(
     c = counts.astype(np.intp)
     t = np.broadcast_to(np.asarray(exposure_times, dtype=np.float64), c.shape)
     f = np.take_along_axis(response, c, axis=-1)
-    w = weights[c]
+    weights = np.asarray(weights)
+    w = weights[c] if weights.ndim == 1 else np.take_along_axis(weights, c, axis=-1)
     num = (w * t * f).sum(axis=-1)
     den = (w * t * t).sum(axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         x = num / den
     missing = ~(den > 0)
     if missing.any():
-        saturated = c >= saturation
+        black = np.broadcast_to(np.asarray(black_level, dtype=np.intp), c.shape[:-1])
+        sat = np.broadcast_to(np.asarray(saturation, dtype=np.intp), c.shape[:-1])
+        saturated = c >= sat[..., None]
         t_sat = np.where(saturated, t, np.inf).min(axis=-1)
-        t_dark = np.where(c <= black_level, t, 0.0).max(axis=-1)
-        f_sat = np.take_along_axis(response, np.full(c.shape[:-1] + (1,), saturation, np.intp), axis=-1)[
-            ..., 0
-        ]
-        f_dark = np.take_along_axis(
-            response, np.full(c.shape[:-1] + (1,), max(black_level, 0), np.intp), axis=-1
-        )[..., 0]
+        t_dark = np.where(c <= black[..., None], t, 0.0).max(axis=-1)
+        f_sat = np.take_along_axis(response, sat[..., None], axis=-1)[..., 0]
+        f_dark = np.take_along_axis(response, np.maximum(black, 0)[..., None], axis=-1)[..., 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             bound = np.where(saturated.any(axis=-1), f_sat / t_sat, f_dark / t_dark)
         x = np.where(missing, bound, x)
     return x.astype(np.float32)
+
+
+def _merge_block(
+    counts: np.ndarray,
+    exposure_times: np.ndarray,
+    camera_index: np.ndarray,
+    *,
+    tables: np.ndarray,
+    weights: np.ndarray,
+    black_levels: np.ndarray,
+    saturations: np.ndarray,
+) -> np.ndarray:
+    """:func:`merge_robertson` on a block ``(image, y, x, channel, exposure)`` whose images
+    take their camera's response ``tables (camera, channel, code)``, weights
+    ``(camera, code)`` and levels ``(camera,)``; ``camera_index`` (image, 1, 1, 1) is the
+    row of each image's camera. The tables stay per camera (the block's images index them),
+    so the memory does not grow with the image count."""
+    index = np.asarray(camera_index).reshape(camera_index.shape[0], -1)[:, 0]
+    return merge_robertson(
+        counts,
+        exposure_times,
+        tables[index][:, None, None, :, :],
+        weights[index][:, None, None, None, :],
+        black_level=black_levels[index][:, None, None, None],
+        saturation=saturations[index][:, None, None, None],
+    )
 
 
 BLOCK_BYTES = 4 * 2**20
@@ -161,8 +193,16 @@ def _validate(raw: xr.Dataset, where: str) -> xr.DataArray:
 
 def _response_table(
     response: xr.Dataset | xr.DataArray, counts: xr.DataArray, n_codes: int, where: str
-) -> xr.DataArray:
-    """The response at integer codes 0..n_codes-1, dims (image, channel, code)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The response at integer codes 0..n_codes-1 per camera, and each image's camera.
+
+    Returns
+    -------
+    tuple
+        ``(tables, index, cameras)``: ``tables`` (camera, channel, code) float64; ``index``
+        (image,) the row of ``tables`` each image uses; ``cameras`` the camera labels of the
+        rows (``None`` for a response without a ``camera`` dim: one row serves every image).
+    """
     table = response["response"] if isinstance(response, xr.Dataset) else response
     if "code" not in table.dims or set(table.dims) - {"camera", "channel", "code"}:
         raise SchemaError(
@@ -187,35 +227,108 @@ def _response_table(
         table = table.sel(channel=counts["channel"].values)
     else:
         table = table.expand_dims(channel=counts.sizes["channel"])
+    cameras = None
     if "camera" in table.dims:
         if "camera" not in counts.coords:
             raise SchemaError(
                 f"{where}: the response is per camera",
                 [Problem("raw/rgb:camera", "a coord camera (image,)", "nothing")],
             )
-        cameras = counts["camera"].values
-        missing = sorted(set(cameras.tolist()) - set(table["camera"].values.tolist()))
+        cameras = np.asarray(table["camera"].values)
+        rows = {value: i for i, value in enumerate(cameras.tolist())}
+        per_image = np.asarray(counts["camera"].values).tolist()
+        missing = sorted(set(per_image) - set(rows))
         if missing:
             raise CalibrationError(
-                f"{where}: no response for camera(s) {missing}; responses "
-                f"exist for {table['camera'].values.tolist()}"
+                f"{where}: no response for camera(s) {missing}; responses exist for {cameras.tolist()}"
             )
-        table = table.sel(camera=xr.DataArray(cameras, dims="image")).drop_vars("camera")
+        index = np.array([rows[c] for c in per_image], dtype=np.intp)
     else:
-        table = table.expand_dims(image=counts.sizes["image"])
-    table = table.drop_vars([c for c in table.coords if c not in ("code",)])
-    values = np.asarray(table.transpose("image", "channel", "code").values, dtype=np.float64)
+        table = table.expand_dims(camera=1)
+        index = np.zeros(counts.sizes["image"], dtype=np.intp)
+    values = np.asarray(table.transpose("camera", "channel", "code").values, dtype=np.float64)
     if not np.all(np.isfinite(values)):
         raise CalibrationError(f"{where}: the response contains NaN or inf")
-    return xr.DataArray(values, dims=("image", "channel", "code"))
+    return values, index, cameras
+
+
+CameraLevels = int | Mapping[int, int] | xr.DataArray
+"""A level [DN] for every camera (an int), or per camera: ``{camera: level}`` or a DataArray
+over ``camera``."""
+
+
+def camera_levels(
+    given: CameraLevels | None,
+    response: xr.Dataset | xr.DataArray,
+    cameras: np.ndarray | None,
+    name: str,
+    default: int,
+    where: str,
+) -> np.ndarray:
+    """``name`` (``"black_level"`` or ``"saturation"``) per row of the response tables.
+
+    ``given`` decides when set (an int overrides every camera); else the response group's
+    variable ``name`` over ``camera`` [DN] (``calibration/oecf_rgb``), else its attrs
+    ``black_levels`` (one per camera, in the order of its ``camera`` coord) for the black
+    level, else the attr ``name``, else ``default``.
+
+    Returns
+    -------
+    numpy.ndarray
+        int64 ``(len(cameras),)``, or ``(1,)`` when ``cameras`` is None.
+    """
+    n = 1 if cameras is None else len(cameras)
+    table = response["response"] if isinstance(response, xr.Dataset) else response
+    attrs = {**(response.attrs if isinstance(response, xr.Dataset) else {}), **table.attrs}
+    per_camera: xr.DataArray | None = None
+    if given is not None and not isinstance(given, Mapping | xr.DataArray):
+        return np.full(n, int(given), dtype=np.int64)
+    if isinstance(given, xr.DataArray):
+        per_camera = given
+    elif isinstance(given, Mapping):
+        per_camera = xr.DataArray(
+            [int(v) for v in given.values()], dims="camera", coords={"camera": list(given)}
+        )
+    elif isinstance(response, xr.Dataset) and name in response.data_vars:
+        per_camera = response[name]
+    elif name == "black_level" and attrs.get("black_levels") is not None and "camera" in table.dims:
+        per_camera = xr.DataArray(
+            np.asarray(attrs["black_levels"], dtype=np.int64),
+            dims="camera",
+            coords={"camera": table["camera"].values},
+        )
+    if per_camera is None:
+        return np.full(n, int(attrs.get(name, default)), dtype=np.int64)
+    if per_camera.dims == ():
+        return np.full(n, int(per_camera), dtype=np.int64)
+    if per_camera.dims != ("camera",):
+        raise SchemaError(
+            f"{where}: the {name} breaks the contract",
+            [Problem(name, "a level per camera, dims (camera,) [DN]", f"dims {per_camera.dims}")],
+        )
+    if cameras is None:
+        values = np.unique(np.asarray(per_camera.values))
+        if values.size != 1:
+            raise CalibrationError(
+                f"{where}: {name} differs per camera ({values.tolist()}) but the response has no "
+                "camera dim: give one response per camera, or one level"
+            )
+        return np.full(n, int(values[0]), dtype=np.int64)
+    known = set(np.asarray(per_camera["camera"].values).tolist())
+    missing = sorted(set(cameras.tolist()) - known)
+    if missing:
+        raise CalibrationError(
+            f"{where}: no {name} for camera(s) {missing}; it is given for {sorted(known)}"
+        )
+    return np.asarray(per_camera.sel(camera=cameras).values).astype(np.int64)
 
 
 def merge_hdr(
     raw_rgb: xr.Dataset,
     response: xr.Dataset | xr.DataArray,
     *,
-    black_level: int | None = None,
-    saturation: int | None = None,
+    black_level: CameraLevels | None = None,
+    saturation: CameraLevels | None = None,
     weighting: Weighting | None = None,
     chunks: Mapping[str, int] | None = None,
 ) -> xr.Dataset:
@@ -229,12 +342,19 @@ def merge_hdr(
         ``attrs["bit_depth"]`` (8..16). Per-image coords are carried over.
     response
         From :func:`spectralize.nodes.calibration.oecf.recover_oecf`: ``response`` over raw codes with
-        dims ``([camera,] [channel,] code)``. With a ``camera`` dim each image uses its
-        camera's response; without ``channel`` one response serves every channel.
-    black_level, saturation, weighting
-        Weighting (see :func:`spectralize.nodes.calibration.oecf.weighting_function`); defaults are the
-        response's attrs, else ``0``, ``2**bit_depth - 1`` and ``"gaussian"``. Samples at or
-        below ``black_level`` or at or above ``saturation`` get weight 0.
+        dims ``([camera,] [channel,] code)``, or the group ``calibration/oecf_rgb`` (a Dataset
+        with ``response`` and the levels per camera). With a ``camera`` dim each image uses
+        its camera's response; without ``channel`` one response serves every channel.
+    black_level, saturation
+        Samples at or below ``black_level`` or at or above ``saturation`` get weight 0 [DN].
+        An int holds for every camera; ``{camera: level}`` or a DataArray over ``camera``
+        per camera; ``None``: per camera from the response group (:func:`camera_levels`:
+        its ``black_level``/``saturation`` variables over ``camera``, else its attrs), else
+        ``0`` and ``2**bit_depth - 1``. Each image's codes are weighted with its own
+        camera's levels (cameras of other models have other black offsets).
+    weighting
+        Weighting (see :func:`spectralize.nodes.calibration.oecf.weighting_function`); default the
+        response's attr, else ``"gaussian"``.
     chunks
         Dask chunk sizes for ``image``, ``y``, ``x`` when ``raw_rgb`` is not already chunked;
         default ``{"image": 1, "y": 512, "x": 512}``. ``exposure`` and ``channel`` are never
@@ -246,7 +366,8 @@ def merge_hdr(
         Group ``hdr``: ``radiance`` (image, y, x, channel) float32, units ``"1"`` (relative
         radiance, in units of the response's normalisation per second of exposure), plus the
         per-image coords of ``raw_rgb``. Dask-backed (lazy) if ``raw_rgb`` was, else
-        computed. Attrs: ``method``, ``black_level``, ``saturation``, ``weighting``,
+        computed. Attrs: ``method``, ``black_level`` and ``saturation`` (an int when every
+        camera has the same, else one per camera of ``level_cameras``), ``weighting``,
         ``n_saturated``, ``n_underexposed``, ``n_unresolved`` (pixel-channels without any
         weighted sample: saturated in every exposure, dark in every exposure, other).
 
@@ -283,19 +404,26 @@ def merge_hdr(
     )
     n_codes = 2**depth
     table_da = response["response"] if isinstance(response, xr.Dataset) else response
-    attrs = table_da.attrs
-    black = int(attrs.get("black_level", 0) if black_level is None else black_level)
-    sat = int(attrs.get("saturation", n_codes - 1) if saturation is None else saturation)
+    attrs = {**(response.attrs if isinstance(response, xr.Dataset) else {}), **table_da.attrs}
     kind: Weighting = attrs.get("weighting", "gaussian") if weighting is None else weighting
-    if not 0 <= black < sat <= n_codes - 1:
-        raise CalibrationError(
-            f"{where}: need 0 <= black_level < saturation <= {n_codes - 1}, "
-            f"got black_level={black}, saturation={sat}"
-        )
-    weights = weighting_function(np.arange(n_codes), black_level=black, saturation=sat, kind=kind)
     times = raw_rgb["exposure_time"].transpose("image", "exposure")
     check_exposure_times(times, "exposure", f"{where}: raw/rgb")
-    table = _response_table(response, counts, n_codes, where)
+    tables, index, cameras = _response_table(response, counts, n_codes, where)
+    blacks = camera_levels(black_level, response, cameras, "black_level", 0, where)
+    sats = camera_levels(saturation, response, cameras, "saturation", n_codes - 1, where)
+    for row, (black, sat) in enumerate(zip(blacks.tolist(), sats.tolist(), strict=True)):
+        if not 0 <= black < sat <= n_codes - 1:
+            label = "" if cameras is None else f" (camera {cameras[row]})"
+            raise CalibrationError(
+                f"{where}: need 0 <= black_level < saturation <= {n_codes - 1}, "
+                f"got black_level={black}, saturation={sat}{label}"
+            )
+    weights = np.stack(
+        [
+            weighting_function(np.arange(n_codes), black_level=b, saturation=s, kind=kind)
+            for b, s in zip(blacks.tolist(), sats.tolist(), strict=True)
+        ]
+    )
 
     lazy = counts.chunks is not None
     if not lazy:
@@ -309,28 +437,21 @@ def merge_hdr(
     # input back (one image per chunk on disk, as a set's reads want it).
     image_chunks = counts.chunks[counts.get_axis_num("image")]
     counts = counts.chunk({"image": _image_block(counts)})
+    blocks = {"image": counts.chunks[0]}
+    row = xr.DataArray(index, dims="image").chunk(blocks)
 
-    # One pass for the checks and the counts that go into attrs. A pixel-channel saturated
-    # (or dark) in every exposure has no weighted sample; "other" ones mix both.
-    pixel_dims = ["y", "x"]
-    lo, hi, not_sat, not_dark, n_sat, n_dark, n_none = dask.compute(
-        counts.min(),
-        counts.max(),
-        (counts < sat).any(pixel_dims),
-        (counts > black).any(pixel_dims),
-        (counts >= sat).all("exposure").sum(),
-        (counts <= black).all("exposure").sum(),
-        (~((counts > black) & (counts < sat)).any("exposure")).sum(),
+    # One pass for the checks and the counts that go into attrs (none when the node's value
+    # check has just made it for the same series and levels)
+    frame_min, frame_max, n_sat, n_dark, n_none = series_summary(
+        raw_rgb["counts"], blacks[index], sats[index]
     )
     frame_dims = ("image", "exposure", "channel")
-    raise_for_frames(
-        int(lo),
-        int(hi),
-        not_sat.transpose(*frame_dims).values,
-        not_dark.transpose(*frame_dims).values,
+    raise_for_camera_frames(
+        frame_min,
+        frame_max,
         frame_dims=frame_dims,
-        black_level=black,
-        saturation=sat,
+        black_levels=blacks[index],
+        saturations=sats[index],
         max_code=n_codes - 1,
         where=f"{where}: raw/rgb:counts",
         times=times,
@@ -347,16 +468,15 @@ def merge_hdr(
             stacklevel=2,
         )
 
-    t = times.astype(np.float64).chunk({"image": counts.chunks[0]})
-    tab = table.chunk({"image": counts.chunks[0], "code": -1, "channel": -1})
+    t = times.astype(np.float64).chunk(blocks)
     radiance = xr.apply_ufunc(
-        merge_robertson,
+        _merge_block,
         counts,
         t,
-        tab,
-        input_core_dims=[["exposure"], ["exposure"], ["code"]],
+        row,
+        input_core_dims=[["exposure"], ["exposure"], []],
         output_core_dims=[[]],
-        kwargs={"weights": weights, "black_level": black, "saturation": sat},
+        kwargs={"tables": tables, "weights": weights, "black_levels": blacks, "saturations": sats},
         dask="parallelized",
         output_dtypes=[np.float32],
     ).transpose("image", "y", "x", "channel")
@@ -376,8 +496,7 @@ def merge_hdr(
         attrs={
             "method": "robertson2003",
             "bit_depth": int(depth),
-            "black_level": black,
-            "saturation": sat,
+            **_level_attrs(blacks, sats, cameras),
             "weighting": kind,
             "n_saturated": n_sat,
             "n_underexposed": n_dark,
@@ -387,16 +506,131 @@ def merge_hdr(
     return out
 
 
+_SUMMARY: dict[tuple, tuple] = {}
+"""The last lazy series :func:`series_summary` summarised (one entry): the node's value check
+and the node's function, called one after the other on the same raw/rgb, read it once."""
+
+
+def series_summary(
+    counts: xr.DataArray, black_levels: np.ndarray, saturations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int, int, int]:
+    """One pass over raw/rgb's ``counts``: what the merge checks and counts.
+
+    Parameters
+    ----------
+    counts
+        ``(image, exposure, y, x, channel)`` in any order, numpy or dask.
+    black_levels, saturations
+        (image,) each image's camera's levels [DN].
+
+    Returns
+    -------
+    tuple
+        ``(frame_min, frame_max, n_saturated, n_underexposed, n_no_sample)``: each frame's
+        extremes over ``(image, exposure, channel)`` and the pixel-channels saturated in every
+        exposure, at or below the black level in every exposure, and without any weighted
+        sample. Dask input is reduced per block of images (:data:`BLOCK_BYTES`), a few tasks
+        per block, not per image; the result is kept for the next call with the same dask
+        array and levels (the node's function after its value check), so raw/rgb is read
+        once for both.
+    """
+    key = None
+    if counts.chunks is not None:
+        key = (counts.data.name, black_levels.tobytes(), saturations.tobytes())
+        if key in _SUMMARY:
+            return _SUMMARY[key]
+    counts = counts.transpose(*_DIMS)
+    if counts.chunks is not None:
+        counts = counts.chunk({"exposure": -1, "channel": -1})
+        counts = counts.chunk({"image": _image_block(counts)})
+        blocks = {"image": counts.chunks[0]}
+        black = xr.DataArray(black_levels, dims="image").chunk(blocks)
+        sat = xr.DataArray(saturations, dims="image").chunk(blocks)
+    else:
+        black = xr.DataArray(black_levels, dims="image")
+        sat = xr.DataArray(saturations, dims="image")
+    frame_min, frame_max, n_sat, n_dark, n_none = dask.compute(
+        counts.min(["y", "x"]).data,
+        counts.max(["y", "x"]).data,
+        (counts >= sat).all("exposure").sum().data,
+        (counts <= black).all("exposure").sum().data,
+        (~((counts > black) & (counts < sat)).any("exposure")).sum().data,
+    )
+    # frame arrays (image, exposure, channel): the order of _DIMS without y, x
+    result = (np.asarray(frame_min), np.asarray(frame_max), int(n_sat), int(n_dark), int(n_none))
+    if key is not None:
+        _SUMMARY.clear()
+        _SUMMARY[key] = result
+    return result
+
+
+def _level_attrs(blacks: np.ndarray, sats: np.ndarray, cameras: np.ndarray | None) -> dict:
+    """The hdr group's level attrs: ints when every camera has the same, else lists per camera
+    (``level_cameras``)."""
+    if np.unique(blacks).size == 1 and np.unique(sats).size == 1:
+        return {"black_level": int(blacks[0]), "saturation": int(sats[0])}
+    return {
+        "black_level": [int(v) for v in blacks],
+        "saturation": [int(v) for v in sats],
+        "level_cameras": [] if cameras is None else [int(c) for c in cameras],
+    }
+
+
+def raise_for_camera_frames(
+    frame_min: np.ndarray,
+    frame_max: np.ndarray,
+    *,
+    frame_dims: Sequence[str],
+    black_levels: np.ndarray,
+    saturations: np.ndarray,
+    max_code: int,
+    where: str,
+    times: xr.DataArray | None = None,
+) -> None:
+    """:func:`~spectralize.nodes.calibration.exposure_series.raise_for_frames` with each
+    image's own camera's levels.
+
+    ``frame_min``/``frame_max`` are each frame's extremes over ``frame_dims`` (one of them
+    ``image``); ``black_levels``/``saturations`` (image,) the levels of each image's camera.
+    Values beyond the bit depth first, then entirely saturated frames, then entirely dark
+    ones, each for one level at a time (the message names the level the frame was held to).
+    """
+    axis = list(frame_dims).index("image")
+    shape = [1] * frame_min.ndim
+    shape[axis] = -1
+    lo, hi = int(frame_min.min()), int(frame_max.max())
+    everywhere = np.ones(frame_min.shape, dtype=bool)
+    black_levels, saturations = np.asarray(black_levels), np.asarray(saturations)
+    common = {"frame_dims": frame_dims, "max_code": max_code, "where": where, "times": times}
+    for rule in ("saturated", "dark"):
+        levels = saturations if rule == "saturated" else black_levels
+        for level in np.unique(levels).tolist():
+            other = np.broadcast_to((levels != level).reshape(shape), frame_min.shape)
+            if rule == "saturated":
+                flags = (frame_min < level) | other, everywhere
+                bounds = {"black_level": -1, "saturation": level}
+            else:
+                flags = everywhere, (frame_max > level) | other
+                bounds = {"black_level": level, "saturation": max_code + 1}
+            raise_for_frames(lo, hi, *flags, **bounds, **common)
+
+
 def merge_hdr_refusals(
-    raw_rgb: xr.Dataset, *, black_level: int | None, saturation: int | None
+    raw_rgb: xr.Dataset,
+    *,
+    black_level: CameraLevels | None,
+    saturation: CameraLevels | None,
+    response: xr.Dataset | None = None,
 ) -> list[SpectralizeError]:
     """What :func:`merge_hdr` refuses in raw/rgb before merging (its value check).
 
     The bit depth (8..16); exposure times positive, finite and strictly increasing per image;
     values within the bit depth; no frame entirely saturated (``>= saturation``, default
-    ``2**bit_depth - 1``); no frame entirely dark (``<= black_level``; not checked while the
-    response that gives the black level is not there yet: ``black_level=None``). The same
-    functions :func:`merge_hdr` raises from, with its names. One pass over the counts.
+    ``2**bit_depth - 1``); no frame entirely dark (``<= black_level``). The levels are each
+    image's camera's (:func:`camera_levels` from ``response``, the group
+    ``calibration/oecf_rgb``, unless given); while the response is not there yet and no black
+    level is given, the dark rule waits for it. The same functions :func:`merge_hdr` raises
+    from, with its names. One pass over the counts, a few tasks per block of images.
     """
     where = "merge_hdr"
     bits = raw_rgb.attrs.get("bit_depth", raw_rgb["counts"].attrs.get("bit_depth"))
@@ -404,26 +638,55 @@ def merge_hdr_refusals(
     if depth:
         return depth
     top = 2 ** int(bits) - 1  # type: ignore[call-overload]
-    sat = top if saturation is None else int(saturation)
-    black = -1 if black_level is None else int(black_level)
     counts = raw_rgb["counts"]
+    n_image = counts.sizes["image"]
+    found: list[SpectralizeError] = []
+    blacks, sats = np.full(n_image, -1), np.full(n_image, top)
+    if response is not None:
+        levels: list[np.ndarray] = []
+
+        def per_image() -> None:
+            tables, index, cameras = _response_table(response, counts, top + 1, where)
+            for given, name, default, into in (
+                (black_level, "black_level", 0, levels),
+                (saturation, "saturation", top, levels),
+            ):
+                into.append(camera_levels(given, response, cameras, name, default, where)[index])
+
+        found += refused(per_image)
+        if levels:
+            blacks, sats = levels
+    else:
+        if black_level is not None:
+            blacks = _levels_without_response(black_level, raw_rgb, n_image)
+        if saturation is not None:
+            sats = _levels_without_response(saturation, raw_rgb, n_image)
     times = raw_rgb["exposure_time"].transpose("image", "exposure")
-    found = refused(lambda: check_exposure_times(times, "exposure", f"{where}: raw/rgb"))
-    frame_dims = [d for d in counts.dims if d in ("image", "exposure", "channel")]
-    lo, hi, frame_min, frame_max = frame_extremes(
-        counts, [d for d in counts.dims if d not in frame_dims]
-    )
+    found += refused(lambda: check_exposure_times(times, "exposure", f"{where}: raw/rgb"))
+    if set(counts.dims) != set(_DIMS):
+        return found + refused(lambda: _validate(raw_rgb, where))
+    frame_min, frame_max, *_ = series_summary(counts, blacks, sats)
     return found + refused(
-        lambda: raise_for_frames(
-            lo,
-            hi,
-            frame_min < sat,
-            frame_max > black,
-            frame_dims=frame_dims,
-            black_level=black,
-            saturation=sat,
+        lambda: raise_for_camera_frames(
+            frame_min,
+            frame_max,
+            frame_dims=("image", "exposure", "channel"),
+            black_levels=blacks,
+            saturations=sats,
             max_code=top,
             where=f"{where}: raw/rgb:counts",
             times=times,
         )
     )
+
+
+def _levels_without_response(given: CameraLevels, raw_rgb: xr.Dataset, n_image: int) -> np.ndarray:
+    """Per image, levels given as an int or per camera (raw/rgb's ``camera`` coord)."""
+    if not isinstance(given, Mapping | xr.DataArray):
+        return np.full(n_image, int(given))
+    per_camera = (
+        dict(given)
+        if isinstance(given, Mapping)
+        else dict(zip(given["camera"].values.tolist(), given.values.tolist(), strict=True))
+    )
+    return np.array([int(per_camera[c]) for c in raw_rgb["camera"].values.tolist()])

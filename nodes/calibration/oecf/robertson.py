@@ -596,6 +596,7 @@ def recover_oecf(
     solver: Solver = "lanczos",
     operator: Operator = "auto",
     smooth: int | None = None,
+    frames_checked: bool = False,
 ) -> xr.Dataset:
     """Recover the camera response per camera and channel from exposure series (Robertson).
 
@@ -623,6 +624,9 @@ def recover_oecf(
         every exposure, image and channel); default all.
     seed
         Seed of that subset.
+    frames_checked
+        The caller has refused frames entirely saturated or dark already (on the same
+        values): skip that check here.
 
     Returns
     -------
@@ -707,15 +711,16 @@ def recover_oecf(
         np.arange(n_codes), black_level=black_level, saturation=saturation, kind=weighting
     )
     frame_dims = tuple(d for d in ("image", "exposure", "channel") if d in counts.dims)
-    check_frames(
-        counts,
-        frame_dims,
-        black_level=black_level,
-        saturation=saturation,
-        max_code=n_codes - 1,
-        where=where,
-        times=times,
-    )
+    if not frames_checked:
+        check_frames(
+            counts,
+            frame_dims,
+            black_level=black_level,
+            saturation=saturation,
+            max_code=n_codes - 1,
+            where=where,
+            times=times,
+        )
 
     if "image" not in counts.dims:
         counts = counts.expand_dims("image")
@@ -945,16 +950,25 @@ def recover_rgb_oecf(
         :func:`robertson_response`; ``None``: one unknown per code bin.
     tolerance, max_pixels
         See :func:`recover_oecf`; ``max_pixels`` is lowered for a camera with so many
-        images that images x positions exceed :data:`MAX_SAMPLES` (a full run's tiny frames).
+        images that images x positions exceed :data:`MAX_SAMPLES`.
+
+    Notes
+    -----
+    raw/rgb is read once: at most :data:`MAX_IMAGES` images per camera
+    (:func:`rgb_oecf_sample`, evenly spread over the camera's images in image order, so
+    deterministic), loaded camera by camera; the refusals (:func:`rgb_oecf_refusals`) and the
+    recovery run on those values. A run with fewer images per camera uses them all.
 
     Returns
     -------
     xarray.Dataset
         Group ``calibration/oecf_rgb``: ``response`` (camera, channel, code) float64
         [1], relative exposure per code normalised to 1 at the mid code; ``samples``
-        (camera, channel, code). Attrs ``bit_depth``, ``black_level`` (the lowest camera's,
-        for the HDR weighting), ``black_levels`` (per camera), ``saturation``, ``weighting``,
-        ``per_camera``, ``converged``, ``iterations``.
+        (camera, channel, code); ``black_level`` (camera) int [DN], each camera's own
+        black level, which the HDR merge weights that camera's images with. Attrs
+        ``bit_depth``, ``black_level`` (the lowest camera's), ``black_levels`` (per camera,
+        as the variable), ``saturation``, ``weighting``, ``per_camera``, ``converged``,
+        ``iterations``, ``sampled_images``.
 
     Raises
     ------
@@ -967,17 +981,22 @@ def recover_rgb_oecf(
     .. [1] Robertson, Borman, Stevenson 2003.
     .. [2] Fast Capture of Spectral Image Series, section 4.
     """
-    raise_first(rgb_oecf_refusals(raw_rgb, black_level=black_level))
+    # one read of raw/rgb: the sampled images (rgb_oecf_sample), camera by camera, in memory;
+    # the refusals and the recovery both run on these values
+    images = rgb_oecf_sample(raw_rgb)
+    loaded = _load_sample(raw_rgb, images)
+    raise_first(rgb_oecf_refusals(raw_rgb, black_level=black_level, sample=loaded))
     depth = int(raw_rgb.attrs["bit_depth"])
-    cameras = np.asarray(raw_rgb["camera"].values)
-    levels = camera_black_levels(raw_rgb) if black_level is None else {}
+    cameras = np.asarray(loaded["camera"].values)
+    levels = camera_black_levels(loaded) if black_level is None else {}
     levels = {int(c): levels.get(int(c), black_level) for c in np.unique(cameras)}
-    data = raw_rgb[["counts"]].assign_attrs(bit_depth=depth)
+    data = loaded[["counts"]].assign_attrs(bit_depth=depth)
     options = {
         "weighting": weighting,
         "tolerance": tolerance,
         "max_pixels": max_pixels,
         "smooth": smooth,
+        "frames_checked": True,
     }
     targets = [t for t in (colour_checker, white_reference) if t is not None and calibration_targets]
     own = {}  # one response per camera, each with its own black level (and target series)
@@ -998,7 +1017,7 @@ def recover_rgb_oecf(
             bool(r["response"].attrs.get("converged", True)) for r in own.values()
         )
     else:
-        pooled = data.drop_vars("camera")
+        pooled = data.drop_vars("camera")  # the sample, in memory
         result = recover_oecf(
             pooled, black_level=black_level, **{**options, "max_pixels": _capped(pooled, max_pixels)}
         )
@@ -1013,10 +1032,19 @@ def recover_rgb_oecf(
     response = response.transpose("camera", "channel", "code")
     samples = samples.transpose("camera", "channel", "code")
     attrs = dict(response.attrs)
+    per_camera_black = xr.DataArray(
+        np.array([int(levels[int(c)]) for c in response["camera"].values], dtype=np.int64),
+        dims="camera",
+        attrs={
+            "units": "DN",
+            "long_name": "black level: codes at or below it are under-exposed (weight 0)",
+        },
+    )
     out = xr.Dataset(
         {
             "response": response.assign_attrs(attrs),
             "samples": samples.assign_attrs(units="1", long_name="samples per code (0: interpolated)"),
+            "black_level": per_camera_black,
         },
         attrs={
             "bit_depth": depth,
@@ -1028,6 +1056,7 @@ def recover_rgb_oecf(
             "converged": bool(attrs.get("converged", True)),
             "iterations": int(attrs.get("iterations", 0)),
             "source": "raw/rgb",
+            "sampled_images": int(images.size),
         },
     )
     out["camera"].attrs.update(long_name="RGB camera index")
@@ -1141,14 +1170,60 @@ def default_black_level(raw_rgb: xr.Dataset) -> int:
     return black_level
 
 
-def rgb_oecf_refusals(raw_rgb: xr.Dataset, *, black_level: int | None = None) -> list[SpectralizeError]:
+MAX_IMAGES = 512
+"""Images per camera :func:`recover_rgb_oecf` reads at most (:func:`rgb_oecf_sample`).
+
+Robertson's estimate needs every code observed often, not every image: 512 images of a
+camera, spread over the run's light directions and rotations, give a full run of 32 x 32 px
+frames about 2 million samples per channel (4 exposures), some 500 per code at 12 bits. A run
+with more images per camera (a full run: 4,752) reads this many instead of all, so the
+node's read and time stop growing with the image count."""
+
+
+def rgb_oecf_sample(raw_rgb: xr.Dataset, max_images: int = MAX_IMAGES) -> np.ndarray:
+    """The raw/rgb images :func:`recover_rgb_oecf` reads: per camera at most ``max_images``.
+
+    Deterministic: of a camera's ``n`` images (in image order) those at the positions
+    ``round(linspace(0, n - 1, max_images))``, an even spread over the run (its rotations
+    and light directions); all of them when ``n <= max_images``.
+
+    Returns
+    -------
+    numpy.ndarray
+        Sorted image positions (int).
+    """
+    cameras = np.asarray(raw_rgb["camera"].values)
+    picked = []
+    for c in np.unique(cameras):
+        own = np.flatnonzero(cameras == c)
+        if own.size > max_images:
+            own = own[np.unique(np.round(np.linspace(0, own.size - 1, max_images)).astype(np.intp))]
+        picked.append(own)
+    return np.sort(np.concatenate(picked)) if picked else np.zeros(0, dtype=np.intp)
+
+
+def _load_sample(raw_rgb: xr.Dataset, images: np.ndarray) -> xr.Dataset:
+    """raw/rgb's ``counts`` of ``images``, in memory (one read), with its coords and attrs."""
+    sample = raw_rgb[["counts"]].isel(image=images)
+    counts = sample["counts"]
+    if counts.chunks is not None:  # a store's chunks of one image: read in blocks of images
+        block = max(1, (64 * 2**20) // max(1, counts.dtype.itemsize * counts[0].size))
+        sample = sample.chunk({"image": block})
+    return sample.load()
+
+
+def rgb_oecf_refusals(
+    raw_rgb: xr.Dataset, *, black_level: int | None = None, sample: xr.Dataset | None = None
+) -> list[SpectralizeError]:
     """What :func:`recover_rgb_oecf` refuses in raw/rgb before computing (its value check).
 
-    The bit depth (8..16); exposure times positive, finite and strictly increasing per image;
-    values within the bit depth; no frame entirely saturated; the black level
-    (:func:`default_black_level` when ``black_level`` is ``None``: computed from the data
-    here, so ``validate --flow`` applies the threshold the node applies); no frame entirely
-    dark (every value at or below it). One pass over the counts.
+    The bit depth (8..16); exposure times positive, finite and strictly increasing per image
+    (every image); and in the images the node reads (:func:`rgb_oecf_sample`): values within
+    the bit depth; no frame entirely saturated; each camera's black level
+    (:func:`camera_black_levels` when ``black_level`` is ``None``: from the data here, so
+    ``validate --flow`` applies the threshold the node applies); no frame entirely dark
+    (every value at or below its camera's black level). One pass over the sampled counts
+    (none when ``sample``, those images already in memory, is given).
 
     Returns
     -------
@@ -1162,34 +1237,53 @@ def rgb_oecf_refusals(raw_rgb: xr.Dataset, *, black_level: int | None = None) ->
     if depth:
         return depth
     saturation = 2 ** int(raw_rgb.attrs["bit_depth"]) - 1
-    counts, times = raw_rgb["counts"], raw_rgb["exposure_time"]
+    times = raw_rgb["exposure_time"]
     found = refused(lambda: check_exposure_times(times.transpose(..., "exposure"), "exposure", where))
+    if sample is None:
+        sample = raw_rgb[["counts"]].isel(image=rgb_oecf_sample(raw_rgb))
+    counts = sample["counts"]
+    if counts.chunks is not None:  # reduced per block of images (a store's chunks: one image)
+        counts = counts.chunk({"image": 256})
     frame_dims = [d for d in counts.dims if d in ("image", "exposure", "channel")]
     lo, hi, frame_min, frame_max = frame_extremes(
         counts, [d for d in counts.dims if d not in frame_dims]
     )
+    sample_times = sample["exposure_time"]
+    cameras = np.asarray(sample["camera"].values)
+    shape = [1] * frame_max.ndim
+    shape[frame_dims.index("image")] = -1
 
-    def frames(black: int) -> None:
+    def frames(black: int, camera: int | None = None) -> None:
+        other = True if camera is None else (cameras != camera).reshape(shape)
         raise_for_frames(
             lo,
             hi,
             frame_min < saturation,
-            frame_max > black,
+            (frame_max > black) | other,
             frame_dims=frame_dims,
             black_level=black,
             saturation=saturation,
             max_code=saturation,
             where=f"{where}:counts",
-            times=times,
+            times=sample_times,
         )
 
     bright = refused(lambda: frames(-1))  # saturated frames first: they decide the black level
     if bright:
         return found + bright
-    levels: list[int] = []
-    found += refused(
-        lambda: levels.append(default_black_level(raw_rgb) if black_level is None else black_level)
-    )
-    if levels:
-        found += refused(lambda: frames(levels[0]))
+    levels: dict[int, int] = {}
+    if black_level is None:
+        found += refused(lambda: levels.update(camera_black_levels(_in_memory(sample, raw_rgb))))
+    else:
+        levels = {int(c): int(black_level) for c in np.unique(cameras)}
+    for camera, level in levels.items():
+        dark = refused(lambda c=camera, b=level: frames(b, c))
+        if dark:
+            return found + dark
     return found
+
+
+def _in_memory(sample: xr.Dataset, raw_rgb: xr.Dataset) -> xr.Dataset:
+    """The sample with raw/rgb's attrs (black_level_dn, bit_depth); its counts loaded only
+    where :func:`default_black_level` reads them (a few shortest exposures per camera)."""
+    return sample.assign_attrs({**raw_rgb.attrs, **sample.attrs})
