@@ -5,8 +5,9 @@ a pixel, dim, glossy, metamers placed apart, band SNR at or below 1), each with 
 seeds, as a single image with all 32 band shots and as a 20-image BTF-like set (10 images
 with bands, 10 without). The sets are given the scene's true illuminant (the simulation's
 LED, :func:`~spectralize.nodes.simulation.scenes.materials.sharp_led`, as a run's
-calibration would measure it), and the default runs on them a second time with the set model
-``"shared-texel"`` (:data:`SET_VARIANTS`), side by side with the plain default. Per
+calibration would measure it), and the default runs on them again with the set models
+``"shared-texel"`` and ``"material-pooled"`` (:data:`SET_VARIANTS`), side by side with the
+plain default. Per
 method: median, p95, p99 and the fraction under 0.03 of the per-pixel nRMSE (RMSE over
 bands / the image's mean truth, paper Fig. 5), for a set also split into images with and
 without band shots; wall time, iterations, tracemalloc peak,
@@ -37,9 +38,13 @@ BASELINES = tuple(BASELINE_METHODS)
 RGB_ONLY_BASELINES = ("wiener", "mallett2019", "pseudo-inverse")
 """The baselines that use the RGB alone (no band shot)."""
 
-SET_VARIANTS = {f"{DEFAULT_METHOD}+shared-texel": (DEFAULT_METHOD, {"set_model": "shared-texel"})}
-"""Extra set rows: a name -> (method, options); the default with the set model that shares
-a texel's spectral shapes across the set's images (issue 29, part 2)."""
+SET_VARIANTS = {
+    f"{DEFAULT_METHOD}+{model}": (DEFAULT_METHOD, {"set_model": model})
+    for model in ("shared-texel", "material-pooled")
+}
+"""Extra set rows: a name -> (method, options); the default with the set models that share
+a texel's spectral shapes across the set's images and a material's shape across its texels'
+band shots (issue 29, part 2)."""
 
 TARGETS = {
     # issue 29, on every row (scene x mode, the worse seed)
@@ -278,7 +283,7 @@ def run_suite(
         "targets": TARGETS,
         "set_variants": {name: {"method": m, **o} for name, (m, o) in SET_VARIANTS.items()},
         "note_set_illuminant": "sets are given the scene's true illuminant (simulated: the LED "
-        "the scene is rendered under), which set_model='shared-texel' needs",
+        "the scene is rendered under), which set_model='shared-texel' and 'material-pooled' need",
         "note_paper_cg_sets": None
         if paper_cg_sets
         else "paper-cg is left out of the sets (about 1500 unpreconditioned iterations, ~8 min "

@@ -24,6 +24,7 @@ import xarray as xr
 from spectralize.schemas.errors import ReconstructionError
 
 from .confidence import CONFIDENCE_NEIGHBOURS, neighbourhood_spread
+from .estimators.material_pooled import material_pooled_refine
 from .estimators.shared_texel import shared_texel_refine
 from .inputs import ReconstructionInputs, inputs_from_xarray
 from .methods import (
@@ -275,12 +276,13 @@ def _initial_cube(initial: xr.DataArray | None, inputs: ReconstructionInputs) ->
 
 def _set_model_applies(set_model: str, inputs: ReconstructionInputs, method: str) -> bool:
     """Whether ``set_model`` refits the solver's spectra (a set of more than one image);
-    raises for ``"shared-texel"`` on a set without the illuminant, before any solve."""
-    if set_model != "shared-texel" or inputs.n_image < 2:
+    raises for ``"shared-texel"`` or ``"material-pooled"`` on a set without the illuminant,
+    before any solve."""
+    if set_model == "independent" or inputs.n_image < 2:
         return False  # one image: nothing to share
     if inputs.illuminant is None:
         raise ReconstructionError(
-            f"set_model: 'shared-texel' (method {method!r}) needs the illuminant L, the "
+            f"set_model: {set_model!r} (method {method!r}) needs the illuminant L, the "
             f"spectrum of the set's highlights, on the {inputs.n_wavelength} band wavelengths; "
             "found none: pass reconstruct(..., illuminant=L) (e.g. a calibration's "
             "'illuminant', dims (wavelength,)) or use set_model='independent'"
@@ -346,7 +348,7 @@ def reconstruct(
         ``(wavelength,)`` with a ``wavelength`` coordinate [nm] (a calibration's
         ``illuminant``; interpolated onto the bands' wavelengths) or one value per band
         wavelength (:func:`~.inputs.inputs_from_xarray`). Needed by
-        ``set_model="shared-texel"`` on a set, unused otherwise.
+        ``set_model="shared-texel"`` or ``"material-pooled"`` on a set, unused otherwise.
     full_output
         Return a :class:`ReconstructionResult` (spectra, iterations, residual history,
         timings, the problem, the confidence) instead of the spectra alone.
@@ -380,8 +382,11 @@ def reconstruct(
         setting, or ``"shared-texel"``: on a set of more than one image, refit the solver's
         spectra with per-texel spectral shapes shared by the set's images, a per-image
         shading and a highlight in the illuminant's spectrum,
-        :func:`~.estimators.shared_texel.shared_texel_refine` with its defaults; needs
-        ``illuminant``; a single image is left as solved); the PCG solvers also ``dtype``,
+        :func:`~.estimators.shared_texel.shared_texel_refine` with its defaults; or
+        ``"material-pooled"``: one shape per material, the texels clustered by their shapes
+        and each material's shape fitted to its texels' pooled band shots,
+        :func:`~.estimators.material_pooled.material_pooled_refine` with its defaults; both
+        need ``illuminant``; a single image is left as solved); the PCG solvers also ``dtype``,
         ``ridge``, ``prior`` (the guided prior's weight) and ``precondition``, the prior
         PCG the spectral prior's settings (:func:`~.solvers.prior_pcg.prior_pcg`).
         Baselines: ``"wiener"`` takes ``relative_noise``, ``"guided-projected"``
@@ -444,7 +449,10 @@ def reconstruct(
         set_model_time = 0.0
         if refit:  # the set model: a texel's spectral shapes shared by the set's images
             refit_started = time.perf_counter()
-            cube = shared_texel_refine(inputs, cube, inputs.illuminant)
+            refine = (
+                shared_texel_refine if used["set_model"] == "shared-texel" else material_pooled_refine
+            )
+            cube = refine(inputs, cube, inputs.illuminant)
             set_model_time = time.perf_counter() - refit_started
         wall_time = time.perf_counter() - started
         weights = problem.weights

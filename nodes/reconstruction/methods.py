@@ -78,11 +78,14 @@ SETUP_OPTIONS: Mapping[str, inspect.Parameter] = MappingProxyType(
 ``normalize_camera_matrix``, ``appearance``, ``scale_invariant``."""
 
 
-SET_MODELS = ("independent", "shared-texel")
+SET_MODELS = ("independent", "shared-texel", "material-pooled")
 """The values of a solver's ``set_model`` setting: ``"independent"`` keeps the solver's
 spectra; ``"shared-texel"`` refits a set of more than one image with per-texel spectral
-shapes shared by its images (:func:`~.estimators.shared_texel.shared_texel_refine`, which
-needs the illuminant; :func:`~spectralize.nodes.reconstruction.reconstruct`)."""
+shapes shared by its images (:func:`~.estimators.shared_texel.shared_texel_refine`);
+``"material-pooled"`` refits it with one shape per material (texels clustered by their
+shapes), fitted to the pooled band shots of the material's texels
+(:func:`~.estimators.material_pooled.material_pooled_refine`). Both need the illuminant
+(:func:`~spectralize.nodes.reconstruction.reconstruct`)."""
 
 SET_MODEL_OPTIONS: Mapping[str, inspect.Parameter] = MappingProxyType(
     {"set_model": inspect.Parameter("set_model", inspect.Parameter.KEYWORD_ONLY, default="independent")}
@@ -325,8 +328,9 @@ reason:
     The default's spectral prior on its own: non-iterative, several times faster, close
     to the default at the median.
 
-Every solver preset's ``set_model`` is ``"independent"``; ``"shared-texel"`` (opt-in,
-needs the illuminant) refits a set's spectra after the solve (:data:`SET_MODELS`).
+Every solver preset's ``set_model`` is ``"independent"``; ``"shared-texel"`` and
+``"material-pooled"`` (opt-in, need the illuminant) refit a set's spectra after the solve
+(:data:`SET_MODELS`).
 
 Retired: ``"material-prior-pcg"``, the prior PCG without the spectral prior, never best on
 the benchmark; it is ``method="spectral-prior-pcg", spectral_prior=0``. The figures are in

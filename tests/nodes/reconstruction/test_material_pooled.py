@@ -1,0 +1,137 @@
+"""Tests of the material-pooled refinement (one shape per material, pooled band shots)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spectralize.nodes.reconstruction import inputs_from_xarray, reconstruct
+from spectralize.nodes.reconstruction.estimators.material_pooled import (
+    material_clusters,
+    material_pooled_refine,
+)
+from spectralize.nodes.reconstruction.estimators.shared_texel import shared_texel_refine
+from spectralize.nodes.reconstruction.inputs import ReconstructionInputs
+from spectralize.schemas import ReconstructionError
+
+from .conftest import camera_matrix_for, make_scene, smooth_spectra
+
+WAVELENGTH = np.arange(420.0, 701.0, 20.0)
+C = camera_matrix_for(WAVELENGTH)
+LIGHT = np.exp(-0.5 * ((WAVELENGTH - 560.0) / 60.0) ** 2) + 0.2
+
+
+def _two_material_set(seed: int = 0, *, size: int = 16, n_image: int = 8, snr: float = 3.0):
+    """Two materials scattered over the texels, shaded and lit per texel and image, a
+    highlight ``h_m L`` on some; every band shot once (round-robin over the first half of
+    the images) with noise ``1 / snr`` of the mean band value. The initial estimate has the
+    error a solver shares over a material: each material's spectrum tilted the same way in
+    every texel and image, and a little per-texel error."""
+    rng = np.random.default_rng(seed)
+    n_w, n = WAVELENGTH.size, size * size
+    materials = smooth_spectra(rng, WAVELENGTH, 2) * LIGHT  # (2, w) radiance shapes
+    label = rng.integers(0, 2, size=n)
+    shade = rng.uniform(0.4, 1.4, size=(n_image, n))
+    gloss = rng.uniform(0.0, 0.3, size=(n_image, n)) * (rng.random((n_image, n)) < 0.2)
+    truth = shade[:, None, :] * materials[label].T[None] + gloss[:, None, :] * LIGHT[None, :, None]
+    truth = truth.reshape(n_image, n_w, size, size)
+    band = np.arange(n_w)
+    image = band % (n_image // 2)
+    sigma = np.full(n_w, float(truth.mean()) / snr)
+    data = truth[image, band] + sigma[:, None, None] * rng.normal(size=(n_w, size, size))
+    inputs = ReconstructionInputs(
+        rgb=np.einsum("cw,mwyx->myxc", C, truth),
+        band_data=data.astype(np.float32),
+        band=band,
+        image=image,
+        filter_size=np.full(n_w, 1.0),
+        camera_matrix=C,
+        wavelength=WAVELENGTH,
+    )
+    tilt = 1.0 + 0.25 * rng.uniform(-1, 1, size=(2, n_w))  # per material, shared by its texels
+    texel = 1.0 + 0.03 * rng.normal(size=(n, n_w))
+    initial = truth * (tilt[label] * texel).T.reshape(1, n_w, size, size)
+    cube = lambda x: np.ascontiguousarray(np.moveaxis(x, 0, 1))  # noqa: E731  (w, m, y, x)
+    return inputs, cube(truth), cube(initial), sigma, label.reshape(size, size)
+
+
+def _nrmse(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Per texel and image, RMSE over wavelengths / the image's mean truth."""
+    rmse = np.sqrt(np.mean((estimate - truth) ** 2, axis=0))
+    return rmse / truth.mean(axis=(0, 2, 3))[:, None, None]
+
+
+def test_pooling_a_material_puts_more_texels_under_0_03_than_shared_texel():
+    inputs, truth, initial, sigma, _ = _two_material_set(0)
+    shared = shared_texel_refine(inputs, initial, LIGHT, misfit=None, band_sigma=sigma)
+    pooled = material_pooled_refine(inputs, initial, LIGHT, clusters=2, band_sigma=sigma)
+    e_shared, e_pooled = _nrmse(shared, truth), _nrmse(pooled, truth)
+    assert pooled.shape == truth.shape and np.all(pooled >= 0)
+    fraction_shared, fraction_pooled = np.mean(e_shared < 0.03), np.mean(e_pooled < 0.03)
+    assert fraction_pooled > fraction_shared + 0.3, (fraction_shared, fraction_pooled)
+    assert np.median(e_pooled) < 0.5 * np.median(e_shared), (np.median(e_shared), np.median(e_pooled))
+
+
+def test_clusters_find_the_two_materials_despite_shading_and_highlights():
+    _, truth, _, _, label = _two_material_set(1, snr=1e6)
+    # each texel's spectrum in its least glossy image, at its own scale
+    spectra = truth.reshape(truth.shape[0], truth.shape[1], -1)
+    shapes = spectra[:, np.argmin(spectra.sum(axis=0), axis=0), np.arange(spectra.shape[2])].T
+    found = material_clusters(shapes, clusters=2)
+    agree = np.mean(found == label.ravel())
+    assert max(agree, 1 - agree) > 0.95, agree
+
+
+def test_with_noise_free_shots_and_true_labels_it_recovers_the_set():
+    inputs, truth, initial, sigma, label = _two_material_set(2, snr=1e6)
+    # the shots weighted as if at SNR 20 (far heavier weights leave each image's scale to
+    # the shots alone, and the alternation does not move)
+    out = material_pooled_refine(inputs, initial, LIGHT, labels=label, band_sigma=sigma * 5e4)
+    assert np.median(_nrmse(out, truth)) < 0.01
+    before = np.median(_nrmse(initial, truth))
+    assert before > 0.05, before
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ("initial", r"initial: expected shape"),
+        ("highlight", r"highlight: expected shape"),
+        ("clusters", r"clusters: expected >= 1, found 0"),
+        ("labels", r"labels: expected \(16, 16\) ints >= 0"),
+    ],
+)
+def test_bad_input_is_named(change, message):
+    inputs, _, initial, sigma, label = _two_material_set(3)
+    kwargs = {"band_sigma": sigma}
+    light = LIGHT
+    if change == "initial":
+        initial = initial[:, :2]
+    elif change == "highlight":
+        light = LIGHT[:3]
+    elif change == "clusters":
+        kwargs["clusters"] = 0
+    else:
+        kwargs["labels"] = label[:4]
+    with pytest.raises(ReconstructionError, match=message):
+        material_pooled_refine(inputs, initial, light, **kwargs)
+
+
+def test_the_set_model_is_the_solve_then_the_refinement():
+    scene = make_scene(size=14, n_wavelength=6, n_images=3, shading=True, noise=0.1, seed=3)
+    args = (scene.rgb, scene.bands, scene.camera_matrix)
+    wavelength = np.asarray(scene.camera_matrix["wavelength"].values, dtype=float)
+    light = np.exp(-0.5 * ((wavelength - 560.0) / 70.0) ** 2) + 0.2
+    plain = reconstruct(*args, illuminant=light, full_output=True, confidence=False)
+    pooled = reconstruct(
+        *args, illuminant=light, set_model="material-pooled", full_output=True, confidence=False
+    )
+    assert pooled.spectra.attrs["set_model"] == "material-pooled"
+    assert pooled.spectra.attrs["set_model_time_s"] >= 0
+    inputs = inputs_from_xarray(*args, illuminant=light)
+    direct = material_pooled_refine(inputs, np.moveaxis(plain.spectra.values, 0, 1), light)
+    np.testing.assert_allclose(
+        pooled.spectra.values, np.moveaxis(direct, 0, 1).astype(np.float32), rtol=1e-5, atol=1e-6
+    )
+    with pytest.raises(ReconstructionError, match="'material-pooled'.*needs the illuminant.*found none"):
+        reconstruct(*args, set_model="material-pooled")
