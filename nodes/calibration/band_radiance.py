@@ -20,13 +20,18 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 
+from spectralize.nodes.calibration.exposure_series import frame_chunks
 from spectralize.nodes.calibration.matched_level_qe import matched_quantum_efficiency
 from spectralize.nodes.calibration.registration import register_frames
 from spectralize.nodes.calibration.spectral import band_signal, shot_levels
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
 
-__all__ = ["calibrate_bands", "led_power_gain"]
+__all__ = ["calibrate_bands", "led_power_gain", "WRITE_SHOTS"]
+
+WRITE_SHOTS = 8
+"""Shots per chunk of the ``bands`` group (float32: 134 MB at 2048^2), computed one shot at
+a time whatever the chunks of raw/spectral (the store's may hold every shot of a run in one)."""
 
 
 def led_power_gain(raw_spectral: xr.Dataset) -> np.ndarray:
@@ -152,10 +157,10 @@ def calibrate_bands(
             "calibration/spectral:quantum_efficiency is not positive at "
             f"{wavelengths[~(q_shot.values > 0)].tolist()} nm"
         )
-    counts = raw_spectral["counts"]
-    if counts.chunks is None:
-        counts = counts.chunk({"shot": 8})
-    counts = counts.chunk({"y": -1, "x": -1})
+    # shot by shot: every float64 step (dark subtraction, the response's lookup) holds one
+    # frame per thread, not the stored chunk of shots (32 float64 shots are 1.1 GB at 2048^2
+    # and the lookup makes several such: issue 27); written WRITE_SHOTS float32 shots a chunk
+    counts = frame_chunks(raw_spectral["counts"], ("shot",))
     signal = band_signal(raw_spectral.assign(counts=counts), dark, response=oecf_spectral)
     matched = "qe_by_level" in spectral and spectral.attrs.get("matched_levels", True)
     if matched:  # Q of the white reference at each shot's own level (one pass over the shots)
@@ -170,9 +175,8 @@ def calibrate_bands(
         )
     gain = led_power_gain(raw_spectral) if led_power else np.ones(wavelengths.size)
     radiance = (signal * xr.DataArray(gain, dims="shot") / q_shot).astype(np.float32)
-    if radiance.chunks is not None:
-        radiance = radiance.chunk({"y": -1, "x": -1})
     radiance = register_frames(radiance, registration["shift"], order=order)
+    radiance = radiance.chunk({"shot": WRITE_SHOTS})
     keep = [c for c in raw_spectral.coords if raw_spectral[c].dims == ("shot",)]
     radiance = radiance.drop_vars([c for c in radiance.coords if c not in keep])
     radiance = radiance.assign_attrs(

@@ -11,7 +11,8 @@ checked here, once:
 - :func:`frame_extremes`, :func:`frame_flags`, :func:`check_frames`: frames entirely saturated
   or entirely dark carry no information;
 - :func:`saturated_frames`: frames with at least one pixel at the ADC's maximum code;
-- :func:`target_spectral_series`: the per-band exposure series of a calibration target;
+- :func:`target_spectral_series`: the per-band exposure series of a calibration target,
+  lazy in chunks of one frame (:func:`frame_chunks`);
 - :func:`refused`, :func:`raise_first`, :func:`target_series_refusals`: the checks as the
   nodes' value checks (``Node.check``) return them, and as the node functions raise them.
 
@@ -47,6 +48,7 @@ __all__ = [
     "check_frames",
     "saturated_frames",
     "target_spectral_series",
+    "frame_chunks",
     "refused",
     "raise_first",
     "target_series_refusals",
@@ -338,8 +340,12 @@ def target_spectral_series(target: xr.Dataset, group: str) -> tuple[xr.DataArray
     Returns
     -------
     tuple
-        The counts loaded in memory with coord ``spectral_exposure_time`` (float, [s]) and the
-        spectral camera's bit depth (``attrs["spectral_bit_depth"]``, checked 8..16).
+        The counts, lazy (dask) in chunks of one frame (one band and exposure, the whole
+        ``y``, ``x``), with coord ``spectral_exposure_time`` (float, [s]), and the spectral
+        camera's bit depth (``attrs["spectral_bit_depth"]``, checked 8..16). Nothing is read
+        here: the callers reduce the series chunk by chunk (per-frame means, maxima), so the
+        memory a target series needs is a few frames, not bands x exposures x frame (a
+        2048^2 series of 32 bands and 13 exposures is 3.5 GB of uint16, issue 27).
     """
     depth = check_bit_depth(
         target.attrs.get("spectral_bit_depth"), where=f"{group}.attrs['spectral_bit_depth']"
@@ -351,7 +357,19 @@ def target_spectral_series(target: xr.Dataset, group: str) -> tuple[xr.DataArray
             np.asarray(target["spectral_exposure_time"].values, float),
         )
     )
-    return counts.load(), depth
+    return frame_chunks(counts, ("wavelength", "spectral_exposure")), depth
+
+
+def frame_chunks(array: xr.DataArray, frame_dims: Sequence[str]) -> xr.DataArray:
+    """``array`` as dask chunks of one frame each: 1 along ``frame_dims``, whole ``y``, ``x``.
+
+    Numpy-backed input is wrapped without a copy; every computation on the result then
+    holds a few frames at a time instead of the whole stack (issue 27: no node above 8 GB
+    at 2048^2, where a float64 frame is 34 MB and a 32-band stack 1.1 GB).
+    """
+    chunks: dict[str, int] = {d: 1 for d in frame_dims if d in array.dims}
+    chunks |= {d: -1 for d in ("y", "x") if d in array.dims}
+    return array.chunk(chunks)
 
 
 def refused(*checks: Callable[[], object]) -> list[SpectralizeError]:

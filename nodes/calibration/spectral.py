@@ -27,6 +27,7 @@ import json
 from collections.abc import Mapping, Sequence
 from typing import Annotated
 
+import dask
 import numpy as np
 import xarray as xr
 from pydantic import Field
@@ -40,6 +41,7 @@ from spectralize.nodes.calibration.camera_lobes import (
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import (
     check_bit_depth,
+    frame_chunks,
     frame_flags,
     saturated_frames,
     target_spectral_series,
@@ -107,8 +109,21 @@ def _dark_for_shots(
         dim="shot",
         frame_shape=(counts.sizes["y"], counts.sizes["x"]),
     )
-    frames = frames.drop_vars("exposure_time").transpose("shot", "y", "x")
-    return frames["mean"], frames["std"] if "std" in frames else None
+    # the same frames, taken lazily from ``dark`` one per shot: no (shot, y, x) copy of the
+    # dark frames is made (32 shots at 2048^2 would be 0.5 GB of float32 per variable), and
+    # each shot's frame is a chunk of its own
+    source = dark if isinstance(dark, xr.Dataset) else xr.Dataset({"mean": dark})
+    known = np.asarray(source["exposure_time"].values, dtype=np.float64)
+    positions = [int(np.flatnonzero(known == t)[0]) for t in frames["exposure_time"].values]
+
+    def per_shot(name: str) -> xr.DataArray:
+        stack = source[name].transpose("exposure_time", "y", "x")
+        stack = stack.drop_vars([c for c in stack.coords if "exposure_time" in stack[c].dims])
+        if stack.chunks is None:
+            stack = stack.chunk()  # wrap, no copy: the shots' frames are slices of it
+        return xr.concat([stack.isel(exposure_time=p) for p in positions], dim="shot")
+
+    return per_shot("mean"), per_shot("std") if "std" in frames else None
 
 
 def band_signal(
@@ -286,12 +301,15 @@ def quantum_efficiency(
     part = counts.isel(region)
     if part.sizes["y"] * part.sizes["x"] == 0:
         raise CalibrationError(f"{where}: the roi {region} selects no pixel")
-    raw_dn = part.astype(np.float64) - mean.isel(region)
-    level = np.asarray(raw_dn.mean(("y", "x")).values)
-    if std is not None:
-        noise = np.asarray(std.isel(region).mean(("y", "x")).values, dtype=np.float64)
-    else:
-        noise = np.asarray(raw_dn.std(("y", "x")).values, dtype=np.float64)
+    # one shot at a time: every reduction below reads the shots chunk by chunk (a float64
+    # copy of 32 shots is 1.1 GB at 2048^2, the response's lookup needs several)
+    part = frame_chunks(part, ("shot",))
+    dark_part = frame_chunks(mean.isel(region), ("shot",))
+    raw_dn = part.astype(np.float64) - dark_part
+    spread = std.isel(region).mean(("y", "x")) if std is not None else raw_dn.std(("y", "x"))
+    level_, noise_ = dask.compute(raw_dn.mean(("y", "x")), spread)
+    level = np.asarray(level_.values)
+    noise = np.asarray(noise_.values, dtype=np.float64)
     snr = level / np.maximum(noise, 1e-12)
     wavelengths = np.asarray(counts["wavelength"].values, dtype=np.float64)
     for i in np.flatnonzero(~(snr >= min_snr)):
@@ -301,7 +319,7 @@ def quantum_efficiency(
             f"signal {level[i]:.3g} DN above dark vs noise {noise[i]:.3g} DN (SNR "
             f"{snr[i]:.3g} < min_snr {min_snr}); use a longer exposure or more light"
         )
-    signal = _linearise(part, mean.isel(region), response, where)
+    signal = _linearise(part, dark_part, response, where)
     per_shot = np.asarray(signal.mean(("y", "x")).values, dtype=np.float64)
     rho = _on_wavelengths(reflectance, wavelengths, "reflectance", where)
     light = _on_wavelengths(illuminant, wavelengths, "illuminant", where)
@@ -628,10 +646,40 @@ def patch_means(
         )
     if names is not None and len(names) != n:
         raise CalibrationError(f"patch_means: {len(names)} names for {n} patches")
-    label_da = xr.DataArray(lab, dims=("y", "x"))
-    means = [data.where(label_da == k).mean(("y", "x")) for k in range(n)]
-    out = xr.concat(means, dim="patch")
+    others = [d for d in data.dims if d not in ("y", "x")]
+    # the dtype a mean keeps (float32 stays float32, as xarray's mean); summed in float64
+    dtype = data.dtype if np.issubdtype(data.dtype, np.floating) else np.dtype(np.float64)
+    if data.chunks is not None:  # whole frames per chunk: the sums of a chunk are its patches'
+        data = data.chunk({"y": -1, "x": -1})
+    out = xr.apply_ufunc(
+        _patch_means,
+        data,
+        kwargs={"labels": lab, "n": n, "dtype": dtype},
+        input_core_dims=[["y", "x"]],
+        output_core_dims=[["patch"]],
+        dask="parallelized",
+        output_dtypes=[dtype],
+        dask_gufunc_kwargs={"output_sizes": {"patch": n}},
+    )
+    out = out.transpose("patch", *others)
     return out.assign_coords(patch=list(names) if names is not None else np.arange(n))
+
+
+def _patch_means(values: np.ndarray, labels: np.ndarray, n: int, dtype: np.dtype) -> np.ndarray:
+    """Per patch ``0..n-1`` the mean of ``values`` (..., y, x) over its pixels (NaN skipped,
+    as ``mean(skipna=True)``; NaN where a patch has no finite value): one ``bincount`` per
+    frame instead of a masked copy of the frame per patch."""
+    inside = labels >= 0
+    index = labels[inside]
+    frames = values.reshape(-1, *labels.shape)
+    out = np.empty((frames.shape[0], n))
+    for i, frame in enumerate(frames):
+        picked = frame[inside]
+        ok = ~np.isnan(picked)
+        sums = np.bincount(index[ok], weights=picked[ok], minlength=n)
+        counts = np.bincount(index[ok], minlength=n)
+        out[i] = np.divide(sums, counts, out=np.full(n, np.nan), where=counts > 0)
+    return out.reshape(*values.shape[:-2], n).astype(dtype, copy=False)
 
 
 def predict_rgb(spectra: xr.DataArray, camera_matrix: xr.Dataset | xr.DataArray) -> xr.DataArray:
@@ -752,11 +800,11 @@ def cross_validate(
 def _shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int, group: str) -> xr.DataArray:
     """One frame per band: ``counts[band, picks[band]]`` as (shot, y, x) band shots."""
     times = counts["spectral_exposure_time"].values[picks]
-    frames = counts.isel(
-        wavelength=xr.DataArray(np.arange(picks.size), dims="shot"),
-        spectral_exposure=xr.DataArray(picks, dims="shot"),
+    bare = counts.drop_vars(list(counts.coords))
+    # one slice per band (lazy on a lazy series: each shot a chunk of its own, read when used)
+    frames = xr.concat(
+        [bare.isel(wavelength=k, spectral_exposure=int(e)) for k, e in enumerate(picks)], dim="shot"
     )
-    frames = frames.drop_vars(list(frames.coords))
     return frames.assign_coords(
         wavelength=("shot", counts["wavelength"].values.astype(float), {"units": "nm"}),
         exposure_time=("shot", times, {"units": "s"}),
@@ -873,19 +921,22 @@ def _white_levels(
     n_bands, n_exposures = top.shape
     signal = np.full(top.shape, np.nan)
     usable = np.zeros(top.shape, dtype=bool)
+    reductions = {}  # per exposure: (above dark, noise, linearised signal) per band, lazy
     for e in range(n_exposures):
         shots = _shot_frames(counts, np.full(n_bands, e), depth, group)
         try:
             mean, std = _dark_for_shots(dark, shots, group)
         except CalibrationError:
             continue
-        above = np.asarray((shots.astype(np.float64) - mean).mean(("y", "x")).values)
-        noise = (
-            np.asarray(std.mean(("y", "x")).values)
-            if std is not None
-            else np.asarray((shots.astype(np.float64) - mean).std(("y", "x")).values)
-        )
-        signal[:, e] = np.asarray(_linearise(shots, mean, response, group).mean(("y", "x")).values)
+        above = shots.astype(np.float64) - mean
+        noise = std.mean(("y", "x")) if std is not None else above.std(("y", "x"))
+        linear = _linearise(shots, mean, response, group).mean(("y", "x"))
+        reductions[e] = (above.mean(("y", "x")), noise, linear)
+    # one pass over the series, frame by frame (every band and exposure a chunk)
+    (reductions,) = dask.compute(reductions)
+    for e, (above, noise, linear) in reductions.items():
+        above, noise = np.asarray(above.values), np.asarray(noise.values)
+        signal[:, e] = np.asarray(linear.values)
         usable[:, e] = top[:, e] & (above >= min_snr * np.maximum(noise, 1e-12)) & (signal[:, e] > 0)
     times = np.asarray(counts["spectral_exposure_time"].values, dtype=np.float64)
     return level_table(signal, times, usable, light, np.asarray(counts["wavelength"].values, float))
@@ -1105,11 +1156,14 @@ def calibrate_spectral(
         q_shot = matched_quantum_efficiency(
             levels, cshots["wavelength"].values, shot_levels(signal), q_shot
         )
-    band_radiance = (signal / xr.DataArray(q_shot, dims="shot")).compute()
+    # lazy, shot by shot: only the patch means of each band are computed (not the stack)
+    band_radiance = signal / xr.DataArray(q_shot, dims="shot")
     band_radiance = band_radiance.swap_dims(shot="wavelength").drop_vars(
         [c for c in band_radiance.coords if c != "wavelength"]
     )
-    patch_spectra = patch_means(band_radiance, labels).assign_coords(patch=measured["patch"].values)
+    patch_spectra = (
+        patch_means(band_radiance, labels).compute().assign_coords(patch=measured["patch"].values)
+    )
     table = cross_validate(measured, patch_spectra, cm)
     per_camera = _per_camera(fits, lender_of, names_of, reference, patch_spectra, fit_spectra)
     models = [str(m) for m in colour_checker.attrs.get("camera_models", [])]

@@ -326,7 +326,7 @@ def recover_oecf_low_snr(
     levels = 2**depth if levels is None else int(levels)
     if levels < 16:
         raise CalibrationError(f"levels must be at least 16, got {levels}")
-    counts = counts.transpose(dim, "y", "x")
+    counts = counts.transpose(dim, "y", "x").load()  # the series (a few frames), read once
     times = np.asarray(counts["exposure_time"].values, dtype=np.float64)
     ny, nx = counts.sizes["y"], counts.sizes["x"]
     dark_mean = np.asarray(
@@ -548,9 +548,9 @@ def recover_spectral_oecf(
     )
     series = series.drop_vars([c for c in series.coords if c != "exposure_time"])
     series = series.assign_attrs(bit_depth=depth)
-    mean_dark = dark["mean"].load()
+    # lazy: the low-SNR series reads the dark frames of its own exposure times only
     try:
-        low = recover_oecf_low_snr(series, mean_dark, filter_size=filter_size, tolerance=tolerance)
+        low = recover_oecf_low_snr(series, dark["mean"], filter_size=filter_size, tolerance=tolerance)
     except CalibrationError as error:
         raise CalibrationError(
             f"{group}:spectral_counts (band {float(counts['wavelength'][j])} nm): {error}"
@@ -564,15 +564,20 @@ def recover_spectral_oecf(
         ok = np.flatnonzero(top[k])
         if ok.size >= full_exposures:
             chosen = ok[-full_exposures:]
-            rows.append(counts.isel(wavelength=k, spectral_exposure=chosen).values)
+            rows.append((k, chosen))
             times.append(all_times[chosen])
     if len(rows) == 0:
         raise CalibrationError(
             f"{group}:spectral_counts: no band has {full_exposures} unsaturated exposures "
             "for the full-range response"
         )
+    # the raw codes of the chosen frames, read band by band into one array (no list of
+    # copies to stack): the full-range Robertson response pools them all
+    stack = np.empty((len(rows), full_exposures, counts.sizes["y"], counts.sizes["x"]), counts.dtype)
+    for i, (k, chosen) in enumerate(rows):
+        stack[i] = counts.isel(wavelength=k, spectral_exposure=chosen).values
     full_in = xr.DataArray(
-        np.stack(rows),
+        stack,
         dims=("image", "exposure", "y", "x"),
         coords={"exposure_time": (("image", "exposure"), np.stack(times))},
         attrs={"bit_depth": depth},
