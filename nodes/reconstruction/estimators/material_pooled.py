@@ -74,13 +74,7 @@ from spectralize.schemas import ReconstructionError
 
 from ..inputs import ReconstructionInputs
 from .endmember_mixture import _project, band_noise_sigma
-from .shared_texel import (
-    PRIOR_RELATIVE_SIGMA,
-    RGB_RELATIVE_SIGMA,
-    _shapes_step,
-    _top_shapes,
-    _weights_step,
-)
+from .shared_texel import PRIOR_RELATIVE_SIGMA, RGB_RELATIVE_SIGMA, SHAPE_RIDGE, _top_shapes
 
 __all__ = [
     "material_pooled_refine",
@@ -111,7 +105,7 @@ then assigned to the nearest centre."""
 KMEANS_ITERATIONS = 10
 """Lloyd iterations of k-means."""
 
-SHAPE_ITERATIONS = 10
+SHAPE_ITERATIONS = 4
 """Power iterations of each texel's starting shape (the top right singular vector of its
 initial spectra, :func:`~.shared_texel._top_shapes`)."""
 
@@ -278,18 +272,18 @@ def material_pooled_refine(
     terms = (cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight)
 
     # 1. each texel's own rank-1 shape with the highlight taken out (shared-texel fit)
-    shapes = _top_shapes(x0, 1, SHAPE_ITERATIONS)
-    shapes *= np.where(shapes.sum(axis=2) < 0, -1.0, 1.0)[:, :, None]
-    weights = _weights_step(shapes, ell, *terms)
+    shapes = _top_shapes(x0, 1, SHAPE_ITERATIONS)[:, 0]
+    shapes *= np.where(shapes.sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    weights = texel_weights(shapes, ell, *terms)
     for _ in range(int(texel_rounds)):
-        shapes = _shapes_step(
+        shapes = texel_shapes(
             shapes, weights, ell, ctc, ctr, x0, prior_weight, data, shot_image, shot_band, shot_weight
         )
-        weights = _weights_step(shapes, ell, *terms)
+        weights = texel_weights(shapes, ell, *terms)
 
     # 2. materials
     if labels is None:
-        label = material_clusters(shapes[:, 0], clusters, features, seed)
+        label = material_clusters(shapes, clusters, features, seed)
     else:
         label = np.asarray(labels)
         if label.shape != (h, w) or label.min() < 0:
@@ -305,10 +299,10 @@ def material_pooled_refine(
         pooled = _pooled_shapes(
             weights, label, k, ell, ctc, ctr, x0, prior_weight, data, shot_image, shot_band, shot_weight
         )
-        shapes = pooled[label][:, None, :]
-        weights = _weights_step(shapes, ell, *terms)
-    basis = np.concatenate([shapes, np.broadcast_to(ell, (n, 1, n_w))], axis=1)
-    fit = np.einsum("nmk,nkw->wmn", weights, basis).reshape(n_w, n_m, h, w)
+        shapes = pooled[label]
+        weights = texel_weights(shapes, ell, *terms)
+    fit = (weights[:, :, 0, None] * shapes[:, None, :] + weights[:, :, 1, None] * ell).transpose(2, 1, 0)
+    fit = fit.reshape(n_w, n_m, h, w)
     return _project(np.ascontiguousarray(fit), inputs)
 
 
@@ -326,7 +320,7 @@ def _pooled_shapes(
     # RGB and band terms, summed over each cluster's texels
     rgb_mat = np.einsum("km,mwv->kwv", aa, ctc)
     ctr_rest = ctr - hl[:, :, None] * np.einsum("mwv,v->mw", ctc, ell)[None]
-    rgb_rhs = member @ np.einsum("nm,nmw->nw", a, ctr_rest)
+    rgb_rhs = member @ np.matmul(a[:, None, :], ctr_rest)[:, 0]
     band_diag = np.zeros((k, n_w))
     band_rhs = np.zeros((k, n_w))
     for i, (m, b) in enumerate(zip(shot_image, shot_band, strict=True)):
@@ -336,7 +330,7 @@ def _pooled_shapes(
             label, am * (data[:, i] - hl[:, m] * ell[b]), minlength=k
         )
     prior_diag = aa @ prior_weight  # (k,)
-    prior_rhs = member @ np.einsum("nm,nmw->nw", a * prior_weight[None], x0 - hl[:, :, None] * ell)
+    prior_rhs = member @ np.matmul((a * prior_weight)[:, None, :], x0 - hl[:, :, None] * ell)[:, 0]
     idx = np.arange(n_w)
     band_mat = rgb_mat.copy()
     band_mat[:, idx, idx] += band_diag
@@ -358,3 +352,65 @@ def _pooled_shapes(
     tau2 = np.maximum((d**2 - variance).mean(axis=1, keepdims=True), 0.0)
     gain = tau2 / np.maximum(tau2 + variance, 1e-300)
     return held + gain * d
+
+
+def _one_hot(index: np.ndarray, size: int) -> np.ndarray:
+    out = np.zeros((index.size, size))
+    out[np.arange(index.size), index] = 1.0
+    return out
+
+
+def texel_weights(
+    shapes, ell, cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight
+):
+    """``(n, m, 2)``: per texel and image ``(a_m, h_m) >= 0`` for fixed rank-1 shapes
+    ``(n, w)``: the normal equations of :func:`~.shared_texel.shared_texel_refine`'s
+    weights step (RGB through each image's camera, the prior, the image's band shots), in
+    closed form (Cramer's rule), then clipped at 0."""
+    n_m = cams.shape[0]
+    seen = (shapes @ cams.reshape(-1, cams.shape[2]).T).reshape(-1, n_m, 3)  # C_m E: (n, m, 3)
+    seen_l = cams @ ell  # C_m L: (m, 3)
+    to_image = _one_hot(shot_image, n_m)  # (shots, m)
+    e_b = shapes[:, shot_band] * shot_weight  # (n, shots)
+    l_b = ell[shot_band] * shot_weight
+    x0_e = np.matmul(x0, shapes[:, :, None])[..., 0]
+    g00 = (seen**2 * rgb_weight).sum(axis=2)
+    g00 += prior_weight * (shapes**2).sum(axis=1)[:, None] + (e_b * shapes[:, shot_band]) @ to_image
+    g01 = (seen * (rgb_weight * seen_l)).sum(axis=2)
+    g01 += prior_weight * (shapes @ ell)[:, None] + e_b @ (to_image * ell[shot_band, None])
+    g11 = (rgb_weight * seen_l**2).sum(axis=1) + prior_weight * (ell @ ell)
+    g11 = np.broadcast_to(g11 + (l_b * ell[shot_band]) @ to_image, g00.shape)
+    r0 = (seen * rgb_weight * rgb).sum(axis=2) + prior_weight * x0_e
+    r0 += (e_b * data) @ to_image
+    r1 = (rgb * (rgb_weight * seen_l)).sum(axis=2) + prior_weight * (x0 @ ell)
+    r1 += (data * l_b) @ to_image
+    ridge = 1e-9 * (g00 + g11) / 2
+    g00, g11 = g00 + ridge, g11 + ridge
+    det = g00 * g11 - g01 * g01
+    det = np.where(det > 0, det, 1e-300)
+    solved = np.stack([(g11 * r0 - g01 * r1) / det, (g00 * r1 - g01 * r0) / det], axis=-1)
+    return np.maximum(solved, 0.0)
+
+
+def texel_shapes(
+    previous, weights, ell, ctc, ctr, x0, prior_weight, data, shot_image, shot_band, shot_weight
+):
+    """``(n, w)``: per texel the rank-1 shape for fixed weights, one ``W x W`` system each:
+    :func:`~.shared_texel.shared_texel_refine`'s shapes step for ``r = 1``, with the band
+    terms gathered by matrix products."""
+    n_w = ell.size
+    a, hl = weights[:, :, 0], weights[:, :, 1]
+    to_band = _one_hot(shot_band, n_w)  # (shots, w)
+    a_shot = a[:, shot_image]  # (n, shots)
+    mat = ((a**2) @ ctc.reshape(ctc.shape[0], -1)).reshape(-1, n_w, n_w)
+    diagonal = ((a**2) @ prior_weight)[:, None] + (a_shot**2 * shot_weight) @ to_band
+    idx = np.arange(n_w)
+    mat[:, idx, idx] += diagonal
+    # sum_m a_m (C_m^T W R_m + pw_m S^0_m - h_m (C_m^T W C_m + pw_m) L)
+    rhs = np.matmul(a[:, None, :], ctr)[:, 0] + np.matmul((a * prior_weight)[:, None, :], x0)[:, 0]
+    rhs -= (a * hl) @ (ctc @ ell + prior_weight[:, None] * ell)
+    rhs += (a_shot * shot_weight * (data - hl[:, shot_image] * ell[shot_band])) @ to_band
+    ridge = SHAPE_RIDGE * max(float(np.median(np.einsum("nii->n", mat))) / n_w, 1e-300)
+    mat[:, idx, idx] += ridge
+    rhs += ridge * previous
+    return np.linalg.solve(mat, rhs[..., None])[..., 0]

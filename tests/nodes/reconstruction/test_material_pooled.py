@@ -135,3 +135,33 @@ def test_the_set_model_is_the_solve_then_the_refinement():
     )
     with pytest.raises(ReconstructionError, match="'material-pooled'.*needs the illuminant.*found none"):
         reconstruct(*args, set_model="material-pooled")
+
+
+def test_the_rank_1_texel_steps_are_shared_texels():
+    """The per-texel fit's steps are shared-texel's (rank 1), written for one shape."""
+    from spectralize.nodes.reconstruction.estimators import material_pooled as mp
+    from spectralize.nodes.reconstruction.estimators import shared_texel as st
+
+    inputs, _, initial, sigma, _ = _two_material_set(4, size=6)
+    rng = np.random.default_rng(5)
+    n_w, n_m = initial.shape[:2]
+    n = initial.shape[2] * initial.shape[3]
+    x0 = np.ascontiguousarray(initial.reshape(n_w, n_m, n).transpose(2, 1, 0))
+    rgb = inputs.rgb.reshape(n_m, n, 3).transpose(1, 0, 2)
+    cams = np.stack([inputs.camera_of(m) for m in range(n_m)])
+    rgb_weight = rng.uniform(1.0, 3.0, size=(n_m, 3))
+    prior_weight = rng.uniform(0.5, 2.0, size=n_m)
+    data = inputs.band_data.reshape(n_w, n).T.astype(float)
+    shot = (inputs.image, inputs.band, 1.0 / sigma**2)
+    shapes = x0.mean(axis=1) * rng.uniform(0.8, 1.2, size=(n, n_w))
+    terms = (cams, rgb_weight, rgb, x0, prior_weight, data, *shot)
+    lean = mp.texel_weights(shapes, LIGHT / np.linalg.norm(LIGHT), *terms)
+    ell = LIGHT / np.linalg.norm(LIGHT)
+    full = st._weights_step(shapes[:, None], ell, *terms)
+    np.testing.assert_allclose(lean, full, rtol=1e-8, atol=1e-12)
+    ctc = np.matmul(np.swapaxes(cams, 1, 2) * rgb_weight[:, None, :], cams)
+    ctr = np.matmul((rgb * rgb_weight)[:, :, None, :], cams[None])[:, :, 0, :]
+    step = (ctc, ctr, x0, prior_weight, data, *shot)
+    lean_shapes = mp.texel_shapes(shapes, full, ell, *step)
+    full_shapes = st._shapes_step(shapes[:, None], full, ell, *step)[:, 0]
+    np.testing.assert_allclose(lean_shapes, full_shapes, rtol=1e-8, atol=1e-12)
