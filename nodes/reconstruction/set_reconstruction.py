@@ -13,6 +13,9 @@ region of the ``spectra`` group, so a crash loses at most the sets in flight. A 
 than :data:`BATCH_SETS_ABOVE` sets of tiny frames (every set in one tile) solves consecutive
 sets in batches of about :data:`BATCH_BYTES` of spectra, one task and one resumable region
 per batch, each set solved exactly as its own task would (a full run has thousands of sets).
+A batch is mostly Python glue that holds the GIL, so a local run solves the batches in a pool
+of processes, one per core (:data:`PROCESS_POOL`, set by the flows' runner); on a
+``dask.distributed`` cluster they run in the workers.
 
 The node functions' keyword-only arguments are the nodes' parameters (the engine derives
 the parameter models from them; :mod:`~spectralize.nodes.reconstruction.declarations`

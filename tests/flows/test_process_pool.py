@@ -4,8 +4,13 @@ Issue 27: on threads the batches (mostly Python, holding the GIL) kept about one
 """
 
 import os
+import signal
+import subprocess
+import sys
 import threading
+import time
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import dask
 import numpy as np
@@ -84,3 +89,35 @@ def test_the_peak_of_a_block_counts_its_pool_workers():
         return
     assert child > 0
     assert measured.peak_bytes >= own + child
+
+
+_KILLED_PARENT = """
+import os, time
+from spectralize.flows.memory import process_pool
+if __name__ == "__main__":
+    with process_pool(1) as pool:
+        print(pool.submit(os.getpid).result(), flush=True)
+        pool.submit(time.sleep, 600)
+        time.sleep(600)
+"""
+
+
+def test_pool_workers_end_with_a_killed_parent(tmp_path):
+    script = tmp_path / "parent.py"
+    script.write_text(_KILLED_PARENT)
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    worker = int(parent.stdout.readline())
+    os.kill(parent.pid, signal.SIGKILL)  # no shutdown: the worker must notice by itself
+    parent.wait()
+    for _ in range(600):  # only guards against a hang; the worker polls its parent each second
+        if not Path(f"/proc/{worker}").exists() or "Z" in _state(worker):
+            break
+        time.sleep(0.1)
+    assert not Path(f"/proc/{worker}").exists() or "Z" in _state(worker)
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "gone"
