@@ -985,7 +985,7 @@ def recover_rgb_oecf(
     # the refusals and the recovery both run on these values
     images = rgb_oecf_sample(raw_rgb)
     loaded = _load_sample(raw_rgb, images)
-    raise_first(rgb_oecf_refusals(raw_rgb, black_level=black_level, sample=loaded))
+    raise_first(rgb_oecf_refusals(raw_rgb, black_level=black_level, sample=loaded, images=images))
     depth = int(raw_rgb.attrs["bit_depth"])
     cameras = np.asarray(loaded["camera"].values)
     levels = camera_black_levels(loaded) if black_level is None else {}
@@ -1213,7 +1213,11 @@ def _load_sample(raw_rgb: xr.Dataset, images: np.ndarray) -> xr.Dataset:
 
 
 def rgb_oecf_refusals(
-    raw_rgb: xr.Dataset, *, black_level: int | None = None, sample: xr.Dataset | None = None
+    raw_rgb: xr.Dataset,
+    *,
+    black_level: int | None = None,
+    sample: xr.Dataset | None = None,
+    images: np.ndarray | None = None,
 ) -> list[SpectralizeError]:
     """What :func:`recover_rgb_oecf` refuses in raw/rgb before computing (its value check).
 
@@ -1223,7 +1227,8 @@ def rgb_oecf_refusals(
     (:func:`camera_black_levels` when ``black_level`` is ``None``: from the data here, so
     ``validate --flow`` applies the threshold the node applies); no frame entirely dark
     (every value at or below its camera's black level). One pass over the sampled counts
-    (none when ``sample``, those images already in memory, is given).
+    (none when ``sample``, those images already in memory, at the positions ``images`` of
+    raw/rgb, is given). Errors name raw/rgb's positions.
 
     Returns
     -------
@@ -1240,18 +1245,26 @@ def rgb_oecf_refusals(
     times = raw_rgb["exposure_time"]
     found = refused(lambda: check_exposure_times(times.transpose(..., "exposure"), "exposure", where))
     if sample is None:
-        sample = raw_rgb[["counts"]].isel(image=rgb_oecf_sample(raw_rgb))
-    counts = sample["counts"]
+        images = rgb_oecf_sample(raw_rgb)
+        sample = raw_rgb[["counts"]].isel(image=images)
+    elif images is None:
+        images = np.arange(sample.sizes["image"])
+    counts = sample["counts"].transpose("image", ...)
     if counts.chunks is not None:  # reduced per block of images (a store's chunks: one image)
         counts = counts.chunk({"image": 256})
     frame_dims = [d for d in counts.dims if d in ("image", "exposure", "channel")]
     lo, hi, frame_min, frame_max = frame_extremes(
         counts, [d for d in counts.dims if d not in frame_dims]
     )
-    sample_times = sample["exposure_time"]
-    cameras = np.asarray(sample["camera"].values)
+    n_image = raw_rgb.sizes["image"]
+    if len(images) != n_image:  # at raw/rgb's positions (the errors name them); others pass
+        full_min = np.zeros((n_image,) + frame_min.shape[1:], frame_min.dtype)
+        full_max = np.full((n_image,) + frame_max.shape[1:], saturation, frame_max.dtype)
+        full_min[images], full_max[images] = frame_min, frame_max
+        frame_min, frame_max = full_min, full_max
+    cameras = np.asarray(raw_rgb["camera"].values)
     shape = [1] * frame_max.ndim
-    shape[frame_dims.index("image")] = -1
+    shape[0] = -1
 
     def frames(black: int, camera: int | None = None) -> None:
         other = True if camera is None else (cameras != camera).reshape(shape)
@@ -1265,7 +1278,7 @@ def rgb_oecf_refusals(
             saturation=saturation,
             max_code=saturation,
             where=f"{where}:counts",
-            times=sample_times,
+            times=times,
         )
 
     bright = refused(lambda: frames(-1))  # saturated frames first: they decide the black level
@@ -1275,7 +1288,7 @@ def rgb_oecf_refusals(
     if black_level is None:
         found += refused(lambda: levels.update(camera_black_levels(_in_memory(sample, raw_rgb))))
     else:
-        levels = {int(c): int(black_level) for c in np.unique(cameras)}
+        levels = {int(c): int(black_level) for c in np.unique(cameras[images])}
     for camera, level in levels.items():
         dark = refused(lambda c=camera, b=level: frames(b, c))
         if dark:

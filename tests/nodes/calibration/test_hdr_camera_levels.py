@@ -219,3 +219,19 @@ def test_recovery_reads_the_sample_and_is_unchanged_below_the_cap(monkeypatch) -
     lit = radiance > 0.03  # 10x the darkest: resolved in some exposure of either camera
     difference = np.abs(b[lit] / a[lit] - 1)
     assert np.median(difference) < 0.005 and np.quantile(difference, 0.99) < 0.02
+
+
+def test_refusals_on_the_sample_name_raw_rgb_positions(monkeypatch) -> None:
+    """The check reads the sample only; its errors name the frame's position in raw/rgb."""
+    raw, _ = two_cameras(images_per_camera=6, side=16, seed=5)
+    counts = raw["counts"].values.copy()
+    counts[10, 0] = FULL  # camera 0's last image (always in the sample): saturated
+    counts[2, 0] = FULL  # camera 0's second image: not in its sample of 3 of 6 (images 0, 4, 10)
+    saturated = raw.copy(data={"counts": counts})
+    monkeypatch.setattr(robertson.rgb_oecf_sample, "__defaults__", (3,))
+    found = robertson.rgb_oecf_refusals(saturated)
+    assert len(found) == 1
+    assert "frame image=10, exposure=0, channel=0" in str(found[0])
+    assert "3 such frame(s)" in str(found[0])  # three channels of one frame; image 2 not read
+    with pytest.raises(CalibrationError, match=r"frame image=10, exposure=0, channel=0"):
+        robertson.recover_rgb_oecf(saturated, calibration_targets=False)
