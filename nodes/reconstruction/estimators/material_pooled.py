@@ -39,19 +39,32 @@ not (glossy, dark: ``S^0`` is already good and the pooled bands are noisy). Weig
 cluster shapes alternate :data:`DEFAULT_ROUNDS` times; the result is projected onto
 ``C_m S_m = R_m`` and ``S >= 0`` per texel.
 
-What it buys (20 x 48^2 sets of the hard scenes, 2 seeds, ``/tmp`` study of issue 29, the
-default's spectra as ``S^0``, the true illuminant as ``L``): medians fall 17-20 % on woven,
-2-8 % on halftone, 0-16 % on glossy and dark against the default, p95 falls 10-35 % on
-glossy and dark, and the fraction under 0.03 rises by 1-5 points over the default and
-shared-texel. The limit is the band noise per cluster: a 48^2 set has 30-70 texels per
-cluster, so a pooled band is still at 12-18 % of its value; with noise-free band shots the
-same clusters (band evidence at full weight) put 45 % (woven), 14 % (halftone), 57 %
-(glossy) and 70 % (dark) of the pixels under 0.03. The pooled noise falls with the set's
-pixel count (the number of clusters is fixed), so larger sets gain more. A per-texel choice
-between its own shape and its cluster's by the band residual (as the natural prior's
-evidence does) was tried: it kept fewer texels in the clusters and lowered the fraction
-under 0.03 on every scene, so every texel takes its cluster's shape; texels of a mixed
-material fall into clusters of their own mixture.
+What it buys (20 x 48^2 sets of the hard scenes x 2 seeds, ``/tmp`` study of issue 29, the
+default's spectra as ``S^0``, the true illuminant as ``L``): against the default, medians
+fall 17-26 % (woven), 16-17 % (halftone), 6-22 % (dark) and -2..19 % (glossy), p95 falls
+5-11 % (woven, halftone) and 30-39 % (glossy, dark), and the fraction under 0.03 rises by
+1-7 points on every scene and seed (2-7 over shared-texel): woven 8 %, halftone 4-6 %,
+glossy 58-60 %, dark 59-61 %, far from issue 29's 40 % and 75 %. The limit is the band noise
+per cluster: a 48^2 set has about 50 texels per cluster, so a pooled band is still at about
+15 % of its value. With noise-free shots and the pooled band evidence at full weight the same
+clusters put 45-47 % (woven), 9-11 % (halftone), 60 % (glossy) and 69 % (dark) under 0.03;
+true material labels for the pure texels (one material over 90 % of the pixel; the rest
+keep their own shapes) put 12 %, 2-4 %, 55-56 % and 60-61 % there with the real shots and
+48 %, 2-5 %, 60 % and 71 % with noise-free ones. The pooled noise falls with the set's pixel
+count (the number of clusters is fixed): on 20 x 96^2 sets (seed 0) the fraction under 0.03
+is 13.5 % (woven), 9.5 % (halftone), 54 % (glossy) and 65 % (dark), 5-7 points over the
+default's on every scene (glossy p95 0.54 there, below the default's 0.58, above
+shared-texel's 0.48). Cost: the refit is 0.23 s of CPU per 20 x 48^2 set,
+1.24-1.34x the default's own per image (one thread).
+
+Tried and not kept: a per-texel choice between its own shape and its cluster's by the band
+and RGB residuals (as the natural prior's evidence does) kept fewer texels in the clusters
+and lowered the fraction under 0.03 on every scene (every texel takes its cluster's shape;
+a texel of mixed materials falls into a cluster of its own mixture); shapes restricted to
+a set-wide subspace of 8-12 principal shapes (per texel or per cluster) lost on every
+scene; clustering the initial spectra without the per-texel fit that takes the highlight
+out (``texel_rounds=0``) raised p95 on the dark set above the default's; pooling with the
+full prior (``mu`` summed over a cluster's texels, no shrinkage) kept ``S^0``.
 
 References
 ----------
@@ -157,8 +170,9 @@ def material_clusters(
     """
     e = np.asarray(shapes, dtype=np.float64)
     unit = e / np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
-    _, _, vt = np.linalg.svd(unit[:: max(1, unit.shape[0] // KMEANS_SAMPLE)], full_matrices=False)
-    x = unit @ vt[: min(features, vt.shape[0])].T  # (n, q)
+    sub = unit[:: max(1, unit.shape[0] // KMEANS_SAMPLE)]
+    _, vectors = np.linalg.eigh(sub.T @ sub)  # right singular vectors, increasing
+    x = unit @ vectors[:, ::-1][:, : min(features, vectors.shape[1])]  # (n, q)
     n = x.shape[0]
     k = int(min(clusters, n))
     rng = np.random.default_rng(seed)
@@ -354,9 +368,14 @@ def _pooled_shapes(
     return held + gain * d
 
 
-def _one_hot(index: np.ndarray, size: int) -> np.ndarray:
-    out = np.zeros((index.size, size))
-    out[np.arange(index.size), index] = 1.0
+def _group_sum(x: np.ndarray, group: np.ndarray, size: int) -> np.ndarray:
+    """``(n, size)``: the columns of ``x`` ``(n, shots)`` summed by ``group`` (per shot
+    ``0 .. size - 1``); ufunc sums, not a matrix product (no BLAS threads)."""
+    order = np.argsort(group, kind="stable")
+    g = np.asarray(group)[order]
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    out = np.zeros((x.shape[0], size))
+    out[:, g[starts]] = np.add.reduceat(x[:, order], starts, axis=1)
     return out
 
 
@@ -370,20 +389,21 @@ def texel_weights(
     n_m = cams.shape[0]
     seen = (shapes @ cams.reshape(-1, cams.shape[2]).T).reshape(-1, n_m, 3)  # C_m E: (n, m, 3)
     seen_l = cams @ ell  # C_m L: (m, 3)
-    to_image = _one_hot(shot_image, n_m)  # (shots, m)
     e_b = shapes[:, shot_band] * shot_weight  # (n, shots)
     l_b = ell[shot_band] * shot_weight
     x0_e = np.matmul(x0, shapes[:, :, None])[..., 0]
     g00 = (seen**2 * rgb_weight).sum(axis=2)
-    g00 += prior_weight * (shapes**2).sum(axis=1)[:, None] + (e_b * shapes[:, shot_band]) @ to_image
+    g00 += prior_weight * (shapes**2).sum(axis=1)[:, None] + _group_sum(
+        e_b * shapes[:, shot_band], shot_image, n_m
+    )
     g01 = (seen * (rgb_weight * seen_l)).sum(axis=2)
-    g01 += prior_weight * (shapes @ ell)[:, None] + e_b @ (to_image * ell[shot_band, None])
+    g01 += prior_weight * (shapes @ ell)[:, None] + _group_sum(e_b * ell[shot_band], shot_image, n_m)
     g11 = (rgb_weight * seen_l**2).sum(axis=1) + prior_weight * (ell @ ell)
-    g11 = np.broadcast_to(g11 + (l_b * ell[shot_band]) @ to_image, g00.shape)
+    g11 = np.broadcast_to(g11 + _group_sum((l_b * ell[shot_band])[None], shot_image, n_m), g00.shape)
     r0 = (seen * rgb_weight * rgb).sum(axis=2) + prior_weight * x0_e
-    r0 += (e_b * data) @ to_image
+    r0 += _group_sum(e_b * data, shot_image, n_m)
     r1 = (rgb * (rgb_weight * seen_l)).sum(axis=2) + prior_weight * (x0 @ ell)
-    r1 += (data * l_b) @ to_image
+    r1 += _group_sum(data * l_b, shot_image, n_m)
     ridge = 1e-9 * (g00 + g11) / 2
     g00, g11 = g00 + ridge, g11 + ridge
     det = g00 * g11 - g01 * g01
@@ -400,16 +420,15 @@ def texel_shapes(
     terms gathered by matrix products."""
     n_w = ell.size
     a, hl = weights[:, :, 0], weights[:, :, 1]
-    to_band = _one_hot(shot_band, n_w)  # (shots, w)
     a_shot = a[:, shot_image]  # (n, shots)
     mat = ((a**2) @ ctc.reshape(ctc.shape[0], -1)).reshape(-1, n_w, n_w)
-    diagonal = ((a**2) @ prior_weight)[:, None] + (a_shot**2 * shot_weight) @ to_band
+    diagonal = ((a**2) @ prior_weight)[:, None] + _group_sum(a_shot**2 * shot_weight, shot_band, n_w)
     idx = np.arange(n_w)
     mat[:, idx, idx] += diagonal
     # sum_m a_m (C_m^T W R_m + pw_m S^0_m - h_m (C_m^T W C_m + pw_m) L)
     rhs = np.matmul(a[:, None, :], ctr)[:, 0] + np.matmul((a * prior_weight)[:, None, :], x0)[:, 0]
     rhs -= (a * hl) @ (ctc @ ell + prior_weight[:, None] * ell)
-    rhs += (a_shot * shot_weight * (data - hl[:, shot_image] * ell[shot_band])) @ to_band
+    rhs += _group_sum(a_shot * shot_weight * (data - hl[:, shot_image] * ell[shot_band]), shot_band, n_w)
     ridge = SHAPE_RIDGE * max(float(np.median(np.einsum("nii->n", mat))) / n_w, 1e-300)
     mat[:, idx, idx] += ridge
     rhs += ridge * previous
