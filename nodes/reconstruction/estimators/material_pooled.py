@@ -54,8 +54,8 @@ keep their own shapes) put 12 %, 2-4 %, 55-56 % and 60-61 % there with the real 
 count (the number of clusters is fixed): on 20 x 96^2 sets (seed 0) the fraction under 0.03
 is 13.5 % (woven), 9.5 % (halftone), 54 % (glossy) and 65 % (dark), 5-7 points over the
 default's on every scene (glossy p95 0.54 there, below the default's 0.58, above
-shared-texel's 0.48). Cost: the refit is 0.23 s of CPU per 20 x 48^2 set,
-1.24-1.34x the default's own per image (one thread).
+shared-texel's 0.48). Cost (one thread, CPU time): the refit is 0.26 s per 20 x 48^2 set, and the default
+plus the refit 1.21-1.31x the default alone (1.29-1.33x at 96^2; shared-texel 1.12-1.30x).
 
 Tried and not kept: a per-texel choice between its own shape and its cluster's by the band
 and RGB residuals (as the natural prior's evidence does) kept fewer texels in the clusters
@@ -87,7 +87,7 @@ from spectralize.schemas import ReconstructionError
 
 from ..inputs import ReconstructionInputs
 from .endmember_mixture import _project, band_noise_sigma
-from .shared_texel import PRIOR_RELATIVE_SIGMA, RGB_RELATIVE_SIGMA, SHAPE_RIDGE, _top_shapes
+from .shared_texel import PRIOR_RELATIVE_SIGMA, RGB_RELATIVE_SIGMA, SHAPE_RIDGE
 
 __all__ = [
     "material_pooled_refine",
@@ -108,8 +108,13 @@ DEFAULT_ROUNDS = 3
 """Alternating rounds of the pooled fit (cluster shapes, then per-texel weights)."""
 
 DEFAULT_TEXEL_ROUNDS = 3
-"""Alternating rounds of the per-texel fit whose shapes are clustered (0: the top shape of
-each texel's initial spectra)."""
+"""Alternating rounds of the per-texel fit whose shapes are clustered (0: each texel's top
+shape of its initial spectra, :data:`SHAPE_ITERATIONS`)."""
+
+SHAPE_ITERATIONS = 4
+"""Power iterations of each texel's starting shape: the top right singular vector of its
+``(m, w)`` initial spectra times its singular value (shared-texel's start for ``r = 1``;
+starting from the mean spectrum instead lowered the fraction under 0.03 on three scenes)."""
 
 KMEANS_SAMPLE = 20000
 """At most this many texels (a fixed random subset) place the k-means centres; all are
@@ -118,9 +123,6 @@ then assigned to the nearest centre."""
 KMEANS_ITERATIONS = 10
 """Lloyd iterations of k-means."""
 
-SHAPE_ITERATIONS = 4
-"""Power iterations of each texel's starting shape (the top right singular vector of its
-initial spectra, :func:`~.shared_texel._top_shapes`)."""
 
 POOLED_RIDGE = 1e-9
 """Ridge of a cluster's normal matrix, relative to its mean diagonal."""
@@ -282,16 +284,25 @@ def material_pooled_refine(
     data = inputs.band_data.reshape(len(shot_band), n).T.astype(np.float64)
     shot_weight = 1.0 / band_sigma**2
     ctc = np.matmul(np.swapaxes(cams, 1, 2) * rgb_weight[:, None, :], cams)  # (m, w, w)
-    ctr = np.matmul((rgb * rgb_weight)[:, :, None, :], cams[None])[:, :, 0, :]  # (n, m, w)
+    rgb_terms = (rgb * rgb_weight, cams)  # C_m^T W R_m, applied per texel as needed
     terms = (cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight)
 
     # 1. each texel's own rank-1 shape with the highlight taken out (shared-texel fit)
-    shapes = _top_shapes(x0, 1, SHAPE_ITERATIONS)[:, 0]
-    shapes *= np.where(shapes.sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    shapes = _top_shape(x0, SHAPE_ITERATIONS)
     weights = texel_weights(shapes, ell, *terms)
     for _ in range(int(texel_rounds)):
         shapes = texel_shapes(
-            shapes, weights, ell, ctc, ctr, x0, prior_weight, data, shot_image, shot_band, shot_weight
+            shapes,
+            weights,
+            ell,
+            ctc,
+            rgb_terms,
+            x0,
+            prior_weight,
+            data,
+            shot_image,
+            shot_band,
+            shot_weight,
         )
         weights = texel_weights(shapes, ell, *terms)
 
@@ -311,7 +322,18 @@ def material_pooled_refine(
     # 3. pooled shapes (empirical Bayes between S^0 and the pooled bands), then weights
     for _ in range(int(rounds)):
         pooled = _pooled_shapes(
-            weights, label, k, ell, ctc, ctr, x0, prior_weight, data, shot_image, shot_band, shot_weight
+            weights,
+            label,
+            k,
+            ell,
+            ctc,
+            rgb_terms,
+            x0,
+            prior_weight,
+            data,
+            shot_image,
+            shot_band,
+            shot_weight,
         )
         shapes = pooled[label]
         weights = texel_weights(shapes, ell, *terms)
@@ -321,7 +343,7 @@ def material_pooled_refine(
 
 
 def _pooled_shapes(
-    weights, label, k, ell, ctc, ctr, x0, prior_weight, data, shot_image, shot_band, shot_weight
+    weights, label, k, ell, ctc, rgb_terms, x0, prior_weight, data, shot_image, shot_band, shot_weight
 ):
     """``(k, w)``: per cluster ``E_k^0 + tau_k^2 / (tau_k^2 + v_k) (E_k^D - E_k^0)``."""
     from scipy import sparse
@@ -333,18 +355,15 @@ def _pooled_shapes(
     aa = member @ a**2  # (k, m)
     # RGB and band terms, summed over each cluster's texels
     rgb_mat = np.einsum("km,mwv->kwv", aa, ctc)
-    ctr_rest = ctr - hl[:, :, None] * np.einsum("mwv,v->mw", ctc, ell)[None]
-    rgb_rhs = member @ np.matmul(a[:, None, :], ctr_rest)[:, 0]
-    band_diag = np.zeros((k, n_w))
-    band_rhs = np.zeros((k, n_w))
-    for i, (m, b) in enumerate(zip(shot_image, shot_band, strict=True)):
-        am = a[:, m]
-        band_diag[:, b] += shot_weight[i] * np.bincount(label, am**2, minlength=k)
-        band_rhs[:, b] += shot_weight[i] * np.bincount(
-            label, am * (data[:, i] - hl[:, m] * ell[b]), minlength=k
-        )
+    rgb_rhs = member @ (_rgb_rhs(a, *rgb_terms) - (a * hl) @ (ctc @ ell))
+    a_shot = a[:, shot_image]  # (n, shots)
+    band_diag = member @ _group_sum(a_shot**2 * shot_weight, shot_band, n_w)
+    band_rhs = member @ _group_sum(
+        a_shot * shot_weight * (data - hl[:, shot_image] * ell[shot_band]), shot_band, n_w
+    )
     prior_diag = aa @ prior_weight  # (k,)
-    prior_rhs = member @ np.matmul((a * prior_weight)[:, None, :], x0 - hl[:, :, None] * ell)[:, 0]
+    ap = a * prior_weight
+    prior_rhs = member @ (np.matmul(ap[:, None, :], x0)[:, 0] - (ap * hl).sum(axis=1)[:, None] * ell)
     idx = np.arange(n_w)
     band_mat = rgb_mat.copy()
     band_mat[:, idx, idx] += band_diag
@@ -366,6 +385,28 @@ def _pooled_shapes(
     tau2 = np.maximum((d**2 - variance).mean(axis=1, keepdims=True), 0.0)
     gain = tau2 / np.maximum(tau2 + variance, 1e-300)
     return held + gain * d
+
+
+def _top_shape(x0: np.ndarray, iterations: int) -> np.ndarray:
+    """``(n, w)``: per texel the top right singular vector of its ``(m, w)`` spectra ``x0``
+    ``(n, m, w)`` times its singular value, by power iteration on ``x0^T x0`` applied as two
+    products (no ``w x w`` matrices), from the mean spectrum as
+    :func:`~.shared_texel._top_shapes` starts; sign: a positive sum."""
+    start = x0.mean(axis=1)
+    v = start + 1e-3 * np.abs(start).mean(axis=1, keepdims=True) * np.cos(np.arange(x0.shape[2]))
+    for _ in range(int(iterations)):
+        v = np.matmul(np.matmul(x0, v[:, :, None])[:, :, 0][:, None, :], x0)[:, 0]
+        v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+    scale = np.linalg.norm(np.matmul(x0, v[:, :, None])[:, :, 0], axis=1)
+    v *= np.where(v.sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    return v * scale[:, None]
+
+
+def _rgb_rhs(a: np.ndarray, weighted_rgb: np.ndarray, cams: np.ndarray) -> np.ndarray:
+    """``(n, w)``: ``sum_m a_m C_m^T W_m R_m`` from ``a`` ``(n, m)``, ``W_m R_m`` ``(n, m, 3)``
+    and ``C_m`` ``(m, 3, w)``."""
+    n, n_m = a.shape
+    return (a[:, :, None] * weighted_rgb).reshape(n, n_m * 3) @ cams.reshape(n_m * 3, -1)
 
 
 def _group_sum(x: np.ndarray, group: np.ndarray, size: int) -> np.ndarray:
@@ -413,7 +454,7 @@ def texel_weights(
 
 
 def texel_shapes(
-    previous, weights, ell, ctc, ctr, x0, prior_weight, data, shot_image, shot_band, shot_weight
+    previous, weights, ell, ctc, rgb_terms, x0, prior_weight, data, shot_image, shot_band, shot_weight
 ):
     """``(n, w)``: per texel the rank-1 shape for fixed weights, one ``W x W`` system each:
     :func:`~.shared_texel.shared_texel_refine`'s shapes step for ``r = 1``, with the band
@@ -426,7 +467,7 @@ def texel_shapes(
     idx = np.arange(n_w)
     mat[:, idx, idx] += diagonal
     # sum_m a_m (C_m^T W R_m + pw_m S^0_m - h_m (C_m^T W C_m + pw_m) L)
-    rhs = np.matmul(a[:, None, :], ctr)[:, 0] + np.matmul((a * prior_weight)[:, None, :], x0)[:, 0]
+    rhs = _rgb_rhs(a, *rgb_terms) + np.matmul((a * prior_weight)[:, None, :], x0)[:, 0]
     rhs -= (a * hl) @ (ctc @ ell + prior_weight[:, None] * ell)
     rhs += _group_sum(a_shot * shot_weight * (data - hl[:, shot_image] * ell[shot_band]), shot_band, n_w)
     ridge = SHAPE_RIDGE * max(float(np.median(np.einsum("nii->n", mat))) / n_w, 1e-300)

@@ -161,7 +161,10 @@ def test_the_rank_1_texel_steps_are_shared_texels():
     np.testing.assert_allclose(lean, full, rtol=1e-8, atol=1e-12)
     ctc = np.matmul(np.swapaxes(cams, 1, 2) * rgb_weight[:, None, :], cams)
     ctr = np.matmul((rgb * rgb_weight)[:, :, None, :], cams[None])[:, :, 0, :]
-    step = (ctc, ctr, x0, prior_weight, data, *shot)
-    lean_shapes = mp.texel_shapes(shapes, full, ell, *step)
-    full_shapes = st._shapes_step(shapes[:, None], full, ell, *step)[:, 0]
+    rest = (x0, prior_weight, data, *shot)
+    lean_shapes = mp.texel_shapes(shapes, full, ell, ctc, (rgb * rgb_weight, cams), *rest)
+    full_shapes = st._shapes_step(shapes[:, None], full, ell, ctc, ctr, *rest)[:, 0]
     np.testing.assert_allclose(lean_shapes, full_shapes, rtol=1e-8, atol=1e-12)
+    top = st._top_shapes(x0, 1, 4)[:, 0]
+    top *= np.where(top.sum(axis=1) < 0, -1.0, 1.0)[:, None]
+    np.testing.assert_allclose(mp._top_shape(x0, 4), top, rtol=1e-8, atol=1e-12)
