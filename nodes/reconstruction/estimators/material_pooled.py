@@ -54,8 +54,10 @@ keep their own shapes) put 12 %, 2-4 %, 55-56 % and 60-61 % there with the real 
 count (the number of clusters is fixed): on 20 x 96^2 sets (seed 0) the fraction under 0.03
 is 13.5 % (woven), 9.5 % (halftone), 54 % (glossy) and 65 % (dark), 5-7 points over the
 default's on every scene (glossy p95 0.54 there, below the default's 0.58, above
-shared-texel's 0.48). Cost (one thread, CPU time): the refit is 0.26 s per 20 x 48^2 set, and the default
-plus the refit 1.21-1.31x the default alone (1.29-1.33x at 96^2; shared-texel 1.12-1.30x).
+shared-texel's 0.48).
+
+Cost (one thread, CPU time): the refit is 0.26 s per 20 x 48^2 set; the default plus the
+refit is 1.21-1.31x the default alone (1.29-1.33x at 96^2; shared-texel 1.12-1.30x).
 
 Tried and not kept: a per-texel choice between its own shape and its cluster's by the band
 and RGB residuals (as the natural prior's evidence does) kept fewer texels in the clusters
