@@ -1202,14 +1202,30 @@ def rgb_oecf_sample(raw_rgb: xr.Dataset, max_images: int = MAX_IMAGES) -> np.nda
     return np.sort(np.concatenate(picked)) if picked else np.zeros(0, dtype=np.intp)
 
 
-def _load_sample(raw_rgb: xr.Dataset, images: np.ndarray) -> xr.Dataset:
-    """raw/rgb's ``counts`` of ``images``, in memory (one read), with its coords and attrs."""
-    sample = raw_rgb[["counts"]].isel(image=images)
-    counts = sample["counts"]
-    if counts.chunks is not None:  # a store's chunks of one image: read in blocks of images
-        block = max(1, (64 * 2**20) // max(1, counts.dtype.itemsize * counts[0].size))
-        sample = sample.chunk({"image": block})
-    return sample.load()
+def _load_sample(raw_rgb: xr.Dataset, images: np.ndarray, batch: int = 256) -> xr.Dataset:
+    """raw/rgb's ``counts`` of ``images`` in memory (one read, ``batch`` images per compute),
+    with the coords the recovery uses (``exposure_time``, ``camera``, ``channel``) and the
+    group's attrs. The other per-image coords are left out (a store's are chunked per image:
+    loading them with the counts multiplies the tasks)."""
+    counts = raw_rgb["counts"]
+    image_axis = counts.get_axis_num("image")
+    parts = [
+        np.asarray(counts.isel(image=images[start : start + batch]).values)
+        for start in range(0, len(images), batch)
+    ]
+    shape = list(counts.shape)
+    shape[image_axis] = 0
+    values = np.concatenate(parts, axis=image_axis) if parts else np.zeros(shape, counts.dtype)
+    times = raw_rgb["exposure_time"]
+    coords: dict[Hashable, object] = {
+        "exposure_time": (times.dims, np.asarray(times.isel(image=images).values)),
+        "camera": ("image", np.asarray(raw_rgb["camera"].values)[images]),
+    }
+    if "channel" in raw_rgb.coords:
+        coords["channel"] = raw_rgb["channel"].values
+    return xr.Dataset(
+        {"counts": (counts.dims, values, counts.attrs)}, coords=coords, attrs=dict(raw_rgb.attrs)
+    )
 
 
 def rgb_oecf_refusals(
