@@ -30,8 +30,9 @@ from spectralize.schemas.errors import Problem
 __all__ = ["calibrate_bands", "led_power_gain", "WRITE_SHOTS"]
 
 WRITE_SHOTS = 8
-"""Shots per chunk of the ``bands`` group (float32: 134 MB at 2048^2), computed one shot at
-a time whatever the chunks of raw/spectral (the store's may hold every shot of a run in one)."""
+"""The most shots per chunk of the ``bands`` group (float32: 134 MB at 2048^2); fewer where
+raw/spectral's chunks hold fewer. Computed one shot at a time whatever those chunks (a
+store's may hold every shot of a run in one)."""
 
 
 def led_power_gain(raw_spectral: xr.Dataset) -> np.ndarray:
@@ -159,8 +160,11 @@ def calibrate_bands(
         )
     # shot by shot: every float64 step (dark subtraction, the response's lookup) holds one
     # frame per thread, not the stored chunk of shots (32 float64 shots are 1.1 GB at 2048^2
-    # and the lookup makes several such: issue 27); written WRITE_SHOTS float32 shots a chunk
-    counts = frame_chunks(raw_spectral["counts"], ("shot",))
+    # and the lookup makes several such: issue 27); written in the shots' own chunks, at most
+    # WRITE_SHOTS float32 shots a chunk
+    counts = raw_spectral["counts"]
+    write_shots = min(counts.chunks[0][0] if counts.chunks is not None else WRITE_SHOTS, WRITE_SHOTS)
+    counts = frame_chunks(counts, ("shot",))
     signal = band_signal(raw_spectral.assign(counts=counts), dark, response=oecf_spectral)
     matched = "qe_by_level" in spectral and spectral.attrs.get("matched_levels", True)
     if matched:  # Q of the white reference at each shot's own level (one pass over the shots)
@@ -176,7 +180,7 @@ def calibrate_bands(
     gain = led_power_gain(raw_spectral) if led_power else np.ones(wavelengths.size)
     radiance = (signal * xr.DataArray(gain, dims="shot") / q_shot).astype(np.float32)
     radiance = register_frames(radiance, registration["shift"], order=order)
-    radiance = radiance.chunk({"shot": WRITE_SHOTS})
+    radiance = radiance.chunk({"shot": write_shots})
     keep = [c for c in raw_spectral.coords if raw_spectral[c].dims == ("shot",)]
     radiance = radiance.drop_vars([c for c in radiance.coords if c not in keep])
     radiance = radiance.assign_attrs(
