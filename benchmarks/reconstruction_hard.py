@@ -5,13 +5,12 @@ a pixel, dim, glossy, metamers placed apart, band SNR at or below 1), each with 
 seeds, as a single image with all 32 band shots and as a 20-image BTF-like set (10 images
 with bands, 10 without). The sets are given the scene's true illuminant (the simulation's
 LED, :func:`~spectralize.nodes.simulation.scenes.materials.sharp_led`, as a run's
-calibration would measure it), and the default runs on them again with the set models
-``"shared-texel"`` and ``"material-pooled"`` (:data:`SET_VARIANTS`), side by side with the
-plain default. Per
-method: median, p95, p99 and the fraction under 0.03 of the per-pixel nRMSE (RMSE over
-bands / the image's mean truth, paper Fig. 5), for a set also split into images with and
-without band shots; wall time, iterations, tracemalloc peak,
-and the fraction of negative output values. Run through ``benchmarks/reconstruction.py``.
+calibration would measure it), so the default applies its set model ``"material-pooled"``;
+it runs on them again with the set models ``"independent"`` and ``"shared-texel"``
+(:data:`SET_VARIANTS`), side by side. Per method: median, p95, p99 and the fraction under
+0.03 of the per-pixel nRMSE (RMSE over bands / the image's mean truth, paper Fig. 5), for a
+set also split into images with and without band shots; wall time, iterations, tracemalloc
+peak, and the fraction of negative output values. Run through ``benchmarks/reconstruction.py``.
 """
 
 from __future__ import annotations
@@ -40,11 +39,12 @@ RGB_ONLY_BASELINES = ("wiener", "mallett2019", "pseudo-inverse")
 
 SET_VARIANTS = {
     f"{DEFAULT_METHOD}+{model}": (DEFAULT_METHOD, {"set_model": model})
-    for model in ("shared-texel", "material-pooled")
+    for model in ("independent", "shared-texel")
 }
-"""Extra set rows: a name -> (method, options); the default with the set models that share
-a texel's spectral shapes across the set's images and a material's shape across its texels'
-band shots (issue 29, part 2)."""
+"""Extra set rows: a name -> (method, options); the default (whose set model is
+``"material-pooled"``: a material's shape shared across its texels' band shots) with its
+spectra kept as solved and with a texel's shapes shared across the set's images instead
+(issue 29, part 2)."""
 
 TARGETS = {
     # issue 29, on every row (scene x mode, the worse seed)

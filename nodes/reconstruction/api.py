@@ -274,12 +274,17 @@ def _initial_cube(initial: xr.DataArray | None, inputs: ReconstructionInputs) ->
     return np.moveaxis(values, 1, 0)
 
 
-def _set_model_applies(set_model: str, inputs: ReconstructionInputs, method: str) -> bool:
+def _set_model_applies(
+    set_model: str, inputs: ReconstructionInputs, method: str, *, given: bool = True
+) -> bool:
     """Whether ``set_model`` refits the solver's spectra (a set of more than one image);
-    raises for ``"shared-texel"`` or ``"material-pooled"`` on a set without the illuminant,
-    before any solve."""
+    raises for a ``set_model`` the caller gave (``"shared-texel"`` or ``"material-pooled"``)
+    on a set without the illuminant, before any solve. A preset's own set model
+    (``given=False``) does not apply without the illuminant."""
     if set_model == "independent" or inputs.n_image < 2:
         return False  # one image: nothing to share
+    if inputs.illuminant is None and not given:
+        return False  # the preset's set model needs L: the solver's spectra are kept
     if inputs.illuminant is None:
         raise ReconstructionError(
             f"set_model: {set_model!r} (method {method!r}) needs the illuminant L, the "
@@ -378,15 +383,18 @@ def reconstruct(
         and its own: ``tolerance`` (stop when ``||A^T b - A^T A S|| / ||A^T b||`` is below
         it), ``max_iterations``, ``initial`` (a warm start, dims ``(image, wavelength, y,
         x)``, e.g. spectra transported from a previous image set, paper section 4),
-        ``callback(iteration, cube)``, ``set_model`` (``"independent"``, the presets'
-        setting, or ``"shared-texel"``: on a set of more than one image, refit the solver's
-        spectra with per-texel spectral shapes shared by the set's images, a per-image
-        shading and a highlight in the illuminant's spectrum,
+        ``callback(iteration, cube)``, ``set_model`` (``"independent"``, or
+        ``"shared-texel"``: on a set of more than one image, refit the solver's spectra
+        with per-texel spectral shapes shared by the set's images, a per-image shading and
+        a highlight in the illuminant's spectrum,
         :func:`~.estimators.shared_texel.shared_texel_refine` with its defaults; or
         ``"material-pooled"``: one shape per material, the texels clustered by their shapes
         and each material's shape fitted to its texels' pooled band shots,
         :func:`~.estimators.material_pooled.material_pooled_refine` with its defaults; both
-        need ``illuminant``; a single image is left as solved); the PCG solvers also ``dtype``,
+        need ``illuminant``; a single image is left as solved; the default preset's is
+        ``"material-pooled"``, every other preset's ``"independent"``; a preset's own set
+        model without ``illuminant`` keeps the solver's spectra, a given one raises); the
+        PCG solvers also ``dtype``,
         ``ridge``, ``prior`` (the guided prior's weight) and ``precondition``, the prior
         PCG the spectral prior's settings (:func:`~.solvers.prior_pcg.prior_pcg`).
         Baselines: ``"wiener"`` takes ``relative_noise``, ``"guided-projected"``
@@ -427,7 +435,11 @@ def reconstruct(
     used = {**record.defaults(), **options}
     problem = None
     if record.kind == "solver":
-        refit = _set_model_applies(used["set_model"], inputs, method)  # fail before the solve
+        refit = _set_model_applies(
+            used["set_model"], inputs, method, given="set_model" in options
+        )  # fail before the solve
+        if not refit and inputs.n_image > 1:
+            used["set_model"] = "independent"  # a set's spectra kept: recorded as applied
         setup = {name: used[name] for name in SETUP_OPTIONS}
         setup["k"] = int(setup["k"])
         own = {

@@ -40,7 +40,8 @@ RECONSTRUCT_SEED_SET = Node(
     # 6: each image's RGB mapped into the paired camera's (calibration/spectral rgb_transform)
     # 7: each image through its own camera's C (T_k C_k from camera_matrices)
     # 8: the mixture prior's compiled passes (box windows, 3 x 3 inverses: float noise)
-    version="8",
+    # 9: the default's set model 'material-pooled' where the calibration has the illuminant
+    version="9",
     function=reconstruct_seed_set,
     inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix", "image_sets": "image_sets"},
     outputs=("spectra_seed",),
@@ -52,8 +53,8 @@ RECONSTRUCT_IMAGE_SETS = Node(
     name="reconstruct_image_sets",
     # 2: tiled (parameter ``tile``), warm start from a strided seed sample; 3: as the seed
     # set's version 4; 4: as the seed set's version 5; 5: as the seed set's version 6;
-    # 6: as the seed set's version 7; 7: as the seed set's version 8
-    version="7",
+    # 6: as the seed set's version 7; 7: as the seed set's version 8; 8: as its version 9
+    version="8",
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",

@@ -112,9 +112,11 @@ SetModel = Annotated[
     str | None,
     Choices(SET_MODELS, "set model"),
     Field(
-        description="how a set's images share spectra after the solve: 'independent' or "
-        "'shared-texel' (per-texel shapes shared by the set's images; needs the "
-        "calibration's illuminant); None: the method's; solvers only",
+        description="how a set's images share spectra after the solve: 'independent', "
+        "'shared-texel' (per-texel shapes shared by the set's images) or 'material-pooled' "
+        "(one shape per material, fitted to its texels' pooled band shots); both need the "
+        "calibration's illuminant; None: the method's (the default's: 'material-pooled' "
+        "where the calibration has the illuminant, else 'independent'); solvers only",
     ),
 ]
 WarmStartPixels = Annotated[
@@ -221,13 +223,14 @@ def _set_model_settings(
     """``set_model`` and the calibration's ``illuminant`` ``L`` (wavelength,) for
     :func:`~.tiling.solve_set`: ``L`` on the bands' ``wavelength`` (linear), where the
     calibration group has one (``truth/camera`` does; an unusable one is left out unless
-    ``"shared-texel"`` needs it). Checked before any solve.
+    a given ``set_model`` needs it: a preset's own set model then keeps the solver's
+    spectra). Checked before any solve.
 
     Raises
     ------
     ReconstructionError
-        A ``set_model`` for a method without one, or ``"shared-texel"`` without an
-        illuminant in the calibration.
+        A ``set_model`` for a method without one, or a given ``"shared-texel"`` or
+        ``"material-pooled"`` without a usable illuminant in the calibration.
     """
     record = get_method(method)
     if set_model is not None and "set_model" not in record.options:
@@ -235,7 +238,7 @@ def _set_model_settings(
         raise ReconstructionError(
             f"set_model: method {method!r} has no set model; methods with one: {', '.join(takers)}"
         )
-    used = set_model or record.defaults().get("set_model")
+    needs_light = set_model not in (None, "independent")  # given: refused without L
     light = None
     if "illuminant" in calibration:
         light = calibration["illuminant"].load()
@@ -243,13 +246,13 @@ def _set_model_settings(
         try:
             on_bands = illuminant_on_bands(light, wavelength)
         except ReconstructionError as error:
-            if used == "shared-texel":
+            if needs_light:
                 raise ReconstructionError(f"calibration: {error}") from None
             return {"set_model": set_model, "illuminant": None}  # unused: not needed
         light = xr.DataArray(on_bands, dims="wavelength", coords={"wavelength": wavelength})
-    elif used == "shared-texel":
+    elif needs_light:
         raise ReconstructionError(
-            f"set_model: 'shared-texel' needs the illuminant L; the calibration group has no "
+            f"set_model: {set_model!r} needs the illuminant L; the calibration group has no "
             f"'illuminant' (wavelength,) (found variables {sorted(calibration.data_vars)})"
         )
     return {"set_model": set_model, "illuminant": light}

@@ -122,7 +122,9 @@ def test_the_set_model_is_the_solve_then_the_refinement():
     args = (scene.rgb, scene.bands, scene.camera_matrix)
     wavelength = np.asarray(scene.camera_matrix["wavelength"].values, dtype=float)
     light = np.exp(-0.5 * ((wavelength - 560.0) / 70.0) ** 2) + 0.2
-    plain = reconstruct(*args, illuminant=light, full_output=True, confidence=False)
+    plain = reconstruct(
+        *args, illuminant=light, set_model="independent", full_output=True, confidence=False
+    )
     pooled = reconstruct(
         *args, illuminant=light, set_model="material-pooled", full_output=True, confidence=False
     )

@@ -30,10 +30,12 @@ def set_scene():
 
 @pytest.fixture(scope="module")
 def plain(set_scene):
-    """The default's solve of ``set_scene`` (set model ``"independent"``)."""
+    """The default's solve of ``set_scene`` with set model ``"independent"``."""
     light = _light(_wavelength(set_scene))
     args = (set_scene.rgb, set_scene.bands, set_scene.camera_matrix)
-    return reconstruct(*args, illuminant=light, full_output=True, confidence=False)
+    return reconstruct(
+        *args, illuminant=light, set_model="independent", full_output=True, confidence=False
+    )
 
 
 def _wavelength(scene) -> np.ndarray:
@@ -75,12 +77,30 @@ def test_a_calibration_illuminant_is_put_on_the_bands_wavelengths(set_scene):
 
 
 # -- the setting ---------------------------------------------------------------------------
-def test_every_solver_preset_has_the_set_model_independent_by_default():
-    for record in RECONSTRUCTION_METHODS.values():
-        if record.kind == "solver":
+def test_the_default_pools_materials_and_every_other_preset_is_independent():
+    for name, record in RECONSTRUCTION_METHODS.items():
+        if name == DEFAULT_METHOD:
+            assert record.settings["set_model"] == "material-pooled" in SET_MODELS
+        elif record.kind == "solver":
             assert record.settings["set_model"] == "independent" == SET_MODELS[0]
         else:
             assert "set_model" not in record.options
+
+
+def test_the_defaults_set_model_applies_with_the_illuminant_only(set_scene, plain):
+    wl = _wavelength(set_scene)
+    args = (set_scene.rgb, set_scene.bands, set_scene.camera_matrix)
+    pooled = reconstruct(*args, illuminant=_light(wl), set_model="material-pooled")
+    default = reconstruct(*args, illuminant=_light(wl))
+    assert default.attrs["set_model"] == "material-pooled"
+    np.testing.assert_array_equal(default.values, pooled.values)
+    assert not np.allclose(default.values, plain.spectra.values)  # it did refit
+    # without the illuminant the preset's set model keeps the solve and says so
+    bare = reconstruct(*args)
+    assert bare.attrs["set_model"] == "independent"
+    np.testing.assert_array_equal(bare.values, plain.spectra.values)
+    with pytest.raises(ReconstructionError, match="'material-pooled'.*needs the illuminant"):
+        reconstruct(*args, set_model="material-pooled")
 
 
 def test_shared_texel_is_the_solve_then_the_refinement(set_scene, plain):
@@ -165,9 +185,18 @@ def test_the_set_nodes_pass_the_calibrations_illuminant(set_scene, plain):
     )
     np.testing.assert_allclose(seed.radiance.values, direct.values, rtol=1e-5, atol=1e-6)
     assert not np.allclose(seed.radiance.values, plain.spectra.values)
-    # the default set model leaves the solve as it was, illuminant or not
-    independent = reconstruct_seed_set(hdr, bands, calibration, sets, tile=None)
+    # set model 'independent' leaves the solve as it was; the default's pools materials
+    independent = reconstruct_seed_set(hdr, bands, calibration, sets, set_model="independent", tile=None)
     np.testing.assert_array_equal(independent.radiance.values, plain.spectra.values)
+    default = reconstruct_seed_set(hdr, bands, calibration, sets, tile=None)
+    pooled = reconstruct(
+        set_scene.rgb,
+        set_scene.bands,
+        set_scene.camera_matrix,
+        illuminant=calibration["illuminant"],
+        set_model="material-pooled",
+    )
+    np.testing.assert_allclose(default.radiance.values, pooled.values, rtol=1e-5, atol=1e-6)
 
 
 def test_the_set_nodes_refuse_shared_texel_without_an_illuminant(set_scene):
@@ -176,6 +205,10 @@ def test_the_set_nodes_refuse_shared_texel_without_an_illuminant(set_scene):
         ReconstructionError, match="'shared-texel' needs the illuminant.*no 'illuminant'"
     ):
         reconstruct_seed_set(hdr, bands, calibration, sets, set_model="shared-texel", tile=None)
+    # the default's own set model needs no illuminant: the solve is kept
+    kept = reconstruct_seed_set(hdr, bands, calibration, sets, tile=None)
+    plain = reconstruct_seed_set(hdr, bands, calibration, sets, set_model="independent", tile=None)
+    np.testing.assert_array_equal(kept.radiance.values, plain.radiance.values)
     with pytest.raises(ReconstructionError, match="method 'endmember-mixture' has no set model"):
         reconstruct_seed_set(
             hdr, bands, calibration, sets, method="endmember-mixture", set_model="shared-texel"
