@@ -829,6 +829,44 @@ def full_run(data: Json) -> list[str]:
     return out
 
 
+def node_memory(data: Json) -> list[str]:
+    sizes = [str(s) for s in data["sizes"]]
+    codes = list(data["peak_gb"])
+    direct = [s for s in next(iter(data["peak_gb"]["after"].values())) if s not in sizes]
+    rows = []
+    for node in data["peak_gb"]["after"]:
+        for code in codes:
+            peaks = data["peak_gb"][code][node]
+            rows.append(
+                [
+                    f"`{node}`",
+                    code,
+                    *(peaks.get(s) for s in sizes),
+                    data["extrapolated_2048_gb"][code][node],
+                    *(peaks.get(s) for s in direct),
+                ]
+            )
+    return [
+        f"Peak resident set per calibration node [GB], each node in a fresh process as the flow "
+        f"runs it, on the {data['recipe']}; before: commit `{data['baseline_commit']}`. "
+        f"2048^2 extrapolated: {data['extrapolation']}. Target: {num(data['target_gb'])} GB.",
+        table(
+            [
+                "node",
+                "code",
+                *(f"{s}^2" for s in sizes),
+                "2048^2 extrapolated",
+                *(f"{s}^2 measured" for s in direct),
+            ],
+            rows,
+        ),
+        table(
+            ["node", "at most 8 GB at 2048^2"],
+            ([f"`{k}`", verdict(v)] for k, v in data["met_at_2048"].items()),
+        ),
+    ]
+
+
 Section = tuple[str, str, str, Callable[[Json], list[str]]]
 SECTIONS: tuple[Section, ...] = (
     (
@@ -886,6 +924,12 @@ SECTIONS: tuple[Section, ...] = (
         "Paper-scale slice through the whole flow",
         "python benchmarks/paper_slice.py",
         paper_slice,
+    ),
+    (
+        "node_memory",
+        "Peak memory of the calibration nodes",
+        "python benchmarks/node_memory.py",
+        node_memory,
     ),
     (
         "full_run",
