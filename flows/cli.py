@@ -348,7 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--dask-address",
         default=os.environ.get("DASK_SCHEDULER_ADDRESS") or None,
         help="address of an existing dask.distributed scheduler (default: $DASK_SCHEDULER_ADDRESS, "
-        "else local threads, with batches of tiny image sets in one process per core)",
+        "else local threads)",
     )
     run.add_argument(
         "--verify",

@@ -23,11 +23,6 @@ have freed but kept back to the system (``gc.collect``, then glibc's ``malloc_tr
 block starts from what is still in use, not from what the blocks before it left in malloc's
 free lists (which grows with the image count of a run: issue 27).
 
-A local run solves GIL-bound work (batches of tiny image sets) in a pool of worker processes
-(:func:`process_pool`); their peaks are read from ``/proc/<pid>/status`` before the pool
-ends and added to the peak of the block they ran in (an upper bound of what they and this
-process held together).
-
 Where the mark cannot be read or reset (not Linux, a restricted ``/proc``),
 :class:`PeakMemory` measures nothing and says so (``peak_bytes`` is ``None``); nothing fails.
 
@@ -41,36 +36,23 @@ References
 
 from __future__ import annotations
 
-import contextlib
-import multiprocessing
-import os
 import sys
 import threading
-import time
-from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-__all__ = [
-    "PeakMemory",
-    "process_peak_bytes",
-    "process_pool",
-    "release_free_memory",
-    "resident_bytes",
-]
+__all__ = ["PeakMemory", "process_peak_bytes", "release_free_memory", "resident_bytes"]
 
 _STATUS = Path("/proc/self/status")
 _CLEAR_REFS = Path("/proc/self/clear_refs")
 _LOCK = threading.Lock()
 _EARLIER_PEAK = [0]  # the largest high-water mark reset away so far [bytes]
-_POOL_PEAKS = [0]  # the peaks of the process_pool workers that have ended, summed [bytes]
 
 
-def resident_bytes(field: str = "VmHWM", pid: int | None = None) -> int | None:
-    """``VmHWM`` (peak) or ``VmRSS`` (current) resident set of this process (or of process
-    ``pid``) [bytes]; ``None`` where ``/proc/<pid>/status`` does not tell it."""
+def resident_bytes(field: str = "VmHWM") -> int | None:
+    """``VmHWM`` (peak) or ``VmRSS`` (current) resident set of this process [bytes]; ``None``
+    where ``/proc/self/status`` does not tell it."""
     try:
-        text = (_STATUS if pid is None else Path(f"/proc/{pid}/status")).read_text()
+        text = _STATUS.read_text()
     except OSError:
         return None
     for line in text.splitlines():
@@ -130,58 +112,12 @@ def release_free_memory(collect: bool = True) -> bool:
     return True
 
 
-def _exit_with_parent(parent: int) -> None:
-    """A pool worker's initializer: end the worker when the process that started the pool is
-    gone (a runner killed with SIGKILL would otherwise leave its idle workers behind)."""
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(1.0)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="spectralize-exit-with-parent", daemon=True).start()
-
-
-@contextlib.contextmanager
-def process_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
-    """A pool of ``workers`` processes for GIL-bound work, shut down after the block.
-
-    The workers are started with ``spawn`` (this process runs threads; ``fork`` would copy
-    their locks) and only when work is first submitted (a block that submits nothing starts
-    none), import what the work needs themselves, and end with this process. Before the pool
-    ends, each worker's peak resident set is read and added to the :class:`PeakMemory` block
-    around it.
-
-    Parameters
-    ----------
-    workers
-        Most processes at a time (>= 1).
-    """
-    pool = ProcessPoolExecutor(
-        max(1, int(workers)),
-        mp_context=multiprocessing.get_context("spawn"),
-        initializer=_exit_with_parent,
-        initargs=(os.getpid(),),
-    )
-    try:
-        yield pool
-    finally:
-        # the executor keeps its workers by pid (a private map; empty if it changes)
-        pids = list(getattr(pool, "_processes", None) or {})
-        peaks = [resident_bytes(pid=pid) for pid in pids]
-        pool.shutdown(wait=True, cancel_futures=True)
-        with _LOCK:
-            _POOL_PEAKS[0] += sum(peak for peak in peaks if peak)
-
-
 class PeakMemory:
-    """The peak resident set of this process during a ``with`` block, plus the peaks of the
-    :func:`process_pool` workers that ended in it.
+    """The peak resident set of this process during a ``with`` block.
 
-    ``peak_bytes`` (after the block): the largest resident set while it ran [bytes] (with the
-    pool workers' peaks added: an upper bound of what all held together), ``None`` where it
-    cannot be measured (see the module docstring); ``peak_gb`` the same in GB (1e9 bytes).
-    Blocks must not overlap in time: the high-water mark is one per process.
+    ``peak_bytes`` (after the block): the largest resident set while it ran [bytes], ``None``
+    where it cannot be measured (see the module docstring); ``peak_gb`` the same in GB
+    (1e9 bytes). Blocks must not overlap in time: the high-water mark is one per process.
 
     Examples
     --------
@@ -194,16 +130,13 @@ class PeakMemory:
     def __init__(self) -> None:
         self.peak_bytes: int | None = None
         self._measuring = False
-        self._pool_peaks = 0
 
     def __enter__(self) -> PeakMemory:
         self._measuring = _reset()
-        self._pool_peaks = _POOL_PEAKS[0]
         return self
 
     def __exit__(self, *exc: object) -> None:
-        own = resident_bytes() if self._measuring else None
-        self.peak_bytes = None if own is None else own + _POOL_PEAKS[0] - self._pool_peaks
+        self.peak_bytes = resident_bytes() if self._measuring else None
 
     @property
     def peak_gb(self) -> float | None:

@@ -70,7 +70,7 @@ from spectralize.store import (
     compute_fingerprint,
 )
 
-from .memory import PeakMemory, process_peak_bytes, process_pool, release_free_memory
+from .memory import PeakMemory, process_peak_bytes, release_free_memory
 from .signals import sigterm_as_interrupt
 
 __all__ = [
@@ -183,11 +183,7 @@ def dask_scheduler(address: str | None, log: Callable[[str], None] = print) -> I
     """Local threads by default; an existing ``dask.distributed`` cluster when given its address.
 
     Yields how many regions (image sets) to compute at the same time: the number of worker
-    threads of the cluster, or of this machine's cores. A local run on more than one core
-    also gets a pool of one process per core for GIL-bound work (:func:`.memory.process_pool`,
-    set as dask config :data:`~spectralize.nodes.reconstruction.set_reconstruction.PROCESS_POOL`:
-    the batches of tiny image sets, mostly Python, kept about one core busy on threads:
-    issue 27); its workers start only if a node submits work. On a cluster a watchdog reports a
+    threads of the cluster, or of this machine's cores. On a cluster a watchdog reports a
     lost worker (a warning naming it) within seconds; when no worker is left for
     ``LOST_WORKERS_SECONDS`` it cancels the computation, which then fails with a
     :class:`StoreError` saying so instead of waiting forever for workers that will not come
@@ -195,17 +191,7 @@ def dask_scheduler(address: str | None, log: Callable[[str], None] = print) -> I
     """
     if not address:
         bound_malloc_arenas()  # a long threaded run's resident set stays flat (MALLOC_ARENAS)
-        cores = max(1, os.cpu_count() or 1)
-        if cores == 1:
-            yield cores
-            return
-        import dask
-
-        from spectralize.nodes.reconstruction.set_reconstruction import PROCESS_POOL
-
-        # GIL-bound work (batches of tiny image sets) runs in processes, one per core
-        with process_pool(cores) as pool, dask.config.set({PROCESS_POOL: pool}):
-            yield cores
+        yield max(1, os.cpu_count() or 1)
         return
     from distributed import Client
 

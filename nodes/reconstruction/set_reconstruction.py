@@ -13,9 +13,6 @@ region of the ``spectra`` group, so a crash loses at most the sets in flight. A 
 than :data:`BATCH_SETS_ABOVE` sets of tiny frames (every set in one tile) solves consecutive
 sets in batches of about :data:`BATCH_BYTES` of spectra, one task and one resumable region
 per batch, each set solved exactly as its own task would (a full run has thousands of sets).
-A batch is mostly Python glue that holds the GIL, so a local run solves the batches in a pool
-of processes, one per core (:data:`PROCESS_POOL`, set by the flows' runner); on a
-``dask.distributed`` cluster they run in the workers.
 
 The node functions' keyword-only arguments are the nodes' parameters (the engine derives
 the parameter models from them; :mod:`~spectralize.nodes.reconstruction.declarations`
@@ -30,8 +27,6 @@ References
 from __future__ import annotations
 
 import math
-import warnings
-from concurrent.futures.process import BrokenProcessPool
 from typing import Annotated, Any
 
 import dask
@@ -62,7 +57,6 @@ __all__ = [
     "reconstruct_seed_set",
     "reconstruct_image_sets",
     "DISK_TILE",
-    "PROCESS_POOL",
 ]
 
 _PER_IMAGE = ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
@@ -459,41 +453,6 @@ sets in batches (:func:`_solve_sets`): one task and one read of the inputs per b
 per set, so that the cost per set does not dominate a run of thousands of sets."""
 BATCH_BYTES = 32 * 2**20
 """Spectra a batch of sets returns at most (at least one set)."""
-PROCESS_POOL = "spectralize.process-pool"
-"""The dask config key of a process pool (a :class:`concurrent.futures.Executor`, or None)
-that solves the batches of sets (:func:`_solve_batch`).
-
-A batch of tiny frames is mostly Python and small numpy and scipy calls that hold the GIL
-(at 32 x 32 px, 246 images: 2.1 of 15.5 s of a batch's CPU time in the ``nogil`` kernels,
-issue 27), so on local threads a run kept about one core busy however many sets were in
-flight. The runner gives a local run a pool of as many processes as cores
-(:func:`spectralize.flows.memory.process_pool`); on a ``dask.distributed`` cluster the
-batches run in the workers' own processes and no pool is set."""
-
-
-def _solve_batch(*args: Any, **kwargs: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_solve_sets` in the :data:`PROCESS_POOL` where one is set, else in this thread.
-
-    The dask thread waits without the GIL while the batch is solved in another process; the
-    inputs (the batch's RGB and shots, the warm start's seed pixels) are pickled there and
-    the results back: the same function on the same inputs, so the same results. A solve in
-    another process reports no progress to this one's display. Where the pool cannot run
-    (its workers could not start: a main module that starts the run when imported), the
-    batch is solved here, with a warning.
-    """
-    pool = dask.config.get(PROCESS_POOL, None)
-    if pool is None:
-        return _solve_sets(*args, **kwargs)
-    try:
-        return pool.submit(_solve_sets, *args, **kwargs).result()
-    except BrokenProcessPool as error:  # e.g. a script without ``if __name__ == "__main__":``
-        warnings.warn(
-            f"the process pool cannot solve batches of sets ({error}); solving them in this "
-            "process's threads instead (about one core busy)",
-            RuntimeWarning,
-            stacklevel=2,
-        )
-        return _solve_sets(*args, **kwargs)
 
 
 def _solve_sets(
@@ -572,7 +531,7 @@ def _batch_tasks(
     token = dask.base.tokenize(
         rgb.data, shots.data, camera_matrix.values, settings, [tuple(m) for m, _ in sets], warm
     )
-    task = dask.delayed(_solve_batch, pure=True, nout=3)(
+    task = dask.delayed(_solve_sets, pure=True, nout=3)(
         rgb,
         shots,
         shot_image[picked],
