@@ -89,7 +89,12 @@ from spectralize.schemas import ReconstructionError
 
 from ..inputs import ReconstructionInputs
 from .endmember_mixture import _project, band_noise_sigma
-from .shared_texel import PRIOR_RELATIVE_SIGMA, RGB_RELATIVE_SIGMA, SHAPE_RIDGE
+from .shared_texel import (
+    PRIOR_RELATIVE_SIGMA,
+    RGB_RELATIVE_SIGMA,
+    SHAPE_RIDGE,
+    refit_input_problems,
+)
 
 __all__ = [
     "material_pooled_refine",
@@ -133,17 +138,7 @@ POOLED_RIDGE = 1e-9
 def _check(
     inputs: ReconstructionInputs, initial: np.ndarray, highlight: np.ndarray, clusters: int
 ) -> None:
-    problems = []
-    if initial.shape != inputs.cube_shape:
-        problems.append(f"initial: expected shape {inputs.cube_shape}, found {initial.shape}")
-    elif not np.all(np.isfinite(initial)):
-        problems.append(
-            f"initial: expected finite values, found {int((~np.isfinite(initial)).sum())} not"
-        )
-    if highlight.shape != (inputs.n_wavelength,):
-        problems.append(f"highlight: expected shape ({inputs.n_wavelength},), found {highlight.shape}")
-    elif not np.all(np.isfinite(highlight)) or not np.any(highlight > 0):
-        problems.append("highlight: expected a finite spectrum with a positive value")
+    problems = refit_input_problems(inputs, initial, highlight)
     if clusters < 1:
         problems.append(f"clusters: expected >= 1, found {clusters}")
     if problems:
@@ -288,24 +283,13 @@ def material_pooled_refine(
     ctc = np.matmul(np.swapaxes(cams, 1, 2) * rgb_weight[:, None, :], cams)  # (m, w, w)
     rgb_terms = (rgb * rgb_weight, cams)  # C_m^T W R_m, applied per texel as needed
     terms = (cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight)
+    shape_terms = (ell, ctc, rgb_terms, x0, prior_weight, data, shot_image, shot_band, shot_weight)
 
     # 1. each texel's own rank-1 shape with the highlight taken out (shared-texel fit)
     shapes = _top_shape(x0, SHAPE_ITERATIONS)
     weights = texel_weights(shapes, ell, *terms)
     for _ in range(int(texel_rounds)):
-        shapes = texel_shapes(
-            shapes,
-            weights,
-            ell,
-            ctc,
-            rgb_terms,
-            x0,
-            prior_weight,
-            data,
-            shot_image,
-            shot_band,
-            shot_weight,
-        )
+        shapes = texel_shapes(shapes, weights, *shape_terms)
         weights = texel_weights(shapes, ell, *terms)
 
     # 2. materials
@@ -323,20 +307,7 @@ def material_pooled_refine(
 
     # 3. pooled shapes (empirical Bayes between S^0 and the pooled bands), then weights
     for _ in range(int(rounds)):
-        pooled = _pooled_shapes(
-            weights,
-            label,
-            k,
-            ell,
-            ctc,
-            rgb_terms,
-            x0,
-            prior_weight,
-            data,
-            shot_image,
-            shot_band,
-            shot_weight,
-        )
+        pooled = _pooled_shapes(weights, label, k, *shape_terms)
         shapes = pooled[label]
         weights = texel_weights(shapes, ell, *terms)
     fit = (weights[:, :, 0, None] * shapes[:, None, :] + weights[:, :, 1, None] * ell).transpose(2, 1, 0)

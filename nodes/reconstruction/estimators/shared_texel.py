@@ -64,6 +64,7 @@ from ..inputs import ReconstructionInputs
 from .endmember_mixture import _project, band_noise_sigma
 
 __all__ = [
+    "refit_input_problems",
     "shared_texel_refine",
     "highlight_spectrum",
     "rgb_misfit",
@@ -97,7 +98,11 @@ RGB_RELATIVE_SIGMA = 0.005
 """``sigma_R,m``: RGB noise relative to image ``m``'s mean RGB per channel (HDR merge)."""
 
 
-def _check(inputs: ReconstructionInputs, initial: np.ndarray, highlight: np.ndarray, rank: int) -> None:
+def refit_input_problems(
+    inputs: ReconstructionInputs, initial: np.ndarray, highlight: np.ndarray
+) -> list[str]:
+    """What is wrong with a set model's ``initial`` cube and ``highlight`` spectrum (empty:
+    nothing), each naming the array, what was expected and what was found."""
     problems = []
     if initial.shape != inputs.cube_shape:
         problems.append(f"initial: expected shape {inputs.cube_shape}, found {initial.shape}")
@@ -109,6 +114,11 @@ def _check(inputs: ReconstructionInputs, initial: np.ndarray, highlight: np.ndar
         problems.append(f"highlight: expected shape ({inputs.n_wavelength},), found {highlight.shape}")
     elif not np.all(np.isfinite(highlight)) or not np.any(highlight > 0):
         problems.append("highlight: expected a finite spectrum with a positive value")
+    return problems
+
+
+def _check(inputs: ReconstructionInputs, initial: np.ndarray, highlight: np.ndarray, rank: int) -> None:
+    problems = refit_input_problems(inputs, initial, highlight)
     if not 1 <= rank <= inputs.n_image:
         problems.append(f"rank: expected 1 .. n_image={inputs.n_image}, found {rank}")
     if problems:

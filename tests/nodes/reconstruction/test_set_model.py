@@ -174,29 +174,18 @@ def _store_groups(scene, illuminant: bool):
 
 def test_the_set_nodes_pass_the_calibrations_illuminant(set_scene, plain):
     hdr, bands, calibration, sets = _store_groups(set_scene, illuminant=True)
-    seed = reconstruct_seed_set(hdr, bands, calibration, sets, set_model="shared-texel", tile=None)
-    assert seed.attrs["set_model"] == "shared-texel" == seed.radiance.attrs["set_model"]
-    direct = reconstruct(
-        set_scene.rgb,
-        set_scene.bands,
-        set_scene.camera_matrix,
-        illuminant=calibration["illuminant"],
-        set_model="shared-texel",
-    )
-    np.testing.assert_allclose(seed.radiance.values, direct.values, rtol=1e-5, atol=1e-6)
-    assert not np.allclose(seed.radiance.values, plain.spectra.values)
-    # set model 'independent' leaves the solve as it was; the default's pools materials
+    args = (set_scene.rgb, set_scene.bands, set_scene.camera_matrix)
+    for given, model in (("shared-texel", "shared-texel"), (None, "material-pooled")):
+        # a given set model, and the default's own: each the direct call with the calibration's L
+        options = {} if given is None else {"set_model": given}
+        seed = reconstruct_seed_set(hdr, bands, calibration, sets, tile=None, **options)
+        assert seed.radiance.attrs["set_model"] == model
+        direct = reconstruct(*args, illuminant=calibration["illuminant"], set_model=model)
+        np.testing.assert_allclose(seed.radiance.values, direct.values, rtol=1e-5, atol=1e-6)
+        assert not np.allclose(seed.radiance.values, plain.spectra.values)
+    # set model 'independent' leaves the solve as it was
     independent = reconstruct_seed_set(hdr, bands, calibration, sets, set_model="independent", tile=None)
     np.testing.assert_array_equal(independent.radiance.values, plain.spectra.values)
-    default = reconstruct_seed_set(hdr, bands, calibration, sets, tile=None)
-    pooled = reconstruct(
-        set_scene.rgb,
-        set_scene.bands,
-        set_scene.camera_matrix,
-        illuminant=calibration["illuminant"],
-        set_model="material-pooled",
-    )
-    np.testing.assert_allclose(default.radiance.values, pooled.values, rtol=1e-5, atol=1e-6)
 
 
 def test_the_set_nodes_refuse_shared_texel_without_an_illuminant(set_scene):
