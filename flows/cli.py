@@ -476,8 +476,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         import logging
 
+        from .signals import quiet_cut_off_io
+
         # zarr's I/O tasks cut off by the interrupt would each log "Task was destroyed" at exit
         logging.getLogger("asyncio").setLevel(logging.CRITICAL)
+        quiet_cut_off_io()  # and their coroutines closed after the loop: "Event loop is closed"
         print(f"spectralize {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as error:

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["Terminated", "sigterm_as_interrupt"]
+__all__ = ["Terminated", "sigterm_as_interrupt", "quiet_cut_off_io"]
 
 
 class Terminated(KeyboardInterrupt):
@@ -38,3 +39,19 @@ def sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def _drop_closed_loop_errors(unraisable: Any) -> None:
+    """``sys.unraisablehook`` that drops "Event loop is closed" from cut-off coroutines."""
+    value = unraisable.exc_value
+    if isinstance(value, RuntimeError) and "Event loop is closed" in str(value):
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+def quiet_cut_off_io() -> None:
+    """After an interrupt: I/O coroutines it cut off (zarr's reads and writes) are closed at
+    exit after their event loop, and each would print "Exception ignored ... Event loop is
+    closed" with a traceback below the command's one ``interrupted`` line. Those are dropped;
+    every other unraisable error is still printed."""
+    sys.unraisablehook = _drop_closed_loop_errors
