@@ -88,13 +88,8 @@ import numpy as np
 from spectralize.schemas import ReconstructionError
 
 from ..inputs import ReconstructionInputs
-from .endmember_mixture import _project, band_noise_sigma
-from .shared_texel import (
-    PRIOR_RELATIVE_SIGMA,
-    RGB_RELATIVE_SIGMA,
-    SHAPE_RIDGE,
-    refit_input_problems,
-)
+from .endmember_mixture import _project
+from .shared_texel import SHAPE_RIDGE, fit_terms, refit_input_problems
 
 __all__ = [
     "material_pooled_refine",
@@ -261,26 +256,22 @@ def material_pooled_refine(
     highlight = np.asarray(highlight, dtype=np.float64)
     _check(inputs, initial, highlight, int(clusters))
     n_w, n_m, h, w = inputs.cube_shape
-    n = h * w
-    if band_sigma is None:
-        band_sigma = band_noise_sigma(inputs)
-    band_sigma = np.maximum(np.asarray(band_sigma, dtype=np.float64), 1e-12)
-    ell = highlight / np.linalg.norm(highlight)
-
-    x0 = np.ascontiguousarray(initial.reshape(n_w, n_m, n).transpose(2, 1, 0))  # (n, m, w)
-    rgb = inputs.rgb.reshape(n_m, n, 3).transpose(1, 0, 2).astype(np.float64)
-    cams = np.stack([inputs.camera_of(m) for m in range(n_m)]).astype(np.float64)
-    rgb_sigma = RGB_RELATIVE_SIGMA * np.maximum(
-        np.abs(inputs.rgb.reshape(n_m, -1, 3).mean(axis=1)), 1e-12
+    t = fit_terms(inputs, initial, highlight, prior, band_sigma)
+    ell, x0, rgb, cams, rgb_weight, prior_weight = (
+        t.ell,
+        t.x0,
+        t.rgb,
+        t.cams,
+        t.rgb_weight,
+        t.prior_weight,
     )
-    rgb_weight = 1.0 / rgb_sigma**2
-    prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(initial.mean(axis=(0, 2, 3)), 1e-12)
-    prior_weight = prior / prior_sigma**2
-    shot_image = np.asarray(inputs.image, dtype=np.int64)
-    shot_band = np.asarray(inputs.band, dtype=np.int64)
-    data = inputs.band_data.reshape(len(shot_band), n).T.astype(np.float64)
-    shot_weight = 1.0 / band_sigma**2
-    ctc = np.matmul(np.swapaxes(cams, 1, 2) * rgb_weight[:, None, :], cams)  # (m, w, w)
+    shot_image, shot_band, data, shot_weight, ctc = (
+        t.shot_image,
+        t.shot_band,
+        t.data,
+        t.shot_weight,
+        t.ctc,
+    )
     rgb_terms = (rgb * rgb_weight, cams)  # C_m^T W R_m, applied per texel as needed
     terms = (cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight)
     shape_terms = (ell, ctc, rgb_terms, x0, prior_weight, data, shot_image, shot_band, shot_weight)

@@ -56,6 +56,8 @@ References
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from spectralize.schemas import ReconstructionError
@@ -65,6 +67,8 @@ from .endmember_mixture import _project, band_noise_sigma
 
 __all__ = [
     "refit_input_problems",
+    "fit_terms",
+    "FitTerms",
     "shared_texel_refine",
     "highlight_spectrum",
     "rgb_misfit",
@@ -178,6 +182,62 @@ def rgb_misfit(inputs: ReconstructionInputs, rank: int) -> np.ndarray:
     return (s[:, rank + 1] / np.maximum(s[:, 0], 1e-300)).reshape(inputs.height, inputs.width)
 
 
+class FitTerms(NamedTuple):
+    """The fixed terms of a set model's fit, per texel ``n`` (the ``active`` ones), image
+    ``m``, wavelength ``w`` and shot: :func:`fit_terms`."""
+
+    ell: np.ndarray  # (w,) L / ||L||
+    x0: np.ndarray  # (n, m, w) S^0
+    rgb: np.ndarray  # (n, m, 3) R_m
+    cams: np.ndarray  # (m, 3, w) C_m
+    rgb_weight: np.ndarray  # (m, 3) 1 / sigma_R,m^2
+    prior_weight: np.ndarray  # (m,) mu / sigma_0,m^2
+    shot_image: np.ndarray  # (shots,) m_i
+    shot_band: np.ndarray  # (shots,) b_i
+    data: np.ndarray  # (n, shots) D_i
+    shot_weight: np.ndarray  # (shots,) 1 / sigma_i^2
+    ctc: np.ndarray  # (m, w, w) C_m^T W_R C_m
+
+
+def fit_terms(
+    inputs: ReconstructionInputs,
+    initial: np.ndarray,
+    highlight: np.ndarray,
+    prior: float,
+    band_sigma: np.ndarray | None,
+    active: np.ndarray | None = None,
+) -> FitTerms:
+    """The fixed terms of the set models' least squares (module docstring's energy) for the
+    texels ``active`` (flat indices; None: all), shared by :func:`shared_texel_refine` and
+    :func:`~.material_pooled.material_pooled_refine`."""
+    n_w, n_m, h, w = inputs.cube_shape
+    n = h * w
+    active = np.arange(n) if active is None else active
+    if band_sigma is None:
+        band_sigma = band_noise_sigma(inputs)
+    band_sigma = np.maximum(np.asarray(band_sigma, dtype=np.float64), 1e-12)
+    cams = np.stack([inputs.camera_of(m) for m in range(n_m)]).astype(np.float64)
+    rgb_sigma = RGB_RELATIVE_SIGMA * np.maximum(
+        np.abs(inputs.rgb.reshape(n_m, -1, 3).mean(axis=1)), 1e-12
+    )
+    rgb_weight = 1.0 / rgb_sigma**2
+    prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(initial.mean(axis=(0, 2, 3)), 1e-12)
+    shot_band = np.asarray(inputs.band, dtype=np.int64)
+    return FitTerms(
+        ell=highlight / np.linalg.norm(highlight),
+        x0=np.ascontiguousarray(initial.reshape(n_w, n_m, n)[:, :, active].transpose(2, 1, 0)),
+        rgb=inputs.rgb.reshape(n_m, n, 3)[:, active].transpose(1, 0, 2).astype(np.float64),
+        cams=cams,
+        rgb_weight=rgb_weight,
+        prior_weight=prior / prior_sigma**2,
+        shot_image=np.asarray(inputs.image, dtype=np.int64),
+        shot_band=shot_band,
+        data=inputs.band_data.reshape(len(shot_band), n)[:, active].T.astype(np.float64),
+        shot_weight=1.0 / band_sigma**2,
+        ctc=np.matmul(np.swapaxes(cams, 1, 2) * rgb_weight[:, None, :], cams),
+    )
+
+
 def shared_texel_refine(
     inputs: ReconstructionInputs,
     initial: np.ndarray,
@@ -234,29 +294,26 @@ def shared_texel_refine(
     _check(inputs, initial, highlight, rank)
     n_w, n_m, h, w = inputs.cube_shape
     n = h * w
-    if band_sigma is None:
-        band_sigma = band_noise_sigma(inputs)
-    band_sigma = np.maximum(np.asarray(band_sigma, dtype=np.float64), 1e-12)
-    ell = highlight / np.linalg.norm(highlight)
-
     # only the texels the model can fit are refitted (the others keep S^0): the cost is
     # per refitted texel
     keep = None if misfit is None else (rgb_misfit(inputs, rank) > misfit).ravel()  # (n,)
     active = np.arange(n) if keep is None else np.flatnonzero(~keep)
-    x0 = np.ascontiguousarray(initial.reshape(n_w, n_m, n)[:, :, active].transpose(2, 1, 0))
-    rgb = inputs.rgb.reshape(n_m, n, 3)[:, active].transpose(1, 0, 2)  # (n_active, m, 3)
-    cams = np.stack([inputs.camera_of(m) for m in range(n_m)]).astype(np.float64)  # (m, 3, w)
-    rgb_sigma = RGB_RELATIVE_SIGMA * np.maximum(
-        np.abs(inputs.rgb.reshape(n_m, -1, 3).mean(axis=1)), 1e-12
+    t = fit_terms(inputs, initial, highlight, prior, band_sigma, active)
+    ell, x0, rgb, cams, rgb_weight, prior_weight = (
+        t.ell,
+        t.x0,
+        t.rgb,
+        t.cams,
+        t.rgb_weight,
+        t.prior_weight,
     )
-    rgb_weight = 1.0 / rgb_sigma**2  # (m, 3)
-    prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(initial.mean(axis=(0, 2, 3)), 1e-12)
-    prior_weight = prior / prior_sigma**2  # (m,)
-
-    shot_image = np.asarray(inputs.image, dtype=np.int64)
-    shot_band = np.asarray(inputs.band, dtype=np.int64)
-    data = inputs.band_data.reshape(len(shot_band), n)[:, active].T.astype(np.float64)
-    shot_weight = 1.0 / band_sigma**2  # (shots,)
+    shot_image, shot_band, data, shot_weight, ctc = (
+        t.shot_image,
+        t.shot_band,
+        t.data,
+        t.shot_weight,
+        t.ctc,
+    )
 
     # initial shapes: the texel's rank-r SVD of S^0 (L is not projected out: every
     # radiance is L times a reflectance, so most of a material's spectrum lies along L)
@@ -264,8 +321,7 @@ def shared_texel_refine(
     sign = np.where(shapes.sum(axis=2) < 0, -1.0, 1.0)
     shapes *= sign[:, :, None]
 
-    # per image: C_m^T W_R C_m and C_m^T W_R R_m (fixed over the rounds)
-    ctc = np.matmul(np.swapaxes(cams, 1, 2) * rgb_weight[:, None, :], cams)  # (m, w, w)
+    # per image: C_m^T W_R R_m (fixed over the rounds; C_m^T W_R C_m is ctc)
     ctr = np.matmul((rgb * rgb_weight)[:, :, None, :], cams[None])[:, :, 0, :]  # (n, m, w)
     weights = None
     for _ in range(int(rounds)):
