@@ -51,6 +51,7 @@ from typing import Any
 
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
+from threadpoolctl import threadpool_limits
 
 from spectralize.engine import PlannedStep, Step, check_graph, registry
 from spectralize.flows import progress
@@ -152,6 +153,17 @@ Python objects did not. Two arenas keep it flat; the threads' numpy work holds n
 malloc's for long (the arrays are allocated once per call)."""
 
 
+INNER_THREADS = 1
+"""Threads of BLAS and OpenMP (numpy's and scipy's OpenBLAS, pykdtree's k-d tree) inside a
+run's tasks on local threads, where as many tasks as cores already run at once.
+
+Each of the concurrent tasks otherwise starts its own pool of BLAS threads per call; on a
+set's small matrices those threads mostly spin. Measured on 4 batches of 959 images of the
+5,280-image full_run store, 2 dask threads, 2 cores (issue 27): 47.4 s wall / 88.1 s CPU with
+the libraries' default of one thread per core, 37.5 s / 65.2 s with one. A ``distributed``
+worker already runs with one (its nanny sets ``OMP_NUM_THREADS`` and the like)."""
+
+
 def bound_malloc_arenas(arenas: int = MALLOC_ARENAS) -> bool:
     """Limit this process's glibc malloc to ``arenas`` arenas (``mallopt(M_ARENA_MAX)``).
 
@@ -183,7 +195,8 @@ def dask_scheduler(address: str | None, log: Callable[[str], None] = print) -> I
     """Local threads by default; an existing ``dask.distributed`` cluster when given its address.
 
     Yields how many regions (image sets) to compute at the same time: the number of worker
-    threads of the cluster, or of this machine's cores. On a cluster a watchdog reports a
+    threads of the cluster, or of this machine's cores (on local threads, BLAS and OpenMP run
+    one thread per task meanwhile: :data:`INNER_THREADS`). On a cluster a watchdog reports a
     lost worker (a warning naming it) within seconds; when no worker is left for
     ``LOST_WORKERS_SECONDS`` it cancels the computation, which then fails with a
     :class:`StoreError` saying so instead of waiting forever for workers that will not come
@@ -191,7 +204,8 @@ def dask_scheduler(address: str | None, log: Callable[[str], None] = print) -> I
     """
     if not address:
         bound_malloc_arenas()  # a long threaded run's resident set stays flat (MALLOC_ARENAS)
-        yield max(1, os.cpu_count() or 1)
+        with threadpool_limits(limits=INNER_THREADS):  # the cores go to the tasks
+            yield max(1, os.cpu_count() or 1)
         return
     from distributed import Client
 
