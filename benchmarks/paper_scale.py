@@ -36,6 +36,7 @@ shots each, the default method):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -73,6 +74,7 @@ def resident_gb(field: str = "VmHWM") -> float:
 def capture_inputs(scene: str, size: int, seed: int, path: Path, *, truth: bool) -> None:
     """Capture a 20-image set of ``scene`` and save its inputs (and truth) as ``.npz``."""
     from spectralize.nodes.simulation.scenes import get_scene
+    from spectralize.nodes.simulation.scenes.materials import sharp_led
 
     capture = get_scene(scene, size=size, seed=seed, n_images=20)
     bands = capture.bands
@@ -84,6 +86,8 @@ def capture_inputs(scene: str, size: int, seed: int, path: Path, *, truth: bool)
         "filter_size": bands["filter_size"].values,
         "camera_matrix": capture.camera_matrix.transpose("channel", "wavelength").values,
         "camera_wavelength": capture.camera_matrix["wavelength"].values,
+        # the run's LED, L on the camera's wavelengths (the set model's illuminant)
+        "illuminant": sharp_led(capture.camera_matrix["wavelength"].values),
     }
     if truth:
         arrays["truth"] = capture.truth.transpose("image", "wavelength", "y", "x").values
@@ -140,6 +144,22 @@ def load_inputs(path: Path, size: int | None = None):
     return rgb_da, shots, camera, truth
 
 
+def flow_settings(path: Path) -> dict:
+    """The settings a run's set nodes give a tile's solve: the method and the run's
+    illuminant ``L`` (wavelength,), so that the method's set model applies as in the flow
+    (none in inputs saved before ``L`` was kept: the solve alone)."""
+    import xarray as xr
+
+    data = np.load(Path(path) / "meta.npz" if Path(path).is_dir() else path)
+    settings: dict = {"method": _method()}
+    if "illuminant" in data.files:
+        wavelength = data["camera_wavelength"]
+        settings["illuminant"] = xr.DataArray(
+            data["illuminant"], dims="wavelength", coords={"wavelength": wavelength}
+        )
+    return settings
+
+
 def nrmse(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Per-pixel RMSE over wavelengths / the image's mean truth, ``(image, y, x)``."""
     rmse = np.sqrt(np.mean((np.asarray(estimate, np.float64) - truth) ** 2, axis=1))
@@ -167,7 +187,22 @@ def _set_endmembers(rgb, shots, camera) -> tuple[object, float]:
     return endmembers, time.perf_counter() - started
 
 
-def _solve_window(rgb, shots, camera, window, endmembers=None) -> tuple[float, int]:
+@contextlib.contextmanager
+def _as_a_run():
+    """The threads' inner BLAS/OpenMP threads as a run on local threads sets them
+    (``spectralize.flows.runtime.INNER_THREADS``; code from before it: the libraries' own)."""
+    try:
+        from spectralize.flows.runtime import INNER_THREADS
+    except ImportError:
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=INNER_THREADS):
+        yield
+
+
+def _solve_window(rgb, shots, camera, window, settings, endmembers=None) -> tuple[float, int]:
     """One tile as the flow solves it (its tile task, :func:`~.tiling.solve_tile`): with the
     set's endmembers and the per-pixel confidence; ``(seconds, iterations)``."""
     from spectralize.nodes.reconstruction.tiling import solve_tile
@@ -179,7 +214,7 @@ def _solve_window(rgb, shots, camera, window, endmembers=None) -> tuple[float, i
         shots.isel(y=oy, x=ox),
         camera,
         window.inner,
-        settings={"method": _method()},
+        settings=settings,
         confidence=True,
         endmembers=endmembers,
     )
@@ -202,9 +237,11 @@ def case_throughput(inputs: Path, size: int, tile: int, sample: int, threads: in
     chosen = (interior or windows)[: max(1, sample)] if sample < len(windows) else windows
     rss_inputs = resident_gb("VmRSS")
     endmembers, learn_s = _set_endmembers(rgb, shots, camera)
+    settings = flow_settings(inputs)
     started = time.perf_counter()
-    tasks = [dask.delayed(_solve_window)(rgb, shots, camera, w, endmembers) for w in chosen]
-    results = dask.compute(*tasks, scheduler="threads", num_workers=threads)
+    tasks = [dask.delayed(_solve_window)(rgb, shots, camera, w, settings, endmembers) for w in chosen]
+    with _as_a_run():
+        results = dask.compute(*tasks, scheduler="threads", num_workers=threads)
     # the set's dictionary is learnt once: each tile's share of it
     wall = time.perf_counter() - started + learn_s * len(chosen) / len(windows)
     core_mpx = sum(np.prod(w.core_shape) for w in chosen) * rgb.sizes["image"] / 1e6
@@ -291,7 +328,7 @@ def case_accuracy(inputs: Path) -> dict:
 
     rgb, shots, camera, truth = load_inputs(inputs)
     started = time.perf_counter()
-    cube, iterations, _ = solve_set(rgb, shots, camera, method=_method())
+    cube, iterations, _ = solve_set(rgb, shots, camera, **flow_settings(inputs))
     seconds = time.perf_counter() - started
     e = nrmse(cube.transpose("image", "wavelength", "y", "x").values, truth)
     return {
