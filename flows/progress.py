@@ -13,18 +13,27 @@ advance with the engine's :class:`~spectralize.engine.progress.Estimate` (share 
 solver's work done and seconds left, from its measured convergence rate and time per
 iteration).
 
-How the time left of a node's image sets is measured (:class:`SetClock`): the work done is
-the sets written plus the share done of every set in progress, a set being its solve and
-what follows until it is written (both measured); the rate is that work over the time since
-the first set started; the time left is the work left at that rate. So the bar moves as the
-work is done, not in jumps when sets finish, and the estimate exists before the first set
-is written.
+What a resumable write has written is counted along its dim (``2,390/5,280 images
+written``): a region of the store's write can be one image set or a batch of many
+(:func:`store_message`).
+
+How the time left of a node's image sets is measured (:class:`SetClock`): while each region
+is one solver run (one image set, solved whole), the work done is the sets written plus the
+share done of every set in progress, a set being its solve and what follows until it is
+written (both measured); the rate is that work over the time since the first set started;
+the time left is the work left at that rate. So the bar moves as the work is done, not in
+jumps when sets finish. Where a region takes several solver runs (a batch of sets solved one
+after the other in one task, or a set's tiles), which is measured (more runs solved and not
+written than can be in flight), the runs no longer tell how far a region is: the time left is
+then the time so far per image written (per region, without a count along the dim) times the
+images left.
 
 Two displays, with the same numbers:
 
 - :class:`RichProgress` (a terminal): one line per running node with its stage and elapsed
-  time, for a resumable write a bar of the image sets (work done) with the ETA, and under it
-  a bar per running solver (share of its work) with its ETA; a finished node leaves one line.
+  time, for a resumable write a bar of the work done with what is written
+  (``2,390/5,280 images written``) and the ETA, and under it a bar per running solver
+  (share of its work) with its ETA; a finished node leaves one line.
 - :class:`PlainProgress` (a pipe or a file): the same as plain lines, with the ETA in words;
   a solver run gets a line at most every 10 s (none when it takes less) and one when it ends.
 
@@ -44,7 +53,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
-from typing import IO, Any, Protocol
+from typing import IO, Any, NamedTuple, Protocol
 
 __all__ = [
     "Listener",
@@ -58,6 +67,7 @@ __all__ = [
     "console_progress",
     "format_seconds",
     "SetClock",
+    "Counted",
 ]
 
 
@@ -68,7 +78,9 @@ class Listener(Protocol):
 
     def stage(self, node: str, text: str) -> None: ...
 
-    def regions(self, node: str, group: str, done: int, total: int, resumed: int) -> None: ...
+    def regions(
+        self, node: str, group: str, done: int, total: int, resumed: int, counted: Counted | None = None
+    ) -> None: ...
 
     def step_finished(self, node: str, status: str, seconds: float) -> None: ...
 
@@ -85,6 +97,35 @@ class Listener(Protocol):
     # measured), told just before its ``step_finished``.
 
     def step_peak(self, node: str, peak_gb: float | None) -> None: ...
+
+
+class Counted(NamedTuple):
+    """What a resumable write has written, counted along its dim (its regions can be batches).
+
+    Attributes
+    ----------
+    done, total
+        Indices along the dim written (earlier runs' included) and in all (``2390``, ``5280``).
+    resumed
+        Of ``done``, those an earlier run wrote.
+    unit
+        The dim (``"image"``).
+    """
+
+    done: int
+    total: int
+    resumed: int
+    unit: str
+
+    def text(self) -> str:
+        """``2,390/5,280 images``."""
+        plural = self.unit if self.unit.endswith("s") else f"{self.unit}s"
+        return f"{self.done:,}/{self.total:,} {self.unit if self.total == 1 else plural}"
+
+
+def _written_text(done: int, total: int, counted: Counted | None) -> str:
+    """``2,390/5,280 images`` (``3/9 region(s)`` from a store that does not count along its dim)."""
+    return counted.text() if counted is not None else f"{done}/{total} region(s)"
 
 
 def _peak_text(peak_gb: float | None) -> str:
@@ -155,26 +196,34 @@ def node_tasks(node: str) -> Iterator[None]:
 
 
 # The run store's resumable writes report in words (RunStore.write(progress=...)); these
-# are the two messages it sends (tests/flows/test_progress.py checks them against a write).
-_REGION = re.compile(r"region \d+ of (?P<total>\d+) written \((?P<done>\d+)/\d+ done\)")
-_RESUMING = re.compile(r"(?P<done>\d+)/(?P<total>\d+) region\(s\) of \S+ already written, resuming")
+# are the two messages it sends (tests/flows/test_progress.py checks them against a write),
+# each with the count along the dim (optional here: an older store's messages lack it).
+_ALONG = r"(?P<counted>\d+)/(?P<size>\d+) along (?P<dim>\S+)"
+_REGION = re.compile(rf"region \d+ of (?P<total>\d+) written \((?P<done>\d+)/\d+ done(?:, {_ALONG})?\)")
+_RESUMING = re.compile(
+    rf"(?P<done>\d+)/(?P<total>\d+) region\(s\) of \S+ already written(?: \({_ALONG}\))?, resuming"
+)
 
 
 def store_message(node: str, group: str, message: str, resumed: dict[str, int]) -> None:
     """Turn one of the store's region messages into a :meth:`Listener.regions` call.
 
-    ``resumed`` (one dict per write) remembers how many regions an earlier run had written,
-    so that the ETA counts only the regions written now.
+    ``resumed`` (one dict per write) remembers how many regions (and indices along the dim)
+    an earlier run had written, so that the ETA counts only the work done now.
     """
-    found = _RESUMING.search(message)
-    if found:
-        resumed["done"] = int(found["done"])
-        notify("regions", node, group, int(found["done"]), int(found["total"]), resumed["done"])
+    found = _RESUMING.search(message) or _REGION.search(message)
+    if found is None:
         return
-    found = _REGION.search(message)
-    if found:
-        done, total = int(found["done"]), int(found["total"])
-        notify("regions", node, group, done, total, resumed.get("done", 0))
+    done, total = int(found["done"]), int(found["total"])
+    if found.re is _RESUMING:
+        resumed["done"] = done
+        resumed["counted"] = int(found["counted"] or 0)
+    counted = None
+    if found["counted"] is not None:
+        counted = Counted(
+            int(found["counted"]), int(found["size"]), resumed.get("counted", 0), found["dim"]
+        )
+    notify("regions", node, group, done, total, resumed.get("done", 0), counted)
 
 
 def format_seconds(seconds: float) -> str:
@@ -190,13 +239,20 @@ def format_seconds(seconds: float) -> str:
 
 
 class SetClock:
-    """The work done on a node's image sets and the time left, measured (see the module
+    r"""The work done on a node's image sets and the time left, measured (see the module
     docstring). Not thread-safe: the displays call it under their lock.
 
-    A set's work is its solve and what follows until it is written (its confidence, the
-    write); the time after the solve is measured on the sets written so far (solved sets are
-    matched to written regions in order), so a solved set waiting for its write is not
-    counted as done.
+    While each region is one solver run, a set's work is its solve and what follows until it
+    is written (its confidence, the write); the time after the solve is measured on the sets
+    written so far (solved sets are matched to written regions in order), so a solved set
+    waiting for its write is not counted as done.
+
+    A region of several solver runs (a batch of sets, a set's tiles) shows as more runs solved
+    and not written than one-run regions can leave (one per region in flight, at most the
+    runs seen running at once, plus one); from then on the node's time left is
+    :math:`t \, (N - n) / (n - n_0)`: the time :math:`t` since its first run started, per
+    index :math:`n - n_0` written along the dim since then (images; regions without a
+    count), times the :math:`N - n` left.
     """
 
     def __init__(self) -> None:
@@ -209,6 +265,10 @@ class SetClock:
         # node -> (time solved, seconds it took) of each set solved, not yet written, in order
         self._solved: dict[str, list[tuple[float, float]]] = {}
         self._regions: dict[str, tuple[int, int, int]] = {}  # node -> (done, total, resumed)
+        # node -> [done, total, base]: indices along the dim, base counted before the measure
+        self._counted: dict[str, list[int]] = {}
+        self._most: dict[str, int] = {}  # node -> most solver runs seen running at once
+        self._batched: set[str] = set()  # nodes whose regions take several solver runs
 
     def task_started(self, node: str, key: int, now: float) -> None:
         if node not in self._start:  # sets written before the first solve are not its work
@@ -216,7 +276,11 @@ class SetClock:
             if node in self._regions:
                 done, total, _ = self._regions[node]
                 self._regions[node] = (done, total, done)
+            if node in self._counted:
+                self._counted[node][2] = self._counted[node][0]
         self._running[(node, key)] = [now, None]
+        running = sum(1 for n, _ in self._running if n == node)
+        self._most[node] = max(self._most.get(node, 0), running)
 
     def task_advanced(self, node: str, key: int, estimate: Any) -> None:
         if (node, key) in self._running and estimate is not None:
@@ -226,8 +290,7 @@ class SetClock:
         state = self._running.pop((node, key), None)
         if state is not None:
             self._took.setdefault(node, []).append(now - state[0])
-            if node in self._regions:
-                self._solved.setdefault(node, []).append((now, now - state[0]))
+            self._solved.setdefault(node, []).append((now, now - state[0]))
 
     @staticmethod
     def _mean(values: list[float] | None) -> float | None:
@@ -256,18 +319,41 @@ class SetClock:
             for solved, took in self._solved.get(node, ())
         )
 
-    def regions(self, node: str, done: int, total: int, resumed: int, now: float) -> None:
+    def regions(
+        self, node: str, done: int, total: int, resumed: int, now: float, counted: Counted | None = None
+    ) -> None:
         previous, _, base = self._regions.get(node, (resumed, total, resumed))
-        if node not in self._start and node not in self._first:
+        fresh = node not in self._start and node not in self._first
+        if fresh:
             # measured from here (a node without solver tasks) or from its first solve
             base = done
             self._first[node] = now
         self._regions[node] = (done, total, max(base, resumed))
+        if counted is not None:
+            counted_base = self._counted.get(node, [0, 0, counted.resumed])[2]
+            if fresh:
+                counted_base = counted.done
+            self._counted[node] = [counted.done, counted.total, max(counted_base, counted.resumed)]
         waiting = self._solved.get(node, [])
         for _ in range(max(0, done - previous)):
             if waiting:
                 solved, _ = waiting.pop(0)
                 self._after.setdefault(node, []).append(now - solved)
+        # one-run regions leave at most one run solved and unwritten per region in flight
+        if len(waiting) > self._most.get(node, 0) + 1:
+            self._batched.add(node)
+
+    def _per_written(self, node: str, now: float) -> tuple[float, float | None]:
+        """A node of several runs per region: the time so far per index written along the dim
+        (per region without a count) times the indices left. Regions in flight count nothing
+        until written, so with ``c`` computed at a time the estimate right after a region is at
+        most ``(k + c - 1) / k`` times the time left, ``k`` written so far (never less)."""
+        done, total, resumed = self._regions[node]
+        written, size, base = self._counted.get(node, (done, total, resumed))
+        elapsed = now - self._start.get(node, self._first.get(node, now))
+        if written <= base or elapsed <= 0:
+            return float(done), None
+        return float(done), elapsed / (written - base) * (size - written)
 
     def estimate(self, node: str, now: float) -> tuple[float, float | None]:
         """``(sets done, seconds left)``: sets done counts the share of sets in progress;
@@ -275,6 +361,8 @@ class SetClock:
         if node not in self._regions:
             return 0.0, None
         done, total, resumed = self._regions[node]
+        if node in self._batched:
+            return self._per_written(node, now)
         running = sum(self._share(node, st, now) for (n, _), st in self._running.items() if n == node)
         work = min(float(total - resumed), done - resumed + self._waiting(node, now) + running)
         elapsed = now - self._start.get(node, self._first.get(node, now))
@@ -283,8 +371,18 @@ class SetClock:
         return resumed + work, elapsed / work * (total - resumed - work)
 
     def forget(self, node: str) -> None:
-        for table in (self._start, self._first, self._took, self._after, self._solved, self._regions):
+        for table in (
+            self._start,
+            self._first,
+            self._took,
+            self._after,
+            self._solved,
+            self._regions,
+            self._counted,
+            self._most,
+        ):
             table.pop(node, None)
+        self._batched.discard(node)
         for key in [k for k in self._running if k[0] == node]:
             del self._running[key]
 
@@ -328,14 +426,17 @@ class PlainProgress:
     def stage(self, node: str, text: str) -> None:
         self._print(f"    {node}: {text}")
 
-    def regions(self, node: str, group: str, done: int, total: int, resumed: int) -> None:
+    def regions(
+        self, node: str, group: str, done: int, total: int, resumed: int, counted: Counted | None = None
+    ) -> None:
         with self._lock:
             now = self.clock()
-            self.sets.regions(node, done, total, resumed, now)
+            self.sets.regions(node, done, total, resumed, now, counted)
             _, left = self.sets.estimate(node, now)
-        line = f"    {node}: {group}: {done}/{total} image set(s) written"
+        line = f"    {node}: {group}: {_written_text(done, total, counted)} written"
         if resumed and done == resumed:
-            self._print(f"{line} by an earlier run, resuming")
+            regions = "" if counted is None else f" ({done}/{total} region(s))"
+            self._print(f"{line} by an earlier run{regions}, resuming")
             return
         if left is not None and done < total:
             line += f", about {format_seconds(left)} left"
@@ -478,15 +579,16 @@ class RichProgress:
             if owner == node:
                 self.progress.update(bar, completed=work, eta=left)
 
-    def regions(self, node: str, group: str, done: int, total: int, resumed: int) -> None:
+    def regions(
+        self, node: str, group: str, done: int, total: int, resumed: int, counted: Counted | None = None
+    ) -> None:
         with self._lock:
-            self.sets.regions(node, done, total, resumed, self.clock())
+            self.sets.regions(node, done, total, resumed, self.clock(), counted)
             key = (node, group)
             if key not in self._bars:
-                self._bars[key] = self.progress.add_task(
-                    f"    {group}: image sets", total=total, completed=resumed
-                )
-            self.progress.update(self._bars[key], total=total, count=f"{done}/{total} written")
+                self._bars[key] = self.progress.add_task(f"    {group}", total=total, completed=resumed)
+            count = f"{_written_text(done, total, counted)} written"
+            self.progress.update(self._bars[key], total=total, count=count)
             self._update_sets(node)
 
     def task_started(self, node: str, key: int, label: str, total: int | None) -> None:

@@ -159,8 +159,13 @@ def write_regions(
     along = [name for name, var in ds.variables.items() if dim in var.dims and var.chunks is not None]
     total = len(regions)
     skipped = [i for i in range(total) if done[i]]
+    # the messages also count along dim (a region can be a batch of image sets)
+    size, counted = ds.sizes[dim], sum(regions[i].stop - regions[i].start for i in skipped)
     if skipped and progress:
-        progress(f"{len(skipped)}/{total} region(s) of {dim} already written, resuming")
+        progress(
+            f"{len(skipped)}/{total} region(s) of {dim} already written "
+            f"({counted}/{size} along {dim}), resuming"
+        )
 
     def write_region(index: int) -> int:
         region = regions[index]
@@ -185,8 +190,12 @@ def write_regions(
     try:
         for index in results:
             finished += 1
+            counted += regions[index].stop - regions[index].start
             if progress:
-                progress(f"region {index + 1} of {total} written ({finished}/{total} done)")
+                progress(
+                    f"region {index + 1} of {total} written "
+                    f"({finished}/{total} done, {counted}/{size} along {dim})"
+                )
     finally:
         if concurrent != 1:
             pool.shutdown(wait=True, cancel_futures=True)

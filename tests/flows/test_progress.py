@@ -18,6 +18,7 @@ from spectralize.engine import progress as engine_progress
 from spectralize.engine.progress import Estimate
 from spectralize.flows import progress
 from spectralize.flows.progress import (
+    Counted,
     PlainProgress,
     RichProgress,
     SetClock,
@@ -76,18 +77,47 @@ def test_the_store_region_messages_drive_the_display_also_when_resuming(tmp_path
         with pytest.raises(RuntimeError, match="region 2"):
             write(lazy_cube(fail_at=2))
         assert recorder.calls == [
-            ("regions", "node", "cube", 1, 4, 0),
-            ("regions", "node", "cube", 2, 4, 0),
+            ("regions", "node", "cube", 1, 4, 0, Counted(1, 4, 0, "image")),
+            ("regions", "node", "cube", 2, 4, 0, Counted(2, 4, 0, "image")),
         ]
         recorder.calls.clear()
         write(lazy_cube())
     assert recorder.calls == [
-        ("regions", "node", "cube", 2, 4, 2),  # written by the failed run
-        ("regions", "node", "cube", 3, 4, 2),
-        ("regions", "node", "cube", 4, 4, 2),
+        ("regions", "node", "cube", 2, 4, 2, Counted(2, 4, 2, "image")),  # by the failed run
+        ("regions", "node", "cube", 3, 4, 2, Counted(3, 4, 2, "image")),
+        ("regions", "node", "cube", 4, 4, 2, Counted(4, 4, 2, "image")),
     ]
     progress.notify("regions", "node", "cube", 4, 4, 0)  # no listener left: nothing happens
     assert len(recorder.calls) == 3
+
+
+def test_the_store_messages_count_along_the_dim_when_a_region_is_a_batch(tmp_path):
+    """Regions of 1, 3 and 2 images (batches of sets): the count is of images, not regions."""
+    store = RunStore.create(tmp_path / "run.zarr")
+    recorder = Recorder()
+    pieces = [
+        da.from_delayed(dask.delayed(np.full)((n, 4, 4), i, np.float32), (n, 4, 4), np.float32)
+        for i, n in enumerate((1, 3, 2))
+    ]
+    cube = xr.Dataset({"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})})
+    resumed = {}
+    with listening(recorder):
+        store.write(
+            "cube",
+            cube,
+            fingerprint="fp",
+            resumable_along="image",
+            concurrent_regions=1,
+            progress=lambda message: store_message("node", "cube", message, resumed),
+        )
+    assert [call[6] for call in recorder.calls] == [
+        Counted(1, 6, 0, "image"),
+        Counted(4, 6, 0, "image"),
+        Counted(6, 6, 0, "image"),
+    ]
+    assert Counted(4, 6, 0, "image").text() == "4/6 images"
+    assert Counted(2390, 5280, 0, "image").text() == "2,390/5,280 images"
+    assert Counted(1, 1, 0, "image").text() == "1/1 image"
 
 
 def test_plain_lines_say_the_node_the_image_sets_and_the_time_left():
@@ -96,18 +126,25 @@ def test_plain_lines_say_the_node_the_image_sets_and_the_time_left():
     display = PlainProgress(out, clock=lambda: now[0])
     display.step_started(10, 12, "reconstruct_image_sets")
     display.stage("reconstruct_image_sets", "computing and writing spectra")
-    display.regions("reconstruct_image_sets", "spectra", 3, 10, 3)  # resumed
+    # sets of 3 images (resumed), 2 and 3: the store's count along the dim names the images
+    display.regions("reconstruct_image_sets", "spectra", 3, 10, 3, Counted(9, 30, 9, "image"))
     now[0] = 130.0
-    display.regions("reconstruct_image_sets", "spectra", 4, 10, 3)
+    display.regions("reconstruct_image_sets", "spectra", 4, 10, 3, Counted(11, 30, 9, "image"))
     now[0] = 160.0
-    display.regions("reconstruct_image_sets", "spectra", 5, 10, 3)  # 30 s per set, 5 left
+    display.regions("reconstruct_image_sets", "spectra", 5, 10, 3, Counted(14, 30, 9, "image"))
+    now[0] = 170.0
+    display.regions("reconstruct_image_sets", "spectra", 6, 10, 3)  # no count: 70 s per 3 sets
     display.step_finished("reconstruct_image_sets", "ran", 75.0)
-    assert out.getvalue().splitlines() == [
+    assert out.getvalue().splitlines() == [  # 30 s per set: 5 left after the 5th
         "[10/12] reconstruct_image_sets",
         "    reconstruct_image_sets: computing and writing spectra",
-        "    reconstruct_image_sets: spectra: 3/10 image set(s) written by an earlier run, resuming",
-        "    reconstruct_image_sets: spectra: 4/10 image set(s) written, about 3 min 00 s left",
-        "    reconstruct_image_sets: spectra: 5/10 image set(s) written, about 2 min 30 s left",
+        (
+            "    reconstruct_image_sets: spectra: 9/30 images written by an earlier run "
+            "(3/10 region(s)), resuming"
+        ),
+        "    reconstruct_image_sets: spectra: 11/30 images written, about 3 min 00 s left",
+        "    reconstruct_image_sets: spectra: 14/30 images written, about 2 min 30 s left",
+        "    reconstruct_image_sets: spectra: 6/10 region(s) written, about 1 min 33 s left",
         "    reconstruct_image_sets: done in 1 min 15 s",
     ]
 
@@ -120,7 +157,7 @@ def test_the_rich_bar_renders_on_a_terminal():
     from rich.console import Console
 
     out = io.StringIO()
-    with RichProgress(Console(file=out, force_terminal=True, width=100)) as display:
+    with RichProgress(Console(file=out, force_terminal=True, width=140)) as display:
         with listening(display):
             progress.notify("step_started", 1, 2, "reconstruct_image_sets")
             progress.notify("stage", "reconstruct_image_sets", "computing and writing spectra")
@@ -129,7 +166,7 @@ def test_the_rich_bar_renders_on_a_terminal():
                 display.progress.refresh()
             text = out.getvalue()
             progress.notify("step_finished", "reconstruct_image_sets", "ran", 3.0)
-    assert "spectra: image sets" in text and "4/4 written" in text
+    assert "spectra" in text and "4/4 region(s) written" in text
     assert "[1/2] reconstruct_image_sets: done in 3 s" in out.getvalue()
 
 
@@ -434,7 +471,97 @@ def test_the_image_sets_eta_of_a_flow_run_is_within_twice_the_time_really_left(t
             },
         )
     lines = display.stream.getvalue()
-    assert "image set(s) written, about" in lines
+    assert "images written, about" in lines
     (start,), (end,) = started, finished
     assert len(estimates) >= 5
     assert within_twice(estimates, start, end) == []
+
+
+# -- regions of many solver runs: a batch of image sets in one task (a full run) --------------
+
+
+def replay_batches(display, regions=23, per_region=11, lanes=1, region_images=240):
+    """Drive ``display`` (the real class, its clock injected) through a write of ``regions``
+    regions, each one task solving ``per_region`` sets one after the other (a solver run of
+    ``18 * lanes / per_region`` s each, so a region is written every 18 s), ``lanes`` tasks at
+    a time as the store computes them; the store's messages in their order. Returns
+    ``(time, seconds left at that time)`` per region written, from the display's SetClock."""
+    node, now, key = "reconstruct_image_sets", [0.0], 0
+    display.clock = lambda: now[0]
+    solve = 18.0 * lanes / per_region
+    events = []  # (time, order, call)
+    free = [0.0] * lanes
+    for _ in range(regions):
+        lane = min(range(lanes), key=free.__getitem__)
+        t = free[lane]
+        for _ in range(per_region):
+            key += 1
+            events.append((t, 0, ("task_started", node, key, f"set {key}", 40)))
+            for share in (0.4, 0.8):  # the engine's estimates of the tiny solves: ~0 s left
+                estimate = Estimate(share, (1 - share) * solve)
+                events.append((t + share * solve, 1, ("task_advanced", node, key, 20, estimate)))
+            t += solve
+            events.append((t, 2, ("task_finished", node, key, 30)))
+        events.append((t, 3, ("region",)))
+        free[lane] = t
+    left, written = [], 0
+    for when, _, call in sorted(events, key=lambda e: e[:2]):
+        now[0] = when
+        if call[0] == "region":
+            written += 1
+            counted = Counted(written * region_images, regions * region_images, 0, "image")
+            display.regions(node, "spectra", written, regions, 0, counted)
+            left.append((when, display.sets.estimate(node, when)[1]))
+        else:
+            getattr(display, call[0])(*call[1:])
+    return left
+
+
+def test_the_eta_of_regions_of_many_solver_runs_is_the_time_per_region_so_far():
+    """A full run's 23 regions, each a batch of 11 sets, one every 18 s: after 2 the time left
+    is 21 x 18 s (each tiny solve's own estimate, ~0 s left, must not stand for the region's)."""
+    out = io.StringIO()
+    left = replay_batches(PlainProgress(out))
+    assert left[1] == (pytest.approx(36.0), pytest.approx(21 * 18.0))
+    assert [seconds for _, seconds in left[1:-1]] == pytest.approx(
+        [(23 - n) * 18.0 for n in range(2, 23)]
+    )
+    lines = out.getvalue().splitlines()
+    assert "spectra: 480/5,520 images written, about 6 min 18 s left" in lines[1]
+    assert not any("about 0 s left" in line for line in lines[:-2])
+
+
+def test_the_eta_of_batches_computed_two_at_a_time_is_the_time_per_region_so_far():
+    """Two batches at a time (the store's write_regions on two cores), started together: they
+    are written in pairs every 36 s. After a pair the time left is the regions left x 18 s;
+    after the first of a pair (its partner not counted yet) at most (k + 1) / k times that."""
+    left = replay_batches(PlainProgress(io.StringIO()), lanes=2)
+    assert [when for when, _ in left[:4]] == pytest.approx([36.0, 36.0, 72.0, 72.0])
+    assert left[1][1] == pytest.approx(21 * 18.0)  # after 2 of 23
+    ratios = [seconds / ((23 - k) * 18.0) for k, (_, seconds) in enumerate(left[:-1], start=1)]
+    assert ratios[1::2] == pytest.approx([1.0] * 11)  # after each pair
+    assert ratios[0::2] == pytest.approx([(k + 1) / k for k in range(1, 23, 2)])
+
+
+def test_the_rich_display_shows_the_same_eta_and_count_for_batches():
+    from rich.console import Console
+
+    plain = replay_batches(PlainProgress(io.StringIO()))
+    with RichProgress(Console(file=io.StringIO(), force_terminal=True, width=120)) as display:
+        display.step_started(10, 11, "reconstruct_image_sets")
+        given = []  # (bar, its eta) as the display updates its bars
+        update = display.progress.update
+
+        def watch(task_id, **fields):
+            if "eta" in fields:
+                given.append((task_id, fields["eta"]))
+            update(task_id, **fields)
+
+        display.progress.update = watch
+        rich = replay_batches(display)
+        (bar,) = [t for t in display.progress.tasks if t.description.strip() == "spectra"]
+        assert bar.fields["count"] == "5,520/5,520 images written"
+    assert rich == plain  # the same SetClock estimate
+    seen = [eta for task_id, eta in given if task_id == bar.id]
+    assert pytest.approx(21 * 18.0) in seen  # its bar's ETA after 2 of 23 regions
+    assert min(eta for eta in seen[:-1] if eta is not None) > 1.0  # never "0 s" before the end

@@ -116,7 +116,7 @@ def test_resumable_write_resumes_only_unfinished_regions(store):
     messages = []
     store.write("cube", lazy_cube(), fingerprint="fp", resumable_along="image", progress=messages.append)
     assert sorted(calls) == [2, 3]  # regions 0 and 1 were not recomputed
-    assert "2/4 region(s) of image already written, resuming" in messages
+    assert "2/4 region(s) of image already written (2/4 along image), resuming" in messages
     values = store.read("cube").v.values
     assert [float(values[i, 0, 0]) for i in range(4)] == [0, 1, 2, 3]
     assert list(store.staging_dir.iterdir()) == []
@@ -176,7 +176,7 @@ def test_resumable_regions_may_differ_in_size_and_run_concurrently(store):
     assert back.v.encoding["chunks"] == (1, 4, 3)
     np.testing.assert_array_equal(back.v.values[:, 0, 0], [0, 0, 0, 1, 2, 2])
     assert sum("written" in m for m in messages) == 3
-    assert messages[-1].endswith("(3/3 done)")
+    assert messages[-1].endswith("(3/3 done, 6/6 along image)")
 
 
 def test_region_by_region_write_keeps_memory_bounded_by_the_region_not_the_cube(store):
@@ -254,7 +254,8 @@ def test_many_small_regions_are_written_together_and_read_back_in_label_order(st
     assert staging.join_regions([2] * 100, 10) == [slice(k, k + 10) for k in range(0, 200, 10)]
     messages = []
     store.write("cube", ds, fingerprint="fp", resumable_along="image", progress=messages.append)
-    assert len(messages) < 100 and messages[-1].endswith("(1/1 done)")  # 200 images x 16 B: one region
+    last = messages[-1]  # 200 images x 16 B: one region
+    assert len(messages) < 100 and last.endswith("(1/1 done, 200/200 along image)")
     back = store.read("cube", friendly=False)
     assert back.image.values.tolist() == list(range(200))
     assert back.v.values[:, 0, 0].tolist() == list(range(200))
