@@ -18,7 +18,7 @@ References
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
@@ -248,6 +248,12 @@ def robertson_response(
     the Lanczos start the two agree to about the tolerance (tested against 50 000 power
     iterations).
 
+    Memory: ``C``, the samples per code and the per-pixel ``den`` are built image by image
+    (``operator`` ``"dense"``, the default's choice up to 2048 unknowns): besides ``codes``
+    the fit holds one image's bins and denominators at a time, not every image's (the 32
+    bands of 4 exposures that :func:`~.recover_spectral_oecf` pools at 2048^2 would need
+    6.4 GB of them).
+
     Identifiability: if all exposure-time ratios are equal (a geometric bracket, or only
     two exposures) the data determine ``f`` only up to a factor periodic in log exposure
     with that ratio as period (Grossberg & Nayar 2003); only noise breaks the tie. Use
@@ -304,32 +310,54 @@ def robertson_response(
         code_to_bin[saturation:] = n_main
 
     identity = width == 1 and saturation >= n_codes - 1
-    if identity:  # bin of every sample (G, E, P)
-        idx = codes if codes.dtype.itemsize < 8 else codes.astype(np.intp, copy=False)
-    else:
-        idx = code_to_bin[codes]
     code_weights = bin_weights[code_to_bin]
-    den = np.zeros((codes.shape[0], codes.shape[2]))  # sum_j w(y_ij) t_j^2 per pixel
-    for g in range(codes.shape[0]):
-        for j in range(codes.shape[1]):
-            den[g] += np.take(code_weights * times[g, j] ** 2, codes[g, j])
-    valid = den > 0
-    if not valid.any():
+    if operator not in ("auto", "dense", "sparse", "samples"):
+        raise CalibrationError(
+            f"operator must be 'auto', 'dense', 'sparse' or 'samples', got {operator!r}"
+        )
+    # One image (group) at a time: its bins, its per-pixel denominators and its sample
+    # counts are made, folded into C and the counts, and dropped before the next image's;
+    # the pooled images never have intp bins or float64 denominators all at once (32 bands
+    # of 4 exposures at 2048^2: 4.3 GB of bins, 2.1 GB of denominators; issue 27).
+    per_bin = np.zeros(n_bins, dtype=np.intp)
+    samples = np.zeros(n_codes, dtype=np.intp)
+    any_valid = False
+
+    def image_terms():
+        nonlocal any_valid
+        for g in range(codes.shape[0]):
+            own = codes[g]  # (E, P)
+            if identity:  # bin of every sample (E, P)
+                idx = own if own.dtype.itemsize < 8 else own.astype(np.intp, copy=False)
+            else:
+                idx = code_to_bin[own]
+            den = np.zeros(own.shape[1])  # sum_j w(y_ij) t_j^2 per pixel
+            for j in range(own.shape[0]):
+                den += np.take(code_weights * times[g, j] ** 2, own[j])
+            valid = den > 0
+            # Pixels without a weighted sample are left out: 1/den = 0 removes them from
+            # every sum (no copy of the samples); they are subtracted from the counts.
+            inv_den = np.divide(1.0, den, out=np.zeros_like(den), where=valid)
+            del den
+            own_bins = np.bincount(idx.ravel(), minlength=n_bins)
+            per_bin[:] += own_bins
+            samples[:] += own_bins if identity else np.bincount(own.ravel(), minlength=n_codes)
+            p_out = np.flatnonzero(~valid)
+            if p_out.size:
+                left_out = idx[:, p_out].ravel()
+                per_bin[:] -= np.bincount(left_out, minlength=n_bins)
+                samples[:] -= np.bincount(
+                    own[:, p_out].ravel() if not identity else left_out, minlength=n_codes
+                )
+            if valid.any():
+                any_valid = True
+                yield idx, times[g], inv_den
+
+    gram = _gram_operator(image_terms(), n_bins, operator)
+    if not any_valid:
         raise CalibrationError(
             "no pixel has a single sample with non-zero weight: every sample is saturated or "
             "under-exposed; check the exposure times, black_level and saturation"
-        )
-    # Pixels without a weighted sample are left out: 1/den = 0 removes them from every sum
-    # (no copy of the samples); they are subtracted from the counts below.
-    inv_den = np.divide(1.0, den, out=np.zeros_like(den), where=valid)
-    per_bin = np.bincount(idx.ravel(), minlength=n_bins)
-    samples = per_bin.copy() if identity else np.bincount(codes.ravel(), minlength=n_codes)
-    g_out, p_out = np.nonzero(~valid)
-    if g_out.size:
-        left_out = idx[g_out, :, p_out].ravel()
-        per_bin -= np.bincount(left_out, minlength=n_bins)
-        samples -= np.bincount(
-            codes[g_out, :, p_out].ravel() if not identity else left_out, minlength=n_codes
         )
     observed = per_bin > 0
     obs_bins = np.flatnonzero(observed)
@@ -346,8 +374,6 @@ def robertson_response(
             "no code with non-zero weight was observed; check black_level and saturation"
         )
     act_bins = obs_bins[active]
-    groups = [(idx[g], times[g], inv_den[g]) for g in range(idx.shape[0]) if valid[g].any()]
-    gram = _gram_operator(groups, n_bins, operator)
     a_counts = counts[active]
     a_weights = w_obs[active]
     a_centres = obs_centres[active]
@@ -465,13 +491,16 @@ def _smooth_fixed_point(
 
 
 def _gram_operator(
-    groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]], k: int, operator: Operator
+    groups: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], k: int, operator: Operator
 ) -> np.ndarray | sparse.csr_array | Callable:
     """``C[m, n] = sum_i (1/den_i) sum_{j,l} [y_ij=m][y_il=n] t_j t_l`` over bins ``0..k-1``.
 
-    ``groups`` holds per image ``(bins (E, P) in 0..k-1, t (E,), 1/den (P,))``; pixels with
-    ``1/den = 0`` contribute nothing. ``C`` is symmetric positive semi-definite (a sum of
-    rank-one terms ``a_i a_i^T / den_i`` with ``a_i[m] = sum_j [y_ij=m] t_j``).
+    ``groups`` yields per image ``(bins (E, P) in 0..k-1, t (E,), 1/den (P,))``; pixels with
+    ``1/den = 0`` contribute nothing. ``"dense"`` folds the images in one pass, in order (an
+    iterator that makes them one at a time then holds one image's terms at a time);
+    ``"sparse"`` and ``"samples"`` keep every image's. ``C`` is symmetric positive
+    semi-definite (a sum of rank-one terms ``a_i a_i^T / den_i`` with
+    ``a_i[m] = sum_j [y_ij=m] t_j``).
 
     Returns the matrix (``"dense"``: a numpy array, or a CSR array when at most 1/8 of it is
     non-zero; ``"sparse"``: a CSR array), or for ``"samples"`` the function ``v -> C v``
@@ -527,6 +556,7 @@ def _gram_operator(
             shape=(k, k),
         ).tocsr()
     if operator == "samples":
+        groups = list(groups)
 
         def cmul(v: np.ndarray) -> np.ndarray:
             out = np.zeros(k)
@@ -748,7 +778,8 @@ def recover_oecf(
             images = np.arange(counts.sizes["image"])
         else:
             images = np.flatnonzero(counts["camera"].values == camera)
-        block = np.asarray(counts.isel(image=images).values)  # (G, E, y, x, C)
+        # (G, E, y, x, C); every image: the caller's array itself, not a copy of it
+        block = np.asarray((counts if camera is None else counts.isel(image=images)).values)
         block = block.reshape(block.shape[0], block.shape[1], ny * nx, block.shape[-1])
         if pick is not None:
             block = block[:, :, pick]
