@@ -1165,18 +1165,26 @@ def calibrate_spectral(
     except CalibrationError as error:
         raise CalibrationError(f"{group}:spectral_counts: {error}") from None
     q_shot = q.sel(wavelength=cshots["wavelength"].values).values
+    # Band by band: each computation reads one band's shot, linearises it and reduces it
+    # before the next band's is read. (One computation over every band reads the bands'
+    # frames ahead of their reductions: 9.7 GB at 2048^2, issue 27.) Each band's numbers are
+    # those of the one computation: the same chunks, the same reductions.
+    shots = [signal.isel(shot=[k]) for k in range(signal.sizes["shot"])]
     if matched_levels:
         q_shot = matched_quantum_efficiency(
-            levels, cshots["wavelength"].values, shot_levels(signal), q_shot
+            levels,
+            cshots["wavelength"].values,
+            np.concatenate([shot_levels(shot) for shot in shots]),
+            q_shot,
         )
-    # lazy, shot by shot: only the patch means of each band are computed (not the stack)
-    band_radiance = signal / xr.DataArray(q_shot, dims="shot")
-    band_radiance = band_radiance.swap_dims(shot="wavelength").drop_vars(
-        [c for c in band_radiance.coords if c != "wavelength"]
-    )
-    patch_spectra = (
-        patch_means(band_radiance, labels).compute().assign_coords(patch=measured["patch"].values)
-    )
+    spectra = []
+    for shot, q_k in zip(shots, q_shot, strict=True):
+        band_radiance = shot / xr.DataArray([q_k], dims="shot")
+        band_radiance = band_radiance.swap_dims(shot="wavelength").drop_vars(
+            [c for c in band_radiance.coords if c != "wavelength"]
+        )
+        spectra.append(patch_means(band_radiance, labels).compute())
+    patch_spectra = xr.concat(spectra, dim="wavelength").assign_coords(patch=measured["patch"].values)
     table = cross_validate(measured, patch_spectra, cm)
     per_camera = _per_camera(fits, lender_of, names_of, reference, patch_spectra, fit_spectra)
     models = [str(m) for m in colour_checker.attrs.get("camera_models", [])]
