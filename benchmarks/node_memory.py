@@ -23,7 +23,8 @@ count through the measured sizes, ``peak = a + b * pixels``, evaluated at 2048^2
 arrays of these nodes grow with the pixel count; the line's intercept holds the imports and
 the per-run constants). ``--direct`` measures :data:`DIRECT_NODES` of the current code at
 2048^2 too, on the largest size's store mirrored to 2048^2 (every pixel repeated; a simulated
-2048^2 slice takes 40 min and its raw groups 15 GB here).
+2048^2 slice takes 40 min and its raw groups 15 GB here). ``--direct-baseline COMMIT`` measures
+``--direct-baseline-nodes`` there with that commit's code as well, first (``direct_2048_before``).
 
 The LAST line of output is one JSON object, also written to
 ``benchmarks/results/node_memory.json``.
@@ -177,9 +178,10 @@ def extrapolate(peaks: dict[str, float], size: int = PAPER_SIZE) -> float | None
     return round(float(intercept + slope * size**2), 2)
 
 
-DIRECT_NODES = ("calibrate_bands", "calibrate_spectral")
-"""The nodes measured directly at 2048^2 (on a mirrored store): the ones whose extrapolated
-peak fits the machine's share (``recover_spectral_oecf`` is extrapolated only)."""
+DIRECT_NODES = NODES
+"""The nodes measured directly at 2048^2 (on a mirrored store), in the flow's order: all three
+(``recover_spectral_oecf`` was extrapolated only while its full-range fit held every band's
+bins at once, about 9.3 GB)."""
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -207,6 +209,15 @@ def main(argv: list[str] | None = None) -> dict:
         type=Path,
         default=None,
         help="take every figure at --sizes from this earlier results file; measure --direct only",
+    )
+    parser.add_argument(
+        "--direct-baseline",
+        default=None,
+        help="with --direct: also measure --direct-baseline-nodes at 2048^2 with this git commit's "
+        "code (before the current code's)",
+    )
+    parser.add_argument(
+        "--direct-baseline-nodes", nargs="+", default=list(DIRECT_NODES), choices=DIRECT_NODES
     )
     parser.add_argument("--quick", action="store_true", help="do not write the results file")
     parser.add_argument(
@@ -236,6 +247,7 @@ def main(argv: list[str] | None = None) -> dict:
     seconds: dict[str, dict[str, dict[str, float]]] = {c: {n: {} for n in NODES} for c in codes}
     if earlier is not None:
         peaks["before"], seconds["before"] = earlier["peak_gb"]["before"], earlier["seconds"]["before"]
+    direct_before: dict[str, dict[str, float]] = {"peak_gb": {}, "seconds": {}}
     reused = json.loads(args.reuse.read_text()) if args.reuse else None
     if reused is not None:  # the same run's figures, written node by node
         peaks, seconds = reused["peak_gb"], reused["seconds"]
@@ -244,6 +256,10 @@ def main(argv: list[str] | None = None) -> dict:
     with tempfile.TemporaryDirectory(prefix="node-memory-") as tmp:
         work = Path(tmp)
         package = paper_scale.baseline_package(args.baseline_commit, work) if measure_before else None
+        direct_package = None
+        if args.direct and args.direct_baseline:
+            (work / "direct").mkdir()
+            direct_package = paper_scale.baseline_package(args.direct_baseline, work / "direct")
         try:
             for size in args.sizes:
                 store = (args.stores or work) / f"slice{size}-{args.dark_frames}.zarr"
@@ -266,30 +282,37 @@ def main(argv: list[str] | None = None) -> dict:
                     if args.stores is None or not large.exists():
                         log(f"{PAPER_SIZE}^2: mirroring the {size}^2 store {factor} x {factor}")
                         run_case("mirror", store, large, factor)
+                    for node in args.direct_baseline_nodes if direct_package else ():
+                        row = run_case("node", large, node, package=direct_package)
+                        direct_before["peak_gb"][node] = row["peak_gb"]
+                        direct_before["seconds"][node] = row["seconds"]
+                        log(f"{PAPER_SIZE}^2 {args.direct_baseline} {node}: peak {row['peak_gb']} GB")
+                        report(args, commit, dirty, earlier, codes, peaks, seconds, direct_before)
                     for node in DIRECT_NODES:
                         row = run_case("node", large, node)
                         peaks["after"][node][str(PAPER_SIZE)] = row["peak_gb"]
                         seconds["after"][node][str(PAPER_SIZE)] = row["seconds"]
                         log(f"{PAPER_SIZE}^2 after {node}: peak {row['peak_gb']} GB, {row['seconds']} s")
-                        report(args, commit, dirty, earlier, codes, peaks, seconds)
+                        report(args, commit, dirty, earlier, codes, peaks, seconds, direct_before)
                     if args.stores is None:
                         shutil.rmtree(large, ignore_errors=True)
                 if args.stores is None:
                     shutil.rmtree(store, ignore_errors=True)
         finally:
-            if package is not None:
-                subprocess.run(
-                    ["git", "worktree", "remove", "--force", str(work / "baseline")],
-                    cwd=ROOT,
-                    capture_output=True,
-                    check=False,
-                )
-    result = report(args, commit, dirty, earlier, codes, peaks, seconds)
+            for used, folder in ((package, work), (direct_package, work / "direct")):
+                if used is not None:
+                    subprocess.run(
+                        ["git", "worktree", "remove", "--force", str(folder / "baseline")],
+                        cwd=ROOT,
+                        capture_output=True,
+                        check=False,
+                    )
+    result = report(args, commit, dirty, earlier, codes, peaks, seconds, direct_before)
     print(json.dumps(result))
     return result
 
 
-def report(args, commit, dirty, earlier, codes, peaks, seconds) -> dict:
+def report(args, commit, dirty, earlier, codes, peaks, seconds, direct_before=None) -> dict:
     """The results so far; written to ``--output`` (unless ``--quick``) after every node."""
     measured = {str(s) for s in args.sizes}
     extrapolated = {
@@ -327,6 +350,11 @@ def report(args, commit, dirty, earlier, codes, peaks, seconds) -> dict:
         "direct_2048": (
             f"{', '.join(DIRECT_NODES)} on the {max(args.sizes)}^2 store mirrored to 2048^2"
             if args.direct
+            else None
+        ),
+        "direct_2048_before": (
+            {"commit": args.direct_baseline, **direct_before}
+            if args.direct and args.direct_baseline
             else None
         ),
         "target_gb": TARGET_GB,
