@@ -189,45 +189,38 @@ def guided_filtered_stacks(
     outputs = [np.empty(stack.shape, dtype=np.float32) for stack in stacks]
     upper = np.triu_indices(3)
     sigmas = [window_sigma(float(size), window_scale) for size in inputs.filter_size]
-    # the shots of one image and window share its RGB statistics and are filtered together
-    # (each window a plane of one call: the same arithmetic as shot by shot, in fewer calls)
-    groups: dict[tuple[int, float], list[int]] = {}
+    statistics: tuple[tuple[int, float], np.ndarray, np.ndarray] | None = None
+    # shots in order of image and window, so that one window's statistics serve them all
     for i in sorted(range(len(inputs.band)), key=lambda i: (inputs.image[i], sigmas[i])):
-        groups.setdefault((int(inputs.image[i]), sigmas[i]), []).append(i)
-    for (m, sigma), members in groups.items():
+        m, sigma = inputs.image[i], sigmas[i]
+        if statistics is None or statistics[0] != (m, sigma):
+            guide = rgb[m]
+            mean = gaussian_window(guide, sigma)
+            # the 6 distinct second moments of the symmetric 3 x 3 covariance
+            second = gaussian_window(guide[upper[0]] * guide[upper[1]], sigma)
+            covariance = {}
+            for n, (c, d) in enumerate(zip(*upper, strict=True)):
+                covariance[c, d] = second[n] - mean[c].astype(np.float64) * mean[d]
+            ridge = epsilon * np.sum(mean.astype(np.float64) ** 2, axis=0) / 3 + 1e-300
+            for c in range(3):
+                covariance[c, c] += ridge
+            inverse = _symmetric_inverse(covariance)
+            statistics = ((m, sigma), mean, inverse)
+        _, mean, inverse = statistics
         guide = rgb[m]
-        mean = gaussian_window(guide, sigma)
-        # the 6 distinct second moments of the symmetric 3 x 3 covariance
-        second = gaussian_window(guide[upper[0]] * guide[upper[1]], sigma)
-        covariance = {}
-        for n, (c, d) in enumerate(zip(*upper, strict=True)):
-            covariance[c, d] = second[n] - mean[c].astype(np.float64) * mean[d]
-        ridge = epsilon * np.sum(mean.astype(np.float64) ** 2, axis=0) / 3 + 1e-300
-        for c in range(3):
-            covariance[c, c] += ridge
-        inverse = _symmetric_inverse(covariance)
-        for start in range(0, len(members), GROUP_SHOTS):
-            shots = members[start : start + GROUP_SHOTS]
-            for out, stack in zip(outputs, stacks, strict=True):
-                band = np.asarray(stack[shots], dtype=np.float32)  # (shot, y, x)
-                band_mean = gaussian_window(band, sigma)
-                cross = gaussian_window(guide[None] * band[:, None], sigma) - (
-                    mean[None] * band_mean[:, None]
-                )
-                slope = np.empty_like(cross)
-                for c in range(3):  # inverse @ cross per pixel (inverse is symmetric)
-                    slope[:, c] = inverse[_UPPER[c, 0]] * cross[:, 0]
-                    slope[:, c] += inverse[_UPPER[c, 1]] * cross[:, 1]
-                    slope[:, c] += inverse[_UPPER[c, 2]] * cross[:, 2]
-                offset = band_mean - np.sum(slope * mean[None], axis=1)
-                coefficients = gaussian_window(np.concatenate([slope, offset[:, None]], axis=1), sigma)
-                out[shots] = np.sum(coefficients[:, :3] * guide[None], axis=1) + coefficients[:, 3]
+        for out, stack in zip(outputs, stacks, strict=True):
+            band = stack[i].astype(np.float32)
+            band_mean = gaussian_window(band, sigma)
+            cross = gaussian_window(guide * band[None], sigma) - mean * band_mean[None]
+            slope = np.empty_like(cross)
+            for c in range(3):  # inverse @ cross per pixel (inverse is symmetric)
+                slope[c] = inverse[_UPPER[c, 0]] * cross[0]
+                slope[c] += inverse[_UPPER[c, 1]] * cross[1]
+                slope[c] += inverse[_UPPER[c, 2]] * cross[2]
+            offset = band_mean - np.sum(slope * mean, axis=0)
+            coefficients = gaussian_window(np.concatenate([slope, offset[None]]), sigma)
+            out[i] = np.sum(coefficients[:3] * guide, axis=0) + coefficients[3]
     return outputs
-
-
-GROUP_SHOTS = 8
-"""Shots of one image and window filtered in one call by :func:`guided_filtered_stacks`
-(its temporaries are ``5 x GROUP_SHOTS`` planes of the tile)."""
 
 
 _UPPER = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])

@@ -141,31 +141,3 @@ def test_box_windows_have_the_gaussian_variance_and_keep_the_mass(sigma):
     y = np.arange(121) - 60
     variance = float((window.sum(axis=1) * y**2).sum())
     assert np.sqrt(variance) == pytest.approx(sigma, rel=0.1)
-
-
-def test_guided_filter_of_shots_filtered_together_equals_each_shot_alone():
-    """Shots of one image and window are filtered in one call (GROUP_SHOTS at a time): the
-    same numbers as one shot at a time, whatever the grouping."""
-    from types import SimpleNamespace
-
-    from spectralize.nodes.reconstruction.baselines.guided_filter import (
-        GROUP_SHOTS,
-        guided_filtered_stacks,
-    )
-
-    rng = np.random.default_rng(3)
-    n_shot = 2 * GROUP_SHOTS + 3
-    rgb = rng.random((3, 24, 19, 3)).astype(np.float32)
-    image = rng.integers(0, 3, n_shot)
-    filter_size = rng.choice([6.0, 20.0], n_shot)  # a Gaussian and a box window
-    stacks = [rng.random((n_shot, 24, 19)).astype(np.float32) for _ in range(2)]
-    together = guided_filtered_stacks(
-        SimpleNamespace(rgb=rgb, image=image, filter_size=filter_size, band=np.arange(n_shot)), stacks
-    )
-    for i in range(n_shot):
-        alone = guided_filtered_stacks(
-            SimpleNamespace(rgb=rgb, image=image[[i]], filter_size=filter_size[[i]], band=np.arange(1)),
-            [stack[[i]] for stack in stacks],
-        )
-        for whole, one in zip(together, alone, strict=True):
-            np.testing.assert_array_equal(whole[i], one[0])
