@@ -220,6 +220,18 @@ def main() -> None:
         subprocess.run(["git", "worktree", "remove", "--force", str(work / "baseline")], check=False)
     before, after = report["before"], report["after"]
     report["speedup"] = round(before["seconds_per_mpx_image"] / after["seconds_per_mpx_image"], 2)
+    from paper_scale import FULL_RUN_IMAGES, FULL_RUN_MPX_PER_IMAGE
+
+    for row in (before, after):  # as paper_scale.py extrapolates it (target: <= 10 h)
+        row["full_run_hours_at_100_cores"] = round(
+            FULL_RUN_IMAGES
+            * FULL_RUN_MPX_PER_IMAGE
+            * row["seconds_per_mpx_image"]
+            * row["threads"]
+            / 100
+            / 3600,
+            1,
+        )
     if args.into_mixture_tile:  # the 2048^2 rows of the mixture-tile change, beside its tile rows
         previous = json.loads(RESULTS.read_text())
         previous["mixture_tile"]["throughput_2048"] = report
