@@ -813,9 +813,19 @@ def _shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int, group: str
     ).assign_attrs(bit_depth=depth, source=f"{group}:spectral_counts")
 
 
+def _saturated_by_band(counts: xr.DataArray, depth: int) -> np.ndarray:
+    """:func:`saturated_frames` of a (wavelength, exposure, y, x) series, one band per
+    computation: the frames of one band are read and reduced before the next band's. (One
+    computation over the series read the stored tiles of every band ahead of their maxima,
+    which split each tile into its exposures' frames: 4 GB at 2048^2, issue 27.)"""
+    return np.concatenate(
+        [saturated_frames(counts.isel(wavelength=[k]), depth) for k in range(counts.sizes["wavelength"])]
+    )
+
+
 def _longest_unsaturated(counts: xr.DataArray, depth: int, group: str) -> np.ndarray:
     """Per band, the index of the longest exposure without a saturated pixel."""
-    top = ~saturated_frames(counts, depth)  # (wavelength, exp)
+    top = ~_saturated_by_band(counts, depth)  # (wavelength, exp)
     bad = np.flatnonzero(~top.any(axis=1))
     if bad.size:
         wl = counts["wavelength"].values[bad].tolist()
@@ -923,7 +933,7 @@ def _white_levels(
     Read band by band: one band's series (its exposures, stored together) and the dark
     frames of the series' exposure times (read once) are in memory, and every reduction
     runs on one frame; not the (band, exposure) stack (3.5 GB of uint16 at 2048^2)."""
-    top = ~saturated_frames(counts, depth)  # (wavelength, exposure)
+    top = ~_saturated_by_band(counts, depth)  # (wavelength, exposure)
     n_bands, n_exposures = top.shape
     signal = np.full(top.shape, np.nan)
     usable = np.zeros(top.shape, dtype=bool)
