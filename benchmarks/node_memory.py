@@ -211,6 +211,13 @@ def main(argv: list[str] | None = None) -> dict:
         help="take every figure at --sizes from this earlier results file; measure --direct only",
     )
     parser.add_argument(
+        "--direct-nodes",
+        nargs="+",
+        default=list(DIRECT_NODES),
+        choices=DIRECT_NODES,
+        help="with --direct: measure only these at 2048^2 (with --reuse the others keep their figures)",
+    )
+    parser.add_argument(
         "--direct-baseline",
         default=None,
         help="with --direct: also measure --direct-baseline-nodes at 2048^2 with this git commit's "
@@ -288,7 +295,7 @@ def main(argv: list[str] | None = None) -> dict:
                         direct_before["seconds"][node] = row["seconds"]
                         log(f"{PAPER_SIZE}^2 {args.direct_baseline} {node}: peak {row['peak_gb']} GB")
                         report(args, commit, dirty, earlier, codes, peaks, seconds, direct_before)
-                    for node in DIRECT_NODES:
+                    for node in (n for n in DIRECT_NODES if n in args.direct_nodes):
                         row = run_case("node", large, node)
                         peaks["after"][node][str(PAPER_SIZE)] = row["peak_gb"]
                         seconds["after"][node][str(PAPER_SIZE)] = row["seconds"]
