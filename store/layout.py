@@ -34,12 +34,18 @@ __all__ = [
     "friendly",
     "SMALL_BYTES",
     "SHARD_BYTES",
+    "CHUNK_BYTES",
 ]
 
 SMALL_BYTES = 16 * 2**20
 """A variable up to this size is one chunk (per-image coordinates of a full run: ~0.4 MB)."""
 SHARD_BYTES = 32 * 2**20
 """Aimed-at size of one shard (one file) of a large variable; at least one chunk row."""
+CHUNK_BYTES = 2**20
+"""Largest chunk (the unit zarr decodes) of a large variable whose dask chunks span many
+indices of its first dim, cut along that dim: a task that reads a few images (a batch of
+image sets) decodes those, not the whole variable. A full run's ``hdr`` with tiny frames was
+one 641 MB chunk, decoded whole by each of its ~220 batches of sets (issue 27)."""
 
 
 def label_permutations(ds: xr.Dataset) -> dict[str, np.ndarray]:
@@ -64,9 +70,10 @@ def shard_layout(
 
     Variables up to :data:`SMALL_BYTES` (index coordinates aside) become one chunk, unless
     they have a dim of ``keep`` (chunked on request). The others keep their chunks (the
-    dask chunks, or ``encoding``'s) inside shards spanning every other dim whole and as many
-    chunk rows of the first dim as fit in :data:`SHARD_BYTES`; their dask chunks become the
-    shards, so every write task writes whole shards.
+    dask chunks, or ``encoding``'s; dask chunks larger than :data:`CHUNK_BYTES` cut along the
+    first dim) inside shards spanning every other dim whole and as many chunk rows of the
+    first dim as fit in :data:`SHARD_BYTES`; their dask chunks become the shards, so every
+    write task writes whole shards.
     """
     rechunk: dict[Hashable, xr.Variable] = {}
     for name, var in ds.variables.items():
@@ -83,6 +90,9 @@ def shard_layout(
         chunks = tuple(
             enc.get("chunks") or (tuple(max(c) for c in var.chunks) if var.chunks else var.shape)
         )
+        per_index = math.prod(chunks[1:]) * var.dtype.itemsize
+        if "chunks" not in enc and chunks[0] * per_index > CHUNK_BYTES:  # not asked for
+            chunks = (max(1, min(chunks[0], CHUNK_BYTES // max(per_index, 1))), *chunks[1:])
         rest = tuple(math.ceil(n / c) * c for n, c in zip(var.shape[1:], chunks[1:], strict=True))
         row = chunks[0] * math.prod(rest) * var.dtype.itemsize
         first = min(

@@ -129,3 +129,30 @@ def test_a_store_of_the_first_layout_is_read_and_its_groups_get_other_fingerprin
 
     old = hashlib.sha256(json.dumps(payload, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
     assert compute_fingerprint("n", "1", {}, {}) != old
+
+
+def test_a_large_variable_in_one_dask_chunk_is_stored_in_small_chunks_inside_its_shards(
+    tmp_path, monkeypatch
+):
+    """A group computed as one dask chunk (a full run's ``hdr`` with tiny frames) is stored in
+    chunks of at most CHUNK_BYTES along its first dim, inside shards: reading a few images
+    reads their chunks, not the whole variable."""
+    monkeypatch.setattr(layout, "SMALL_BYTES", 4096)
+    monkeypatch.setattr(layout, "CHUNK_BYTES", 10 * 192)  # 10 images of 192 B per chunk
+    monkeypatch.setattr(layout, "SHARD_BYTES", 100 * 192)
+    cube = set_ordered_cube([list(range(200))]).chunk({"image": -1})  # one dask chunk
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write("cube", cube, fingerprint="s")
+    meta = json.loads((store.path / "cube" / "radiance" / "zarr.json").read_text())
+    assert meta["chunk_grid"]["configuration"]["chunk_shape"] == [100, 3, 4, 4]  # the shard
+    assert meta["codecs"][0]["configuration"]["chunk_shape"] == [10, 3, 4, 4]
+    ds = store.read("cube", friendly=False)
+    assert ds.radiance.chunks[0] == (10,) * 20  # dask reads chunk by chunk
+    some = ds.radiance.isel(image=[3, 57])
+    import dask
+
+    (culled,) = dask.optimize(some.data)  # the graph as computed
+    graph = dict(culled.__dask_graph__())
+    reads = sorted(k[1] for k in graph if isinstance(k, tuple) and "open_dataset-radiance" in k[0])
+    assert reads == [0, 5]  # the chunks of images 3 and 57, not all 20
+    assert some.values[:, 0, 0, 0].tolist() == [3, 57]
