@@ -26,6 +26,7 @@ References
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Annotated, Any
 
@@ -33,6 +34,8 @@ import dask
 import dask.array as da
 import numpy as np
 import xarray as xr
+from dask.delayed import Delayed
+from dask.highlevelgraph import HighLevelGraph
 from pydantic import AfterValidator, Field
 
 from spectralize.engine import Choices
@@ -512,6 +515,49 @@ def _solve_sets(
     return np.concatenate(cubes), np.concatenate(counts), np.concatenate(spreads)
 
 
+def _row_blocks(data: da.Array, positions: np.ndarray) -> tuple[list[tuple], np.ndarray]:
+    """The dask keys of the chunks of ``data`` (chunked along its first axis only) that hold
+    rows ``positions``, and where each row is in those chunks joined in that order."""
+    bounds = np.cumsum((0, *data.chunks[0]))
+    block = np.searchsorted(bounds, positions, side="right") - 1
+    needed, which = np.unique(block, return_inverse=True)
+    start = np.cumsum(np.concatenate([[0], np.diff(bounds)[needed]]))[:-1]
+    rest = (0,) * (data.ndim - 1)
+    keys = [(data.name, int(b), *rest) for b in needed]
+    return keys, start[which] + (positions - bounds[block])
+
+
+def _by_rows(ds: xr.Dataset, dim: str) -> xr.Dataset:
+    """``ds`` with ``radiance`` chunked along ``dim`` only, ``dim`` first, its coordinates in
+    memory (small: one chunk each in a full run's store)."""
+    var = ds["radiance"].transpose(dim, ...)
+    var = var.chunk({d: -1 for d in var.dims if d != dim})
+    coords = {n: c.load() for n, c in var.coords.items() if n not in var.indexes}
+    return ds.assign(radiance=var.assign_coords(coords))
+
+
+def _batch_from_rows(
+    rgb_rows: list[np.ndarray],
+    shot_rows: list[np.ndarray],
+    warm: Any,
+    *,
+    rgb_take: np.ndarray,
+    shot_take: np.ndarray,
+    rgb_dims: tuple[str, ...],
+    rgb_coords: dict[str, Any],
+    shot_dims: tuple[str, ...],
+    shot_coords: dict[str, Any],
+    shot_image: np.ndarray,
+    camera_matrix: xr.DataArray,
+    sets: list[tuple[np.ndarray, np.ndarray]],
+    settings: dict[str, Any],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_solve_sets` on a batch's rows, picked from the chunks that hold them."""
+    rgb = xr.DataArray(np.concatenate(rgb_rows)[rgb_take], dims=rgb_dims, coords=rgb_coords)
+    shots = xr.DataArray(np.concatenate(shot_rows)[shot_take], dims=shot_dims, coords=shot_coords)
+    return _solve_sets(rgb, shots, shot_image, camera_matrix, sets, settings=settings, warm=warm)
+
+
 def _batch_tasks(
     hdr: xr.Dataset,
     bands: xr.Dataset,
@@ -523,24 +569,42 @@ def _batch_tasks(
     warm: Any,
     name: str,
 ) -> tuple[da.Array, da.Array, da.Array]:
-    """The lazy results of :func:`_solve_sets` on a batch: spectra, iterations, confidence."""
+    """The lazy results of :func:`_solve_sets` on a batch: spectra, iterations, confidence.
+
+    The batch's task is written by hand on the chunks of ``hdr`` and ``bands`` that hold its
+    images (:func:`_row_blocks`; both chunked along their first dim only, as
+    :func:`reconstruct_image_sets` gives them): a dask selection of the images per batch
+    builds and optimises a graph over every chunk of the run, seconds and tens of MB per
+    batch for the ~220 batches of a full run.
+    """
     labels = np.unique(np.concatenate([members for members, _ in sets]))
-    rgb = hdr["radiance"].sel(image=labels)
+    rgb = hdr["radiance"]
+    rgb_at = rgb.indexes["image"].get_indexer(labels)
     picked = np.flatnonzero(np.isin(shot_image, labels))
-    shots = bands["radiance"].isel(shot=picked)
+    shots = bands["radiance"]
+    rgb_keys, rgb_take = _row_blocks(rgb.data, rgb_at)
+    shot_keys, shot_take = _row_blocks(shots.data, picked)
     token = dask.base.tokenize(
-        rgb.data, shots.data, camera_matrix.values, settings, [tuple(m) for m, _ in sets], warm
-    )
-    task = dask.delayed(_solve_sets, pure=True, nout=3)(
-        rgb,
-        shots,
-        shot_image[picked],
-        camera_matrix,
-        sets,
+        rgb.data.name, shots.data.name, rgb_at, picked, camera_matrix.values, settings,
+        [tuple(m) for m, _ in sets], warm,
+    )  # fmt: skip
+    key = f"{name}-{token}"
+    solve = functools.partial(
+        _batch_from_rows,
+        rgb_take=rgb_take,
+        shot_take=shot_take,
+        rgb_dims=rgb.dims,
+        rgb_coords={n: (c.dims, c.values) for n, c in rgb.isel(image=rgb_at).coords.items()},
+        shot_dims=shots.dims,
+        shot_coords={n: (c.dims, c.values) for n, c in shots.isel(shot=picked).coords.items()},
+        shot_image=shot_image[picked],
+        camera_matrix=camera_matrix,
+        sets=sets,
         settings=settings,
-        warm=warm,
-        dask_key_name=f"{name}-{token}",
     )
+    layer = {key: (solve, list(rgb_keys), list(shot_keys), warm.key)}
+    graph = HighLevelGraph.from_collections(key, layer, dependencies=[rgb.data, shots.data, warm])
+    task = Delayed(key, graph, length=3)
     n_owned = sum(int(owned.sum()) for _, owned in sets)
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     shape = (n_owned, camera_matrix.sizes["wavelength"], ny, nx)
@@ -641,6 +705,8 @@ def reconstruct_image_sets(
         + ny * nx * np.dtype(np.float32).itemsize
     )
     batch_images = BATCH_BYTES // per_image if whole and len(owned_sets) > BATCH_SETS_ABOVE else 0
+    if batch_images:  # batches read their rows chunk by chunk (_batch_tasks)
+        hdr, bands = _by_rows(hdr, "image"), _by_rows(bands, "shot")
     pieces, counts, labels, set_of, confidences = [], [], [], [], []
     batch: list[tuple[int, np.ndarray, np.ndarray]] = []
 
