@@ -368,7 +368,36 @@ class SetClock:
         elapsed = now - self._start.get(node, self._first.get(node, now))
         if work <= 0 or elapsed <= 0:
             return resumed + max(work, 0.0), None
-        return resumed + work, elapsed / work * (total - resumed - work)
+        by_rate = elapsed / work * (total - resumed - work)
+        return resumed + work, max(by_rate, self._makespan(node, now))
+
+    def _makespan(self, node: str, now: float) -> float:
+        """The time left if the sets not yet started run whole, a mean set's time each, on
+        as many workers as ran at once, after the running sets' remaining time.
+
+        The rate alone (work per second so far) assumes the last sets share the workers as
+        the first did; but the last set runs on one worker however many are idle, so near
+        the end the rate under-counts by up to a whole set's time.
+        """
+        took = self._mean(self._took.get(node))
+        after = self._mean(self._after.get(node)) or 0.0
+        free, solves = [], []  # per running set: when its worker is free, its whole solve
+        for (n, _), (start, fraction) in self._running.items():
+            if n == node:
+                spent = now - start
+                solve = spent / fraction if fraction else max(took or 0.0, spent)
+                free.append(solve - spent)
+                solves.append(solve)
+        waiting = [max(0.0, after - (now - solved)) for solved, _ in self._solved.get(node, ())]
+        done, total, _ = self._regions[node]
+        unstarted = total - done - len(waiting) - len(free)
+        whole = took or max(solves, default=0.0)  # a set's solve
+        if unstarted > 0 and whole > 0:
+            free += [0.0] * max(0, self._most.get(node, 1) - len(free))
+            for _ in range(unstarted):
+                free.sort()
+                free[0] += whole
+        return max([*waiting, *(f + after for f in free), 0.0])
 
     def forget(self, node: str) -> None:
         for table in (

@@ -362,6 +362,25 @@ def test_the_image_sets_clock_counts_the_work_of_running_sets():
     assert work_later == pytest.approx(1 + 30 / 41 + 5 / 25)
 
 
+def test_the_image_sets_clock_counts_the_last_set_whole_though_workers_are_idle():
+    clock = SetClock()
+    clock.regions("node", 0, 3, 0, now=0.0)
+    for key in (1, 2):  # two sets at a time, 10 s each, written as they are solved
+        clock.task_started("node", key, now=0.0)
+    for key in (1, 2):
+        clock.task_finished("node", key, now=10.0)
+    clock.regions("node", 2, 3, 0, now=10.0)
+    clock.task_started("node", 3, now=10.0)
+    # by the rate (two sets per 10 s) the last set would take ~5 s; run whole, 9.5 s are left;
+    # alone it runs faster than beside another, by up to 2x: the geometric mean of the two
+    work, left = clock.estimate("node", 10.5)
+    by_rate = 10.5 / 2.05 * 0.95
+    assert work == pytest.approx(2.05) and left == pytest.approx((by_rate * 9.5) ** 0.5)
+    # its solver: a quarter done in 0.5 s, so 1.5 s left; the rate's 3.5 s, now the larger, stands
+    clock.task_advanced("node", 3, Estimate(0.25, 1.5))
+    assert clock.estimate("node", 10.5)[1] == pytest.approx(10.5 / 2.25 * 0.75)
+
+
 def test_the_rich_display_shows_a_bar_per_running_solver():
     from rich.console import Console
 
