@@ -369,7 +369,8 @@ class SetClock:
         if work <= 0 or elapsed <= 0:
             return resumed + max(work, 0.0), None
         by_rate = elapsed / work * (total - resumed - work)
-        return resumed + work, max(by_rate, self._makespan(node, now))
+        whole = self._makespan(node, now)
+        return resumed + work, (by_rate * whole) ** 0.5 if whole > by_rate else by_rate
 
     def _makespan(self, node: str, now: float) -> float:
         """The time left if the sets not yet started run whole, a mean set's time each, on
