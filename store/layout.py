@@ -144,12 +144,11 @@ def regular_chunks(
     return ds.chunk(sizes) if sizes else ds
 
 
-def region_encoding(
-    ds: xr.Dataset, dim: str, encoding: dict[str, dict[str, Any]], along: int = 1
-) -> None:
-    """On-disk chunks of ``along`` along the region dim (a divisor of every region's start,
-    so no two regions share a chunk), the dask chunks elsewhere; a variable in memory (written
-    whole when the staged group is created, never by a region) is one chunk."""
+def region_encoding(ds: xr.Dataset, dim: str, encoding: dict[str, dict[str, Any]]) -> None:
+    """The staged group's chunks of a resumable write: a lazy variable along the region dim
+    (its data staged per region, :func:`~.staging.stage_region`) 1 along that dim and the
+    dask chunks elsewhere, which the packed group keeps where asked; a variable in memory
+    (written whole when the staged group is created, never by a region) is one chunk."""
     for name, var in ds.variables.items():
         if dim not in var.dims or name in ds.indexes:
             continue
@@ -157,7 +156,7 @@ def region_encoding(
             encoding.setdefault(str(name), {}).setdefault("chunks", tuple(var.shape))
             continue
         chunks = var.chunks
-        disk = tuple(along if d == dim else max(c) for d, c in zip(var.dims, chunks, strict=True))
+        disk = tuple(1 if d == dim else max(c) for d, c in zip(var.dims, chunks, strict=True))
         encoding.setdefault(str(name), {}).setdefault("chunks", disk)
 
 

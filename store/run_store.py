@@ -88,7 +88,7 @@ from .staging import (
     adopt_abandoned,
     flags_path,
     pack_staged,
-    region_chunk,
+    regions_path,
     remove_tree,
     replace_group,
     replaced_group,
@@ -572,8 +572,9 @@ class RunStore:
             Write region by region along this dim, flagging each finished region, so an
             interrupted write with the same fingerprint resumes where it stopped. The regions
             are the dask chunks of ``ds`` along the dim (they may differ in size; small ones
-            are written together); staged, the dim is chunked by 1, so no two regions share
-            a chunk; finished, the group is packed into shards (:mod:`.layout`).
+            are written together), each staged as files of its own
+            (:func:`~.staging.stage_region`); finished, the group is packed into shards
+            (:mod:`.layout`).
         concurrent_regions
             How many regions are computed and written at the same time (resumable writes).
         progress
@@ -640,8 +641,7 @@ class RunStore:
                         encoding=enc or None,
                     )
                 else:
-                    along = region_chunk(ds, resumable_along)
-                    region_encoding(ds, resumable_along, enc, along)
+                    region_encoding(ds, resumable_along, enc)
                     adopt_abandoned(self._staging_dirs(), prefix, staged)
                     write_regions(
                         ds,
@@ -658,7 +658,7 @@ class RunStore:
                     isinstance(error, OSError) and error.errno in _NO_SPACE
                 )
                 if not keep:  # only this write's own staged copy, never another's
-                    remove_tree(staged, flags_path(staged))
+                    remove_tree(staged, flags_path(staged), regions_path(staged))
                 if isinstance(error, OSError):
                     raise self._write_error(error, group) from error
                 raise

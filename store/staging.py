@@ -15,13 +15,14 @@ Of a write with more than :data:`JOIN_REGIONS_ABOVE` regions, small consecutive 
 sets of tiny frames) are written together, up to :data:`REGION_BYTES`, so that the cost per
 region does not dominate a run of thousands of sets. A staged group complete in its regions
 is then packed (:func:`pack_staged`): sorted into label order and rewritten in the finished
-layout (:func:`~.layout.shard_layout`).
+layout (:func:`~.layout.shard_layout`). The regions are staged outside the group, as ``.npy``
+files per region and variable (:func:`stage_region`), so that the staged copy of a full run
+is a few hundred files, not one per image and variable, and is read back image by image.
 """
 
 from __future__ import annotations
 
 import hashlib
-import math
 import os
 import shutil
 import time
@@ -44,12 +45,14 @@ __all__ = [
     "group_stem",
     "staged_path",
     "flags_path",
+    "regions_path",
     "remove_partial_chunks",
     "remove_tree",
     "adopt_abandoned",
     "write_regions",
     "plan_regions",
-    "region_chunk",
+    "stage_region",
+    "region_path",
     "pack_staged",
     "REGION_BYTES",
     "replace_group",
@@ -78,6 +81,50 @@ def flags_path(staged: Path) -> Path:
     return staged.with_name(f"{staged.name}.done")
 
 
+def regions_path(staged: Path) -> Path:
+    """The regions of a resumable write, beside its staged group: a zarr store per region."""
+    return staged.with_name(f"{staged.name}.regions")
+
+
+def region_path(staged: Path, index: int) -> Path:
+    """Where region ``index`` of a resumable write is staged (:func:`regions_path`)."""
+    return regions_path(staged) / f"{index:06d}"
+
+
+def stage_region(piece: xr.Dataset, root: Path) -> None:
+    """Stage a computed region's variables as ``<name>.npy`` files in ``root``, each renamed
+    into place when complete (a killed writer leaves only ``.partial`` files).
+
+    A region is staged on its own, not into the staged group: the group's chunks along the
+    region dim must divide every region's start, one image when the regions differ in size,
+    so thousands of small files in a full run; and ``.npy`` files are read back for packing
+    by memory map, image by image in label order, for the cost of a copy (a sharded zarr
+    array read by integer index decodes far more than it returns). Text is staged as fixed
+    width (the packed zarr array converts it back).
+    """
+    root.mkdir(parents=True, exist_ok=True)
+    for name, var in piece.variables.items():
+        values = np.asarray(var.values)
+        if values.dtype.kind in "OT":
+            values = np.asarray(values.tolist(), dtype=str)
+        part = root / f".{name}.npy{PARTIAL_SUFFIX}"
+        with open(part, "wb") as file:
+            np.save(file, values, allow_pickle=False)
+        os.replace(part, root / f"{name}.npy")
+
+
+def _staged_regions(staged: Path, name: str) -> list[np.ndarray] | None:
+    """Variable ``name`` of every staged region, memory-mapped, in region order (``None``
+    if the regions did not stage it)."""
+    root = regions_path(staged)
+    if not root.is_dir():
+        return None
+    files = sorted(p / f"{name}.npy" for p in root.iterdir())
+    if not files or not files[0].is_file():
+        return None
+    return [np.load(f, mmap_mode="r", allow_pickle=False) for f in files]
+
+
 def remove_partial_chunks(root: Path) -> None:
     """Delete chunk files a killed writer left half-written (they are never read, only clutter)."""
     for leftover in root.rglob(f"*{PARTIAL_SUFFIX}"):
@@ -103,13 +150,18 @@ def adopt_abandoned(staging_dirs: Iterable[Path], prefix: str, staged: Path) -> 
     so its writer is gone), renaming it to this write's own name ``staged``."""
     staging_dirs = list(staging_dirs)
     candidates = [d / prefix for d in staging_dirs] + [
-        p for d in staging_dirs for p in d.glob(f"{prefix}.*") if not p.name.endswith(".done")
+        p
+        for d in staging_dirs
+        for p in d.glob(f"{prefix}.*")
+        if not p.name.endswith((".done", ".regions"))
     ]
     resumable = [p for p in candidates if p.is_dir() and flags_path(p).is_dir() and p != staged]
     if not resumable:
         return
     latest = max(resumable, key=lambda p: flags_path(p).stat().st_mtime_ns)
     os.rename(flags_path(latest), flags_path(staged))
+    if regions_path(latest).is_dir():
+        os.rename(regions_path(latest), regions_path(staged))
     os.rename(latest, staged)
 
 
@@ -136,7 +188,7 @@ def write_regions(
         if flags.shape != (len(regions),):
             flags = None
     if flags is None:
-        for leftover in (staged, flags_at):
+        for leftover in (staged, flags_at, regions_path(staged)):
             if leftover.exists():
                 shutil.rmtree(leftover)
         ds.to_zarr(
@@ -152,6 +204,8 @@ def write_regions(
         )
     remove_partial_chunks(staged)
     remove_partial_chunks(flags_at)
+    if regions_path(staged).is_dir():
+        remove_partial_chunks(regions_path(staged))
     done = np.asarray(flags[:], dtype=bool)
     # variables in memory were written whole with the staged group (``to_zarr`` above): a
     # region writes the lazy ones only (so a full run's per-image coordinates are one chunk,
@@ -175,7 +229,7 @@ def write_regions(
         )
         piece.attrs = {}
         if piece.variables:
-            piece.to_zarr(str(staged), mode="r+", region={dim: region}, consolidated=False)
+            stage_region(piece.compute(), region_path(staged, index))
         flags[index] = True  # its own chunk of the flag array: no two writers share one
         return index
 
@@ -224,15 +278,6 @@ def plan_regions(ds: xr.Dataset, dim: str) -> list[slice]:
     return join_regions(dim_chunks, REGION_BYTES // max(per_index, 1) if joined else 0)
 
 
-def region_chunk(ds: xr.Dataset, dim: str) -> int:
-    """The largest staged chunk along the region dim that no two dask chunks (so no two
-    regions) share: the greatest common divisor of the chunks' starts (the whole dim for one
-    chunk). Chunks of equal size (ingest's chunks of frames) stage in chunks of a region, not
-    of one index, so the staged copy has a file per region, not one per image."""
-    starts = np.cumsum(_dim_chunks(ds, dim))[:-1].tolist()
-    return math.gcd(*starts) if starts else max(1, ds.sizes[dim])
-
-
 def join_regions(sizes: Iterable[int], most: int) -> list[slice]:
     """Slices of consecutive chunks of ``sizes``, each chunk whole, joined up to ``most`` indices."""
     regions: list[slice] = []
@@ -250,12 +295,12 @@ def join_regions(sizes: Iterable[int], most: int) -> list[slice]:
 def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) -> None:
     """Rewrite a staged group complete in its regions in the finished layout, in label order.
 
-    The regions were written with chunks of 1 along their dim, in the order they were
-    computed; the packed copy (beside it, then renamed over it) has every dim whose index was
-    not increasing sorted and the chunks and shards of :func:`~.layout.shard_layout` (the
-    staged chunks kept along the dims of ``keep``, which the writer chunked on request;
-    along the region dim ``dim``, chunks of 1 inside the shards, however it was staged). The
-    arrays are copied shard by shard with zarr, never all in memory.
+    The lazily computed variables along ``dim`` are read from the staged regions' files
+    (:func:`stage_region`), the others from the staged group. The packed copy (beside it,
+    then renamed over it) has every dim whose index was not increasing sorted and the chunks
+    and shards of :func:`~.layout.shard_layout` (the staged chunks kept along the dims of
+    ``keep``, which the writer chunked on request; along the region dim ``dim``, chunks of 1
+    inside the shards). The arrays are copied shard by shard, never all in memory.
     """
     source = xr.open_zarr(str(staged), consolidated=False, chunks={})
     order = label_permutations(source)
@@ -280,8 +325,12 @@ def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) 
     for name, var in source.variables.items():
         if name in source.indexes:
             continue
-        src = zarr.open_array(str(staged / str(name)), mode="r")
         dst = zarr.open_array(str(packed / str(name)), mode="r+")
+        pieces = _staged_regions(staged, str(name)) if dim in var.dims else None
+        if pieces is None:
+            src: Any = zarr.open_array(str(staged / str(name)), mode="r")
+        else:
+            src = _Joined(pieces, var.dims.index(dim))
         if var.ndim == 0:
             dst[...] = src[...]
             continue
@@ -294,6 +343,7 @@ def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) 
             dst[rows] = src.oindex[(pick, *rest)]
     shutil.rmtree(staged)
     os.rename(packed, staged)
+    shutil.rmtree(regions_path(staged), ignore_errors=True)
 
 
 def replace_group(staged: Path, target: Path, staging: Path, group: str) -> None:
@@ -313,3 +363,36 @@ def replaced_group(entry: Path) -> str | None:
     if REPLACED not in entry.name:
         return None
     return entry.name.split(REPLACED)[0].replace("~", "/")
+
+
+class _Joined:
+    """Arrays of the staged regions joined along ``axis``, read by orthogonal index
+    (``.oindex[...]``, as a zarr array is): each region's array gives only what it holds."""
+
+    def __init__(self, pieces: list[np.ndarray], axis: int) -> None:
+        self.pieces, self.axis = pieces, axis
+        self.starts = np.cumsum([0] + [p.shape[axis] for p in pieces])
+
+    @property
+    def oindex(self) -> _Joined:
+        return self
+
+    def __getitem__(self, key: tuple[Any, ...]) -> np.ndarray:
+        ndim = self.pieces[0].ndim
+        key = tuple(key) + (slice(None),) * (ndim - len(key))
+        along = np.arange(int(self.starts[-1]))[key[self.axis]]  # indices asked along the axis
+        which = np.searchsorted(self.starts, along, side="right") - 1
+        parts, held = [], []
+        for region in np.unique(which):
+            mine = np.flatnonzero(which == region)
+            part = np.take(self.pieces[region], along[mine] - self.starts[region], axis=self.axis)
+            for axis, index in enumerate(key):  # the other dims, one at a time (orthogonal)
+                if axis != self.axis and not (isinstance(index, slice) and index == slice(None)):
+                    part = part[(slice(None),) * axis + (index,)]
+            parts.append(part)
+            held.append(mine)
+        if not parts:
+            return np.take(self.pieces[0], along, axis=self.axis)
+        back = np.empty(len(along), dtype=np.intp)
+        back[np.concatenate(held)] = np.arange(len(along))
+        return np.take(np.concatenate(parts, axis=self.axis), back, axis=self.axis)

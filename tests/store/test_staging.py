@@ -139,10 +139,12 @@ def test_chunks_half_written_by_a_killed_writer_are_dropped_on_resume(store):
         for p in store.staging_dir.iterdir()
         if p.name.startswith("cube.") and not p.name.endswith(".done")
     )
-    # what zarr's local store leaves when SIGKILL lands between writing and renaming a chunk
-    chunk_dir = staged / "v" / "c" / "1" / "0"
-    chunk_dir.mkdir(parents=True, exist_ok=True)
-    (chunk_dir / "0.0123abcd.partial").write_bytes(b"half")
+    # what a region's writer leaves when SIGKILL lands between writing and renaming a file
+    from spectralize.store.staging import region_path
+
+    half = region_path(staged, 1) / ".v.npy.partial"
+    half.parent.mkdir(parents=True, exist_ok=True)
+    half.write_bytes(b"half")
     store.write("cube", cube(fail=False), fingerprint="fp", resumable_along="image")
     final = store.path / "cube"
     assert not list(final.rglob("*.partial"))
@@ -177,6 +179,37 @@ def test_resumable_regions_may_differ_in_size_and_run_concurrently(store):
     np.testing.assert_array_equal(back.v.values[:, 0, 0], [0, 0, 0, 1, 2, 2])
     assert sum("written" in m for m in messages) == 3
     assert messages[-1].endswith("(3/3 done, 6/6 along image)")
+
+
+def test_regions_of_unequal_size_stage_a_file_per_region_not_per_image(store, monkeypatch):
+    from spectralize.store import staging
+
+    sizes = (5, 3, 7, 2)  # the staged group's chunks along image: 1 (gcd of the starts)
+    labels = np.random.default_rng(1).permutation(sum(sizes))
+    pieces = [da.full((n, 2, 2), float(i), dtype=np.float32, chunks=n) for i, n in enumerate(sizes)]
+    names = da.from_array(np.array([f"img{k}" for k in labels], dtype=object), chunks=(sizes,))
+    ds = xr.Dataset(
+        {"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})},
+        coords={"image": labels, "name": ("image", names.astype(np.dtypes.StringDType()))},
+    )
+    staged_files = []
+    pack = staging.pack_staged
+
+    def counting_pack(staged, *args, **kwargs):  # the real pack, after counting what it packs
+        regions = staging.regions_path(staged)
+        staged_files.extend(p.relative_to(regions) for p in regions.rglob("*") if p.is_file())
+        pack(staged, *args, **kwargs)
+
+    monkeypatch.setattr("spectralize.store.run_store.pack_staged", counting_pack)
+    store.write("cube", ds, fingerprint="fp", resumable_along="image", concurrent_regions=2)
+    assert len(staged_files) == 2 * len(sizes)  # v and name, once per region
+    back = store.read("cube", friendly=False)
+    order = np.argsort(labels)
+    expected = np.repeat(np.arange(len(sizes), dtype=np.float32), sizes)[order]
+    np.testing.assert_array_equal(back.v.values[:, 1, 1], expected)
+    assert back.image.values.tolist() == sorted(labels.tolist())
+    assert back.name.values.tolist() == [f"img{k}" for k in sorted(labels.tolist())]
+    assert list(store.staging_dir.iterdir()) == []
 
 
 def test_region_by_region_write_keeps_memory_bounded_by_the_region_not_the_cube(store):
