@@ -113,16 +113,16 @@ def stage_region(piece: xr.Dataset, root: Path) -> None:
         os.replace(part, root / f"{name}.npy")
 
 
-def _staged_regions(staged: Path, name: str) -> list[np.ndarray] | None:
-    """Variable ``name`` of every staged region, memory-mapped, in region order (``None``
-    if the regions did not stage it)."""
+def _staged_regions(staged: Path, name: str) -> list[Path] | None:
+    """The files of variable ``name`` of every staged region, in region order (``None`` if
+    the regions did not stage it)."""
     root = regions_path(staged)
     if not root.is_dir():
         return None
     files = sorted(p / f"{name}.npy" for p in root.iterdir())
     if not files or not files[0].is_file():
         return None
-    return [np.load(f, mmap_mode="r", allow_pickle=False) for f in files]
+    return files
 
 
 def remove_partial_chunks(root: Path) -> None:
@@ -366,33 +366,41 @@ def replaced_group(entry: Path) -> str | None:
 
 
 class _Joined:
-    """Arrays of the staged regions joined along ``axis``, read by orthogonal index
-    (``.oindex[...]``, as a zarr array is): each region's array gives only what it holds."""
+    """The staged regions' ``.npy`` files of a variable joined along ``axis``, read by
+    orthogonal index (``.oindex[...]``, as a zarr array is): each region's file is mapped
+    only while what it holds is copied out (a mapping kept open would keep every page read
+    resident, the whole variable by the end of a pack)."""
 
-    def __init__(self, pieces: list[np.ndarray], axis: int) -> None:
-        self.pieces, self.axis = pieces, axis
-        self.starts = np.cumsum([0] + [p.shape[axis] for p in pieces])
+    def __init__(self, files: list[Path], axis: int) -> None:
+        self.files, self.axis = files, axis
+        maps = [self._map(i) for i in range(len(files))]  # headers only: nothing read yet
+        self.ndim = maps[0].ndim
+        self.starts = np.cumsum([0] + [m.shape[axis] for m in maps])
+        self.dtype = np.result_type(*(m.dtype for m in maps))  # text: the widest region's
+
+    def _map(self, region: int) -> np.ndarray:
+        return np.load(self.files[region], mmap_mode="r", allow_pickle=False)
 
     @property
     def oindex(self) -> _Joined:
         return self
 
     def __getitem__(self, key: tuple[Any, ...]) -> np.ndarray:
-        ndim = self.pieces[0].ndim
-        key = tuple(key) + (slice(None),) * (ndim - len(key))
+        key = tuple(key) + (slice(None),) * (self.ndim - len(key))
         along = np.arange(int(self.starts[-1]))[key[self.axis]]  # indices asked along the axis
         which = np.searchsorted(self.starts, along, side="right") - 1
-        parts, held = [], []
+        out = None
         for region in np.unique(which):
             mine = np.flatnonzero(which == region)
-            part = np.take(self.pieces[region], along[mine] - self.starts[region], axis=self.axis)
+            part = np.take(self._map(region), along[mine] - self.starts[region], axis=self.axis)
             for axis, index in enumerate(key):  # the other dims, one at a time (orthogonal)
                 if axis != self.axis and not (isinstance(index, slice) and index == slice(None)):
                     part = part[(slice(None),) * axis + (index,)]
-            parts.append(part)
-            held.append(mine)
-        if not parts:
-            return np.take(self.pieces[0], along, axis=self.axis)
-        back = np.empty(len(along), dtype=np.intp)
-        back[np.concatenate(held)] = np.arange(len(along))
-        return np.take(np.concatenate(parts, axis=self.axis), back, axis=self.axis)
+            if out is None:
+                shape = list(part.shape)
+                shape[self.axis] = len(along)
+                out = np.empty(shape, dtype=self.dtype)
+            out[(slice(None),) * self.axis + (mine,)] = part
+        if out is None:  # nothing asked along the axis
+            return np.take(self._map(0), along, axis=self.axis)
+        return out
