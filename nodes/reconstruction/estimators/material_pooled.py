@@ -257,21 +257,7 @@ def material_pooled_refine(
     _check(inputs, initial, highlight, int(clusters))
     n_w, n_m, h, w = inputs.cube_shape
     t = fit_terms(inputs, initial, highlight, prior, band_sigma)
-    ell, x0, rgb, cams, rgb_weight, prior_weight = (
-        t.ell,
-        t.x0,
-        t.rgb,
-        t.cams,
-        t.rgb_weight,
-        t.prior_weight,
-    )
-    shot_image, shot_band, data, shot_weight, ctc = (
-        t.shot_image,
-        t.shot_band,
-        t.data,
-        t.shot_weight,
-        t.ctc,
-    )
+    ell, x0, rgb, cams, rgb_weight, prior_weight, shot_image, shot_band, data, shot_weight, ctc = t
     rgb_terms = (rgb * rgb_weight, cams)  # C_m^T W R_m, applied per texel as needed
     terms = (cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight)
     shape_terms = (ell, ctc, rgb_terms, x0, prior_weight, data, shot_image, shot_band, shot_weight)

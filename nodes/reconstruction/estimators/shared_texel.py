@@ -299,21 +299,7 @@ def shared_texel_refine(
     keep = None if misfit is None else (rgb_misfit(inputs, rank) > misfit).ravel()  # (n,)
     active = np.arange(n) if keep is None else np.flatnonzero(~keep)
     t = fit_terms(inputs, initial, highlight, prior, band_sigma, active)
-    ell, x0, rgb, cams, rgb_weight, prior_weight = (
-        t.ell,
-        t.x0,
-        t.rgb,
-        t.cams,
-        t.rgb_weight,
-        t.prior_weight,
-    )
-    shot_image, shot_band, data, shot_weight, ctc = (
-        t.shot_image,
-        t.shot_band,
-        t.data,
-        t.shot_weight,
-        t.ctc,
-    )
+    ell, x0, rgb, cams, rgb_weight, prior_weight, shot_image, shot_band, data, shot_weight, ctc = t
 
     # initial shapes: the texel's rank-r SVD of S^0 (L is not projected out: every
     # radiance is L times a reflectance, so most of a material's spectrum lies along L)
