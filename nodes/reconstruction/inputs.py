@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import dask.array as da
 import numpy as np
 import xarray as xr
 
@@ -530,6 +531,12 @@ def _per_image_camera(
     return camera_matrix.drop_vars([c for c in camera_matrix.coords if "image" in camera_matrix[c].dims])
 
 
+def _paired_rgb(maps: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+    """Images ``rgb`` (image, ..., channel_in) through their own 3 x 3 ``maps`` (image,
+    channel, channel_in), computed in float64, returned in ``rgb``'s dtype."""
+    return np.einsum("icd,i...d->i...c", maps, rgb).astype(rgb.dtype)
+
+
 def in_paired_camera(hdr: xr.Dataset, calibration: xr.Dataset) -> xr.Dataset:
     """``hdr`` with every image's RGB as the paired camera would have measured it (lazy).
 
@@ -567,11 +574,28 @@ def in_paired_camera(hdr: xr.Dataset, calibration: xr.Dataset) -> xr.Dataset:
         for c in np.unique(cameras)
     ):
         return hdr
-    per_image = transform.sel(camera=xr.DataArray(cameras, dims="image")).drop_vars("camera")
-    per_image = per_image.assign_coords(channel=hdr["channel"].values, channel_in=hdr["channel"].values)
-    radiance = hdr["radiance"].rename(channel="channel_in")
-    mapped = xr.dot(per_image, radiance, dim="channel_in").transpose(*hdr["radiance"].dims)
-    mapped = mapped.astype(hdr["radiance"].dtype).assign_attrs(
+    per_image = transform.sel(camera=xr.DataArray(cameras, dims="image"))
+    per_image = per_image.transpose("image", "channel", "channel_in").values  # (image, 3, 3)
+    radiance = hdr["radiance"]
+    order = ("image", *(d for d in radiance.dims if d not in ("image", "channel")), "channel")
+    data = radiance.transpose(*order).data
+    if isinstance(data, da.Array):  # one task per chunk of hdr, its images' maps beside it
+        middle = "".join(chr(ord("p") + k) for k in range(data.ndim - 2))
+        maps = da.from_array(per_image, chunks=(data.chunks[0], -1, -1))
+        values = da.blockwise(
+            _paired_rgb,
+            f"i{middle}c",
+            maps,
+            "icd",
+            data,
+            f"i{middle}d",
+            concatenate=True,
+            dtype=radiance.dtype,
+        )
+    else:
+        values = _paired_rgb(per_image, data)
+    mapped = xr.DataArray(values, dims=order).transpose(*radiance.dims)
+    mapped = mapped.assign_attrs(
         hdr["radiance"].attrs, rgb="in the paired camera's RGB (calibration/spectral rgb_transform)"
     )
     return hdr.assign(
