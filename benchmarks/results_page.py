@@ -829,6 +829,31 @@ def full_run(data: Json) -> list[str]:
     return out
 
 
+def staged_write(data: Json) -> list[str]:
+    """A resumable write, before and after, side by side."""
+    before, after = data["before"], data["after"]
+    rows = (
+        [
+            label,
+            side["write_s"],
+            side["write_cpu_s"],
+            side["peak_rss_gb"],
+            "yes" if side["identical"] else "NO",
+        ]
+        for label, side in (
+            (f"before (`{data['baseline_commit']}`)", before),
+            (f"after (`{data['commit']}`)", after),
+        )
+    )
+    return [
+        f"{num(after['images'])} images of a run's spectra shape (32 bands x 32^2 px) in "
+        f"{after['regions']} regions of unequal size, written two regions at a time and packed; "
+        f"each side a fresh process, machine load {num(data['load_average'])}. "
+        f"Speed-up {num(data['speedup'])}x.",
+        table(["code", "write s", "write CPU s", "peak RSS GB", "read back identical"], rows),
+    ]
+
+
 def node_memory(data: Json) -> list[str]:
     sizes = [str(s) for s in data["sizes"]]
     codes = list(data["peak_gb"])
@@ -936,6 +961,12 @@ SECTIONS: tuple[Section, ...] = (
         "A full run's geometry with small frames",
         "python benchmarks/full_run.py --images N",
         full_run,
+    ),
+    (
+        "staged_write",
+        "A resumable write of a run's spectra",
+        "python benchmarks/staged_write.py --baseline-commit REV",
+        staged_write,
     ),
     ("cli", "Command line start-up", "python benchmarks/cli.py", cli),
 )
