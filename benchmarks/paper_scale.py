@@ -548,6 +548,14 @@ def run_case(name: str, *args, package: Path | None = None, method: str | None =
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def head_commit() -> str:
+    """This checkout's commit, short (empty outside git)."""
+    done = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=False
+    )
+    return done.stdout.strip()
+
+
 def baseline_package(commit: str, workdir: Path) -> Path:
     """A git worktree of ``commit``, importable as ``spectralize`` from the returned folder."""
     tree = workdir / "baseline"

@@ -180,11 +180,9 @@ def main() -> None:
     from spectralize.nodes.reconstruction import DEFAULT_METHOD
 
     sys.path.insert(0, str(HERE))
-    from paper_scale import baseline_package, capture_inputs, run_case
+    from paper_scale import baseline_package, capture_inputs, head_commit, run_case
 
-    head = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
-    ).stdout.strip()
+    head = head_commit()
     report: dict = {
         "benchmark": "paper_scale_throughput",
         "command": " ".join(sys.argv),

@@ -114,11 +114,9 @@ def main(argv: list[str] | None = None) -> dict:
     if not args.baseline_commit:
         parser.error("--baseline-commit is required")
     sys.path.insert(0, str(HERE))
-    from paper_scale import baseline_package
+    from paper_scale import baseline_package, head_commit
 
-    head = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True
-    ).stdout.strip()
+    head = head_commit()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         package = baseline_package(args.baseline_commit, work)
