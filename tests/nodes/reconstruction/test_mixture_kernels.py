@@ -8,10 +8,12 @@ import pytest
 from scipy import ndimage
 
 from spectralize.nodes.reconstruction import inputs_from_xarray
+from spectralize.nodes.reconstruction.baselines import guided_filter
 from spectralize.nodes.reconstruction.baselines.guided_filter import (
     _box_widths,
     _symmetric_inverse,
     gaussian_window,
+    guided_filtered_stacks,
 )
 from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
     Endmembers,
@@ -115,3 +117,20 @@ def test_adjugate_inverse_equals_the_lu_inverse():
     expected = np.linalg.inv(matrices)
     for n, (c, d) in enumerate(zip(*np.triu_indices(3), strict=True)):
         np.testing.assert_allclose(inverse[n], expected[..., c, d], rtol=2e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("window_scale", [1.0, 3.0])  # Gaussian windows, then box windows
+def test_guided_filter_of_shots_in_one_pass_equals_it_shot_by_shot(monkeypatch, window_scale):
+    truth = _blocks(3, size=24, n_image=3)
+    rgb, bands, c = _arrays(truth, [0, 1, 2])
+    sizes = np.resize([3.0, 5.0, 7.0, 9.0, 11.0], bands.sizes["shot"])  # several windows
+    inputs = inputs_from_xarray(rgb, bands.assign_coords(filter_size=("shot", sizes)), c)
+    rng = np.random.default_rng(5)
+    stacks = [inputs.band_data, rng.normal(size=inputs.band_data.shape)]
+    assert len(np.unique(inputs.filter_size)) > 1 and len(inputs.band) > 3 * inputs.n_image
+    together = guided_filtered_stacks(inputs, stacks, window_scale=window_scale)
+    monkeypatch.setattr(guided_filter, "GUIDED_CHUNK_PIXELS", 1)  # one shot per pass
+    alone = guided_filtered_stacks(inputs, stacks, window_scale=window_scale)
+    for a, b in zip(together, alone, strict=True):
+        assert a.dtype == np.float32 and np.isfinite(a).all()
+        np.testing.assert_array_equal(a, b)
