@@ -360,14 +360,26 @@ def target_spectral_series(target: xr.Dataset, group: str) -> tuple[xr.DataArray
     return frame_chunks(counts, ("wavelength", "spectral_exposure")), depth
 
 
+FRAME_CHUNK_BYTES = 32 * 2**20
+"""Float64 bytes of frames one chunk of :func:`frame_chunks` holds at most: one frame at
+2048^2 px (34 MB), thousands of small ones (a full run of 32 x 32 px frames in tens of tasks
+instead of one per frame: issue 27)."""
+
+
 def frame_chunks(array: xr.DataArray, frame_dims: Sequence[str]) -> xr.DataArray:
-    """``array`` as dask chunks of one frame each: 1 along ``frame_dims``, whole ``y``, ``x``.
+    """``array`` as dask chunks of whole frames (whole ``y``, ``x``): as many frames along
+    the first of ``frame_dims`` as fit in :data:`FRAME_CHUNK_BYTES` as float64 (at least
+    one), 1 along the others.
 
     Numpy-backed input is wrapped without a copy; every computation on the result then
     holds a few frames at a time instead of the whole stack (issue 27: no node above 8 GB
     at 2048^2, where a float64 frame is 34 MB and a 32-band stack 1.1 GB).
     """
-    chunks: dict[str, int] = {d: 1 for d in frame_dims if d in array.dims}
+    dims = [d for d in frame_dims if d in array.dims]
+    frame = 8 * math.prod(array.sizes[d] for d in array.dims if d not in dims)
+    chunks: dict[str, int] = {d: 1 for d in dims}
+    if dims:
+        chunks[dims[0]] = max(1, FRAME_CHUNK_BYTES // max(frame, 1))
     chunks |= {d: -1 for d in ("y", "x") if d in array.dims}
     return array.chunk(chunks)
 

@@ -109,19 +109,27 @@ def _dark_for_shots(
         dim="shot",
         frame_shape=(counts.sizes["y"], counts.sizes["x"]),
     )
-    # the same frames, taken lazily from ``dark`` one per shot: no (shot, y, x) copy of the
-    # dark frames is made (32 shots at 2048^2 would be 0.5 GB of float32 per variable), and
-    # each shot's frame is a chunk of its own
+    # the same frames, taken lazily from ``dark`` in the shots' frame chunks (frame_chunks:
+    # one frame at 2048^2, thousands of small ones): no (shot, y, x) copy of the dark frames
+    # is made (32 shots at 2048^2 would be 0.5 GB of float32 per variable), and a run of
+    # small frames is not one piece per shot (15,000 at a full run's count: issue 27)
     source = dark if isinstance(dark, xr.Dataset) else xr.Dataset({"mean": dark})
     known = np.asarray(source["exposure_time"].values, dtype=np.float64)
-    positions = [int(np.flatnonzero(known == t)[0]) for t in frames["exposure_time"].values]
+    positions = np.array(
+        [int(np.flatnonzero(known == t)[0]) for t in frames["exposure_time"].values], dtype=int
+    )
+    step = frame_chunks(counts, ("shot",)).chunks[0][0]
 
     def per_shot(name: str) -> xr.DataArray:
         stack = source[name].transpose("exposure_time", "y", "x")
         stack = stack.drop_vars([c for c in stack.coords if "exposure_time" in stack[c].dims])
         if stack.chunks is None:
             stack = stack.chunk()  # wrap, no copy: the shots' frames are slices of it
-        return xr.concat([stack.isel(exposure_time=p) for p in positions], dim="shot")
+        pieces = [
+            stack.isel(exposure_time=xr.DataArray(positions[i : i + step], dims="shot"))
+            for i in range(0, len(positions), step)
+        ]
+        return xr.concat(pieces, dim="shot") if len(pieces) > 1 else pieces[0]
 
     return per_shot("mean"), per_shot("std") if "std" in frames else None
 

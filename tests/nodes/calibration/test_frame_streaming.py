@@ -6,8 +6,10 @@ copies in the response's lookup. The nodes reduce their series chunk by chunk in
 frame means, patch means, maxima), so that their memory is a few frames per thread.
 
 What is checked: with the calibration targets and dark frames in chunks of one frame and the
-band shots in one chunk (as a run store can hold them), no dask task of a node returns more than :data:`MAX_FRAMES` float64 frames' worth of
-bytes. A node that loads a target series, a stack of shots or their float64 copy in one
+band shots in one chunk (as a run store can hold them), and the nodes' frame chunks
+(:func:`~spectralize.nodes.calibration.exposure_series.frame_chunks`) bounded to one of these
+small frames, as they are to one frame at 2048^2, no dask task of a node returns more than
+:data:`MAX_FRAMES` float64 frames' worth of bytes. A node that loads a target series, a stack of shots or their float64 copy in one
 piece (``.load()``, ``.values``, ``.compute()`` of the whole stack) makes a task that returns
 the whole stack (32 to 416 frames here) and fails. No timing and no resident-memory figure
 is involved.
@@ -20,8 +22,10 @@ import pytest
 import xarray as xr
 from dask.callbacks import Callback
 
+from spectralize.nodes.calibration import exposure_series
 from spectralize.nodes.calibration.band_radiance import WRITE_SHOTS, calibrate_bands
 from spectralize.nodes.calibration.dark import average_dark_frames
+from spectralize.nodes.calibration.exposure_series import FRAME_CHUNK_BYTES, frame_chunks
 from spectralize.nodes.calibration.oecf.low_snr import recover_spectral_oecf
 from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
 from spectralize.nodes.calibration.registration import estimate_registration
@@ -97,7 +101,14 @@ def _largest_frames(function, run) -> tuple[object, float, object]:
 
 @pytest.fixture(scope="module")
 def measured(run):
-    """Each node run once on the per-frame inputs: (its result, largest task, its key)."""
+    """Each node run once on the per-frame inputs: (its result, largest task, its key), with
+    frame chunks of one frame (as a 2048^2 frame's float64 bytes fill FRAME_CHUNK_BYTES)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(exposure_series, "FRAME_CHUNK_BYTES", run["frame_bytes"])
+        return _measure(run)
+
+
+def _measure(run):
     oecf = _largest_frames(lambda: recover_spectral_oecf(run["white"], run["dark"]), run)
     spectral = _largest_frames(
         lambda: calibrate_spectral(
@@ -128,3 +139,14 @@ def test_bands_are_written_a_few_shots_a_chunk(run, measured):
     bands = measured["calibrate_bands"][0]
     assert max(bands["radiance"].chunks[0]) == WRITE_SHOTS < run["spectral"].sizes["shot"]
     assert np.isfinite(bands["radiance"].values).all()
+
+
+@pytest.mark.parametrize("size", [32, 2048])
+def test_frame_chunks_hold_as_many_frames_as_fit_their_bytes(size):
+    frames = xr.DataArray(np.zeros((4096, 1, 1), np.uint16), dims=("shot", "y", "x")).chunk({"shot": -1})
+    frames = frames.isel(y=np.zeros(size, int), x=np.zeros(size, int))  # lazy, not allocated
+    chunks = frame_chunks(frames, ("shot",)).chunks
+    assert chunks[1:] == ((size,), (size,))
+    per_chunk = max(chunks[0])
+    assert per_chunk * 8 * size * size <= max(FRAME_CHUNK_BYTES, 8 * size * size)
+    assert per_chunk == (1 if size == 2048 else 4096)  # one 2048^2 frame; all small ones
