@@ -232,6 +232,10 @@ class Node:
         Output group -> chunk size per dim on disk.
     resumable_along
         Output group -> dim along which it is written region by region (resumable).
+    read_by_shard
+        Input arguments the flow reads in dask chunks of whole shards
+        (:meth:`~spectralize.store.RunStore.shard_chunks`): for a node that streams a whole
+        group, so that a full run of small frames is a task per shard, not per image.
     check
         The node's value check (:data:`ValueCheck`), run before its function and by
         ``spectralize validate --flow``; ``None``: the schemas' checks only.
@@ -246,6 +250,7 @@ class Node:
     description: str = ""
     chunks: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
     resumable_along: Mapping[str, str] = field(default_factory=dict)
+    read_by_shard: tuple[str, ...] = ()
     check: ValueCheck | None = None
 
     def __post_init__(self) -> None:
@@ -298,6 +303,15 @@ class Node:
                         f"{label} chunks/resumable_along {group!r}",
                         f"one of the outputs {list(self.outputs)}",
                         "not an output",
+                    )
+                )
+        for argument in self.read_by_shard:
+            if argument not in self.inputs:
+                problems.append(
+                    Problem(
+                        f"{label} read_by_shard {argument!r}",
+                        f"one of the inputs {list(self.inputs)}",
+                        "not an input",
                     )
                 )
         if problems:

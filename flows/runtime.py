@@ -575,7 +575,12 @@ def run_node(
             # the node's solver runs (spectralize.engine.progress) become bars under its line
             with progress.node_tasks(node.name), dask_scheduler(dask_address, log) as parallel:
                 data = {
-                    argument: store.read(group, friendly=False) for argument, group in inputs.items()
+                    argument: store.read(
+                        group,
+                        friendly=False,
+                        chunks="shards" if argument in node.read_by_shard else None,
+                    )
+                    for argument, group in inputs.items()
                 }
                 stage = "computing"
                 progress.notify("stage", node.name, stage)

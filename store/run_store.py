@@ -366,7 +366,7 @@ class RunStore:
         self,
         group: str,
         *,
-        chunks: Mapping[str, int] | None = None,
+        chunks: Mapping[str, int] | str | None = None,
         verify: bool = True,
         friendly: bool = True,
     ) -> xr.Dataset:
@@ -377,7 +377,11 @@ class RunStore:
         group
             Group path, e.g. ``"raw/dark"``.
         chunks
-            Dask chunks per dim; by default the chunks the group was written with.
+            Dask chunks per dim; by default the chunks the group was written with;
+            ``"shards"``: whole shards along each sharded variable's first dim (its chunks
+            along the others, :meth:`shard_chunks`), for a reader that streams the whole
+            group (a full run of small frames: a task per shard of ~1,000 images instead of
+            a task per image).
         verify
             Check the group's files against its manifest first (sizes; checksums of files
             changed since) and raise if one is missing, truncated or edited; then check every
@@ -409,8 +413,25 @@ class RunStore:
                 ds.attrs[attr] = canonical_json(ds.attrs[attr])
         return friendly_view(ds) if friendly else ds
 
+    def shard_chunks(self, group: str) -> dict[str, int]:
+        """Dask chunks of whole shards for ``group``: per dim, the largest shard extent of
+        a sharded variable whose first dim it is, else the largest chunk along it; dims of
+        unsharded variables only are left out (their stored chunks)."""
+        found: dict[str, int] = {}
+        for meta_path in sorted(self._group_path(group).glob("*/zarr.json")):
+            meta = json.loads(meta_path.read_text())
+            codecs = meta.get("codecs") or [{}]
+            if meta.get("node_type") != "array" or codecs[0].get("name") != "sharding_indexed":
+                continue
+            shard = meta["chunk_grid"]["configuration"]["chunk_shape"]
+            inner = codecs[0]["configuration"]["chunk_shape"]
+            for axis, dim in enumerate(meta.get("dimension_names") or []):
+                size = int(shard[axis] if axis == 0 else inner[axis])
+                found[dim] = max(found.get(dim, 0), size)
+        return found
+
     def _open(
-        self, group: str, *, checked: bool = True, chunks: Mapping[str, int] | None = None
+        self, group: str, *, checked: bool = True, chunks: Mapping[str, int] | str | None = None
     ) -> xr.Dataset:
         checksums: dict[str, int] = {}
         if checked:
@@ -420,12 +441,19 @@ class RunStore:
                 f"{prefix}/{rel}": crc for rel, (_, _, crc) in manifest.items() if crc is not None
             }
         meta = self._group_meta(self._group_path(group)) or {}
-        return xr.open_zarr(
-            CheckedLocalStore(self.path, read_only=True, checksums=checksums),
-            group=group.strip("/"),
-            consolidated=bool(meta.get("consolidated_metadata")),
-            chunks=dict(chunks) if chunks is not None else {},
-        )
+        if chunks == "shards":
+            chunks = self.shard_chunks(group)
+        elif isinstance(chunks, str):
+            raise StoreError(f"chunks for {group!r}: a mapping of dim sizes or 'shards', got {chunks!r}")
+        with warnings.catch_warnings():
+            # shards span many of a small variable's one chunk (per-image coordinates)
+            warnings.filterwarnings("ignore", "The specified chunks separate", UserWarning)
+            return xr.open_zarr(
+                CheckedLocalStore(self.path, read_only=True, checksums=checksums),
+                group=group.strip("/"),
+                consolidated=bool(meta.get("consolidated_metadata")),
+                chunks=dict(chunks) if chunks is not None else {},
+            )
 
     def verify(self, group: str, *, deep: bool = False) -> list[Problem]:
         """Compare the files of ``group`` with the manifest written at commit time.

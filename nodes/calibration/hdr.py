@@ -434,7 +434,8 @@ def merge_hdr(
     # Small frames (a full run's geometry with tiny frames): chunks of one image make one
     # task per image and step; merge whole blocks of images instead (the estimate is per
     # pixel, so the blocks do not change a value), and give the radiance the chunks of the
-    # input back (one image per chunk on disk, as a set's reads want it).
+    # input back (the flow reads raw/rgb by shard: hdr is written shard by shard, in chunks
+    # of at most layout.CHUNK_BYTES on disk, which a batch of sets reads a few of).
     image_chunks = counts.chunks[counts.get_axis_num("image")]
     counts = counts.chunk({"image": _image_block(counts)})
     blocks = {"image": counts.chunks[0]}

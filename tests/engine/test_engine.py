@@ -116,6 +116,8 @@ def test_declaration_errors_are_caught_when_the_node_is_declared():
         Node(name="bad", function=scale, inputs={"dark": "dark"}, outputs=("x",), parameters=Extra)
     with pytest.raises(NodeDeclarationError, match="outputs: expected at least one output"):
         Node(name="bad", function=scale, inputs={"dark": "dark"}, outputs=())
+    with pytest.raises(NodeDeclarationError, match="read_by_shard 'raw': expected one of the inputs"):
+        Node(name="bad", function=scale, inputs={"dark": "dark"}, outputs=("x",), read_by_shard=("raw",))
 
 
 def test_node_call_checks_what_the_function_returns():

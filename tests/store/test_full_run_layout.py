@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from spectralize.schemas import StoreError
 from spectralize.store import RunStore, layout, open_run
 from spectralize.store.integrity import MANIFEST_FILE
 
@@ -68,6 +69,22 @@ def test_files_grow_with_shards_and_coordinates_are_one_chunk(tmp_path, monkeypa
         assert [p for p in (root / name / "c").rglob("*") if p.is_file()] == [root / name / "c" / "0"]
     files = sum(1 for p in store.path.rglob("*") if p.is_file())
     assert files < 20  # one per array, its metadata, the group's metadata and manifest
+
+
+def test_a_group_read_by_shard_is_a_task_per_shard_with_the_same_values(tmp_path, monkeypatch):
+    monkeypatch.setattr(layout, "SMALL_BYTES", 4096)
+    monkeypatch.setattr(layout, "SHARD_BYTES", 100 * 192)  # 100 images of 192 B per shard
+    monkeypatch.setattr(layout, "CHUNK_BYTES", 192)  # one image per stored chunk
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write("cube", set_ordered_cube([list(range(250))]), fingerprint="s")
+    stored = store.read("cube", friendly=False)
+    by_shard = store.read("cube", friendly=False, chunks="shards")
+    assert store.shard_chunks("cube") == {"image": 100, "wavelength": 3, "y": 4, "x": 4}
+    assert stored.radiance.chunks[0] == (1,) * 250  # a task per image
+    assert by_shard.radiance.chunks[0] == (100, 100, 50)
+    xr.testing.assert_identical(by_shard.load(), stored.load())
+    with pytest.raises(StoreError, match="'shards'"):
+        store.read("cube", chunks="shard")
 
 
 def test_bookkeeping_stays_out_of_the_attrs_and_records_are_kept_beside(tmp_path):
