@@ -144,12 +144,14 @@ def _merge_block(
 
 
 BLOCK_BYTES = 4 * 2**20
-"""Counts merged per task at least (whole images, when one image's chunks are smaller)."""
+"""Counts merged per task (whole images: at least one): smaller image chunks are joined up to
+it, larger ones (a shard of a full run's small frames, 33 MB) split, so that a task's float64
+temporaries stay near 100 MB whatever the chunks read."""
 
 
 def _image_block(counts: xr.DataArray) -> tuple[int, ...]:
-    """Image chunks of ``counts`` joined up to :data:`BLOCK_BYTES` (a chunk's whole frame
-    only: frames split in y or x keep their chunks)."""
+    """Image chunks of ``counts`` joined or split to :data:`BLOCK_BYTES` (a chunk's whole
+    frame only: frames split in y or x keep their chunks)."""
     chunks = dict(zip(counts.dims, counts.chunks or (), strict=True))
     image = chunks["image"]
     if any(len(chunks[d]) > 1 for d in ("y", "x")):
@@ -160,7 +162,11 @@ def _image_block(counts: xr.DataArray) -> tuple[int, ...]:
     for size in image:
         if joined and joined[-1] + size <= most:
             joined[-1] += size
-        else:
+            continue
+        while size > most:
+            joined.append(most)
+            size -= most
+        if size:
             joined.append(size)
     return tuple(joined)
 

@@ -144,6 +144,19 @@ def test_lazy_input_stays_lazy_and_chunks_agree() -> None:
     np.testing.assert_array_equal(lazy["radiance"].values, eager["radiance"].values)
 
 
+def test_a_chunk_of_many_images_is_merged_in_blocks_with_the_same_result(monkeypatch) -> None:
+    ds = raw_rgb(random_radiance((7, 8, 8, 3)))
+    response, _ = true_response("log", 10)
+    per_image = hdr.merge_hdr(ds.chunk({"image": 1}), response)["radiance"]
+    image = ds["counts"].nbytes // ds.sizes["image"]
+    monkeypatch.setattr(hdr, "BLOCK_BYTES", 2 * image)  # a shard of 7 images: 4 blocks
+    blocks = hdr._image_block(ds["counts"].chunk({"image": -1}))
+    assert blocks == (2, 2, 2, 1)
+    in_blocks = hdr.merge_hdr(ds.chunk({"image": -1}), response)["radiance"]
+    assert in_blocks.chunks[0] == (7,)  # given back the chunks read
+    np.testing.assert_array_equal(in_blocks.values, per_image.values)
+
+
 def test_each_image_uses_its_cameras_response() -> None:
     radiance = random_radiance((2, 40, 40, 3))
     gamma = raw_rgb(radiance[:1], model="gamma", seed=1)
