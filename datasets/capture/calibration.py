@@ -29,7 +29,7 @@ import numpy as np
 
 from spectralize.schemas import Problem
 
-from .images import read_image
+from .images import read_image, reader_failure
 from .model import CALIBRATION, CONFIG, Config, contained_path
 
 __all__ = [
@@ -319,7 +319,7 @@ def _read_patch_index(
     try:
         index = read_image(labels)
     except Exception as error:
-        problems.append(Problem(name, "a readable TIFF or PNG file", f"{type(error).__name__}: {error}"))
+        problems.append(Problem(name, "a readable TIFF or PNG file", reader_failure(error)))
         return None
     index, found = check_patch_index(name, index, frame_shape, n_patches)
     problems += found

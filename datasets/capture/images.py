@@ -24,7 +24,19 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["IMAGE_SUFFIXES", "MAX_FRAME_BYTES", "Header", "read_header", "read_image", "probe"]
+from spectralize.schemas import Problem, SpectralizeError
+
+from .model import CaptureError
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "MAX_FRAME_BYTES",
+    "Header",
+    "read_header",
+    "read_image",
+    "reader_failure",
+    "probe",
+]
 
 IMAGE_SUFFIXES: tuple[str, ...] = (".tif", ".tiff", ".png")
 """The image file names a manifest may list (case-insensitive)."""
@@ -63,8 +75,9 @@ def read_header(path: str | os.PathLike[str]) -> Header:
 
     Raises
     ------
-    ValueError
-        For an unknown suffix or a header that cannot be read (also ``OSError``).
+    CaptureError
+        For an unknown suffix or a header that cannot be read, naming the file (a decoder's
+        own ``ValueError`` and an ``OSError`` pass through).
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -73,21 +86,31 @@ def read_header(path: str | os.PathLike[str]) -> Header:
 
         with tifffile.TiffFile(path) as tif:
             if not tif.series:
-                raise ValueError("a TIFF file without images")
+                raise CaptureError.single(
+                    str(path), "a TIFF file with an image", "a TIFF file without images"
+                )
             series = tif.series[0]
             return Header(tuple(int(n) for n in series.shape), np.dtype(series.dtype))
     if suffix == ".png":
         with open(path, "rb") as file:
             head = file.read(29)
         if len(head) < 29 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
-            raise ValueError("not a PNG file (no PNG signature and IHDR chunk)")
+            raise CaptureError.single(
+                str(path), "a PNG file", "not a PNG file (no PNG signature and IHDR chunk)"
+            )
         width, height, bits, colour = struct.unpack(">IIBB", head[16:26])
         if width == 0 or height == 0 or bits not in (1, 2, 4, 8, 16) or colour not in _PNG_PLANES:
-            raise ValueError(f"a PNG header of {width} x {height} px, {bits} bits, colour type {colour}")
+            raise CaptureError.single(
+                str(path),
+                "a PNG header of at least 1 x 1 px, 1, 2, 4, 8 or 16 bits, colour type 0, 2, 3, 4 or 6",
+                f"a PNG header of {width} x {height} px, {bits} bits, colour type {colour}",
+            )
         planes = _PNG_PLANES[colour]
         shape = (height, width) if planes == 1 else (height, width, planes)
         return Header(shape, np.dtype(np.uint16 if bits > 8 else np.uint8))
-    raise ValueError(f"unknown image format {suffix!r} (use .tif, .tiff or .png)")
+    raise CaptureError.single(
+        str(path), "a .tif, .tiff or .png file", f"unknown image format {suffix!r}"
+    )
 
 
 def read_image(
@@ -99,14 +122,23 @@ def read_image(
     """Pixel data of a TIFF (tifffile) or PNG (pypng, 16-bit RGB included) file, as stored.
 
     The header is read first: a file declaring more than ``max_bytes`` of pixels, or (when
-    ``shape`` is given) another shape, raises :class:`ValueError` before anything is decoded.
+    ``shape`` is given) another shape, raises :class:`~.model.CaptureError` (naming the file,
+    what was expected and what it declares) before anything is decoded.
     """
     path = Path(path)
     header = read_header(path)
     if header.nbytes > max_bytes:
-        raise ValueError(f"{_declares(header)}: more than {max_bytes / 2**20:.0f} MiB, not decoded")
+        raise CaptureError.single(
+            str(path),
+            f"a frame of at most {max_bytes / 2**20:.0f} MiB",
+            f"{_declares(header)}: more than {max_bytes / 2**20:.0f} MiB, not decoded",
+        )
     if shape is not None and header.shape != tuple(shape):
-        raise ValueError(f"a frame of shape {tuple(shape)}; the file declares shape {header.shape}")
+        raise CaptureError.single(
+            str(path),
+            f"a frame of shape {tuple(shape)}",
+            f"the file declares shape {header.shape} (not decoded)",
+        )
     if path.suffix.lower() == ".png":
         import png
 
@@ -118,7 +150,9 @@ def read_image(
                 break
             data[count - 1] = np.asarray(row, dtype=header.dtype)
         if count != height:
-            raise ValueError(f"a PNG file with {height} rows; {count} could be read")
+            raise CaptureError.single(
+                str(path), f"a PNG file with {height} rows", f"{count} rows could be read"
+            )
         data = data.reshape(header.shape)
     else:
         import tifffile
@@ -126,13 +160,26 @@ def read_image(
         with tifffile.TiffFile(path) as tif:
             data = np.asarray(tif.series[0].asarray())
     if data.shape != header.shape:
-        raise ValueError(f"pixels of the declared shape {header.shape}; decoded {data.shape}")
+        raise CaptureError.single(
+            str(path), f"pixels of the declared shape {header.shape}", f"decoded {data.shape}"
+        )
     return data
 
 
 def _declares(header: Header) -> str:
     size = " x ".join(str(n) for n in header.shape)
     return f"a file declaring {size} {header.dtype} ({header.nbytes / 2**20:,.0f} MiB)"
+
+
+def reader_failure(error: Exception) -> str:
+    """What a reader's error found wrong with a file, without the file's path (a problem names it).
+
+    A :class:`~.model.CaptureError` of :func:`read_header` or :func:`read_image` gives what it
+    found; a decoder's own error (tifffile, pypng, ``OSError``) its type and message.
+    """
+    if isinstance(error, SpectralizeError) and error.problems:
+        return "; ".join(p.found if isinstance(p, Problem) else str(p) for p in error.problems)
+    return f"{type(error).__name__}: {error}".strip()[:200]
 
 
 def probe(
@@ -173,7 +220,7 @@ def probe(
     try:
         header = read_header(path)
     except Exception as error:  # any parser error: the file is unreadable
-        return None, "a readable TIFF or PNG file", f"{type(error).__name__}: {error}".strip()[:200]
+        return None, "a readable TIFF or PNG file", reader_failure(error)
     want = (3,) if rgb else ()
     if len(header.shape) != 2 + len(want) or header.shape[2:] != want:
         kind = "an RGB image (y, x, 3)" if rgb else "a monochrome image (y, x)"
@@ -200,7 +247,7 @@ def probe(
     try:
         data = read_image(path, shape=header.shape, max_bytes=max_bytes)
     except Exception as error:  # any decoder error: the file is unreadable
-        return None, "a readable TIFF or PNG file", f"{type(error).__name__}: {error}".strip()[:200]
+        return None, "a readable TIFF or PNG file", reader_failure(error)
     top = int(data.max()) if data.size else 0
     if top > 2**bit_depth - 1:
         return (

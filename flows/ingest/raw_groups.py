@@ -95,7 +95,9 @@ def _load(source: tuple, frame: tuple[int, ...]) -> np.ndarray:
     if source[0] == "file":
         try:
             data = read_image(source[1], shape=frame)
-        except ValueError as error:
+        except CaptureError:  # names the file, what was expected and what it declares
+            raise
+        except ValueError as error:  # a decoder's own error
             raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", str(error)) from None
     if data.shape != frame:
         raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", f"shape {data.shape}")

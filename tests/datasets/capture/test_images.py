@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from spectralize.datasets.capture import CaptureError
 from spectralize.datasets.capture.images import probe, read_image
 from spectralize.datasets.capture.write import write_png, write_tiff
 
@@ -20,7 +21,9 @@ def test_16_bit_png_and_tiff_are_read_as_written(tmp_path):
         data = read_image(tmp_path / name)
         assert data.dtype == np.uint16
         np.testing.assert_array_equal(data, image)
-    with pytest.raises(ValueError, match="unknown image format"):
+    with pytest.raises(ValueError, match="unknown image format"):  # a CaptureError is one
+        read_image(tmp_path / "d.jpg")
+    with pytest.raises(CaptureError, match=r"d\.jpg: expected a \.tif, \.tiff or \.png file"):
         read_image(tmp_path / "d.jpg")
 
 
@@ -50,9 +53,12 @@ def test_the_header_is_checked_before_any_pixel_is_decoded(tmp_path):
     write_png(tmp_path / "b.png", np.full((4, 5, 3), 7, np.uint16))
     assert read_header(tmp_path / "a.tif").shape == (4, 5)
     assert read_header(tmp_path / "b.png").shape == (4, 5, 3)
-    with pytest.raises(ValueError, match=r"a frame of shape \(5, 4\); the file declares shape \(4, 5\)"):
+    with pytest.raises(
+        CaptureError,
+        match=r"a\.tif: expected a frame of shape \(5, 4\), found the file declares shape \(4, 5\)",
+    ):
         read_image(tmp_path / "a.tif", shape=(5, 4))
-    with pytest.raises(ValueError, match="more than 0 MiB, not decoded"):
+    with pytest.raises(CaptureError, match="at most 0 MiB, found .*: more than 0 MiB, not decoded"):
         read_image(tmp_path / "b.png", max_bytes=100)
     assert probe(tmp_path / "a.tif", False, 10, frame_shape=(8, 8)) == (
         None,
