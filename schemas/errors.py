@@ -114,10 +114,6 @@ def _rebuild(cls: type[SpectralizeError], summary: str, problems: list) -> Spect
     return error
 
 
-# Kept for code that imported the old name: every error now carries a problem list.
-_ProblemList = SpectralizeError
-
-
 class SchemaError(SpectralizeError, ValueError):
     """Data that does not follow the run-store contract (dims, coords, dtype, units, values)."""
 

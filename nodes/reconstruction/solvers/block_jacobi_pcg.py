@@ -49,7 +49,7 @@ def block_jacobi_pcg(
     dtype: np.dtype | type = np.float32,
     ridge: float = 1e-4,
     prior: float = 0.0,
-    precondition: bool | str = True,
+    precondition: bool = True,
 ) -> SolverResult:
     """Eq. 1, plus an optional guided prior, by block-Jacobi preconditioned CG.
 
@@ -87,8 +87,7 @@ def block_jacobi_pcg(
         Weight of the prior towards ``S_0``, relative to the mean diagonal of ``A^T A``, on
         the bands and images that have a shot (0: eq. 1 alone).
     precondition
-        ``True``: block Jacobi; ``"jacobi"``: the scalar diagonal; ``False``: none (the
-        last two for measurements).
+        ``True``: block Jacobi; ``False``: none (a measurement of what it buys).
 
     Returns
     -------

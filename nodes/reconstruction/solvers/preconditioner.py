@@ -122,7 +122,8 @@ class BlockJacobiPreconditioner:
 
     def inverse_scalar_diagonal_pixels(self) -> np.ndarray:
         """``1 / diag(A^T A + epsilon)``, pixel-major ``(n_pixels, n_wavelength)`` in
-        :attr:`order` (plain Jacobi scaling of the compiled solvers)."""
+        :attr:`order` (the scaling of the non-negativity refinement,
+        :mod:`.projected_refinement`)."""
         c = self.camera_matrix.astype(np.float64)
         full = np.divide(1.0, self.inverse_diagonal, dtype=self.dtype)  # one buffer, in place
         rgb_diagonal = (self._beta * np.sum(c * c, axis=1)).astype(self.dtype)  # (n_camera, w)

@@ -72,7 +72,7 @@ def prior_pcg(
     spectral_prior: float = 0.0,
     covariance_floor: float = 1e-2,
     prior_source: str = "scene",
-    precondition: bool | str = True,
+    precondition: bool = True,
     projected_iterations: int = 40,
     endmembers: Endmembers | None = None,
     prior_weighting: str = "uniform",
