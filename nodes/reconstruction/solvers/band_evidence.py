@@ -52,6 +52,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from spectralize.schemas.errors import ParameterError, ReconstructionError
+
 from ..estimators.endmember_mixture import band_noise_sigma
 from ..inputs import ReconstructionInputs
 
@@ -100,16 +102,20 @@ def band_evidence(
 
     Raises
     ------
-    ValueError
-        If an estimate's shape is not ``inputs.cube_shape`` or ``window < 1``.
+    ReconstructionError
+        If an estimate's shape is not ``inputs.cube_shape``.
+    ParameterError
+        If ``window < 1``.
     """
     from scipy import ndimage
 
     for name, cube in (("natural", natural), ("learnt", learnt)):
         if np.shape(cube) != inputs.cube_shape:
-            raise ValueError(f"{name}: expected shape {inputs.cube_shape}, found {np.shape(cube)}")
+            raise ReconstructionError.single(
+                name, f"shape {inputs.cube_shape} (wavelength, image, y, x)", np.shape(cube)
+            )
     if window < 1:
-        raise ValueError(f"window: expected >= 1, found {window}")
+        raise ParameterError.single("window", ">= 1 (pixels)", window)
     if sigma is None:
         sigma = band_noise_sigma(inputs)
     shape = (inputs.n_image, inputs.height, inputs.width)

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spectralize.schemas.errors import ReconstructionError
+
 from ..baselines.training import estimate_illuminant, training_reflectances
 from ..baselines.wiener import WIENER_RELATIVE_NOISE, wiener_from_rgb
 from ..inputs import ReconstructionInputs
@@ -79,16 +81,20 @@ def natural_statistics(spectra: np.ndarray) -> NaturalStatistics:
 
     Raises
     ------
-    ValueError
+    ReconstructionError
         If ``spectra`` is not 2-D with at least two samples, or not finite.
     """
     spectra = np.asarray(spectra, dtype=np.float64)
     if spectra.ndim != 2 or spectra.shape[1] < 2:
-        raise ValueError(
-            f"spectra: expected (n_wavelength, n_samples >= 2), found shape {spectra.shape}"
+        raise ReconstructionError.single(
+            "spectra", "(n_wavelength, n_samples >= 2)", f"shape {spectra.shape}"
         )
     if not np.isfinite(spectra).all():
-        raise ValueError("spectra: expected finite values, found NaN or inf")
+        raise ReconstructionError.single(
+            "spectra",
+            "finite values",
+            f"{int(np.isnan(spectra).sum())} NaN and {int(np.isinf(spectra).sum())} inf",
+        )
     mean = spectra.mean(axis=1)
     centred = spectra - mean[:, None]
     covariance = centred @ centred.T / spectra.shape[1]

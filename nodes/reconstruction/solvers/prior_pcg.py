@@ -45,16 +45,24 @@ References
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from spectralize.schemas.errors import ParameterError, ReconstructionError
+
 from ..estimators.endmember_mixture import Endmembers
-from ..operators import ReconstructionProblem
+from ..operators import PixelOrder, ReconstructionProblem
 from .common import Callback, SolverResult, pixel_pcg
 from .guided_estimate import guided_initial, shot_mask
 from .preconditioner import BlockJacobiPreconditioner, normal_mean_diagonal
 from .projected_refinement import projected_refinement
-from .spectral_prior import PRIOR_WEIGHTINGS, prior_brightness, spectral_prior_term
+from .spectral_prior import (
+    PRIOR_WEIGHTINGS,
+    SpectralPrior,
+    prior_brightness,
+    spectral_prior_term,
+)
 
 __all__ = ["prior_pcg"]
 
@@ -130,105 +138,35 @@ def prior_pcg(
 
     Raises
     ------
-    ValueError
+    ParameterError
         For an unknown ``prior_weighting``.
+    ReconstructionError
+        With ``prior_weighting="brightness"`` for a problem not built from its inputs.
     """
     started = time.perf_counter()
     if prior_weighting not in PRIOR_WEIGHTINGS:
-        raise ValueError(
-            f"prior_weighting: expected one of {PRIOR_WEIGHTINGS}, found {prior_weighting!r}"
+        raise ParameterError.single(
+            "prior_weighting", f"one of {PRIOR_WEIGHTINGS}", repr(prior_weighting)
         )
-    dtype = np.dtype(dtype)
-    work = problem.astype(dtype)
-    mask = shot_mask(problem)  # (w, m, 1, 1)
-    guided = prior * mask  # epsilon_p M / mean(diag A^T A)
-    brightness = None
-    if prior_weighting == "brightness" and prior > 0:
-        inputs = problem.extras.get("inputs")
-        if inputs is None:
-            raise ValueError("prior_weighting='brightness' needs a problem built from inputs")
-        brightness = prior_brightness(inputs.rgb).astype(dtype)
-        guided = guided.astype(dtype) * brightness[None]  # per pixel: one float32 cube
-    relative: float | np.ndarray = ridge + guided
-    mean_diagonal = normal_mean_diagonal(work)
-    term = None
-    if spectral_prior > 0:
-        term = spectral_prior_term(
-            problem,
-            spectral_prior,
-            mean_diagonal,
-            covariance_floor=covariance_floor,
-            source=prior_source,
-            endmembers=endmembers,
-            natural_prior=natural_prior,
-        )
-    if term is not None:  # the prior's diagonal joins the ridges, one float32 cube
-        term = term.astype(dtype)
-        diagonal = term.diagonal()
-        diagonal *= dtype.type(1.0 / mean_diagonal)
-        diagonal += np.asarray(relative, dtype=dtype)
-        relative = diagonal
-        del diagonal
-    if term is not None and prior_source in ("mixture", "natural"):
-        centre = term.centre  # the guided prior pulls towards the same estimate (read only)
-    else:
-        centre = np.asarray(guided_initial(problem), dtype=dtype).reshape(work.shape)
-    order = work.pixel_order("appearance")
-    preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative, order=order)
-    del relative
-    # the ridges alone (without the spectral prior's diagonal), absolute
-    towards = dtype.type(ridge * mean_diagonal)
-    start = centre if initial is None else np.asarray(initial, dtype=dtype).reshape(work.shape)
-    rhs = work.normal_rhs() + towards * start
-    brightness_pixels = shots = None  # epsilon_p f_p M per pixel: f_p and epsilon_p M per image
-    if brightness is None:  # uniform per (band, image): a ridge of the compiled operator
-        epsilon = ((ridge + prior * mask) * mean_diagonal).astype(dtype)
-        rhs += (guided * mean_diagonal).astype(dtype) * centre  # + epsilon_p M c
-    else:  # per pixel: epsilon_p f_p M, applied in the operator's pass beside ``w_p Q``
-        epsilon = np.asarray(ridge * mean_diagonal, dtype=dtype)
-        guided *= dtype.type(mean_diagonal)  # + epsilon_p f_p M c, in the weights' cube
-        guided *= centre
-        rhs += guided
-        brightness_pixels = np.ascontiguousarray(brightness.reshape(-1)[order.order], dtype=dtype)
-        shots = np.ascontiguousarray((mask[:, :, 0, 0].T * (prior * mean_diagonal)).astype(dtype))
-        del brightness
-    del guided
-    if term is not None:
-        rhs += term.rhs()
-    del centre
-    x = order.to_pixels(start)
-    del start, initial
-    rhs = order.to_pixels(rhs)
-    precision = weight = None
-    if term is not None:  # Q and w_p, pixel-major
-        precision = np.ascontiguousarray(term.precision, dtype=dtype)
-        weight = np.ascontiguousarray(term.weight.reshape(-1)[order.order], dtype=dtype)
-        del term
-
-    def operator(
-        vector: np.ndarray, out: np.ndarray, subtract: np.ndarray | None = None
-    ) -> tuple[np.ndarray, float]:
-        # eq. 1's normal operator, the ridges and the per-pixel priors ``w_p Q S_p`` and
-        # ``epsilon_p f_p M S_p`` in one compiled pass (and ``S . H S`` with it)
-        curvature = work.prior_normal_pixels(
-            vector,
-            order=order,
-            epsilon=epsilon,
-            out=out,
-            precision=precision,
-            weight=weight,
-            brightness=brightness_pixels,
-            shots=shots,
-            subtract=subtract,
-        )
-        return out, curvature
-
+    x, rhs, operator, preconditioner = _prior_system(
+        problem,
+        np.dtype(dtype),
+        initial=initial,
+        ridge=ridge,
+        prior=prior,
+        spectral_prior=spectral_prior,
+        covariance_floor=covariance_floor,
+        prior_source=prior_source,
+        endmembers=endmembers,
+        prior_weighting=prior_weighting,
+        natural_prior=natural_prior,
+    )
     x, history, iterations = pixel_pcg(
         operator,
         x,
         rhs,
         preconditioner,
-        order,
+        operator.order,
         precondition=precondition,
         tolerance=tolerance,
         max_iterations=max_iterations,
@@ -249,7 +187,7 @@ def prior_pcg(
             gradient=lambda vector, out: operator(vector, out, rhs)[0],
         )
     return SolverResult(
-        order.to_cube(x),
+        operator.order.to_cube(x),
         iterations + int(projected_iterations),
         np.asarray(history),
         converged,
@@ -258,10 +196,237 @@ def prior_pcg(
         {
             "ridge": float(ridge),
             "prior": float(prior),
-            "spectral_prior": float(spectral_prior) if weight is not None else 0.0,
+            "spectral_prior": float(spectral_prior) if operator.weight is not None else 0.0,
             "prior_source": prior_source,
             "prior_weighting": prior_weighting,
             "natural_prior": float(natural_prior) if prior_source == "natural" else 0.0,
             "projected_iterations": int(projected_iterations),
         },
     )
+
+
+def _prior_system(
+    problem: ReconstructionProblem,
+    dtype: np.dtype,
+    *,
+    initial: np.ndarray | None,
+    ridge: float,
+    prior: float,
+    spectral_prior: float,
+    covariance_floor: float,
+    prior_source: str,
+    endmembers: Endmembers | None,
+    prior_weighting: str,
+    natural_prior: float,
+) -> tuple[np.ndarray, np.ndarray, _PriorOperator, BlockJacobiPreconditioner]:
+    """The system :func:`prior_pcg` solves, set up in ``dtype``: the start ``x`` and the
+    right-hand side, pixel-major in the appearance order, ``H`` and its block-Jacobi
+    preconditioner (the priors' diagonals in its ridge). Arguments as for
+    :func:`prior_pcg`."""
+    work = problem.astype(dtype)
+    mask = shot_mask(problem)  # (w, m, 1, 1)
+    # epsilon_p f_p M / mean(diag A^T A), and f_p where the prior is weighted by brightness
+    guided, brightness = _guided_prior_weight(
+        problem, prior * mask, prior=prior, prior_weighting=prior_weighting, dtype=dtype
+    )
+    mean_diagonal = normal_mean_diagonal(work)
+    term, relative = _spectral_prior(
+        problem,
+        ridge + guided,
+        mean_diagonal,
+        dtype,
+        weight=spectral_prior,
+        covariance_floor=covariance_floor,
+        source=prior_source,
+        endmembers=endmembers,
+        natural_prior=natural_prior,
+    )
+    if term is not None and prior_source in ("mixture", "natural"):
+        centre = term.centre  # the guided prior pulls towards the same estimate (read only)
+    else:
+        centre = np.asarray(guided_initial(problem), dtype=dtype).reshape(work.shape)
+    order = work.pixel_order("appearance")
+    preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative, order=order)
+    del relative
+    # the ridges alone (without the spectral prior's diagonal), absolute
+    towards = dtype.type(ridge * mean_diagonal)
+    start = centre if initial is None else np.asarray(initial, dtype=dtype).reshape(work.shape)
+    rhs = work.normal_rhs() + towards * start
+    epsilon, brightness_pixels, shots = _guided_prior_terms(
+        rhs,
+        guided,
+        brightness,
+        mask,
+        centre,
+        ridge=ridge,
+        prior=prior,
+        mean_diagonal=mean_diagonal,
+        order=order,
+        dtype=dtype,
+    )
+    del guided, brightness
+    if term is not None:
+        rhs += term.rhs()
+    del centre
+    x = order.to_pixels(start)
+    del start
+    rhs = order.to_pixels(rhs)
+    precision, weight = _pixel_spectral_prior(term, order, dtype)
+    del term
+    operator = _PriorOperator(
+        work, order, epsilon, precision, weight, brightness=brightness_pixels, shots=shots
+    )
+    return x, rhs, operator, preconditioner
+
+
+def _guided_prior_weight(
+    problem: ReconstructionProblem,
+    guided: np.ndarray,
+    *,
+    prior: float,
+    prior_weighting: str,
+    dtype: np.dtype,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The guided prior's weight ``epsilon_p f_p M`` relative to the mean diagonal of
+    ``A^T A``, from ``guided = epsilon_p M`` ``(w, m, 1, 1)``: unchanged with
+    ``prior_weighting="uniform"``; with ``"brightness"``, times each pixel's relative
+    brightness ``f_p`` (one cube in ``dtype``), returned beside it ``(m, y, x)``.
+
+    Raises
+    ------
+    ReconstructionError
+        With ``"brightness"`` for a problem not built from its inputs (no RGB to weigh by).
+    """
+    if prior_weighting != "brightness" or not prior > 0:
+        return guided, None
+    inputs = problem.extras.get("inputs")
+    if inputs is None:
+        raise ReconstructionError.single(
+            "problem.extras['inputs']",
+            "the inputs the problem was built from (prior_weighting='brightness' weighs the "
+            "guided prior by their RGB)",
+            "none",
+        )
+    brightness = prior_brightness(inputs.rgb).astype(dtype)
+    return guided.astype(dtype) * brightness[None], brightness  # per pixel: one cube
+
+
+def _spectral_prior(
+    problem: ReconstructionProblem,
+    relative: np.ndarray,
+    mean_diagonal: float,
+    dtype: np.dtype,
+    *,
+    weight: float,
+    covariance_floor: float,
+    source: str,
+    endmembers: Endmembers | None,
+    natural_prior: float,
+) -> tuple[SpectralPrior | None, np.ndarray]:
+    """The spectral prior term in ``dtype`` (None for ``weight=0``, or where its source
+    has none, :func:`~.spectral_prior.spectral_prior_term`) and the preconditioner's ridge
+    relative to the mean diagonal of ``A^T A``: the ridges ``relative``, plus the prior's
+    diagonal where it has one (one cube in ``dtype``)."""
+    if not weight > 0:
+        return None, relative
+    term = spectral_prior_term(
+        problem,
+        weight,
+        mean_diagonal,
+        covariance_floor=covariance_floor,
+        source=source,
+        endmembers=endmembers,
+        natural_prior=natural_prior,
+    )
+    if term is None:
+        return None, relative
+    term = term.astype(dtype)
+    diagonal = term.diagonal()
+    diagonal *= dtype.type(1.0 / mean_diagonal)
+    diagonal += np.asarray(relative, dtype=dtype)
+    return term, diagonal
+
+
+def _guided_prior_terms(
+    rhs: np.ndarray,
+    guided: np.ndarray,
+    brightness: np.ndarray | None,
+    mask: np.ndarray,
+    centre: np.ndarray,
+    *,
+    ridge: float,
+    prior: float,
+    mean_diagonal: float,
+    order: PixelOrder,
+    dtype: np.dtype,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The guided prior ``epsilon_p f_p M`` in ``H`` and ``rhs`` (``+ epsilon_p f_p M c``,
+    added to the band-major ``rhs`` in place).
+
+    Uniform per band and image (``brightness`` None): a ridge of the compiled operator,
+    ``epsilon`` ``(w, m, 1, 1)`` with the ridge towards the start. Per pixel: ``epsilon``
+    is the ridge alone, and the operator's pass applies ``f_p`` (pixel-major, in ``order``)
+    times ``epsilon_p M`` per image (``shots``, ``(m, w)``) beside ``w_p Q``; ``guided`` is
+    used up.
+
+    Returns
+    -------
+    epsilon, brightness, shots
+        Absolute, in ``dtype``; the last two None for a uniform prior.
+    """
+    if brightness is None:
+        epsilon = ((ridge + prior * mask) * mean_diagonal).astype(dtype)
+        rhs += (guided * mean_diagonal).astype(dtype) * centre
+        return epsilon, None, None
+    epsilon = np.asarray(ridge * mean_diagonal, dtype=dtype)
+    guided *= dtype.type(mean_diagonal)  # + epsilon_p f_p M c, in the weights' cube
+    guided *= centre
+    rhs += guided
+    brightness_pixels = np.ascontiguousarray(brightness.reshape(-1)[order.order], dtype=dtype)
+    shots = np.ascontiguousarray((mask[:, :, 0, 0].T * (prior * mean_diagonal)).astype(dtype))
+    return epsilon, brightness_pixels, shots
+
+
+def _pixel_spectral_prior(
+    term: SpectralPrior | None, order: PixelOrder, dtype: np.dtype
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``Q`` ``(w, w)`` and ``w_p`` pixel-major in ``order``, in ``dtype``, for the compiled
+    pass (None, None without a spectral prior)."""
+    if term is None:
+        return None, None
+    precision = np.ascontiguousarray(term.precision, dtype=dtype)
+    weight = np.ascontiguousarray(term.weight.reshape(-1)[order.order], dtype=dtype)
+    return precision, weight
+
+
+@dataclass(frozen=True)
+class _PriorOperator:
+    """``H`` of :func:`prior_pcg` on pixel-major vectors (a
+    :data:`~.common.PixelOperator`): eq. 1's normal operator, the ridges and the per-pixel
+    priors ``w_p Q S_p`` and ``epsilon_p f_p M S_p`` in one compiled pass
+    (:meth:`~..operators.ReconstructionProblem.prior_normal_pixels`), which returns
+    ``S . H S`` too; with ``subtract``, ``H S - subtract`` (the refinement's gradient)."""
+
+    work: ReconstructionProblem
+    order: PixelOrder
+    epsilon: np.ndarray
+    precision: np.ndarray | None
+    weight: np.ndarray | None
+    brightness: np.ndarray | None = None
+    shots: np.ndarray | None = None
+
+    def __call__(
+        self, vector: np.ndarray, out: np.ndarray, subtract: np.ndarray | None = None
+    ) -> tuple[np.ndarray, float]:
+        curvature = self.work.prior_normal_pixels(
+            vector,
+            order=self.order,
+            epsilon=self.epsilon,
+            out=out,
+            precision=self.precision,
+            weight=self.weight,
+            brightness=self.brightness,
+            shots=self.shots,
+            subtract=subtract,
+        )
+        return out, curvature

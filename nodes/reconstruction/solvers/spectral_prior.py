@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spectralize.schemas import ReconstructionError
+from spectralize.schemas.errors import ParameterError, ReconstructionError
 
 from ..baselines.training import estimate_illuminant, training_reflectances
 from ..baselines.wiener import WIENER_RELATIVE_NOISE, wiener_from_rgb
@@ -175,10 +175,22 @@ def spectral_prior_term(
     ``c_p = m^X_p + pi_p (m^W_p - m^X_p)`` and the shared ``Q``, weighed
     ``w_p + v_p`` with ``v_p = natural_prior * mean_diagonal * pi_p / max(b_p, b_min)^2``
     (the natural prior holds a pixel harder where the bands favour it).
+
+    Raises
+    ------
+    ReconstructionError
+        For a problem not built from its inputs, or ``endmembers`` with a source other
+        than ``"mixture"`` and ``"natural"``.
+    ParameterError
+        For a ``source`` not in :data:`PRIOR_SOURCES`.
     """
     inputs = problem.extras.get("inputs")
     if inputs is None:
-        raise ValueError("the spectral prior needs a problem built from inputs")
+        raise ReconstructionError.single(
+            "problem.extras['inputs']",
+            "the inputs the problem was built from (the spectral prior learns from them)",
+            "none",
+        )
     mixture = None
     if endmembers is not None and source not in ("mixture", "natural"):
         raise ReconstructionError(
@@ -195,7 +207,7 @@ def spectral_prior_term(
         reflectances = training_reflectances(inputs.wavelength)
         samples = estimate_illuminant(inputs, reflectances)[:, None] * reflectances
     else:
-        raise ValueError(f"unknown prior source {source!r}; use one of {PRIOR_SOURCES}")
+        raise ParameterError.single("prior_source", f"one of {PRIOR_SOURCES}", repr(source))
     n = samples.shape[0]
     covariance = np.cov(samples)
     covariance = covariance / max(float(np.mean(np.diag(covariance))), 1e-300)

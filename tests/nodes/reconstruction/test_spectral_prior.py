@@ -74,7 +74,7 @@ def test_prior_term_is_symmetric_positive_and_zero_at_its_centre(source):
     brightness = np.asarray(problem.extras["inputs"].rgb).sum(axis=-1)
     order = np.argsort(brightness.ravel())
     assert term.weight.ravel()[order[0]] > term.weight.ravel()[order[-1]]
-    with pytest.raises(ValueError, match="prior source"):
+    with pytest.raises(ValueError, match="prior_source: expected one of"):
         spectral_prior_term(problem, 0.01, 2.0, covariance_floor=FLOOR, source="pca")
 
 
