@@ -144,6 +144,24 @@ def check_structure(rows: list[Row], config: Config) -> list[Problem]:
     angles (:func:`pair`); dark frames, the calibration targets' exposure series and the
     registration shots must have the layout their raw groups need.
     """
+    images = _rgb_images(rows)
+    problems = _check_duplicates(rows)
+    problems += _check_rgb_series(images)
+    problems += _check_band_pairs(rows, images, config)
+    problems += _check_dark_frames(rows)
+    # calibration targets: an RGB series per RGB camera that photographed them (the paired
+    # camera always), and a band series per wavelength, one set of times
+    problems += check_calibration_cameras(rows, config)
+    problems += _check_target_band_series(rows, config)
+    problems += _check_registration(rows, config)
+    for kind in ("rgb", "spectral"):
+        if not any(r.kind == kind for r in rows):
+            problems.append(Problem(MANIFEST, f"frames of kind {kind}", "none"))
+    return problems
+
+
+def _check_duplicates(rows: list[Row]) -> list[Problem]:
+    """Each file listed once, and one file per frame (:func:`frame_key`)."""
     problems: list[Problem] = []
     seen_file: dict[str, Row] = {}
     seen_key: dict[tuple, Row] = {}
@@ -166,11 +184,21 @@ def check_structure(rows: list[Row], config: Config) -> list[Problem]:
                 )
             )
         seen_key[key] = row
-    # RGB images: one series each, equal lengths, consistent angles, at least two times
+    return problems
+
+
+def _rgb_images(rows: list[Row]) -> dict[tuple, list[Row]]:
+    """The rows of each RGB image, ``{(camera, rotation, led): its exposure series}``."""
     images: dict[tuple, list[Row]] = defaultdict(list)
     for row in rows:
         if row.kind == "rgb":
             images[(row.camera, row.rotation, row.led)].append(row)
+    return images
+
+
+def _check_rgb_series(images: dict[tuple, list[Row]]) -> list[Problem]:
+    """RGB images: one series each, equal lengths, consistent angles, at least two times."""
+    problems: list[Problem] = []
     lengths = Counter(len(series) for series in images.values())
     common = lengths.most_common(1)[0][0] if lengths else 0
     for (camera, rotation, led), series in images.items():
@@ -203,7 +231,12 @@ def check_structure(rows: list[Row], config: Config) -> list[Problem]:
                             f"{b:g} (contradicting rows)",
                         )
                     )
-    # band shots: each pairs with an RGB image of the paired camera seen from the same angles
+    return problems
+
+
+def _check_band_pairs(rows: list[Row], images: dict[tuple, list[Row]], config: Config) -> list[Problem]:
+    """Each band shot pairs with an RGB image of the paired camera seen from the same angles."""
+    problems: list[Problem] = []
     paired = [(k, s[0]) for k, s in images.items() if k[0] == config.paired_camera]
     for row in rows:
         if row.kind != "spectral":
@@ -217,20 +250,25 @@ def check_structure(rows: list[Row], config: Config) -> list[Problem]:
                     "none: " + ", ".join(f"{n}={a:g}" for n, a in zip(ANGLES, row.angles, strict=True)),
                 )
             )
-    # dark: equal frame counts per exposure time
+    return problems
+
+
+def _check_dark_frames(rows: list[Row]) -> list[Problem]:
+    """Dark frames: at least two per exposure time, as many at every time."""
     dark = Counter(rounded(r.exposure_time) for r in rows if r.kind == "dark")
     if not dark:
-        problems.append(Problem(MANIFEST, "dark frames (kind dark) of the spectral camera", "none"))
-    elif len(set(dark.values())) > 1:
+        return [Problem(MANIFEST, "dark frames (kind dark) of the spectral camera", "none")]
+    if len(set(dark.values())) > 1:
         counts = ", ".join(f"{t:g} s: {n}" for t, n in sorted(dark.items()))
-        problems.append(
-            Problem(f"{MANIFEST}: dark", "the same number of frames per exposure time", counts)
-        )
-    elif min(dark.values()) < 2:
-        problems.append(Problem(f"{MANIFEST}: dark", "at least 2 frames per exposure time", "1"))
-    # calibration targets: an RGB series per RGB camera that photographed them (the paired
-    # camera always), and a band series per wavelength, one set of times
-    problems += check_calibration_cameras(rows, config)
+        return [Problem(f"{MANIFEST}: dark", "the same number of frames per exposure time", counts)]
+    if min(dark.values()) < 2:
+        return [Problem(f"{MANIFEST}: dark", "at least 2 frames per exposure time", "1")]
+    return []
+
+
+def _check_target_band_series(rows: list[Row], config: Config) -> list[Problem]:
+    """The calibration targets' band series: one per wavelength, one set of exposure times."""
+    problems: list[Problem] = []
     for kind in ("white_reference", "colour_checker"):
         mono = [r for r in rows if r.kind == kind and r.camera == config.spectral_camera]
         times: dict[float, set[float]] = defaultdict(set)
@@ -263,7 +301,12 @@ def check_structure(rows: list[Row], config: Config) -> list[Problem]:
                         f"{sorted(ts)}",
                     )
                 )
-    # registration: one rgb and one band shot per rotation, one time per camera
+    return problems
+
+
+def _check_registration(rows: list[Row], config: Config) -> list[Problem]:
+    """Registration: one RGB and one band shot per rotation, one time per camera."""
+    problems: list[Problem] = []
     reg = [r for r in rows if r.kind == "registration"]
     for camera in (config.paired_camera, config.spectral_camera):
         mine = [r for r in reg if r.camera == camera]
@@ -301,10 +344,6 @@ def check_structure(rows: list[Row], config: Config) -> list[Problem]:
                 f"{sorted(rotations[0])} and {sorted(rotations[1])}",
             )
         )
-    for kind in ("rgb", "spectral"):
-        if not any(r.kind == kind for r in rows):
-            problems.append(Problem(MANIFEST, f"frames of kind {kind}", "none"))
-
     return problems
 
 

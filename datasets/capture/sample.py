@@ -86,21 +86,59 @@ def write_capture_folder(
         ``path``.
     """
     root = Path(path)
-    groups = simulate_run(get_recipe(recipe, seed=seed, **(overrides or {})))
+    run = get_recipe(recipe, seed=seed, **(overrides or {}))
+    groups = simulate_run(run)
     say = progress or (lambda message: None)
     rgb = groups["raw/rgb"]
     cameras = [f"rgb{float(theta):g}" for theta in _camera_thetas(rgb)]
-    white = groups["raw/white_reference"]
-    paired = cameras[int(white.attrs["rgb_camera"])]
-    rows: list[dict[str, Any]] = []
+    paired = cameras[int(groups["raw/white_reference"].attrs["rgb_camera"])]
     for folder in ("rgb", "spectral", "dark", "white_reference", "colour_checker", "registration"):
         (root / folder).mkdir(parents=True, exist_ok=True)
     (root / CALIBRATION).mkdir(parents=True, exist_ok=True)
 
-    # RGB exposure series: one PNG per image and exposure. The simulated counts are lazy and
-    # rendered a chunk of images at a time: read chunk by chunk (never one image at a time,
-    # which renders its whole chunk again for every image), with the per-image coordinates
-    # read once as plain arrays.
+    rows = _write_rgb_series(root, rgb, cameras)
+    say(f"raw/rgb: {rgb.sizes['image']} images x {rgb.sizes['exposure']} exposures")
+    spectral = groups["raw/spectral"]
+    rows += _write_band_shots(root, spectral)
+    say(f"raw/spectral: {spectral.sizes['shot']} band shots")
+    dark = groups["raw/dark"]
+    rows += _write_dark_frames(root, dark)
+    say(f"raw/dark: {dark.sizes['exposure_time']} times x {dark.sizes['frame']} frames")
+    # calibration targets: RGB series as TIFF (white) / PNG (checker), band series the other way
+    for kind, rgb_writer, band_writer in (
+        ("white_reference", (write_tiff, "tif"), (write_tiff, "tif")),
+        ("colour_checker", (write_tiff, "tif"), (write_png, "png")),
+    ):
+        rows += _write_target_series(root, groups[f"raw/{kind}"], kind, cameras, rgb_writer, band_writer)
+        say(f"raw/{kind}: RGB and band exposure series")
+    registration = groups["raw/registration"]
+    rows += _write_registration(root, registration, paired)
+    say(f"raw/registration: {registration.sizes['rotation']} rotations")
+
+    write_manifest(root / MANIFEST, rows)
+    _write_calibration(root / CALIBRATION, groups, chart_by_name=chart_by_name)
+    _write_config(
+        root / CONFIG,
+        groups,
+        cameras,
+        paired,
+        recipe=recipe,
+        seed=seed,
+        rotation_step=float(run.rotation_step),
+        chart_by_name=chart_by_name,
+    )
+    say(f"wrote {len(rows)} frames to {root}")
+    return root
+
+
+def _write_rgb_series(root: Path, rgb: xr.Dataset, cameras: list[str]) -> list[dict[str, Any]]:
+    """The RGB exposure series (``raw/rgb``): one PNG per image and exposure; their rows.
+
+    The simulated counts are lazy and rendered a chunk of images at a time: read chunk by
+    chunk (never one image at a time, which renders its whole chunk again for every image),
+    with the per-image coordinates read once as plain arrays.
+    """
+    rows: list[dict[str, Any]] = []
     counts = rgb["counts"]
     per_image = {
         name: np.asarray(rgb[name].values)
@@ -119,10 +157,12 @@ def write_capture_folder(
                 rows.append(
                     _image_row(name, "rgb", cam, c, exposure_time_s=float(exposure_times[image, e]))
                 )
-    say(f"raw/rgb: {rgb.sizes['image']} images x {rgb.sizes['exposure']} exposures")
+    return rows
 
-    # band shots: TIFF
-    spectral = groups["raw/spectral"]
+
+def _write_band_shots(root: Path, spectral: xr.Dataset) -> list[dict[str, Any]]:
+    """The band shots of the spectral camera (``raw/spectral``): one TIFF each; their rows."""
+    rows: list[dict[str, Any]] = []
     shots = spectral["counts"].values
     per_shot = {
         name: np.asarray(spectral[name].values)
@@ -152,10 +192,12 @@ def write_capture_folder(
                 wavelength_nm=wl,
             )
         )
-    say(f"raw/spectral: {spectral.sizes['shot']} band shots")
+    return rows
 
-    # dark frames: TIFF
-    dark = groups["raw/dark"]
+
+def _write_dark_frames(root: Path, dark: xr.Dataset) -> list[dict[str, Any]]:
+    """The spectral camera's dark frames (``raw/dark``): one TIFF each; their rows."""
+    rows: list[dict[str, Any]] = []
     frames = dark["frames"].values
     for k, t in enumerate(dark["exposure_time"].values):
         for f in range(dark.sizes["frame"]):
@@ -164,39 +206,50 @@ def write_capture_folder(
             rows.append(
                 {"file": name, "kind": "dark", "camera": SPECTRAL_CAMERA, "exposure_time_s": float(t)}
             )
-    say(f"raw/dark: {dark.sizes['exposure_time']} times x {dark.sizes['frame']} frames")
+    return rows
 
-    # calibration targets: RGB series as TIFF (white) / PNG (checker), band series the other way
-    for kind, rgb_writer, band_writer in (
-        ("white_reference", (write_tiff, "tif"), (write_tiff, "tif")),
-        ("colour_checker", (write_tiff, "tif"), (write_png, "png")),
-    ):
-        ds = groups[f"raw/{kind}"]
-        rgb_counts = ds["rgb_counts"].values
-        for k, index in enumerate(ds["camera"].values):  # every RGB camera photographs it
-            cam = cameras[int(index)]
-            for e, t in enumerate(ds["rgb_exposure_time"].values[k]):
-                name = f"{kind}/{cam}_rgb_exp{e:02d}.{rgb_writer[1]}"
-                rgb_writer[0](root / name, rgb_counts[k, e])
-                rows.append({"file": name, "kind": kind, "camera": cam, "exposure_time_s": float(t)})
-        band_counts = ds["spectral_counts"].values
-        for w, wl in enumerate(ds["wavelength"].values):
-            for e, t in enumerate(ds["spectral_exposure_time"].values):
-                name = f"{kind}/band_{float(wl):g}nm_exp{e:02d}.{band_writer[1]}"
-                band_writer[0](root / name, band_counts[w, e])
-                rows.append(
-                    {
-                        "file": name,
-                        "kind": kind,
-                        "camera": SPECTRAL_CAMERA,
-                        "exposure_time_s": float(t),
-                        "wavelength_nm": float(wl),
-                    }
-                )
-        say(f"raw/{kind}: RGB and band exposure series")
 
-    # registration: one long exposure per rotation and camera
-    reg = groups["raw/registration"]
+def _write_target_series(
+    root: Path,
+    ds: xr.Dataset,
+    kind: str,
+    cameras: list[str],
+    rgb_writer: tuple[Callable[[Path, np.ndarray], None], str],
+    band_writer: tuple[Callable[[Path, np.ndarray], None], str],
+) -> list[dict[str, Any]]:
+    """A calibration target's exposure series (``raw/white_reference``, ``raw/colour_checker``).
+
+    Every RGB camera photographs the target (an RGB series each), the spectral camera a band
+    series per wavelength; ``rgb_writer`` and ``band_writer`` are ``(writer, suffix)``.
+    """
+    rows: list[dict[str, Any]] = []
+    rgb_counts = ds["rgb_counts"].values
+    for k, index in enumerate(ds["camera"].values):  # every RGB camera photographs it
+        cam = cameras[int(index)]
+        for e, t in enumerate(ds["rgb_exposure_time"].values[k]):
+            name = f"{kind}/{cam}_rgb_exp{e:02d}.{rgb_writer[1]}"
+            rgb_writer[0](root / name, rgb_counts[k, e])
+            rows.append({"file": name, "kind": kind, "camera": cam, "exposure_time_s": float(t)})
+    band_counts = ds["spectral_counts"].values
+    for w, wl in enumerate(ds["wavelength"].values):
+        for e, t in enumerate(ds["spectral_exposure_time"].values):
+            name = f"{kind}/band_{float(wl):g}nm_exp{e:02d}.{band_writer[1]}"
+            band_writer[0](root / name, band_counts[w, e])
+            rows.append(
+                {
+                    "file": name,
+                    "kind": kind,
+                    "camera": SPECTRAL_CAMERA,
+                    "exposure_time_s": float(t),
+                    "wavelength_nm": float(wl),
+                }
+            )
+    return rows
+
+
+def _write_registration(root: Path, reg: xr.Dataset, paired: str) -> list[dict[str, Any]]:
+    """The registration shots (``raw/registration``): one long exposure per rotation and camera."""
+    rows: list[dict[str, Any]] = []
     reg_rgb, reg_spectral = reg["rgb_counts"].values, reg["spectral_counts"].values
     for r, rotation in enumerate(reg["rotation"].values):
         name = f"registration/rgb_rot{int(rotation):02d}.png"
@@ -222,17 +275,29 @@ def write_capture_folder(
                 "wavelength_nm": float(reg["spectral_wavelength"]),
             }
         )
-    say(f"raw/registration: {reg.sizes['rotation']} rotations")
+    return rows
 
-    write_manifest(root / MANIFEST, rows)
-    _write_calibration(root / CALIBRATION, groups, chart_by_name=chart_by_name)
+
+def _write_config(
+    path: Path,
+    groups: dict[str, xr.Dataset],
+    cameras: list[str],
+    paired: str,
+    *,
+    recipe: str,
+    seed: int,
+    rotation_step: float,
+    chart_by_name: bool,
+) -> None:
+    """``capture.toml``: the cameras, the exposure plan (eq. 2, 3), the chart and the source."""
+    rgb, spectral = groups["raw/rgb"], groups["raw/spectral"]
     plan = groups["raw/exposure_plan"]
     checker = groups["raw/colour_checker"]
     config = {
         "format": CAPTURE_FORMAT,
         "version": 1,
         "name": f"simulated {recipe} run (seed {seed})",
-        "rotation_step_deg": float(get_recipe(recipe, seed=seed, **(overrides or {})).rotation_step),
+        "rotation_step_deg": rotation_step,
     }
     sections = {
         "rgb": {
@@ -256,7 +321,7 @@ def write_capture_folder(
         },
     }
     write_config(
-        root / CONFIG,
+        path,
         config,
         sections,
         comments=(
@@ -264,8 +329,6 @@ def write_capture_folder(
             "Format: datasets/README.md, 'Capture folders'.",
         ),
     )
-    say(f"wrote {len(rows)} frames to {root}")
-    return root
 
 
 def _image_blocks(counts: xr.DataArray) -> list[tuple[int, int]]:

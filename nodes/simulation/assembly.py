@@ -469,36 +469,45 @@ class Gantry:
                 {"units": "1", "long_name": "certified reflectance of the white target"},
             )
         else:
-            refl = self.renderer.chart.reflectances()
-            ds["patch_reflectance"] = (
-                ("patch", "wavelength"),
-                refl.values,
-                {"units": "1", "long_name": "published reflectance of the chart patches"},
-            )
-            ds = ds.assign_coords(
-                patch=(
-                    "patch",
-                    refl["patch"].values,
-                    {"units": "1", "long_name": "patch index (row-major, 4 x 6)"},
-                ),
-                patch_name=("patch", _strings(refl["patch_name"].values)),
-            )
-            labels = self.renderer.chart.patch_index(slice(0, n), slice(0, n))
-            ds["patch_index"] = (
-                ("y", "x"),
-                labels,
-                {
-                    "units": "1",
-                    "long_name": "patch under each pixel of the "
-                    "RGB image (-1: frame); the spectral image is shifted",
-                },
-            )
-            ds["rgb_patch_index"] = (
-                ("camera", "y", "x"),
-                np.broadcast_to(np.asarray(labels), (n_camera, n, n)).copy(),
-                {"units": "1", "long_name": "patch under each pixel of each RGB camera (-1: frame)"},
-            )
-            ds.attrs["chart"] = self.renderer.chart.chart
+            ds = self._with_chart(ds, n, n_camera)
+        return ds
+
+    def _with_chart(self, ds: xr.Dataset, n: int, n_camera: int) -> xr.Dataset:
+        """The colour checker's published reflectances and the patch under each pixel.
+
+        Every RGB camera sees the chart in one rectified view: its patch label image is the
+        paired camera's (``rgb_patch_index``, one per camera).
+        """
+        refl = self.renderer.chart.reflectances()
+        ds["patch_reflectance"] = (
+            ("patch", "wavelength"),
+            refl.values,
+            {"units": "1", "long_name": "published reflectance of the chart patches"},
+        )
+        ds = ds.assign_coords(
+            patch=(
+                "patch",
+                refl["patch"].values,
+                {"units": "1", "long_name": "patch index (row-major, 4 x 6)"},
+            ),
+            patch_name=("patch", _strings(refl["patch_name"].values)),
+        )
+        labels = self.renderer.chart.patch_index(slice(0, n), slice(0, n))
+        ds["patch_index"] = (
+            ("y", "x"),
+            labels,
+            {
+                "units": "1",
+                "long_name": "patch under each pixel of the "
+                "RGB image (-1: frame); the spectral image is shifted",
+            },
+        )
+        ds["rgb_patch_index"] = (
+            ("camera", "y", "x"),
+            np.broadcast_to(np.asarray(labels), (n_camera, n, n)).copy(),
+            {"units": "1", "long_name": "patch under each pixel of each RGB camera (-1: frame)"},
+        )
+        ds.attrs["chart"] = self.renderer.chart.chart
         return ds
 
     def _registration_group(self) -> xr.Dataset:
@@ -621,9 +630,13 @@ class Gantry:
             )
         return ds
 
-    def _camera_group(self) -> xr.Dataset:
+    def _true_oecf(self) -> tuple[np.ndarray, np.ndarray]:
+        """The true OECFs tabulated per code: ``codes`` and a (sensor, code) table.
+
+        Rows R, G, B (the RGB camera's responses) and mono (the spectral camera's), over the
+        codes of the larger bit depth; NaN beyond a sensor's own bit depth.
+        """
         r = self.recipe
-        n, c = self._yx()
         bits = max(r.rgb_bit_depth, r.spectral_bit_depth)
         codes = np.arange(2**bits)
         table = np.full((4, codes.size), np.nan)
@@ -632,6 +645,12 @@ class Gantry:
             table[k, : t.size] = t
         t = oecf_table(self.renderer.spectral_camera.response, bit_depth=r.spectral_bit_depth)
         table[3, : t.size] = t
+        return codes, table
+
+    def _camera_group(self) -> xr.Dataset:
+        r = self.recipe
+        n, c = self._yx()
+        codes, table = self._true_oecf()
         sensor = _strings(["R", "G", "B", "mono"])
         per = {
             "adc_offset": [r.rgb_adc_offset] * 3 + [r.spectral_adc_offset],
