@@ -517,7 +517,7 @@ def _cross_validation(calibration: xr.Dataset) -> list[dict[str, Any]]:
 def _camera_calibration(
     calibration: xr.Dataset, headline: list[tuple[str, str]]
 ) -> list[dict[str, Any]]:
-    """Per RGB camera: its C, where it comes from, its chart cross-validation, flags (issue 25)."""
+    """Per RGB camera: its C, where it comes from, its chart cross-validation, flags."""
     rows = camera_calibration_rows(calibration)
     if not rows:
         return []

@@ -42,7 +42,7 @@ from spectralize.schemas import ParameterError, Problem, SchemaError
 if TYPE_CHECKING:
     import colour
 
-# colour-science is imported inside the functions that use it: importing it costs 1-2 s (it
+# colour-science is imported inside the functions that use it: importing it is slow (it
 # imports matplotlib), which declaring the ``evaluate`` node (``spectralize nodes``) must not pay.
 
 __all__ = [

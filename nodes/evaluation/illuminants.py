@@ -1,7 +1,7 @@
 """The illuminants of the CIEDE2000 colour difference, by name, known without colour-science.
 
 The ``evaluate`` node offers every key of ``colour.SDS_ILLUMINANTS`` as a choice. Importing
-colour-science costs 1-2 s (it imports matplotlib), which declaring the node (``spectralize
+colour-science is slow (it imports matplotlib), which declaring the node (``spectralize
 nodes``) must not pay, so the names are written out here and the distributions loaded from
 colour-science on first access; a test (tests/flows/test_cli_fast.py) checks the names
 against the installed colour-science.

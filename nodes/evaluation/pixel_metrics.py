@@ -33,7 +33,7 @@ import xarray as xr
 from .colorimetry import Illuminant, _quiet_colour, xyz_weights
 from .cubes import as_float64, check_pair
 
-# colour-science is imported where it is used: importing it costs 1-2 s (it imports
+# colour-science is imported where it is used: importing it is slow (it imports
 # matplotlib), which declaring the ``evaluate`` node (``spectralize nodes``) must not pay.
 
 __all__ = ["METRICS", "normalised_rmse", "spectral_angle", "colour_difference", "pixel_maps"]
@@ -154,8 +154,8 @@ def pixel_maps(
     """The per-pixel maps ``names`` (of :data:`METRICS`) of aligned cubes, lazy if they are.
 
     Every block of the cubes is read once for all the maps: computed one map at a time, each
-    block of both cubes (as float64) stayed in memory until the last map had used it, which
-    held whole cubes at once (24 GB at 22 x 2048^2 x 32).
+    block of both cubes (as float64) would stay in memory until the last map had used it,
+    which holds whole cubes at once.
     """
     import colour
 
