@@ -11,6 +11,7 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass
 
 import dask.array as da
@@ -173,7 +174,7 @@ def illuminant_on_bands(
     if illuminant.dims != ("wavelength",) or "wavelength" not in illuminant.coords:
         raise ReconstructionError(
             f"illuminant: expected dims ('wavelength',) with a 'wavelength' coordinate [nm], "
-            f"found {_describe(illuminant)} with coords {sorted(illuminant.coords)}"
+            f"found {_describe(illuminant)} with coords {_names(illuminant.coords)}"
         )
     grid = np.asarray(illuminant["wavelength"].values, dtype=np.float64)
     values = np.asarray(illuminant.values, dtype=np.float64)
@@ -241,6 +242,11 @@ def camera_blocks(camera_matrix: np.ndarray, n_image: int) -> tuple[np.ndarray, 
             kept.append(m)
         index[m] = first[key]
     return np.ascontiguousarray(c[kept]), index
+
+
+def _names(coords: Iterable[Hashable]) -> list[str]:
+    """Coordinate names, sorted, for messages."""
+    return sorted(str(name) for name in coords)
 
 
 def _describe(array: xr.DataArray) -> str:
@@ -322,10 +328,52 @@ def inputs_from_xarray(
     ReconstructionError
         Listing every problem found.
     """
+    rgb, bands, camera_matrix = _checked_layout(rgb, bands, camera_matrix)
+    problems: list[str] = []
+    camera_matrix = _checked_channels(rgb, camera_matrix, problems)
+    _check_shot_coordinates(rgb, bands, camera_matrix, problems)
+    _raise_problems(problems)
+    camera_matrix, wavelength, band = _band_grid(bands, camera_matrix, problems)
+    labels, image = _shot_images(rgb, bands, problems)
+    filter_size = _filter_sizes(rgb, bands, problems)
+    rgb_values, band_values, c_values = _checked_values(rgb, bands, camera_matrix, labels, problems)
+    _raise_problems(problems)
+    if c_values.ndim == 3 and all(np.array_equal(c, c_values[0]) for c in c_values[1:]):
+        c_values = c_values[0]  # one camera for every image: the 2-D C (the same solve)
+    return ReconstructionInputs(
+        rgb=rgb_values,
+        band_data=band_values,
+        band=band.astype(np.intp),
+        image=image,
+        filter_size=filter_size,
+        camera_matrix=c_values,
+        wavelength=wavelength,
+        illuminant=illuminant_on_bands(illuminant, wavelength),
+    )
+
+
+def _raise_problems(problems: list[str]) -> None:
+    """Raise every problem found so far at once (nothing where there is none)."""
+    if problems:
+        raise ReconstructionError("reconstruction inputs do not fit together:", problems)
+
+
+def _checked_layout(
+    rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataArray
+) -> tuple[xr.DataArray, xr.DataArray, xr.DataArray]:
+    """The three inputs as DataArrays of the expected dims, numeric and not empty, in the
+    order ``(image, y, x, channel)``, ``(shot, y, x)`` and ``([image,] channel,
+    wavelength)`` (a per-camera ``C`` picked per image, :func:`_per_image_camera`).
+
+    Raises
+    ------
+    ReconstructionError
+        Listing every array that is not.
+    """
     problems: list[str] = []
     c_dims: tuple[str, ...] = ("channel", "wavelength")
     if isinstance(camera_matrix, xr.DataArray) and camera_matrix.ndim == 3:
-        extra = [d for d in camera_matrix.dims if d not in c_dims]
+        extra = [str(d) for d in camera_matrix.dims if d not in c_dims]
         c_dims = (extra[0] if extra and extra[0] in ("image", "camera") else "image", *c_dims)
     ok = [
         _check_dims("rgb", rgb, ("image", "y", "x", "channel"), problems),
@@ -333,20 +381,21 @@ def inputs_from_xarray(
         _check_dims("camera_matrix", camera_matrix, c_dims, problems),
     ]
     if not all(ok):
-        raise ReconstructionError(
-            "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
-        )
+        _raise_problems(problems)
     rgb = rgb.transpose("image", "y", "x", "channel")
     bands = bands.transpose("shot", "y", "x")
     camera_matrix = camera_matrix.transpose(*c_dims)
     if len(c_dims) == 3:
         camera_matrix = _per_image_camera(camera_matrix, rgb, problems)
-        if problems:
-            raise ReconstructionError(
-                "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
-            )
+        _raise_problems(problems)
+    return rgb, bands, camera_matrix
 
-    # -- channels ---------------------------------------------------------------------------
+
+def _checked_channels(
+    rgb: xr.DataArray, camera_matrix: xr.DataArray, problems: list[str]
+) -> xr.DataArray:
+    """``camera_matrix`` with its channels in ``rgb``'s order (by the ``channel``
+    coordinates, where both have them); problems appended: not 3 channels, other names."""
     if rgb.sizes["channel"] != 3:
         problems.append(f"rgb: expected 3 channels, found {rgb.sizes['channel']}")
     if camera_matrix.sizes["channel"] != 3:
@@ -364,29 +413,38 @@ def inputs_from_xarray(
             problems.append(f"camera_matrix: channels {c_channels} differ from rgb's {rgb_channels}")
         elif rgb_channels != c_channels:
             camera_matrix = camera_matrix.sel(channel=rgb["channel"].values)
+    return camera_matrix
 
-    # -- image grid ---------------------------------------------------------------------------
+
+def _check_shot_coordinates(
+    rgb: xr.DataArray, bands: xr.DataArray, camera_matrix: xr.DataArray, problems: list[str]
+) -> None:
+    """Problems appended: band shots of another image size than ``rgb``'s, a shot
+    coordinate missing (``wavelength``, ``image``, ``filter_size``), ``camera_matrix``
+    without wavelengths."""
     if (bands.sizes["y"], bands.sizes["x"]) != (rgb.sizes["y"], rgb.sizes["x"]):
         problems.append(
             f"bands: expected the rgb image size (y: {rgb.sizes['y']}, x: "
             f"{rgb.sizes['x']}), found (y: {bands.sizes['y']}, x: "
             f"{bands.sizes['x']})"
         )
-
-    # -- shot coordinates -----------------------------------------------------------------------
     for coord in ("wavelength", "image", "filter_size"):
         if coord not in bands.coords or bands[coord].dims != ("shot",):
             problems.append(
                 f"bands: expected a coordinate {coord!r} along 'shot', found "
-                f"coords {sorted(bands.coords)}"
+                f"coords {_names(bands.coords)}"
             )
     if "wavelength" not in camera_matrix.coords:
         problems.append("camera_matrix: expected a 'wavelength' coordinate [nm], found none")
-    if problems:
-        raise ReconstructionError(
-            "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
-        )
 
+
+def _band_grid(
+    bands: xr.DataArray, camera_matrix: xr.DataArray, problems: list[str]
+) -> tuple[xr.DataArray, np.ndarray, np.ndarray]:
+    """The spectral grid: ``camera_matrix`` in increasing wavelength, restricted to the
+    bands' wavelengths, the grid in nm and per shot its wavelength's index (nearest, within
+    :data:`WAVELENGTH_TOLERANCE_NM`); problems appended: duplicate wavelengths, band
+    wavelengths off ``camera_matrix``'s grid."""
     wavelength = np.asarray(camera_matrix["wavelength"].values, dtype=np.float64)
     order = np.argsort(wavelength, kind="stable")
     if not np.array_equal(order, np.arange(wavelength.size)):
@@ -418,7 +476,12 @@ def inputs_from_xarray(
         camera_matrix = camera_matrix.isel(wavelength=used)
         wavelength = wavelength[used]
         band = np.searchsorted(used, band)
+    return camera_matrix, wavelength, band
 
+
+def _shot_images(rgb: xr.DataArray, bands: xr.DataArray, problems: list[str]) -> tuple[list, np.ndarray]:
+    """``rgb``'s image labels (its ``image`` coordinate, else positions) and per shot the
+    position of its image; problems appended: shots of images ``rgb`` does not have."""
     if "image" in rgb.coords:
         labels = list(np.asarray(rgb["image"].values).tolist())
     else:
@@ -431,8 +494,12 @@ def inputs_from_xarray(
             f"bands: coordinate 'image' names images {unknown} that rgb does not "
             f"have (rgb images: {labels[:10]}{' ...' if len(labels) > 10 else ''})"
         )
-    image = np.array([position.get(lab, -1) for lab in shot_image_labels], dtype=np.intp)
+    return labels, np.array([position.get(lab, -1) for lab in shot_image_labels], dtype=np.intp)
 
+
+def _filter_sizes(rgb: xr.DataArray, bands: xr.DataArray, problems: list[str]) -> np.ndarray:
+    """Per shot ``s_i`` in pixels (float64); problems appended: not finite or not > 0, or
+    larger than the image allows (filter centres keep ``s_i`` from its borders)."""
     filter_size = np.asarray(bands["filter_size"].values, dtype=np.float64)
     largest = (min(rgb.sizes["y"], rgb.sizes["x"]) - 1) / 2
     bad = ~np.isfinite(filter_size) | (filter_size <= 0)
@@ -449,7 +516,18 @@ def inputs_from_xarray(
             f"centres keep s_i from the borders of the {rgb.sizes['y']} x {rgb.sizes['x']} "
             f"image, so s_i <= {largest:g} px"
         )
+    return filter_size
 
+
+def _checked_values(
+    rgb: xr.DataArray,
+    bands: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    labels: list,
+    problems: list[str],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The three arrays' values in float64; problems appended: NaN or inf, a camera
+    matrix (per image: of image ``labels[m]``) of rank below 3."""
     rgb_values = np.asarray(rgb.values, dtype=np.float64)
     band_values = np.asarray(bands.values, dtype=np.float64)
     c_values = np.asarray(camera_matrix.values, dtype=np.float64)
@@ -464,23 +542,7 @@ def inputs_from_xarray(
                     f"camera_matrix{which}: expected rank 3 (three independent channels), "
                     f"found rank {np.linalg.matrix_rank(c)}"
                 )
-    if problems:
-        raise ReconstructionError(
-            "reconstruction inputs do not fit together:\n  - " + "\n  - ".join(problems)
-        )
-    if c_values.ndim == 3 and all(np.array_equal(c, c_values[0]) for c in c_values[1:]):
-        c_values = c_values[0]  # one camera for every image: the 2-D C (the same solve)
-    light = illuminant_on_bands(illuminant, wavelength)
-    return ReconstructionInputs(
-        rgb=rgb_values,
-        band_data=band_values,
-        band=band.astype(np.intp),
-        image=image,
-        filter_size=filter_size,
-        camera_matrix=c_values,
-        wavelength=wavelength,
-        illuminant=light,
-    )
+    return rgb_values, band_values, c_values
 
 
 def _per_image_camera(
@@ -493,7 +555,7 @@ def _per_image_camera(
         if "camera" not in rgb.coords or rgb["camera"].dims != ("image",):
             problems.append(
                 "camera_matrix: dims (camera, channel, wavelength) need rgb's per-image "
-                f"coordinate 'camera' along 'image', found rgb coords {sorted(rgb.coords)}"
+                f"coordinate 'camera' along 'image', found rgb coords {_names(rgb.coords)}"
             )
             return camera_matrix
         if "camera" not in camera_matrix.coords:
@@ -574,8 +636,8 @@ def in_paired_camera(hdr: xr.Dataset, calibration: xr.Dataset) -> xr.Dataset:
         for c in np.unique(cameras)
     ):
         return hdr
-    per_image = transform.sel(camera=xr.DataArray(cameras, dims="image"))
-    per_image = per_image.transpose("image", "channel", "channel_in").values  # (image, 3, 3)
+    picked = transform.sel(camera=xr.DataArray(cameras, dims="image"))
+    per_image = picked.transpose("image", "channel", "channel_in").values  # (image, 3, 3)
     radiance = hdr["radiance"]
     order = ("image", *(d for d in radiance.dims if d not in ("image", "channel")), "channel")
     data = radiance.transpose(*order).data
