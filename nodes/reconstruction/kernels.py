@@ -2,10 +2,10 @@
 
 The conjugate-gradient solvers spend their time in a handful of passes over the cube per
 iteration: the normal operator ``A^T A`` (RGB term, neighbour Laplacian, ridge), the block
-Jacobi preconditioner and the vector updates. Written with numpy each pass allocates a
+Jacobi preconditioner and the vector updates. Written with numpy each pass would allocate a
 temporary, and the neighbour Laplacian needs the cube pixel-major (one row of
 ``n_wavelength`` values per pixel) while the per-band filters want it band-major, so the
-cube was transposed twice per iteration. These kernels work on the pixel-major cube
+cube would be transposed twice per iteration. These kernels work on the pixel-major cube
 ``(n_pixels, n_wavelength)`` and fuse each step into one pass, with no temporaries and no
 transposes (``benchmarks/reconstruction.py`` times the solvers that run on them).
 

@@ -43,8 +43,8 @@ GUIDED_EPSILON = 1e-4
 
 GUIDED_WINDOW_STEP = 1.05
 """Window sigmas are rounded to a geometric grid of this ratio, so that bands of nearly the
-same filter size share one window's RGB statistics (a window is a modelling choice; 2.5 %
-in its size changes nothing measurable)."""
+same filter size share one window's RGB statistics (a window's size is a modelling choice,
+not a precise quantity)."""
 
 
 GUIDED_WINDOW_TRUNCATE = 3.0
@@ -166,10 +166,9 @@ def guided_filtered_bands(
 
 
 GUIDED_CHUNK_PIXELS = 2**17
-"""Shot pixels :func:`guided_filtered_stacks` filters in one pass: a set of 32 x 32 px frames
-in two or three passes per window instead of one per shot (5x faster there), a 256 px tile
-shot by shot as before (larger passes were slower there: their ~20 float32 temporaries per
-shot leave the cache)."""
+"""Shot pixels :func:`guided_filtered_stacks` filters in one pass: a set of small frames in a
+few passes per window instead of one per shot, a large tile shot by shot (larger passes'
+float32 temporaries per shot would leave the cache)."""
 
 
 def guided_filtered_stacks(

@@ -39,34 +39,11 @@ not (glossy, dark: ``S^0`` is already good and the pooled bands are noisy). Weig
 cluster shapes alternate :data:`DEFAULT_ROUNDS` times; the result is projected onto
 ``C_m S_m = R_m`` and ``S >= 0`` per texel.
 
-What it buys (20 x 48^2 sets of the hard scenes x 2 seeds, ``/tmp`` study of issue 29, the
-default's spectra as ``S^0``, the true illuminant as ``L``): against the default, medians
-fall 17-26 % (woven), 16-17 % (halftone), 6-22 % (dark) and -2..19 % (glossy), p95 falls
-5-11 % (woven, halftone) and 30-39 % (glossy, dark), and the fraction under 0.03 rises by
-1-7 points on every scene and seed (2-7 over shared-texel): woven 8 %, halftone 4-6 %,
-glossy 58-60 %, dark 59-61 %, far from issue 29's 40 % and 75 %. The limit is the band noise
-per cluster: a 48^2 set has about 50 texels per cluster, so a pooled band is still at about
-15 % of its value. With noise-free shots and the pooled band evidence at full weight the same
-clusters put 45-47 % (woven), 9-11 % (halftone), 60 % (glossy) and 69 % (dark) under 0.03;
-true material labels for the pure texels (one material over 90 % of the pixel; the rest
-keep their own shapes) put 12 %, 2-4 %, 55-56 % and 60-61 % there with the real shots and
-48 %, 2-5 %, 60 % and 71 % with noise-free ones. The pooled noise falls with the set's pixel
-count (the number of clusters is fixed): on 20 x 96^2 sets (seed 0) the fraction under 0.03
-is 13.5 % (woven), 9.5 % (halftone), 54 % (glossy) and 65 % (dark), 5-7 points over the
-default's on every scene (glossy p95 0.54 there, below the default's 0.58, above
-shared-texel's 0.48).
-
-Cost (one thread, CPU time): the refit is 0.26 s per 20 x 48^2 set; the default plus the
-refit is 1.21-1.31x the default alone (1.29-1.33x at 96^2; shared-texel 1.12-1.30x).
-
-Tried and not kept: a per-texel choice between its own shape and its cluster's by the band
-and RGB residuals (as the natural prior's evidence does) kept fewer texels in the clusters
-and lowered the fraction under 0.03 on every scene (every texel takes its cluster's shape;
-a texel of mixed materials falls into a cluster of its own mixture); shapes restricted to
-a set-wide subspace of 8-12 principal shapes (per texel or per cluster) lost on every
-scene; clustering the initial spectra without the per-texel fit that takes the highlight
-out (``texel_rounds=0``) raised p95 on the dark set above the default's; pooling with the
-full prior (``mu`` summed over a cluster's texels, no shrinkage) kept ``S^0``.
+Why it helps: the errors a solver's spectra share over a material are the ones per-texel
+fits cannot see through the band noise, and pooling a material's shots averages that noise
+down where a texel's own shots cannot. What limits it is the band noise left per cluster:
+the number of clusters is fixed, so a larger set pools more texels into each. Measured
+gains, limits, cost and the variants tried: ``docs/benchmarks_notes.md`` ("reconstruction").
 
 References
 ----------
@@ -115,8 +92,7 @@ shape of its initial spectra, :data:`SHAPE_ITERATIONS`)."""
 
 SHAPE_ITERATIONS = 4
 """Power iterations of each texel's starting shape: the top right singular vector of its
-``(m, w)`` initial spectra times its singular value (shared-texel's start for ``r = 1``;
-starting from the mean spectrum instead lowered the fraction under 0.03 on three scenes)."""
+``(m, w)`` initial spectra times its singular value (shared-texel's start for ``r = 1``)."""
 
 KMEANS_SAMPLE = 20000
 """At most this many texels (a fixed random subset) place the k-means centres; all are

@@ -9,8 +9,7 @@ model), so the texel's spectra over the set's images ``m`` lie in a subspace of 
 
 with ``r`` per-texel shapes ``E_k(p)`` shared by every image, per-image weights
 ``a_m(p)`` (shading, coverage) and ``h_m(p)`` (highlight), and the set's highlight
-spectrum ``L``. On the hard scenes' noise-free truth (20 images) ``r = 1`` plus ``L``
-leaves 35-91 % of pixels under an nRMSE of 0.03 and ``r = 2`` plus ``L`` 89-98 %.
+spectrum ``L``.
 
 The model is fitted per texel to every measurement of the texel at once, by alternating
 least squares from an initial estimate ``S^0`` (the default solver's):
@@ -25,22 +24,14 @@ band shots gets the texel's shapes from the others' shots through its own RGB ``
 The result is projected onto ``C_m S_m = R_m`` and ``S >= 0``; texels whose RGB over
 the set the model cannot make (:func:`rgb_misfit`) keep ``S^0``.
 
-What it buys (20 x 48^2 sets of the hard scenes, ``/tmp`` study of issue 29): after the
-default, with the calibrated illuminant as ``L``, the median nRMSE drops 7-14 % on the
-woven and halftone sets and p95 drops 7-23 % on the glossy and dark sets; the fraction
-under 0.03 moves by at most 1.5 points. The limit is the band noise, not the model: with
-noise-free band shots and a weak ``mu`` (0.01) the same fit puts 51 % (woven), 21 %
-(halftone), 67 % (glossy) and 68 % (dark) of pixels under 0.03, where the default on the
-same noise-free shots puts 25, 5, 56 and 64 %. Each band is shot once per set, so a
-texel's shapes get 32 band values at a band SNR at or below 1 whatever the set's size,
-and the default's per-element error is about a fifth of that noise: the shots cannot
-correct a texel on their own, and ``mu = 1`` keeps the fit close to ``S^0`` (the gain is
-the consistency over the images). Pooling the shapes of texels alike over the set (in
-their normalised RGB over all images) raised the fraction on woven and halftone but
-doubled p95 on the glossy and dark sets (highlight texels pooled with matte ones); it is
-not kept. ``L`` from :func:`highlight_spectrum` (cosine 0.98-0.9995 to the true one)
-loses part of the gain (dark p95 rises above the default's), so pass the measured
-illuminant.
+The limit is the band noise, not the model: each band is shot once per set, so a texel's
+shapes get one value per band, at a band SNR at or below 1 on the hard scenes, whatever the
+set's size, and the initial estimate's per-element error is well below that noise. The
+shots cannot correct a texel on their own, and ``mu = 1`` keeps the fit close to ``S^0``:
+the gain is the consistency over the images (:mod:`.material_pooled` pools the shots of a
+material's texels instead). Pass the measured illuminant as ``L``:
+:func:`highlight_spectrum`'s estimate loses part of the gain. Measured gains and the
+variants tried: ``docs/benchmarks_notes.md`` ("reconstruction").
 
 References
 ----------

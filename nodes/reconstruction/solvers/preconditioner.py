@@ -72,7 +72,7 @@ class BlockJacobiPreconditioner:
         order: PixelOrder | None = None,
     ):
         # Built pixel-major in ``dtype`` and in chunks: about 1.2 vectors of the cube beside
-        # what it keeps (a dense float64 diagonal cube and its permuted copies were 7).
+        # what it keeps (no dense float64 diagonal cube, no permuted copies).
         w = problem.weights
         n_wavelength, n_image = problem.shape[:2]
         self.dtype = np.dtype(dtype)
