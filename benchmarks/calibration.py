@@ -496,13 +496,13 @@ def c_shape_error(c: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 def cm_fit(method: str, rgb: xr.DataArray, spectra: xr.DataArray) -> tuple[np.ndarray, dict]:
-    from spectralize.nodes.calibration import camera_lobes, spectral
+    from spectralize.nodes.calibration import camera_lobes, camera_smooth
 
     if method == "lobes":
         fitted = camera_lobes.lobe_camera_matrix(rgb, spectra)
         return fitted["camera_matrix"].values, {"ridge": fitted["ridge"].values.tolist()}
-    mu, _ = spectral.cross_validated_smoothness(rgb, spectra)
-    return spectral.camera_matrix(rgb, spectra, smoothness=mu)["camera_matrix"].values, {
+    mu, _ = camera_smooth.cross_validated_smoothness(rgb, spectra)
+    return camera_smooth.camera_matrix(rgb, spectra, smoothness=mu)["camera_matrix"].values, {
         "smoothness": mu
     }
 
@@ -511,7 +511,7 @@ def cm_leave_one_out(
     method: str, settings: dict, rgb: xr.DataArray, spectra: xr.DataArray
 ) -> np.ndarray:
     """Relative RGB error of every patch predicted by C fitted to the others (settings kept)."""
-    from spectralize.nodes.calibration import camera_lobes, spectral
+    from spectralize.nodes.calibration import camera_lobes, camera_smooth
 
     n = rgb.sizes["patch"]
     errors = np.empty(n)
@@ -522,7 +522,7 @@ def cm_leave_one_out(
                 rgb.isel(patch=keep), spectra.isel(patch=keep), ridge=settings["ridge"]
             )["camera_matrix"].values
         else:
-            c = spectral.camera_matrix(
+            c = camera_smooth.camera_matrix(
                 rgb.isel(patch=keep), spectra.isel(patch=keep), smoothness=settings["smoothness"]
             )["camera_matrix"].values
         measured = rgb.values[p]

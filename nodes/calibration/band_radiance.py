@@ -20,18 +20,18 @@ import numpy as np
 import xarray as xr
 from pydantic import Field
 
+from spectralize.nodes.calibration.band_shots import band_signal, shot_levels
 from spectralize.nodes.calibration.exposure_series import frame_chunks
 from spectralize.nodes.calibration.matched_level_qe import matched_quantum_efficiency
 from spectralize.nodes.calibration.registration import register_frames
-from spectralize.nodes.calibration.spectral import band_signal, shot_levels
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
 
 __all__ = ["calibrate_bands", "led_power_gain", "WRITE_SHOTS"]
 
 WRITE_SHOTS = 8
-"""The most shots per chunk of the ``bands`` group (float32: 134 MB at 2048^2); fewer where
-raw/spectral's chunks hold fewer. Computed one shot at a time whatever those chunks (a
+"""The most shots per chunk of the ``bands`` group (float32); fewer where raw/spectral's
+chunks hold fewer. Computed one shot at a time whatever those chunks (a
 store's may hold every shot of a run in one)."""
 
 
@@ -159,9 +159,9 @@ def calibrate_bands(
             f"{wavelengths[~(q_shot.values > 0)].tolist()} nm"
         )
     # shot by shot: every float64 step (dark subtraction, the response's lookup) holds one
-    # frame per thread, not the stored chunk of shots (32 float64 shots are 1.1 GB at 2048^2
-    # and the lookup makes several such: issue 27); written in the shots' own chunks, at most
-    # WRITE_SHOTS float32 shots a chunk
+    # frame per thread, not the stored chunk of shots (a float64 copy of every shot, of which
+    # the lookup makes several); written in the shots' own chunks, at most WRITE_SHOTS float32
+    # shots a chunk
     counts = raw_spectral["counts"]
     write_shots = min(counts.chunks[0][0] if counts.chunks is not None else WRITE_SHOTS, WRITE_SHOTS)
     counts = frame_chunks(counts, ("shot",))

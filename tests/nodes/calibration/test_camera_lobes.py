@@ -8,7 +8,7 @@ import pytest
 import xarray as xr
 
 from spectralize.nodes.calibration import camera_lobes as cl
-from spectralize.nodes.calibration import spectral as sc
+from spectralize.nodes.calibration import camera_matrices, camera_smooth
 from spectralize.schemas import CalibrationError, SchemaError
 
 BANDS = np.arange(410.0, 721.0, 10.0)
@@ -73,8 +73,8 @@ def test_lobes_recover_a_smooth_camera_within_5_percent_per_channel():
     assert fitted.attrs["relative_rms_residual"] < 0.02
     assert fitted["ridge"].dims == ("channel",) and np.all(fitted["ridge"].values > 0)
     assert fitted["ridge_cv"].dims == ("ridge_candidate", "channel")
-    smoothness, _ = sc.cross_validated_smoothness(rgb, spectra)
-    smooth = sc.camera_matrix(rgb, spectra, smoothness=smoothness)["camera_matrix"].values
+    smoothness, _ = camera_smooth.cross_validated_smoothness(rgb, spectra)
+    smooth = camera_smooth.camera_matrix(rgb, spectra, smoothness=smoothness)["camera_matrix"].values
     assert error.max() < shape_error(smooth, truth).max()
     # the chosen ridge is at least the one of the smallest leave-one-out score, per channel
     for k in range(3):
@@ -123,8 +123,8 @@ def test_lobe_basis_is_smooth_non_negative_and_reaches_beyond_the_bands():
 
 
 def test_the_node_takes_either_method_from_its_table():
-    assert set(sc.CAMERA_MATRIX_METHODS) == {"lobes", "smooth"}
-    assert sc.CAMERA_MATRIX_METHODS["lobes"] is cl.lobe_camera_matrix
+    assert set(camera_matrices.CAMERA_MATRIX_METHODS) == {"lobes", "smooth"}
+    assert camera_matrices.CAMERA_MATRIX_METHODS["lobes"] is cl.lobe_camera_matrix
 
 
 def test_c_is_held_to_zero_where_the_patches_had_no_light():

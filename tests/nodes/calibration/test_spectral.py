@@ -1,4 +1,9 @@
-"""Tests of spectralize.nodes.calibration.spectral: QE, camera matrix C, cross-validation."""
+"""Tests of the spectral calibration's steps: QE, camera matrix C, cross-validation.
+
+(``band_shots``, ``white_reference``, ``camera_smooth``, ``chart_patches`` and
+``cross_validation`` in ``spectralize.nodes.calibration``; the node ``calibrate_spectral`` is
+tested in ``test_calibration.py``.)
+"""
 
 from __future__ import annotations
 
@@ -10,7 +15,15 @@ import pytest
 import xarray as xr
 
 from spectralize.nodes.calibration import hdr
-from spectralize.nodes.calibration import spectral as sc
+from spectralize.nodes.calibration.band_shots import band_signal
+from spectralize.nodes.calibration.camera_smooth import (
+    SMOOTHNESS_CANDIDATES,
+    camera_matrix,
+    cross_validated_smoothness,
+)
+from spectralize.nodes.calibration.chart_patches import patch_means
+from spectralize.nodes.calibration.cross_validation import cross_validate, predict_rgb
+from spectralize.nodes.calibration.white_reference import quantum_efficiency
 from spectralize.nodes.evaluation.figures_calibration import plot_cross_validation
 from spectralize.nodes.simulation.camera_model import (
     camera_sensitivities,
@@ -115,9 +128,7 @@ def white_setup():
 
 def test_quantum_efficiency_from_white_reference(white_setup) -> None:
     shots, dark, light, rho, q_true = white_setup
-    result = sc.quantum_efficiency(
-        shots, dark, light, reflectance=rho, response=spectral_camera_response()
-    )
+    result = quantum_efficiency(shots, dark, light, reflectance=rho, response=spectral_camera_response())
     q = result["quantum_efficiency"]
     assert q.dims == ("wavelength",)
     np.testing.assert_allclose(q["wavelength"].values, WAVELENGTHS)
@@ -132,7 +143,7 @@ def test_quantum_efficiency_with_a_raw_code_response_and_roi(white_setup) -> Non
     f_raw = response_model("s_curve").response((code + 0.5 - OFFSET) / FULL)
     raw_response = xr.DataArray(f_raw, dims="code", coords={"code": code})
     reflectance = xr.DataArray(np.full(32, rho), dims="wavelength", coords={"wavelength": WAVELENGTHS})
-    q = sc.quantum_efficiency(
+    q = quantum_efficiency(
         shots,
         dark,
         light,
@@ -141,7 +152,7 @@ def test_quantum_efficiency_with_a_raw_code_response_and_roi(white_setup) -> Non
         roi={"y": slice(4, 20), "x": slice(2, 22)},
     )["quantum_efficiency"]
     np.testing.assert_allclose(q.values, q_true, rtol=0.02)
-    linear = sc.quantum_efficiency(shots, dark, light, reflectance=rho)["quantum_efficiency"]
+    linear = quantum_efficiency(shots, dark, light, reflectance=rho)["quantum_efficiency"]
     assert np.corrcoef(linear.values, q_true)[0, 1] > 0.99  # a linear guess only scales
 
 
@@ -163,7 +174,7 @@ def test_band_signal_keeps_negative_values(white_setup) -> None:
             )
         }
     )
-    signal = sc.band_signal(black, dark)
+    signal = band_signal(black, dark)
     assert signal.dims == ("shot", "y", "x")
     assert (signal < 0).mean() > 0.3  # noise below the dark level survives
     per_band = signal.mean(("y", "x")) * shots["exposure_time"]
@@ -198,13 +209,13 @@ def checker_setup():
     f = response_model("gamma").response((code + 0.5 - OFFSET) / FULL)
     response = xr.DataArray(f / f[511], dims="code", coords={"code": code}, attrs={"black_level": 25})
     radiance = hdr.merge_hdr(raw, response)["radiance"].isel(image=0)
-    measured = sc.patch_means(radiance, labels, names=list(reflectance["patch"].values))
+    measured = patch_means(radiance, labels, names=list(reflectance["patch"].values))
     return spectra, measured, c_true, labels, light
 
 
 def test_camera_matrix_from_colour_checker_shots(checker_setup) -> None:
     spectra, measured, c_true, _, _ = checker_setup
-    result = sc.camera_matrix(measured, spectra)
+    result = camera_matrix(measured, spectra)
     c = result["camera_matrix"]
     assert c.dims == ("channel", "wavelength") and c.shape == (3, 32)
     assert c["channel"].values.tolist() == ["R", "G", "B"]
@@ -222,8 +233,8 @@ def test_camera_matrix_from_colour_checker_shots(checker_setup) -> None:
 
 def test_smoothness_regularises_and_nonnegativity_holds(checker_setup) -> None:
     spectra, measured, c_true, _, _ = checker_setup
-    rough = sc.camera_matrix(measured, spectra, smoothness=0.0, nonnegative=False)
-    smooth = sc.camera_matrix(measured, spectra, smoothness=1e-2)
+    rough = camera_matrix(measured, spectra, smoothness=0.0, nonnegative=False)
+    smooth = camera_matrix(measured, spectra, smoothness=1e-2)
     curvature = [
         float(np.abs(np.diff(r["camera_matrix"].values, 2, axis=1)).sum()) for r in (rough, smooth)
     ]
@@ -255,35 +266,35 @@ def test_cross_validated_smoothness_recovers_c_under_a_peaked_led():
     rgb = spectra.values @ truth.T
     rgb = rgb * (1 + 0.01 * rng.standard_normal(rgb.shape))  # 1 % patch-mean noise
     measured = xr.DataArray(rgb, dims=("patch", "channel"), coords={"patch": np.arange(18)})
-    chosen, scores = sc.cross_validated_smoothness(measured, spectra)
-    assert scores.dims == ("smoothness",) and scores.size == len(sc.SMOOTHNESS_CANDIDATES)
+    chosen, scores = cross_validated_smoothness(measured, spectra)
+    assert scores.dims == ("smoothness",) and scores.size == len(SMOOTHNESS_CANDIDATES)
     assert chosen == float(scores["smoothness"][int(np.argmin(scores.values))])
-    fixed = sc.camera_matrix(measured, spectra, smoothness=1e-3)["camera_matrix"].values
-    picked = sc.camera_matrix(measured, spectra, smoothness=chosen)["camera_matrix"].values
+    fixed = camera_matrix(measured, spectra, smoothness=1e-3)["camera_matrix"].values
+    picked = camera_matrix(measured, spectra, smoothness=chosen)["camera_matrix"].values
     assert _shape_error(picked, truth).max() < 0.5 * _shape_error(fixed, truth).max()
     with pytest.raises(CalibrationError, match="at least 3 patches"):
-        sc.cross_validated_smoothness(measured.isel(patch=[0, 1]), spectra.isel(patch=[0, 1]))
+        cross_validated_smoothness(measured.isel(patch=[0, 1]), spectra.isel(patch=[0, 1]))
 
 
 def test_cross_validation_table_and_figure(checker_setup, white_setup) -> None:
     spectra, measured, c_true, labels, light = checker_setup
-    c = sc.camera_matrix(measured, spectra)
+    c = camera_matrix(measured, spectra)
     # QE from the white reference, then a spectral capture of the checker
     shots_w, dark_w, _, rho, q_true = white_setup
     response = spectral_camera_response()
-    q = sc.quantum_efficiency(shots_w, dark_w, light, reflectance=rho, response=response)
+    q = quantum_efficiency(shots_w, dark_w, light, reflectance=rho, response=response)
     cube = np.moveaxis(paint(spectra.values, labels), -1, 0)  # (band, y, x)
     times = 0.3 / (cube.max(axis=(1, 2)) * q_true)
     shots = spectral_shots(cube, times, seed=31, quantum_efficiency=q_true)
     dark = dark_group(times, labels.shape, seed=32)
-    signal = sc.band_signal(shots, dark, response=response)
+    signal = band_signal(shots, dark, response=response)
     band_radiance = (
         (signal / q["quantum_efficiency"].values[:, None, None])
         .assign_coords(wavelength=("shot", WAVELENGTHS))
         .swap_dims(shot="wavelength")
     )
-    captured = sc.patch_means(band_radiance, labels, names=list(spectra["patch"].values))
-    table = sc.cross_validate(measured, captured, c)
+    captured = patch_means(band_radiance, labels, names=list(spectra["patch"].values))
+    table = cross_validate(measured, captured, c)
     assert set(table.data_vars) == {"measured", "predicted", "difference", "relative_error"}
     assert table["relative_error"].dims == ("patch",)
     assert table["relative_error"].sizes["patch"] == 24
@@ -294,7 +305,7 @@ def test_cross_validation_table_and_figure(checker_setup, white_setup) -> None:
     # a wrong C is caught by the cross-check
     wrong = c.copy(deep=True)
     wrong["camera_matrix"] = wrong["camera_matrix"].roll(wavelength=3)
-    assert sc.cross_validate(measured, captured, wrong).attrs["mean_relative_error"] > 0.05
+    assert cross_validate(measured, captured, wrong).attrs["mean_relative_error"] > 0.05
 
     figure = plot_cross_validation(table)
     assert len(figure.axes) == 4
@@ -307,7 +318,7 @@ def test_cross_validation_table_and_figure(checker_setup, white_setup) -> None:
 def test_patch_means_and_predict_rgb() -> None:
     labels = np.array([[0, 0, -1], [1, 1, 1]])
     data = xr.DataArray(np.arange(12.0).reshape(2, 3, 2), dims=("y", "x", "channel"))
-    means = sc.patch_means(data, labels, names=["a", "b"])
+    means = patch_means(data, labels, names=["a", "b"])
     assert means.dims == ("patch", "channel")
     np.testing.assert_allclose(means.sel(patch="a"), [1.0, 2.0])
     np.testing.assert_allclose(means.sel(patch="b"), [8.0, 9.0])
@@ -319,7 +330,7 @@ def test_patch_means_and_predict_rgb() -> None:
     spectra = xr.DataArray(
         [[1.0, 2.0, 3.0]], dims=("patch", "wavelength"), coords={"wavelength": [500.0, 600.0, 700.0]}
     )
-    np.testing.assert_allclose(sc.predict_rgb(spectra, c).values, [[1.0, 2.0]])
+    np.testing.assert_allclose(predict_rgb(spectra, c).values, [[1.0, 2.0]])
 
 
 # -- bad input ----------------------------------------------------------------------------------
@@ -330,10 +341,10 @@ def test_white_reference_darker_than_the_noise(white_setup) -> None:
         np.zeros((24, 24)), 1.0, adc_offset=OFFSET + 1, noise_sigma=SIGMA, bit_depth=BITS, seed=3
     )
     with pytest.raises(CalibrationError, match=r"shot 7 \(480.0 nm.*darker than the noise.*SNR"):
-        sc.quantum_efficiency(dim, dark, light, reflectance=rho)
+        quantum_efficiency(dim, dark, light, reflectance=rho)
     no_std = dark.drop_vars("std")
     with pytest.raises(CalibrationError, match="darker than the noise"):
-        sc.quantum_efficiency(dim, no_std, light, reflectance=rho)
+        quantum_efficiency(dim, no_std, light, reflectance=rho)
 
 
 def test_dark_frame_missing_or_of_another_size(white_setup) -> None:
@@ -342,24 +353,24 @@ def test_dark_frame_missing_or_of_another_size(white_setup) -> None:
     with pytest.raises(
         CalibrationError, match=rf"dark:mean has no frame for exposure_time {t} s \(shot 4\)"
     ):
-        sc.quantum_efficiency(shots, dark.drop_sel(exposure_time=t), light, reflectance=rho)
+        quantum_efficiency(shots, dark.drop_sel(exposure_time=t), light, reflectance=rho)
     with pytest.raises(
         CalibrationError,
         match="dark:mean frames are 24x20 px but the frames of band_signal are 24x24 px",
     ):
-        sc.band_signal(shots, dark.isel(x=slice(0, 20)))
+        band_signal(shots, dark.isel(x=slice(0, 20)))
 
 
 def test_spectra_that_do_not_cover_the_bands(white_setup) -> None:
     shots, dark, light, rho, _ = white_setup
     with pytest.raises(CalibrationError, match=r"illuminant covers 450.0..720.0 nm"):
-        sc.quantum_efficiency(shots, dark, light.sel(wavelength=slice(450, None)), reflectance=rho)
+        quantum_efficiency(shots, dark, light.sel(wavelength=slice(450, None)), reflectance=rho)
     with pytest.raises(CalibrationError, match="reflectance must be positive"):
-        sc.quantum_efficiency(shots, dark, light, reflectance=0.0)
+        quantum_efficiency(shots, dark, light, reflectance=0.0)
     with pytest.raises(CalibrationError, match="roi may only select y and x"):
-        sc.quantum_efficiency(shots, dark, light, roi={"shot": slice(0, 2)})
+        quantum_efficiency(shots, dark, light, roi={"shot": slice(0, 2)})
     with pytest.raises(SchemaError, match="raw/spectral contract"):
-        sc.band_signal(shots.drop_vars("wavelength"), dark)
+        band_signal(shots.drop_vars("wavelength"), dark)
 
 
 def test_camera_matrix_and_cross_validation_mismatches() -> None:
@@ -368,19 +379,19 @@ def test_camera_matrix_and_cross_validation_mismatches() -> None:
         np.ones((23, 32)), dims=("patch", "wavelength"), coords={"wavelength": WAVELENGTHS}
     )
     with pytest.raises(CalibrationError, match="rgb has 24 patches, spectra 23"):
-        sc.camera_matrix(rgb, spectra)
+        camera_matrix(rgb, spectra)
     with pytest.raises(SchemaError, match=r"rgb must be \(patch, channel\)"):
-        sc.camera_matrix(rgb.rename(channel="band"), spectra)
+        camera_matrix(rgb.rename(channel="band"), spectra)
     with pytest.raises(CalibrationError, match="finite"):
-        sc.camera_matrix(rgb.isel(patch=slice(0, 23)) * np.nan, spectra)
+        camera_matrix(rgb.isel(patch=slice(0, 23)) * np.nan, spectra)
     c = xr.DataArray(
         np.ones((3, 32)), dims=("channel", "wavelength"), coords={"wavelength": WAVELENGTHS + 5}
     )
     with pytest.raises(CalibrationError, match="spectra are at .* nm, C at"):
-        sc.predict_rgb(spectra, c)
+        predict_rgb(spectra, c)
     with pytest.raises(CalibrationError, match="measured_rgb has 24 patches, spectra 23"):
-        sc.cross_validate(rgb, spectra, c)
+        cross_validate(rgb, spectra, c)
     with pytest.raises(CalibrationError, match=r"labels have shape \(2, 2\)"):
-        sc.patch_means(xr.DataArray(np.ones((3, 3)), dims=("y", "x")), np.zeros((2, 2), int))
+        patch_means(xr.DataArray(np.ones((3, 3)), dims=("y", "x")), np.zeros((2, 2), int))
     with pytest.raises(CalibrationError, match=r"patch\(es\) \[1\] have no pixel"):
-        sc.patch_means(xr.DataArray(np.ones((1, 3)), dims=("y", "x")), np.array([[0, 2, 2]]))
+        patch_means(xr.DataArray(np.ones((1, 3)), dims=("y", "x")), np.array([[0, 2, 2]]))

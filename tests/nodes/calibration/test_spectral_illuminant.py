@@ -14,7 +14,8 @@ import xarray as xr
 from spectralize.nodes.calibration.dark import average_dark_frames
 from spectralize.nodes.calibration.oecf.low_snr import recover_spectral_oecf
 from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
-from spectralize.nodes.calibration.spectral import calibrate_spectral, measured_illuminant_on_bands
+from spectralize.nodes.calibration.spectral import calibrate_spectral
+from spectralize.nodes.calibration.white_reference import measured_illuminant_on_bands
 from spectralize.nodes.simulation.assembly import simulate_run
 from spectralize.nodes.simulation.recipes import get_recipe
 from spectralize.schemas import CalibrationError
