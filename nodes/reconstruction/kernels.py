@@ -52,10 +52,15 @@ __all__ = [
     "box_mean_columns",
 ]
 
-_JIT = {"cache": True, "nogil": True, "fastmath": True, "error_model": "numpy"}
+_jit = njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+"""The compilation every kernel gets: machine code cached on disk, the GIL released, fast
+floating-point maths, numpy's error model (no exceptions for division by zero)."""
+
+_jit_inline = njit(inline="always", cache=True, nogil=True, fastmath=True, error_model="numpy")
+""":data:`_jit` for helpers inlined into the kernels that call them."""
 
 
-@njit(**_JIT)
+@_jit
 def normal_pixels(
     x, camera, camera_index, beta, indptr, indices, data, gamma, epsilon, image, out
 ):  # pragma: no cover - compiled
@@ -102,7 +107,7 @@ def normal_pixels(
                 out[p, w] += weight * x[column, w]
 
 
-@njit(**_JIT)
+@_jit
 def prior_normal_pixels(
     x,
     camera,
@@ -188,7 +193,7 @@ def prior_normal_pixels(
     return total
 
 
-@njit(**_JIT)
+@_jit
 def block_jacobi_pixels(
     r, inverse_diagonal, camera, camera_index, image, small_inverse, out
 ):  # pragma: no cover - compiled
@@ -211,7 +216,7 @@ def block_jacobi_pixels(
     return total
 
 
-@njit(inline="always", **_JIT)
+@_jit_inline
 def _block_jacobi_pixel(p, r, inverse_diagonal, camera, small_inverse, out, total):  # pragma: no cover
     """:func:`block_jacobi_pixels` on pixel ``p`` with its ``C`` ``(3, n_wavelength)``;
     returns ``total`` plus its share of ``r . out`` (summed in the same order as one loop)."""
@@ -237,7 +242,7 @@ def _block_jacobi_pixel(p, r, inverse_diagonal, camera, small_inverse, out, tota
     return total
 
 
-@njit(**_JIT)
+@_jit
 def block_jacobi_setup(
     inverse_diagonal, camera, pixel_camera, beta, small_inverse
 ):  # pragma: no cover - compiled
@@ -281,7 +286,7 @@ def block_jacobi_setup(
         small_inverse[p, 2, 2] = i22 * scale
 
 
-@njit(**_JIT)
+@_jit
 def neighbour_spread(flat, neighbours, ratios, squared):  # pragma: no cover - compiled
     """``squared[p] += sum_j mean_w (r_pj S_w(n_j) - S_w(p))^2`` in float64, band by band
     (``flat`` ``(n_wavelength, n_pixels)`` band-major: each band's row is gathered, no
@@ -299,7 +304,7 @@ def neighbour_spread(flat, neighbours, ratios, squared):  # pragma: no cover - c
             squared[p] += total / n_wavelength
 
 
-@njit(**_JIT)
+@_jit
 def gather_bands(x, positions, bands, planes):  # pragma: no cover - compiled
     """``planes[j, i] = x[positions[i], bands[j]]``: an image's band planes out of a
     pixel-major cube, every pixel's row visited once for all its bands."""
@@ -309,7 +314,7 @@ def gather_bands(x, positions, bands, planes):  # pragma: no cover - compiled
             planes[j, i] = x[row, bands[j]]
 
 
-@njit(**_JIT)
+@_jit
 def scatter_add_bands(out, positions, bands, planes):  # pragma: no cover - compiled
     """``out[positions[i], bands[j]] += planes[j, i]`` (the adjoint of
     :func:`gather_bands`), in the order of ``bands`` per pixel."""
@@ -319,7 +324,7 @@ def scatter_add_bands(out, positions, bands, planes):  # pragma: no cover - comp
             out[row, bands[j]] += planes[j, i]
 
 
-@njit(**_JIT)
+@_jit
 def cg_step(x, r, p, q, step):  # pragma: no cover - compiled
     """``x += step p``, ``r -= step q`` in one pass; returns the new ``r . r``."""
     xf, rf, pf, qf = x.ravel(), r.ravel(), p.ravel(), q.ravel()
@@ -332,7 +337,7 @@ def cg_step(x, r, p, q, step):  # pragma: no cover - compiled
     return total
 
 
-@njit(**_JIT)
+@_jit
 def cg_step_block_jacobi(
     x, r, p, q, step, inverse_diagonal, camera, camera_index, image, small_inverse
 ):  # pragma: no cover - compiled
@@ -355,7 +360,7 @@ def cg_step_block_jacobi(
     return rr, rz
 
 
-@njit(**_JIT)
+@_jit
 def cg_direction(p, z, beta):  # pragma: no cover - compiled
     """``p = z + beta p`` in place."""
     pf, zf = p.ravel(), z.ravel()
@@ -363,7 +368,7 @@ def cg_direction(p, z, beta):  # pragma: no cover - compiled
         pf[i] = zf[i] + beta * pf[i]
 
 
-@njit(**_JIT)
+@_jit
 def dot(a, b):  # pragma: no cover - compiled
     """``sum(a * b)`` accumulated in float64."""
     af, bf = a.ravel(), b.ravel()
@@ -373,7 +378,7 @@ def dot(a, b):  # pragma: no cover - compiled
     return total
 
 
-@njit(**_JIT)
+@_jit
 def projected_step(x, g, scale, step, out):  # pragma: no cover - compiled
     """``out = max(x - step * scale * g, 0)`` in one pass (a scaled projected-gradient step
     onto ``S >= 0``)."""
@@ -383,7 +388,7 @@ def projected_step(x, g, scale, step, out):  # pragma: no cover - compiled
         of[i] = value if value > 0.0 else 0.0
 
 
-@njit(**_JIT)
+@_jit
 def step_dots(new, x, new_g, g, scale):  # pragma: no cover - compiled
     """``(s . y, s . (s / scale))`` with ``s = new - x``, ``y = new_g - g``, accumulated in
     float64 in one pass without forming ``s`` or ``y`` (the Barzilai-Borwein step)."""
@@ -397,7 +402,7 @@ def step_dots(new, x, new_g, g, scale):  # pragma: no cover - compiled
     return sy, ss
 
 
-@njit(**_JIT)
+@_jit
 def project_rgb_nonnegative(
     cube, camera, pseudo, camera_of_image, rgb, rounds
 ):  # pragma: no cover - compiled
@@ -448,7 +453,7 @@ def project_rgb_nonnegative(
                 cube[w, m, q] = s[w]
 
 
-@njit(**_JIT)
+@_jit
 def _solve_passive(hessian, rhs, passive, n_passive, system, z):  # pragma: no cover - compiled
     """``z[:n] = H_PP^-1 rhs_P`` for the first ``n_passive`` indices of ``passive``
     (Gaussian elimination with partial pivoting); False if singular."""
@@ -481,7 +486,7 @@ def _solve_passive(hessian, rhs, passive, n_passive, system, z):  # pragma: no c
     return True
 
 
-@njit(**_JIT)
+@_jit
 def mixture_abundances(projected, near, rgb, ridge, out):  # pragma: no cover - compiled
     """Per pixel the non-negative least-squares weights of its candidate atoms' RGB.
 
@@ -588,7 +593,7 @@ def mixture_abundances(projected, near, rgb, ridge, out):  # pragma: no cover - 
             out[p, a] = w[a]
 
 
-@njit(**_JIT)
+@_jit
 def mixture_gram(near, weights, gram):  # pragma: no cover - compiled
     """``gram[a, c] += sum_p w_pa w_pc`` over the pixels, atoms scattered by ``near``."""
     n_pixels, k = near.shape
@@ -602,7 +607,7 @@ def mixture_gram(near, weights, gram):  # pragma: no cover - compiled
                 gram[ia, near[p, c]] += wa * weights[p, c]
 
 
-@njit(**_JIT)
+@_jit
 def mixture_rhs(near, weights, data, rhs):  # pragma: no cover - compiled
     """``rhs[a] += sum_p w_pa d_p`` over the pixels, atoms scattered by ``near``."""
     n_pixels, k = near.shape
@@ -612,7 +617,7 @@ def mixture_rhs(near, weights, data, rhs):  # pragma: no cover - compiled
             rhs[near[p, a]] += weights[p, a] * d
 
 
-@njit(**_JIT)
+@_jit
 def nearest_centres(chroma, centres, k, near):  # pragma: no cover - compiled
     """Per pixel the ``k`` centres nearest in (squared Euclidean) distance, nearest first.
 
@@ -653,7 +658,7 @@ def nearest_centres(chroma, centres, k, near):  # pragma: no cover - compiled
             near[p, c] = j
 
 
-@njit(**_JIT)
+@_jit
 def share_planes(near, weights, skip, planes):  # pragma: no cover - compiled
     """``planes[j, p] += w_pa / sum_a w_pa`` for every candidate ``a`` of pixel ``p`` with
     ``near[p, a] = j != skip``: each atom's abundance share map, in one pass.
@@ -679,7 +684,7 @@ def share_planes(near, weights, skip, planes):  # pragma: no cover - compiled
                 planes[j, p] += weights[p, a] / total
 
 
-@njit(**_JIT)
+@_jit
 def top_planes(planes, skip, index):  # pragma: no cover - compiled
     """Per pixel the ``count`` planes with the largest values, largest first; ties go to
     the lower plane index.
@@ -715,7 +720,7 @@ def top_planes(planes, skip, index):  # pragma: no cover - compiled
             index[p, c] = j
 
 
-@njit(**_JIT)
+@_jit
 def mix_atoms(weights, near, atoms, cube):  # pragma: no cover - compiled
     """``cube[w, p] = sum_a weights[p, a] atoms[near[p, a], w]``: the band-major mixture.
 
@@ -750,7 +755,7 @@ def mix_atoms(weights, near, atoms, cube):  # pragma: no cover - compiled
                 cube[w, start + q] = s[q, w]
 
 
-@njit(inline="always", **_JIT)
+@_jit_inline
 def _reflect(i, n):  # pragma: no cover - compiled
     """Index ``i`` reflected into ``[0, n)`` about the half-sample edges (``d c b a | a b c
     d | d c b a``: scipy.ndimage's ``"reflect"``)."""
@@ -758,7 +763,7 @@ def _reflect(i, n):  # pragma: no cover - compiled
     return 2 * n - 1 - i if i >= n else i
 
 
-@njit(**_JIT)
+@_jit
 def box_mean_rows(planes, width, out):  # pragma: no cover - compiled
     """Mean over ``width`` (odd) neighbours along the last axis of ``(n, height, width)``
     planes, reflecting borders: a running sum in float64, as scipy.ndimage's
@@ -782,7 +787,7 @@ def box_mean_rows(planes, width, out):  # pragma: no cover - compiled
                 out[k, y, x] = total * scale
 
 
-@njit(**_JIT)
+@_jit
 def box_mean_columns(planes, width, out):  # pragma: no cover - compiled
     """As :func:`box_mean_rows` along the middle axis (``axis=-2``), one row of running
     sums at a time (contiguous reads)."""

@@ -162,8 +162,8 @@ def appearance_order(appearance: np.ndarray, *, bits: int = 10) -> np.ndarray:
     low = np.nanmin(features, axis=0) if features.size else 0.0
     span = (np.nanmax(features, axis=0) - low) if features.size else 1.0
     levels = (1 << bits) - 1
-    quantised = np.nan_to_num((features - low) / np.where(span > 0, span, 1.0) * levels)
-    quantised = np.clip(quantised, 0, levels).astype(np.uint64)
+    scaled = np.nan_to_num((features - low) / np.where(span > 0, span, 1.0) * levels)
+    quantised = np.clip(scaled, 0, levels).astype(np.uint64)
     code = np.zeros(features.shape[0], dtype=np.uint64)
     for bit in range(bits):
         for axis in range(quantised.shape[1]):

@@ -169,7 +169,7 @@ def gaussian_filter_matrix(
 
 DENSE_AXIS_BELOW = 96
 """Axes shorter than this many pixels keep their filter matrices dense: on tiny tiles a
-sparse product's fixed cost per call (~20 us) outweighs its arithmetic (the same products,
+sparse product's fixed cost per call outweighs its arithmetic (the same products,
 summed in another order: equal within float rounding)."""
 
 
@@ -314,7 +314,7 @@ class FilterConstraints:
                 where = positions[m]
                 planes = np.empty((shots.size, where.size), dtype=cube.dtype)
                 gather_bands(cube, where, bands, planes)
-                for j, i in enumerate(shots):
+                for j, i in enumerate(shots.tolist()):
                     responses = self.apply_plane(i, planes[j].reshape(plane_shape))
                     total += float(scale) * float(
                         np.einsum("ij,ij->", responses, responses, dtype=np.float64)
@@ -456,6 +456,20 @@ def rgb_adjoint(rgb: np.ndarray, camera_matrix: np.ndarray, shape: tuple[int, ..
         n_image = camera_matrix.shape[0]
         return _einsum("mcw,cmn->wmn", camera_matrix, rgb.reshape(3, n_image, -1)).reshape(shape)
     return _einsum("cw,cn->wn", camera_matrix, rgb).reshape(shape)
+
+
+_PixelTerms = tuple[
+    np.ndarray,  # camera blocks (n_camera, 3, n_wavelength)
+    np.ndarray,  # each image's camera index
+    np.floating,  # beta
+    np.ndarray,  # the neighbour Laplacian, CSR: indptr
+    np.ndarray,  # indices
+    np.ndarray,  # data
+    np.floating,  # gamma
+    np.ndarray,  # the ridge per image and wavelength
+    np.ndarray,  # each pixel's image
+]
+"""The compiled pixel passes' leading arguments (:meth:`ReconstructionProblem._pixel_terms`)."""
 
 
 @dataclass
@@ -608,7 +622,7 @@ class ReconstructionProblem:
         self.filters.normal(cube, out=out, scale=self.weights.alpha, positions=order.positions)
         return out
 
-    def _pixel_terms(self, order: PixelOrder, epsilon: np.ndarray | float) -> tuple:
+    def _pixel_terms(self, order: PixelOrder, epsilon: np.ndarray | float) -> _PixelTerms:
         """The compiled pixel passes' leading arguments: the camera blocks and each image's
         index, ``beta``, the neighbour Laplacian (CSR), ``gamma``, the ridge per image and
         wavelength, and each pixel's image."""

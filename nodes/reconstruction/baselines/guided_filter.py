@@ -228,8 +228,8 @@ def _window_statistics(
     mean = gaussian_window(guides, sigma)
     # the 6 distinct second moments of the symmetric 3 x 3 covariance
     second = gaussian_window(guides[:, upper[0]] * guides[:, upper[1]], sigma)
-    covariance = {}
-    for n, (c, d) in enumerate(zip(*upper, strict=True)):
+    covariance: dict[tuple[int, int], np.ndarray] = {}
+    for n, (c, d) in enumerate(zip(upper[0].tolist(), upper[1].tolist(), strict=True)):
         covariance[c, d] = second[:, n] - mean[:, c].astype(np.float64) * mean[:, d]
     ridge = epsilon * np.sum(mean.astype(np.float64) ** 2, axis=1) / 3 + 1e-300
     for c in range(3):

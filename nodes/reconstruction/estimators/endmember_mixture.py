@@ -403,8 +403,11 @@ def local_correction(
     rng = np.random.default_rng(seed)
     noises = [rng.normal(size=inputs.band_data.shape) * sigma[:, None, None] for _ in range(int(draws))]
     correction, *pure = guided_filtered_stacks(inputs, [residual, *noises], window_scale=window_scale)
-    fine = pure_fine = None
+    fine: np.ndarray | None = None
+    pure_fine: list[np.ndarray] = []
+    detail_window_scale = 0.0
     if detail_scale:
+        detail_window_scale = float(detail_scale)
         fine, *pure_fine = guided_filtered_stacks(inputs, [residual, *noises], window_scale=detail_scale)
     del residual, noises
     for i, (b, m) in enumerate(zip(inputs.band, inputs.image, strict=True)):
@@ -416,7 +419,7 @@ def local_correction(
             detail = fine[i] - coarse
             pairs = zip(pure_fine, pure, strict=True)
             variance = sum((f[i] - p[i].astype(np.float64)) ** 2 for f, p in pairs) / len(pure)
-            window = window_sigma(float(inputs.filter_size[i]), float(detail_scale))
+            window = window_sigma(float(inputs.filter_size[i]), detail_window_scale)
             step += detail * _shrinkage(float(detail_threshold) * variance, detail, window)
         cube[b, m] += step / np.count_nonzero((inputs.band == b) & (inputs.image == m))
     return cube

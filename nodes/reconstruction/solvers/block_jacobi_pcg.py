@@ -110,7 +110,8 @@ def block_jacobi_pcg(
     x = order.to_pixels(np.asarray(initial, dtype=dtype).reshape(work.shape))
     del initial  # the caller's start is the caller's; one computed here is not kept
     preconditioner = BlockJacobiPreconditioner(work, dtype, ridge=relative_ridge, order=order)
-    epsilon = preconditioner.ridge.astype(dtype)
+    # epsilon_r + epsilon_p M, absolute (per band and image: the preconditioner's ridge)
+    epsilon = (np.asarray(relative_ridge, dtype=np.float64) * preconditioner.mean_diagonal).astype(dtype)
     regularised = bool(np.any(epsilon > 0))
     rhs = order.to_pixels(work.normal_rhs())
     if regularised:  # epsilon_r S_start + epsilon_p M S_0

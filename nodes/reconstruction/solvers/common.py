@@ -33,15 +33,17 @@ __all__ = [
     "needs_cube",
     "vdot",
     "PixelOperator",
+    "IterateCallback",
     "CgStep",
     "pixel_pcg",
 ]
 
-Callback = Callable[[int, np.ndarray], None]
+Callback = Callable[[int, np.ndarray | None], None]
 """``callback(iteration, cube)``, called after every iteration (benchmarks' convergence curves).
 
 A callback made by :func:`counting_iterations` gets ``cube=None``: a solver that iterates on
-another layout then skips building the cube each iteration."""
+another layout then skips building the cube each iteration; one made with ``residual=True``
+also gets the relative residual as a third argument (:func:`wants_residual`)."""
 
 
 def counting_iterations(count: Callable[..., None], *, residual: bool = False) -> Callback:
@@ -57,12 +59,12 @@ def counting_iterations(count: Callable[..., None], *, residual: bool = False) -
     return callback
 
 
-def wants_residual(callback: Callback | None) -> bool:
+def wants_residual(callback: Callable[..., object] | None) -> bool:
     """Whether ``callback`` takes the relative residual as a third argument."""
     return callback is not None and getattr(callback, "wants_residual", False)
 
 
-def needs_cube(callback: Callback | None) -> bool:
+def needs_cube(callback: Callable[..., object] | None) -> bool:
     """Whether ``callback`` looks at the cube (see :func:`counting_iterations`)."""
     return callback is not None and getattr(callback, "needs_cube", True)
 
@@ -113,6 +115,10 @@ PixelOperator = Callable[[np.ndarray, np.ndarray], "np.ndarray | tuple[np.ndarra
 pixel-major vector ``(n_pixels, n_wavelength)``, written into ``out``; or ``-> (out,
 vector . out)`` where its pass computes the curvature too (:func:`pixel_pcg` then skips a
 dot)."""
+
+IterateCallback = Callable[[int, np.ndarray], None]
+"""A :data:`Callback` as the PCG loop calls it: with the pixel-major iterate (see
+:func:`pixel_pcg`)."""
 
 CgStep = Callable[
     [np.ndarray, np.ndarray, np.ndarray, np.ndarray, float], tuple[float, float, np.ndarray]
@@ -221,7 +227,7 @@ def _conjugate_gradients(
     *,
     tolerance: float,
     max_iterations: int,
-    callback: Callback | None,
+    callback: IterateCallback | None,
 ) -> tuple[np.ndarray, list[float], int]:
     """The PCG loop of :func:`pixel_pcg`, in place, from ``x``, its residual ``r`` and
     ``z = M^-1 r``.
@@ -290,7 +296,7 @@ def _unpreconditioned_step(
     return rr, rr, r
 
 
-def _band_major(callback: Callback | None, order: PixelOrder) -> Callback | None:
+def _band_major(callback: Callback | None, order: PixelOrder) -> IterateCallback | None:
     """``callback`` for pixel-major iterates: it gets them as band-major cubes (or None
     where it does not look at them, :func:`needs_cube`)."""
     if callback is None:

@@ -68,9 +68,9 @@ class BlockJacobiPreconditioner:
         self,
         problem: ReconstructionProblem,
         dtype: np.dtype | type = np.float32,
-        ridge: float = 0.0,
+        ridge: float | np.ndarray = 0.0,
         order: PixelOrder | None = None,
-    ):
+    ) -> None:
         # Built pixel-major in ``dtype`` and in chunks: about 1.2 vectors of the cube beside
         # what it keeps (no dense float64 diagonal cube, no permuted copies).
         w = problem.weights
@@ -88,6 +88,7 @@ class BlockJacobiPreconditioner:
         # the ridge, or a far tinier one, keeps blocks without filter and neighbours invertible
         floor = max(1e-9 * mean_diagonal, 1e-300)
         ridge_shape = np.shape(ridge)
+        self.ridge: np.ndarray | None
         if not ridge_shape or ridge_shape[-2:] == (1, 1):  # per band and image
             #: ``epsilon`` of a ridge ``epsilon I`` added to ``A^T A`` (absolute); None for a
             #: per-pixel ridge (a cube, not kept)
