@@ -67,9 +67,11 @@ lint: $(STAMP) layout
 	$(BIN)/ruff check .
 	cd $(LAYOUT) && PYTHONPATH=. ../../$(BIN)/lint-imports ../../pyproject.toml --no-cache
 
-# Static types of the rooms every other one builds on (mypy settings in pyproject.toml).
+# Static types of the rooms every other one builds on, and of the reconstruction (mypy settings
+# in pyproject.toml).
 typecheck: $(STAMP) layout
-	MYPYPATH=$(LAYOUT) $(BIN)/mypy -p spectralize.schemas -p spectralize.store -p spectralize.engine
+	MYPYPATH=$(LAYOUT) $(BIN)/mypy -p spectralize.schemas -p spectralize.store -p spectralize.engine \
+	  -p spectralize.nodes.reconstruction
 
 clean:
 	rm -rf demo build .pytest_cache .mypy_cache
