@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 
 import pytest
 from hypothesis import settings
@@ -23,6 +24,32 @@ def prefect_api():
 
     with prefect_test_harness(server_startup_timeout=120):
         yield
+
+
+@pytest.fixture(scope="session", autouse=True)
+def prefect_server_stopped_while_captured():
+    """Stop Prefect's temporary API server at the end of the session, not at interpreter exit.
+
+    A flow run outside :func:`prefect_api` starts Prefect's temporary server, which Prefect
+    stops at exit with a log line through its console handler. That handler writes to the
+    ``sys.stderr`` of the moment Prefect set up its logging: pytest's capture, closed by exit,
+    so the line became a "Logging error ... I/O operation on closed file" traceback after the
+    summary. Stopped here, while the capture is open, nothing is left for exit; the log lines
+    and events still queued are sent first, as :func:`prefect_api`'s harness does before it
+    stops its own server (session fixtures end in reverse order: that one has stopped already).
+    """
+    yield
+    module = sys.modules.get("prefect.server.api.server")
+    if module is None:
+        return
+    server = module.SubprocessASGIServer()  # the temporary server (a new, idle one if none ran)
+    if server.running:
+        from prefect.events.worker import EventsWorker
+        from prefect.logging.handlers import APILogWorker
+
+        APILogWorker.drain_all(timeout=30)
+        EventsWorker.drain_all(timeout=30)
+    server.stop()
 
 
 @pytest.fixture(scope="session", autouse=True)
