@@ -17,6 +17,7 @@ from spectralize.nodes.reconstruction.solvers import (
     block_jacobi_pcg,
     paper_cg,
 )
+from spectralize.schemas.errors import ParameterError
 
 GUIDED = RECONSTRUCTION_METHODS["guided-prior-pcg"].settings
 """The guided-prior preset: eq. 1's PCG with its prior."""
@@ -67,6 +68,23 @@ def test_fast_solver_agrees_with_paper_cg(scene_factory):
     assert problem.energy(fast.cube.astype(np.float64)) == pytest.approx(
         problem.energy(reference.cube), rel=2e-3
     )
+
+
+def test_the_one_pcg_loop_solves_with_and_without_the_preconditioner(scene_factory):
+    """Both PCG solvers run one loop; without the preconditioner (a measurement mode) it
+    reaches the same solution, in more iterations; a precondition that is not a bool is
+    refused (the scalar "jacobi" mode is gone)."""
+    scene = scene_factory(size=20, n_wavelength=5, shading=True, noise=0.02, rgb_noise=1e-3)
+    problem = _problem(scene)
+    options = {"tolerance": 1e-9, "max_iterations": 5000, "dtype": np.float64, "ridge": 0.0}
+    preconditioned = block_jacobi_pcg(problem, **options)
+    plain = block_jacobi_pcg(problem, precondition=False, **options)
+    assert preconditioned.converged and plain.converged
+    assert preconditioned.iterations < plain.iterations
+    assert _relative_error(plain.cube, preconditioned.cube) < 1e-6
+    assert plain.info["precondition"] is False
+    with pytest.raises(ParameterError, match="precondition: expected True"):
+        block_jacobi_pcg(problem, precondition="jacobi")
 
 
 def test_residual_history_and_stopping(scene_factory):
