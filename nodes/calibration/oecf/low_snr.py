@@ -20,7 +20,7 @@ References
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, NamedTuple
 
 import numpy as np
 import xarray as xr
@@ -168,6 +168,162 @@ def _invert_quadratic(v: np.ndarray, c1: float, c2: float) -> np.ndarray:
     return 2.0 * v / (c1 + root)
 
 
+class _LowSnrSeries(NamedTuple):
+    """The frames of a low-SNR series, checked (:func:`_checked_low_snr_series`)."""
+
+    raw_values: np.ndarray
+    """(exposure, y, x) integer pixel values [DN]."""
+    times: np.ndarray
+    """(exposure,) exposure times [s], strictly increasing."""
+    dark_mean: np.ndarray
+    """(exposure, y, x) float64 mean dark frame of each exposure time [DN]."""
+    depth: int
+    levels: int
+    """Integer levels of the stretch."""
+
+
+def _checked_low_snr_series(
+    series: xr.Dataset | xr.DataArray,
+    dark: xr.Dataset | xr.DataArray,
+    *,
+    bit_depth: int | None,
+    levels: int | None,
+    filter_size: float,
+    truncate: float,
+    where: str,
+) -> _LowSnrSeries:
+    """The series of :func:`recover_oecf_low_snr` read once, with its dark frames, checked.
+
+    Raises
+    ------
+    SchemaError
+        Wrong dims, no ``exposure_time`` coord along the series, non-integer data, an unknown
+        bit depth.
+    CalibrationError
+        Fewer than two exposures, unsorted or duplicate exposure times, a filter size, a
+        truncation or fewer than 16 levels that are not allowed, values beyond the bit depth,
+        saturated pixels, a dark frame missing for an exposure time or of another size.
+    """
+    counts = counts_array(series)
+    dim = _series_dim(counts, where)
+    check_integer(counts, where)
+    depth = check_bit_depth(
+        counts.attrs.get("bit_depth") if bit_depth is None else bit_depth,
+        where=f"{where}.attrs['bit_depth']",
+    )
+    if "exposure_time" not in counts.coords or counts["exposure_time"].dims != (dim,):
+        raise SchemaError(
+            f"{where} needs an exposure_time coord along {dim!r}",
+            [
+                Problem(
+                    f"{where}:exposure_time",
+                    f"a coord ({dim},) [s]",
+                    f"coords {sorted(map(str, counts.coords))}",
+                )
+            ],
+        )
+    if counts.sizes[dim] < 2:
+        raise CalibrationError(
+            f"{where}: an exposure series needs at least 2 exposures, got {counts.sizes[dim]}"
+        )
+    check_exposure_times(counts["exposure_time"], dim, where)
+    warn_if_geometric(counts["exposure_time"], dim, where)
+    if not filter_size > 0 or not truncate > 0:
+        raise CalibrationError(
+            f"{where}: filter_size and truncate must be positive, got {filter_size} and {truncate}"
+        )
+    levels = 2**depth if levels is None else int(levels)
+    if levels < 16:
+        raise CalibrationError(f"{where}: levels must be at least 16, got {levels}")
+    counts = counts.transpose(dim, "y", "x").load()  # the series (a few frames), read once
+    times = np.asarray(counts["exposure_time"].values, dtype=np.float64)
+    ny, nx = counts.sizes["y"], counts.sizes["x"]
+    dark_mean = np.asarray(
+        dark_frames_at(dark, times, used_by=where, dim=dim, frame_shape=(ny, nx))["mean"].values,
+        dtype=np.float64,
+    )
+    raw_values = np.asarray(counts.values)
+    lo_code, hi_code = int(raw_values.min()), int(raw_values.max())
+    if lo_code < 0 or hi_code > 2**depth - 1:
+        raise CalibrationError(
+            f"{where}: pixel values must lie in [0, {2**depth - 1}], found [{lo_code}, {hi_code}]"
+        )
+    saturated = saturated_frames(counts, depth)
+    if saturated.any():
+        raise CalibrationError(
+            f"{where}: saturated pixels (value {2**depth - 1}) at "
+            f"exposure_time {times[saturated].tolist()} s in a low-SNR "
+            "series; use shorter exposures"
+        )
+    return _LowSnrSeries(raw_values, times, dark_mean, depth, levels)
+
+
+def _filtered_above_dark(
+    frames: _LowSnrSeries, filter_size: float, truncate: float, where: str
+) -> np.ndarray:
+    """Steps (1) and (2) of :func:`recover_oecf_low_snr`: each frame less its dark frame (in
+    float, negative values kept), Gaussian-filtered with ``sigma = filter_size / 5``
+    truncated at ``truncate`` sigmas, without the border of the kernel radius. Returns
+    (exposure, pixel) float64; a :class:`CalibrationError` for frames smaller than the
+    kernel."""
+    from scipy import ndimage
+
+    raw_values, times, dark_mean = frames.raw_values, frames.times, frames.dark_mean
+    ny, nx = raw_values.shape[1:]
+    sigma = filter_sigma(filter_size)
+    radius = int(math.ceil(filter_radius(filter_size, truncate=truncate)))
+    if ny <= 2 * radius or nx <= 2 * radius:
+        raise CalibrationError(
+            f"{where}: frames of {ny}x{nx} px are too small for "
+            f"filter_size {filter_size} (kernel radius {radius} px)"
+        )
+    filtered = np.empty((times.size, ny - 2 * radius, nx - 2 * radius))
+    for j in range(times.size):
+        signal = raw_values[j].astype(np.float64) - dark_mean[j]  # negative values kept
+        smooth = ndimage.gaussian_filter(signal, sigma, mode="nearest", truncate=truncate)
+        filtered[j] = smooth[radius : ny - radius, radius : nx - radius]
+    return filtered.reshape(times.size, -1)
+
+
+def _debiased(
+    table: np.ndarray,
+    codes: np.ndarray,
+    times: np.ndarray,
+    weights: np.ndarray,
+    values: np.ndarray,
+    grid: np.ndarray,
+    *,
+    mid: float,
+    fit_top: float,
+    monotone: bool,
+    where: str,
+) -> tuple[np.ndarray, bool]:
+    """Steps (6) and (7) of :func:`recover_oecf_low_snr` on Robertson's ``table`` over
+    ``grid``: the reverse regression from the leave-one-out exposures of the samples
+    (``codes`` at ``times``, filtered ``values``), then the quadratic through 0 fitted up to
+    ``fit_top`` and cross-faded in below it (``fit_top <= 0``: no fit), made non-decreasing
+    when ``monotone`` and normalised to 1 at ``mid``. Returns the table and whether the
+    quadratic was fitted."""
+    from scipy.optimize import isotonic_regression
+
+    exposure = _exposure_estimates(codes, times, weights, table)
+    table = _reverse_regression(exposure, values, table, grid)
+    fit = None
+    if fit_top > 0:
+        fit = _quadratic_through_zero(exposure, values, float(np.interp(fit_top, grid, table)))
+    if fit is not None:
+        alpha = np.clip((grid - 0.5 * fit_top) / (0.5 * fit_top), 0.0, 1.0)
+        table = (1 - alpha) * _invert_quadratic(grid, *fit) + alpha * table
+    if monotone:
+        table = isotonic_regression(table).x
+    mid_value = float(np.interp(mid, grid, table))
+    if not mid_value > 0:
+        raise CalibrationError(
+            f"{where}: the de-biased response is not positive at the middle of the stretched interval"
+        )
+    return table / mid_value, fit is not None
+
+
 def recover_oecf_low_snr(
     series: xr.Dataset | xr.DataArray,
     dark: xr.Dataset | xr.DataArray,
@@ -202,8 +358,8 @@ def recover_oecf_low_snr(
 
     Filtering averages many pixels, so the noise (Gaussian read noise, shot noise and the
     quantisation of ``floor`` in eq. 5, which the noise dithers) shrinks by the filter
-    (3 DN read noise: 0.11 DN after ``filter_size`` 40) and the recovered response holds
-    down to pixel values with per-pixel SNR of 1 or less.
+    (white noise by about ``2 sqrt(pi) sigma``) and the recovered response holds down to
+    pixel values with per-pixel SNR of 1 or less.
 
     Parameters
     ----------
@@ -234,7 +390,7 @@ def recover_oecf_low_snr(
     fit_below
         Top [DN above dark] of the quadratic fit through 0 of step (7); the fit replaces the
         table below ``fit_below / 2`` and is cross-faded into it up to ``fit_below``.
-        Default: 10% of the top of the stretched interval. 0 switches step (7) off.
+        Default: a tenth of the top of the stretched interval. 0 switches step (7) off.
     truncate
         Support of the Gaussian in sigmas (``scipy.ndimage.gaussian_filter``'s ``truncate``;
         :func:`~spectralize.nodes.filter_size.filter_radius`); frames lose a border of the
@@ -269,8 +425,8 @@ def recover_oecf_low_snr(
     Why de-bias (step 6): Robertson's update sets ``f(m)`` to the mean exposure ``X = x t`` of
     the samples *observed* at ``m``, ``E[X | v]``. With noise of variance ``s^2`` on ``v``
     this is regression to the mean: ``E[X | v] ~ f(v + s^2 d/dv log p(v))``, ``p`` the
-    density of observed values. At the bottom of a low-SNR series ``p`` falls steeply
-    (filtered noise 0.11 DN gave -2% at 1 DN, -1.5% at 1.5 DN in the benchmark). The noise is
+    density of observed values. At the bottom of a low-SNR series ``p`` falls steeply, and
+    the bias is largest there (``docs/benchmarks_notes.md``, calibration). The noise is
     additive and independent of the exposure, so the reverse regression ``E[v | X]`` is
     unbiased: every sample gets the leave-one-out exposure ``X_ij = t_j x_i^(-j)`` from
     Robertson's irradiance step with the converged response (independent of the noise of
@@ -279,10 +435,10 @@ def recover_oecf_low_snr(
     violators, interpolated at the grid).
 
     Step (7): a handful of DN above dark the mean of a bin still scatters (filtered noise is
-    correlated over the kernel, so few independent patches fall into one bin: about 1% at
-    1.25 DN in the benchmark). The dark-subtracted response passes through 0 (zero exposure
-    gives zero signal after subtracting the mean dark frame), and over a few DN it is smooth,
-    so ``v = c1 X + c2 X^2`` is fitted by least squares to all samples with
+    correlated over the kernel, so few independent patches fall into one bin). The
+    dark-subtracted response passes through 0 (zero exposure gives zero signal after
+    subtracting the mean dark frame), and over a few DN it is smooth, so
+    ``v = c1 X + c2 X^2`` is fitted by least squares to all samples with
     ``0 <= X <= f(fit_below)`` (noise in ``v`` only: unbiased) and inverted below
     ``fit_below``; negative values follow its increasing branch.
 
@@ -291,75 +447,18 @@ def recover_oecf_low_snr(
     .. [1] Fast Capture of Spectral Image Series, section 4 and Fig. 2.
     .. [2] Robertson, Borman, Stevenson 2003.
     """
-    from scipy import ndimage
-    from scipy.optimize import isotonic_regression
-
     where = "recover_oecf_low_snr: series"
-    counts = counts_array(series)
-    dim = _series_dim(counts, where)
-    check_integer(counts, where)
-    depth = check_bit_depth(
-        counts.attrs.get("bit_depth") if bit_depth is None else bit_depth,
-        where=f"{where}.attrs['bit_depth']",
+    frames = _checked_low_snr_series(
+        series,
+        dark,
+        bit_depth=bit_depth,
+        levels=levels,
+        filter_size=filter_size,
+        truncate=truncate,
+        where=where,
     )
-    if "exposure_time" not in counts.coords or counts["exposure_time"].dims != (dim,):
-        raise SchemaError(
-            f"{where} needs an exposure_time coord along {dim!r}",
-            [
-                Problem(
-                    f"{where}:exposure_time",
-                    f"a coord ({dim},) [s]",
-                    f"coords {sorted(map(str, counts.coords))}",
-                )
-            ],
-        )
-    if counts.sizes[dim] < 2:
-        raise CalibrationError(
-            f"{where}: an exposure series needs at least 2 exposures, got {counts.sizes[dim]}"
-        )
-    check_exposure_times(counts["exposure_time"], dim, where)
-    warn_if_geometric(counts["exposure_time"], dim, where)
-    if not filter_size > 0 or not truncate > 0:
-        raise CalibrationError(
-            f"{where}: filter_size and truncate must be positive, got {filter_size} and {truncate}"
-        )
-    levels = 2**depth if levels is None else int(levels)
-    if levels < 16:
-        raise CalibrationError(f"levels must be at least 16, got {levels}")
-    counts = counts.transpose(dim, "y", "x").load()  # the series (a few frames), read once
-    times = np.asarray(counts["exposure_time"].values, dtype=np.float64)
-    ny, nx = counts.sizes["y"], counts.sizes["x"]
-    dark_mean = np.asarray(
-        dark_frames_at(dark, times, used_by=where, dim=dim, frame_shape=(ny, nx))["mean"].values,
-        dtype=np.float64,
-    )
-    raw_values = np.asarray(counts.values)
-    lo_code, hi_code = int(raw_values.min()), int(raw_values.max())
-    if lo_code < 0 or hi_code > 2**depth - 1:
-        raise CalibrationError(
-            f"{where}: pixel values must lie in [0, {2**depth - 1}], found [{lo_code}, {hi_code}]"
-        )
-    saturated = saturated_frames(counts, depth)
-    if saturated.any():
-        raise CalibrationError(
-            f"{where}: saturated pixels (value {2**depth - 1}) at "
-            f"exposure_time {times[saturated].tolist()} s in a low-SNR "
-            "series; use shorter exposures"
-        )
-
-    sigma = filter_sigma(filter_size)
-    radius = int(math.ceil(filter_radius(filter_size, truncate=truncate)))
-    if ny <= 2 * radius or nx <= 2 * radius:
-        raise CalibrationError(
-            f"{where}: frames of {ny}x{nx} px are too small for "
-            f"filter_size {filter_size} (kernel radius {radius} px)"
-        )
-    filtered = np.empty((times.size, ny - 2 * radius, nx - 2 * radius))
-    for j in range(times.size):
-        signal = raw_values[j].astype(np.float64) - dark_mean[j]  # negative values kept
-        smooth = ndimage.gaussian_filter(signal, sigma, mode="nearest", truncate=truncate)
-        filtered[j] = smooth[radius : ny - radius, radius : nx - radius]
-    values = filtered.reshape(times.size, -1)
+    depth, levels, times = frames.depth, frames.levels, frames.times
+    values = _filtered_above_dark(frames, filter_size, truncate, where)
     if max_pixels is not None and values.shape[1] > max_pixels:
         rng = np.random.default_rng(seed)
         values = values[:, np.sort(rng.choice(values.shape[1], int(max_pixels), replace=False))]
@@ -381,26 +480,21 @@ def recover_oecf_low_snr(
         solver=solver,
     )
     grid = lo + step * np.arange(levels)
-    table = result.response
-    fit = None
+    table, fitted = result.response, False
+    fit_top = 0.1 * hi if fit_below is None else float(fit_below)
     if debias:
-        exposure = _exposure_estimates(codes, times, weights, table)
-        table = _reverse_regression(exposure, values, table, grid)
-        fit_top = 0.1 * hi if fit_below is None else float(fit_below)
-        if fit_top > 0:
-            fit = _quadratic_through_zero(exposure, values, float(np.interp(fit_top, grid, table)))
-        if fit is not None:
-            alpha = np.clip((grid - 0.5 * fit_top) / (0.5 * fit_top), 0.0, 1.0)
-            table = (1 - alpha) * _invert_quadratic(grid, *fit) + alpha * table
-        if monotone:
-            table = isotonic_regression(table).x
-        mid_value = float(np.interp(lo + step * (levels - 1) / 2, grid, table))
-        if not mid_value > 0:
-            raise CalibrationError(
-                f"{where}: the de-biased response is not positive at the "
-                "middle of the stretched interval"
-            )
-        table = table / mid_value
+        table, fitted = _debiased(
+            table,
+            codes,
+            times,
+            weights,
+            values,
+            grid,
+            mid=lo + step * (levels - 1) / 2,
+            fit_top=fit_top,
+            monotone=monotone,
+            where=where,
+        )
     attrs = {
         "bit_depth": depth,
         "method": "robertson2003_low_snr",
@@ -409,7 +503,7 @@ def recover_oecf_low_snr(
         "tolerance": float(tolerance),
         "weighting": weighting,
         "dark_subtracted": True,
-        "dark_level": float(dark_mean.mean()),
+        "dark_level": float(frames.dark_mean.mean()),
         "stretch_low": lo,
         "stretch_high": hi,
         "filter_size": float(filter_size),
@@ -418,7 +512,7 @@ def recover_oecf_low_snr(
         "mid_code": float(grid[(levels - 1) // 2] + step * ((levels - 1) / 2 % 1)),
         "normalisation": "response at the middle of the stretched interval = 1",
         "debiased": bool(debias),
-        "fit_below": float(fit_top) if fit is not None else float("nan"),
+        "fit_below": float(fit_top) if fitted else float("nan"),
     }
     response = response_dataarray(table, result.samples, (), {}, grid, attrs)
     response["code"].attrs.update(long_name="dark-subtracted pixel value")

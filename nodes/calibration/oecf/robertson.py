@@ -18,9 +18,10 @@ References
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Hashable, Iterable
+from collections.abc import Callable, Hashable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from functools import partial
+from typing import Annotated, Literal, NamedTuple
 
 import numpy as np
 import xarray as xr
@@ -120,6 +121,49 @@ class RobertsonResult:
     change: float
 
 
+class _CodeBins(NamedTuple):
+    """The response's unknowns: bins of ``width`` consecutive codes (:func:`_code_bins`)."""
+
+    n_codes: int
+    saturation: int
+    """One past the last code of non-zero weight; the codes from it up form one bin."""
+    width: int
+    n_main: int
+    """Bins below saturation."""
+    n_bins: int
+    centres: np.ndarray
+    bin_weights: np.ndarray
+    code_to_bin: np.ndarray
+    code_weights: np.ndarray
+    """The weight of every code's bin."""
+    identity: bool
+    """One bin per code: the codes are the bins."""
+
+
+@dataclass
+class _SampleTally:
+    """Samples per bin and per code of the pixels with a weighted sample, as
+    :func:`_image_terms` folds the images in."""
+
+    per_bin: np.ndarray
+    samples: np.ndarray
+    any_valid: bool = False
+
+
+class _ObservedBins(NamedTuple):
+    """The bins with samples (``obs_*``, ``counts``) and among them the bins of non-zero
+    weight (``active``, ``act_bins``, ``a_*``), on which Robertson's iteration runs."""
+
+    obs_bins: np.ndarray
+    obs_centres: np.ndarray
+    counts: np.ndarray
+    active: np.ndarray
+    act_bins: np.ndarray
+    a_counts: np.ndarray
+    a_weights: np.ndarray
+    a_centres: np.ndarray
+
+
 def _as_groups(codes: np.ndarray, exposure_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     codes = np.asarray(codes)
     times = np.asarray(exposure_times, dtype=np.float64)
@@ -134,6 +178,278 @@ def _as_groups(codes: np.ndarray, exposure_times: np.ndarray) -> tuple[np.ndarra
             f"(exposure,) or (image, exposure); {shapes}"
         )
     return codes, times
+
+
+def _checked_inputs(
+    codes: np.ndarray,
+    exposure_times: np.ndarray,
+    n_codes: int,
+    weights: np.ndarray,
+    solver: str,
+    operator: str,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(codes (image, exposure, pixel), times (image, exposure), weights)`` of
+    :func:`robertson_response`, checked: shapes, integer codes in ``0 .. n_codes-1``,
+    positive finite times, the solver and the operator (a :class:`CalibrationError` naming
+    what was found otherwise)."""
+    codes, times = _as_groups(codes, exposure_times)
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.shape != (n_codes,):
+        raise CalibrationError(f"weights must have shape ({n_codes},), got {weights.shape}")
+    if codes.size == 0:
+        raise CalibrationError("codes is empty: an exposure series needs pixels")
+    if not np.issubdtype(codes.dtype, np.integer):
+        raise CalibrationError(f"codes must be integers, got dtype {codes.dtype}")
+    lo, hi = int(codes.min()), int(codes.max())
+    if lo < 0 or hi >= n_codes:
+        raise CalibrationError(f"codes must lie in [0, {n_codes - 1}], found [{lo}, {hi}]")
+    if not np.all(times > 0) or not np.all(np.isfinite(times)):
+        raise CalibrationError(f"exposure_times must be positive and finite, got {times}")
+    if solver not in ("lanczos", "power"):
+        raise CalibrationError(f"solver must be 'lanczos' or 'power', got {solver!r}")
+    if operator not in ("auto", "dense", "sparse", "samples"):
+        raise CalibrationError(
+            f"operator must be 'auto', 'dense', 'sparse' or 'samples', got {operator!r}"
+        )
+    return codes, times, weights
+
+
+def _code_bins(weights: np.ndarray, n_codes: int, max_bins: int) -> _CodeBins:
+    """Bins of ``width`` consecutive codes (width 1: no binning), at most ``max_bins``.
+
+    The saturated codes, above the last code of non-zero weight, form one bin of their own:
+    clamping collapses a wide range of exposures onto them, which must not leak into the
+    bins below. A bin's weight is the weight at its centre, 0 where it holds a code of zero
+    weight.
+    """
+    positive = np.flatnonzero(weights > 0)
+    if positive.size == 0:
+        raise CalibrationError("weights are zero for every code")
+    saturation = int(positive[-1]) + 1
+    width = max(1, -(-saturation // max(int(max_bins) - 1, 1)))
+    n_main = -(-saturation // width)
+    first = np.arange(n_main) * width
+    last = np.minimum(first + width - 1, saturation - 1)
+    if saturation < n_codes:
+        first = np.append(first, saturation)
+        last = np.append(last, n_codes - 1)
+    centres = (first + last) / 2.0
+    bin_weights = np.where(
+        (weights[first] > 0) & (weights[last] > 0), np.interp(centres, np.arange(n_codes), weights), 0.0
+    )
+    code_to_bin = np.minimum(np.arange(n_codes) // width, n_main)
+    if saturation < n_codes:
+        code_to_bin[saturation:] = n_main
+    return _CodeBins(
+        n_codes=n_codes,
+        saturation=saturation,
+        width=width,
+        n_main=n_main,
+        n_bins=first.size,
+        centres=centres,
+        bin_weights=bin_weights,
+        code_to_bin=code_to_bin,
+        code_weights=bin_weights[code_to_bin],
+        identity=width == 1 and saturation >= n_codes - 1,
+    )
+
+
+def _image_terms(
+    codes: np.ndarray, times: np.ndarray, bins: _CodeBins, tally: _SampleTally
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per image (group) ``(bins (E, P), t (E,), 1/den (P,))`` for :func:`_gram_operator`,
+    ``den = sum_j w(y_ij) t_j^2``, counting the samples into ``tally`` as it goes.
+
+    One image at a time: its bins, its per-pixel denominators and its sample counts are
+    made, folded into ``C`` and the counts, and dropped before the next image's; the pooled
+    images never have intp bins or float64 denominators all at once. Pixels without a
+    weighted sample are left out: ``1/den = 0`` removes them from every sum (no copy of the
+    samples); they are subtracted from the counts.
+    """
+    n_bins, n_codes, identity = bins.n_bins, bins.n_codes, bins.identity
+    for g in range(codes.shape[0]):
+        own = codes[g]  # (E, P)
+        if identity:  # bin of every sample (E, P)
+            idx = own if own.dtype.itemsize < 8 else own.astype(np.intp, copy=False)
+        else:
+            idx = bins.code_to_bin[own]
+        den = np.zeros(own.shape[1])  # sum_j w(y_ij) t_j^2 per pixel
+        for j in range(own.shape[0]):
+            den += np.take(bins.code_weights * times[g, j] ** 2, own[j])
+        valid = den > 0
+        inv_den = np.divide(1.0, den, out=np.zeros_like(den), where=valid)
+        del den
+        own_bins = np.bincount(idx.ravel(), minlength=n_bins)
+        tally.per_bin[:] += own_bins
+        tally.samples[:] += own_bins if identity else np.bincount(own.ravel(), minlength=n_codes)
+        p_out = np.flatnonzero(~valid)
+        if p_out.size:
+            left_out = idx[:, p_out].ravel()
+            tally.per_bin[:] -= np.bincount(left_out, minlength=n_bins)
+            tally.samples[:] -= np.bincount(
+                own[:, p_out].ravel() if not identity else left_out, minlength=n_codes
+            )
+        if valid.any():
+            tally.any_valid = True
+            yield idx, times[g], inv_den
+
+
+def _observed_bins(per_bin: np.ndarray, bins: _CodeBins) -> _ObservedBins:
+    """The bins with samples and, among them, those of non-zero weight ("active").
+
+    The iteration runs on the active bins; samples of zero weight enter it only through
+    ``den``. Bins of zero weight follow from the converged response by one last update (in
+    Robertson's update they never feed back).
+    """
+    observed = per_bin > 0
+    obs_bins = np.flatnonzero(observed)
+    obs_centres = bins.centres[observed]
+    counts = per_bin[observed].astype(np.float64)
+    w_obs = bins.bin_weights[observed]
+    active = w_obs > 0
+    if int(active.sum()) == 0:
+        raise CalibrationError(
+            "no code with non-zero weight was observed; check black_level and saturation"
+        )
+    return _ObservedBins(
+        obs_bins=obs_bins,
+        obs_centres=obs_centres,
+        counts=counts,
+        active=active,
+        act_bins=obs_bins[active],
+        a_counts=counts[active],
+        a_weights=w_obs[active],
+        a_centres=obs_centres[active],
+    )
+
+
+def _matrix_update(
+    f: np.ndarray, c: np.ndarray | sparse.csr_array, weights: np.ndarray, counts: np.ndarray
+) -> np.ndarray:
+    """Robertson's update from ``C`` (rows: the bins updated, columns: the active bins):
+    ``C W f / N``, both steps at once."""
+    return c @ (weights * f) / counts
+
+
+def _samples_update(
+    f: np.ndarray,
+    cmul: Callable[[np.ndarray], np.ndarray],
+    obs: _ObservedBins,
+    n_bins: int,
+    rows: np.ndarray,
+    counts: np.ndarray,
+) -> np.ndarray:
+    """Robertson's update with ``C v`` computed from the samples (``cmul``), at ``rows``."""
+    v = np.zeros(n_bins)
+    v[obs.act_bins] = obs.a_weights * f
+    return cmul(v)[rows] / counts
+
+
+def _robertson_updates(
+    gram: np.ndarray | sparse.csr_array | Callable, obs: _ObservedBins, n_bins: int
+) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]:
+    """``(step, last_update)``: Robertson's update ``f <- B f`` on the active bins, and the
+    one last update of every observed bin from the converged active ones."""
+    if callable(gram):  # operator "samples": C v from the samples
+        return (
+            partial(
+                _samples_update,
+                cmul=gram,
+                obs=obs,
+                n_bins=n_bins,
+                rows=obs.act_bins,
+                counts=obs.a_counts,
+            ),
+            partial(
+                _samples_update, cmul=gram, obs=obs, n_bins=n_bins, rows=obs.obs_bins, counts=obs.counts
+            ),
+        )
+    # C once: an update is one matrix-vector product
+    c_active = gram[obs.act_bins][:, obs.act_bins]
+    c_observed = gram[obs.obs_bins][:, obs.act_bins]
+    return (
+        partial(_matrix_update, c=c_active, weights=obs.a_weights, counts=obs.a_counts),
+        partial(_matrix_update, c=c_observed, weights=obs.a_weights, counts=obs.counts),
+    )
+
+
+def _normalise(f: np.ndarray, mid: float, centres: np.ndarray) -> np.ndarray:
+    """``f`` (at the bin ``centres``) scaled to 1 at the mid code."""
+    scale = np.interp(mid, centres, f)
+    if not scale > 0:
+        raise CalibrationError(
+            f"the response at the mid code {mid} is {scale}: no usable signal around it"
+        )
+    return f / scale
+
+
+def _fixed_point(
+    step: Callable[[np.ndarray], np.ndarray],
+    obs: _ObservedBins,
+    mid: float,
+    *,
+    solver: Solver,
+    tolerance: float,
+    max_iterations: int,
+    smooth: int | None,
+) -> tuple[np.ndarray, int, bool, float]:
+    """Robertson's response on the active bins: ``(f, iterations, converged, change)``.
+
+    From the linear start ``(m + 0.5) / (mid + 0.5)``: with ``smooth`` (and enough active
+    bins) the maximiser over a spline space (:func:`_smooth_fixed_point`, no iteration);
+    else Robertson's updates until the relative change falls below ``tolerance``, from
+    Lanczos' Perron vector (:func:`_perron_vector`) with ``solver="lanczos"``.
+    """
+    centres = obs.a_centres
+    f = _normalise((centres + 0.5) / (mid + 0.5), mid, centres)
+    nw = obs.a_counts * obs.a_weights
+    if smooth is not None and centres.size > int(smooth) + 2:
+        f, iterations = _smooth_fixed_point(step, centres, nw, int(smooth))
+        return _normalise(f, mid, centres), iterations, True, 0.0
+    iterations = 0
+    if solver == "lanczos":
+        start, matvecs = _perron_vector(step, np.sqrt(nw), f)
+        iterations += matvecs
+        if start is not None:
+            f = _normalise(start, mid, centres)
+    change = math.inf
+    while iterations < max_iterations:
+        new = _normalise(step(f), mid, centres)
+        iterations += 1
+        change = float(np.max(np.abs(new - f) / np.maximum(np.abs(new), 1e-12)))
+        f = new
+        if change < tolerance:
+            return f, iterations, True, change
+    return f, iterations, False, change
+
+
+def _response_at_codes(
+    f: np.ndarray,
+    last_update: Callable[[np.ndarray], np.ndarray],
+    obs: _ObservedBins,
+    bins: _CodeBins,
+    mid: float,
+    monotone: bool,
+) -> np.ndarray:
+    """The response at every code from the converged active bins ``f``.
+
+    All observed bins get one last update (zero-weight bins included; the active bins keep
+    the converged values), the result is made non-decreasing when ``monotone``, codes never
+    observed are filled (:func:`_fill_unobserved`) and the saturated codes get their bin's
+    value, never below the code under them.
+    """
+    from scipy.optimize import isotonic_regression
+
+    f = np.where(obs.active, f[np.cumsum(obs.active) - 1], last_update(f))
+    f = _normalise(f, mid, obs.obs_centres)
+    if monotone:
+        f = _normalise(isotonic_regression(f, weights=obs.counts).x, mid, obs.obs_centres)
+    main = obs.obs_bins < bins.n_main
+    full = _fill_unobserved(obs.obs_centres[main], f[main], bins.n_codes)
+    saturation = bins.saturation
+    if saturation < bins.n_codes and not main.all():
+        full[saturation:] = np.maximum(f[~main][0], full[saturation - 1])
+    return full
 
 
 def robertson_response(
@@ -250,9 +566,13 @@ def robertson_response(
 
     Memory: ``C``, the samples per code and the per-pixel ``den`` are built image by image
     (``operator`` ``"dense"``, the default's choice up to 2048 unknowns): besides ``codes``
-    the fit holds one image's bins and denominators at a time, not every image's (the 32
-    bands of 4 exposures that :func:`~.recover_spectral_oecf` pools at 2048^2 would need
-    6.4 GB of them).
+    the fit holds one image's bins and denominators at a time, not every image's (the bands
+    that :func:`~.recover_spectral_oecf` pools as images would need them all at once).
+
+    The steps: the inputs checked (:func:`_checked_inputs`), the codes binned
+    (:func:`_code_bins`), the samples folded into ``C`` image by image (:func:`_image_terms`,
+    :func:`_gram_operator`), the fixed point on the bins of non-zero weight
+    (:func:`_fixed_point`) and the response at every code (:func:`_response_at_codes`).
 
     Identifiability: if all exposure-time ratios are equal (a geometric bracket, or only
     two exposures) the data determine ``f`` only up to a factor periodic in log exposure
@@ -267,180 +587,29 @@ def robertson_response(
     .. [1] Robertson, Borman, Stevenson 2003, section 3 (iterative estimation, weighting).
     .. [2] Grossberg, Nayar 2003 (ambiguity of equal exposure ratios).
     """
-    from scipy.optimize import isotonic_regression
-
-    codes, times = _as_groups(codes, exposure_times)
-    weights = np.asarray(weights, dtype=np.float64)
-    if weights.shape != (n_codes,):
-        raise CalibrationError(f"weights must have shape ({n_codes},), got {weights.shape}")
-    if codes.size == 0:
-        raise CalibrationError("codes is empty: an exposure series needs pixels")
-    if not np.issubdtype(codes.dtype, np.integer):
-        raise CalibrationError(f"codes must be integers, got dtype {codes.dtype}")
-    lo, hi = int(codes.min()), int(codes.max())
-    if lo < 0 or hi >= n_codes:
-        raise CalibrationError(f"codes must lie in [0, {n_codes - 1}], found [{lo}, {hi}]")
-    if not np.all(times > 0) or not np.all(np.isfinite(times)):
-        raise CalibrationError(f"exposure_times must be positive and finite, got {times}")
-    if solver not in ("lanczos", "power"):
-        raise CalibrationError(f"solver must be 'lanczos' or 'power', got {solver!r}")
+    codes, times, weights = _checked_inputs(codes, exposure_times, n_codes, weights, solver, operator)
     mid = (n_codes - 1) / 2.0 if mid_code is None else float(mid_code)
-
-    # Bins of `width` consecutive codes (width 1: no binning). The saturated codes, above the
-    # last code of non-zero weight, form one bin of their own: clamping collapses a wide range
-    # of exposures onto them, which must not leak into the bins below.
-    positive = np.flatnonzero(weights > 0)
-    if positive.size == 0:
-        raise CalibrationError("weights are zero for every code")
-    saturation = int(positive[-1]) + 1
-    width = max(1, -(-saturation // max(int(max_bins) - 1, 1)))
-    n_main = -(-saturation // width)
-    first = np.arange(n_main) * width
-    last = np.minimum(first + width - 1, saturation - 1)
-    if saturation < n_codes:
-        first = np.append(first, saturation)
-        last = np.append(last, n_codes - 1)
-    n_bins = first.size
-    centres = (first + last) / 2.0
-    bin_weights = np.where(
-        (weights[first] > 0) & (weights[last] > 0), np.interp(centres, np.arange(n_codes), weights), 0.0
-    )
-    code_to_bin = np.minimum(np.arange(n_codes) // width, n_main)
-    if saturation < n_codes:
-        code_to_bin[saturation:] = n_main
-
-    identity = width == 1 and saturation >= n_codes - 1
-    code_weights = bin_weights[code_to_bin]
-    if operator not in ("auto", "dense", "sparse", "samples"):
-        raise CalibrationError(
-            f"operator must be 'auto', 'dense', 'sparse' or 'samples', got {operator!r}"
-        )
-    # One image (group) at a time: its bins, its per-pixel denominators and its sample
-    # counts are made, folded into C and the counts, and dropped before the next image's;
-    # the pooled images never have intp bins or float64 denominators all at once (32 bands
-    # of 4 exposures at 2048^2: 4.3 GB of bins, 2.1 GB of denominators; issue 27).
-    per_bin = np.zeros(n_bins, dtype=np.intp)
-    samples = np.zeros(n_codes, dtype=np.intp)
-    any_valid = False
-
-    def image_terms():
-        nonlocal any_valid
-        for g in range(codes.shape[0]):
-            own = codes[g]  # (E, P)
-            if identity:  # bin of every sample (E, P)
-                idx = own if own.dtype.itemsize < 8 else own.astype(np.intp, copy=False)
-            else:
-                idx = code_to_bin[own]
-            den = np.zeros(own.shape[1])  # sum_j w(y_ij) t_j^2 per pixel
-            for j in range(own.shape[0]):
-                den += np.take(code_weights * times[g, j] ** 2, own[j])
-            valid = den > 0
-            # Pixels without a weighted sample are left out: 1/den = 0 removes them from
-            # every sum (no copy of the samples); they are subtracted from the counts.
-            inv_den = np.divide(1.0, den, out=np.zeros_like(den), where=valid)
-            del den
-            own_bins = np.bincount(idx.ravel(), minlength=n_bins)
-            per_bin[:] += own_bins
-            samples[:] += own_bins if identity else np.bincount(own.ravel(), minlength=n_codes)
-            p_out = np.flatnonzero(~valid)
-            if p_out.size:
-                left_out = idx[:, p_out].ravel()
-                per_bin[:] -= np.bincount(left_out, minlength=n_bins)
-                samples[:] -= np.bincount(
-                    own[:, p_out].ravel() if not identity else left_out, minlength=n_codes
-                )
-            if valid.any():
-                any_valid = True
-                yield idx, times[g], inv_den
-
-    gram = _gram_operator(image_terms(), n_bins, operator)
-    if not any_valid:
+    bins = _code_bins(weights, n_codes, max_bins)
+    tally = _SampleTally(np.zeros(bins.n_bins, dtype=np.intp), np.zeros(n_codes, dtype=np.intp))
+    gram = _gram_operator(_image_terms(codes, times, bins, tally), bins.n_bins, operator)
+    if not tally.any_valid:
         raise CalibrationError(
             "no pixel has a single sample with non-zero weight: every sample is saturated or "
             "under-exposed; check the exposure times, black_level and saturation"
         )
-    observed = per_bin > 0
-    obs_bins = np.flatnonzero(observed)
-    obs_centres = centres[observed]
-    counts = per_bin[observed].astype(np.float64)
-    w_obs = bin_weights[observed]
-    # The iteration runs on the observed bins of non-zero weight ("active"); samples of zero
-    # weight enter it only through den. Bins of zero weight follow from the converged
-    # response by one last update (in Robertson's update they never feed back).
-    active = w_obs > 0
-    n_active = int(active.sum())
-    if n_active == 0:
-        raise CalibrationError(
-            "no code with non-zero weight was observed; check black_level and saturation"
-        )
-    act_bins = obs_bins[active]
-    a_counts = counts[active]
-    a_weights = w_obs[active]
-    a_centres = obs_centres[active]
-    if callable(gram):  # operator "samples": C v from the samples
-
-        def wide(f: np.ndarray) -> np.ndarray:
-            v = np.zeros(n_bins)
-            v[act_bins] = a_weights * f
-            return v
-
-        def step(f: np.ndarray) -> np.ndarray:  # one Robertson update, both steps at once
-            return gram(wide(f))[act_bins] / a_counts
-
-        def last_update(f: np.ndarray) -> np.ndarray:
-            return gram(wide(f))[obs_bins] / counts
-    else:  # C once: an update is one matrix-vector product
-        c_active = gram[act_bins][:, act_bins]
-        c_observed = gram[obs_bins][:, act_bins]
-
-        def step(f: np.ndarray) -> np.ndarray:
-            return c_active @ (a_weights * f) / a_counts
-
-        def last_update(f: np.ndarray) -> np.ndarray:
-            return c_observed @ (a_weights * f) / counts
-
-    def normalise(f: np.ndarray, centres: np.ndarray = a_centres) -> np.ndarray:
-        scale = np.interp(mid, centres, f)
-        if not scale > 0:
-            raise CalibrationError(
-                f"the response at the mid code {mid} is {scale}: no usable signal around it"
-            )
-        return f / scale
-
-    f = normalise((a_centres + 0.5) / (mid + 0.5))
-    iterations = 0
-    change = math.inf
-    converged = False
-    spline = smooth is not None and n_active > int(smooth) + 2
-    if spline:  # Robertson's objective over a spline space: no iteration
-        f, iterations = _smooth_fixed_point(step, a_centres, a_counts * a_weights, int(smooth))
-        f = normalise(f)
-        converged, change = True, 0.0
-    elif solver == "lanczos":
-        start, matvecs = _perron_vector(step, np.sqrt(a_counts * a_weights), f)
-        iterations += matvecs
-        if start is not None:
-            f = normalise(start)
-    while not spline and iterations < max_iterations:
-        new = normalise(step(f))
-        iterations += 1
-        change = float(np.max(np.abs(new - f) / np.maximum(np.abs(new), 1e-12)))
-        f = new
-        if change < tolerance:
-            converged = True
-            break
-
-    # all observed bins: one last update (zero-weight bins included); the active bins keep
-    # the converged values
-    f = np.where(active, f[np.cumsum(active) - 1], last_update(f))
-    f = normalise(f, obs_centres)
-    if monotone:
-        f = normalise(isotonic_regression(f, weights=counts).x, obs_centres)
-    main = obs_bins < n_main
-    full = _fill_unobserved(obs_centres[main], f[main], n_codes)
-    if saturation < n_codes and not main.all():
-        full[saturation:] = np.maximum(f[~main][0], full[saturation - 1])
-    return RobertsonResult(full, samples, iterations, converged, change)
+    obs = _observed_bins(tally.per_bin, bins)
+    step, last_update = _robertson_updates(gram, obs, bins.n_bins)
+    f, iterations, converged, change = _fixed_point(
+        step,
+        obs,
+        mid,
+        solver=solver,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        smooth=smooth,
+    )
+    full = _response_at_codes(f, last_update, obs, bins, mid, monotone)
+    return RobertsonResult(full, tally.samples, iterations, converged, change)
 
 
 def _spline_basis(x: np.ndarray, weights: np.ndarray, k: int) -> np.ndarray:
@@ -610,6 +779,68 @@ def _perron_vector(
     return np.maximum(u, 0.0) / similarity, calls
 
 
+def _checked_series(
+    raw: xr.Dataset | xr.DataArray, bit_depth: int | None, where: str
+) -> tuple[xr.DataArray, xr.DataArray, int]:
+    """``(counts, exposure_time, bit depth)`` of :func:`recover_oecf`'s exposure series,
+    checked: dims, integer values, the bit depth, at least two exposures with strictly
+    increasing times (a warning for a geometric bracket).
+
+    Raises
+    ------
+    SchemaError
+        Missing dims or coords, non-integer data, an unknown bit depth.
+    CalibrationError
+        Fewer than two exposures, exposure times not strictly increasing.
+    """
+    counts = counts_array(raw)
+    if "exposure_time" not in counts.coords:
+        raise SchemaError(
+            f"{where} has no exposure_time coord",
+            [
+                Problem(
+                    f"{where}:exposure_time",
+                    "a coord over exposure or (image, exposure) [s]",
+                    f"coords {sorted(map(str, counts.coords))}",
+                )
+            ],
+        )
+    allowed = {"image", "exposure", "y", "x", "channel"}
+    if not {"exposure", "y", "x"} <= set(counts.dims) or not set(counts.dims) <= allowed:
+        raise SchemaError(
+            f"{where} has the wrong dims",
+            [
+                Problem(
+                    where, "dims exposure, y, x plus optional image and channel", f"dims {counts.dims}"
+                )
+            ],
+        )
+    check_integer(counts, where)
+    depth = check_bit_depth(
+        counts.attrs.get("bit_depth") if bit_depth is None else bit_depth,
+        where=f"{where}.attrs['bit_depth']",
+    )
+    times = counts["exposure_time"]
+    if not set(times.dims) <= {"image", "exposure"} or "exposure" not in times.dims:
+        raise SchemaError(
+            f"{where}: exposure_time has the wrong dims",
+            [
+                Problem(
+                    f"{where}:exposure_time",
+                    "dims (exposure,) or (image, exposure)",
+                    f"dims {times.dims}",
+                )
+            ],
+        )
+    if counts.sizes["exposure"] < 2:
+        raise CalibrationError(
+            f"{where}: an exposure series needs at least 2 exposures, got {counts.sizes['exposure']}"
+        )
+    check_exposure_times(times, "exposure", where)
+    warn_if_geometric(times, "exposure", where)
+    return counts, times, depth
+
+
 def recover_oecf(
     raw: xr.Dataset | xr.DataArray,
     *,
@@ -690,53 +921,9 @@ def recover_oecf(
     .. [2] Fast Capture of Spectral Image Series, section 4.
     """
     where = "recover_oecf: counts"
-    counts = counts_array(raw)
-    if "exposure_time" not in counts.coords:
-        raise SchemaError(
-            f"{where} has no exposure_time coord",
-            [
-                Problem(
-                    f"{where}:exposure_time",
-                    "a coord over exposure or (image, exposure) [s]",
-                    f"coords {sorted(map(str, counts.coords))}",
-                )
-            ],
-        )
-    allowed = {"image", "exposure", "y", "x", "channel"}
-    if not {"exposure", "y", "x"} <= set(counts.dims) or not set(counts.dims) <= allowed:
-        raise SchemaError(
-            f"{where} has the wrong dims",
-            [
-                Problem(
-                    where, "dims exposure, y, x plus optional image and channel", f"dims {counts.dims}"
-                )
-            ],
-        )
-    check_integer(counts, where)
-    depth = check_bit_depth(
-        counts.attrs.get("bit_depth") if bit_depth is None else bit_depth,
-        where=f"{where}.attrs['bit_depth']",
-    )
+    counts, times, depth = _checked_series(raw, bit_depth, where)
     n_codes = 2**depth
     saturation = n_codes - 1 if saturation is None else int(saturation)
-    times = counts["exposure_time"]
-    if not set(times.dims) <= {"image", "exposure"} or "exposure" not in times.dims:
-        raise SchemaError(
-            f"{where}: exposure_time has the wrong dims",
-            [
-                Problem(
-                    f"{where}:exposure_time",
-                    "dims (exposure,) or (image, exposure)",
-                    f"dims {times.dims}",
-                )
-            ],
-        )
-    if counts.sizes["exposure"] < 2:
-        raise CalibrationError(
-            f"{where}: an exposure series needs at least 2 exposures, got {counts.sizes['exposure']}"
-        )
-    check_exposure_times(times, "exposure", where)
-    warn_if_geometric(times, "exposure", where)
     weights = weighting_function(
         np.arange(n_codes), black_level=black_level, saturation=saturation, kind=weighting
     )
