@@ -202,6 +202,15 @@ def _as_a_run():
         yield
 
 
+def tile_method(solve_tile, settings: dict) -> dict:
+    """The keywords that give ``solve_tile`` (or ``tile_tasks``) the method and the run's
+    illuminant (``settings``: ``method``, ``illuminant``): as they are, or as ``settings=`` for
+    code from before the tile tasks took the method itself."""
+    import inspect
+
+    return {"settings": settings} if "settings" in inspect.signature(solve_tile).parameters else settings
+
+
 def _solve_window(rgb, shots, camera, window, settings, endmembers=None) -> tuple[float, int]:
     """One tile as the flow solves it (its tile task, :func:`~.tiling.solve_tile`): with the
     set's endmembers and the per-pixel confidence; ``(seconds, iterations)``."""
@@ -214,7 +223,7 @@ def _solve_window(rgb, shots, camera, window, settings, endmembers=None) -> tupl
         shots.isel(y=oy, x=ox),
         camera,
         window.inner,
-        settings=settings,
+        **tile_method(solve_tile, settings),
         confidence=True,
         endmembers=endmembers,
     )
@@ -383,9 +392,9 @@ def case_dask(inputs: Path, tile: int, workers: int, sets: int = 2) -> dict:
 
     rgb, shots, camera, _ = load_inputs(inputs)
     windows, _ = set_windows(shots, rgb.sizes["y"], rgb.sizes["x"], tile)
-    settings = {"method": _method()}
+    method = tile_method(tile_tasks, {"method": _method()})
     graphs = [
-        tile_tasks(rgb, shots, camera, windows, settings=settings, confidence=True, name=f"set-{i}")
+        tile_tasks(rgb, shots, camera, windows, **method, confidence=True, name=f"set-{i}")
         for i in range(sets)
     ]
     with (

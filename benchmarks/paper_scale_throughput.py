@@ -63,7 +63,7 @@ def mixture_tile_case(path: str, package: str | None) -> dict:
 
         use_package(package)
     sys.path.insert(0, str(HERE))
-    from paper_scale import load_inputs
+    from paper_scale import load_inputs, tile_method
 
     from spectralize.nodes.reconstruction import DEFAULT_METHOD
     from spectralize.nodes.reconstruction.inputs import inputs_from_xarray
@@ -97,7 +97,7 @@ def mixture_tile_case(path: str, package: str | None) -> dict:
         shots,
         camera,
         (slice(0, size), slice(0, rgb.sizes["x"])),
-        settings={"method": DEFAULT_METHOD},
+        **tile_method(solve_tile, {"method": DEFAULT_METHOD}),
         confidence=True,
         endmembers=endmembers,
     )

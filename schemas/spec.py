@@ -51,6 +51,12 @@ class ArraySpec:
     valid_range: tuple[float, float] | None = None
     finite: bool = False
 
+    @property
+    def attrs(self) -> dict[str, str]:
+        """The CF attrs a producer stamps on the array: ``units`` (where it has units) and
+        ``long_name``."""
+        return {**({} if self.units is None else {"units": self.units}), "long_name": self.long_name}
+
     def dtype_ok(self, dtype: np.dtype) -> bool:
         if self.dtype.startswith("kind:"):
             return dtype.kind in self.dtype[5:]
@@ -115,6 +121,22 @@ class GroupSchema:
             if spec.units is not None and have.units != spec.units:
                 return False
         return set(other.attrs) <= set(self.attrs)
+
+    def spec(self, name: str) -> ArraySpec:
+        """The spec of variable or coordinate ``name``, required or optional.
+
+        Raises
+        ------
+        SchemaError
+            For a name the schema does not have, listing those it has.
+        """
+        specs = (*self.variables, *self.optional_variables, *self.coords)
+        for spec in specs:
+            if spec.name == name:
+                return spec
+        raise SchemaError.single(
+            f"{self.name}:{name}", f"one of {[spec.name for spec in specs]}", "no such array"
+        )
 
     @property
     def dims(self) -> tuple[str, ...]:

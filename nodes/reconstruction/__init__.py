@@ -2,12 +2,14 @@
 
 Public API::
 
-    from spectralize.nodes.reconstruction import reconstruct, RECONSTRUCTION_METHODS
+    from spectralize.nodes.reconstruction import reconstruct, resolve_method, RECONSTRUCTION_METHODS
     spectra = reconstruct(rgb, bands, camera_matrix)                      # the default solver
     spectra = reconstruct(rgb, bands, camera_matrix, method="paper-cg")   # the paper's CG
     spectra = reconstruct(rgb, bands, camera_matrix, method="guided-prior-pcg", prior=0.3)
     spectra = reconstruct(rgb, bands, camera_matrix, method="wiener")     # a baseline
-    RECONSTRUCTION_METHODS["mixture-prior-pcg"].settings                 # every setting
+    RECONSTRUCTION_METHODS["natural-prior-pcg"].settings                 # every setting
+    method = resolve_method("guided-prior-pcg", prior=0.3)                # checked once
+    spectra = reconstruct(rgb, bands, camera_matrix, method=method)       # passed on
 
 Modules: :mod:`.api` (:func:`reconstruct`, the one entry point), :mod:`.methods` (the
 production presets and the comparison baselines, as data), :mod:`.solvers`,
@@ -24,7 +26,14 @@ References
 
 from .api import ReconstructionResult, reconstruct
 from .inputs import ReconstructionInputs, inputs_from_xarray
-from .methods import BASELINE_METHODS, DEFAULT_METHOD, RECONSTRUCTION_METHODS, ReconstructionMethod
+from .methods import (
+    BASELINE_METHODS,
+    DEFAULT_METHOD,
+    RECONSTRUCTION_METHODS,
+    ReconstructionMethod,
+    ResolvedMethod,
+    resolve_method,
+)
 from .neighbourhoods import NeighbourGraph, appearance_neighbours
 from .operators import (
     FilterConstraints,
@@ -42,6 +51,8 @@ __all__ = [
     "RECONSTRUCTION_METHODS",
     "BASELINE_METHODS",
     "ReconstructionMethod",
+    "ResolvedMethod",
+    "resolve_method",
     "DEFAULT_METHOD",
     "SolverResult",
     "ReconstructionInputs",

@@ -1,9 +1,10 @@
 """The one reconstruction entry point, :func:`reconstruct`: xarray in, xarray out.
 
 A thin layer over the numpy numerics: it brings the input forms to one (a set of images
-with band shots), checks them (:mod:`.inputs`), validates the options against the method's
-record (:data:`~.methods.RECONSTRUCTION_METHODS` or :data:`~.methods.BASELINE_METHODS`),
-lays them over the record's settings and dispatches.
+with band shots), checks them (:mod:`.inputs`), resolves the method with the caller's
+options (:func:`~.methods.resolve_method`: the record of
+:data:`~.methods.RECONSTRUCTION_METHODS` or :data:`~.methods.BASELINE_METHODS`, its settings
+with the options laid over them, checked once) and dispatches.
 
 References
 ----------
@@ -16,25 +17,25 @@ import numbers
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import xarray as xr
 
 from spectralize.schemas.errors import ReconstructionError
+from spectralize.schemas.run import SPECTRA
 
 from .confidence import CONFIDENCE_NEIGHBOURS, neighbourhood_spread
 from .estimators.material_pooled import material_pooled_refine
 from .estimators.shared_texel import shared_texel_refine
 from .inputs import ReconstructionInputs, inputs_from_xarray
 from .methods import (
-    BASELINE_METHODS,
-    DEFAULT_METHOD,
-    RECONSTRUCTION_METHODS,
+    RUN_INPUTS,
     SET_MODEL_OPTIONS,
-    SET_MODELS,
     SETUP_OPTIONS,
-    get_method,
+    MethodLike,
+    ResolvedMethod,
+    resolve_method,
 )
 from .operators import ReconstructionProblem, build_problem
 from .weights import default_gamma_hat
@@ -169,50 +170,6 @@ def _one_form(
 
 
 # -- options -------------------------------------------------------------------------------
-_POSITIVE = ("alpha_hat", "beta_hat", "centre_spacing", "tolerance", "window_scale", "covariance_floor")
-_NON_NEGATIVE = ("gamma_hat", "prior", "spectral_prior", "ridge", "relative_noise", "epsilon")
-_INTEGER = {"k": 1, "max_iterations": 0, "projected_iterations": 0}
-
-
-def _checked_options(method: str, options: dict[str, Any]) -> dict[str, Any]:
-    """``options`` checked against the method's record: names, then values."""
-    record = get_method(method)
-    known = record.options
-    unknown = sorted(set(options) - set(known))
-    if unknown:
-        every = {**RECONSTRUCTION_METHODS, **BASELINE_METHODS}
-        takers = {name: [m for m, r in every.items() if name in r.options] for name in unknown}
-        hints = "; ".join(f"{name!r} is an option of {', '.join(t)}" for name, t in takers.items() if t)
-        raise ReconstructionError(
-            f"method {method!r}: unknown option(s) {unknown}; its options are: "
-            f"{', '.join(known) or 'none'}" + (f" ({hints})" if hints else "")
-        )
-    for name, value in options.items():
-        if name in _POSITIVE and not (_is_real(value) and np.isfinite(value) and value > 0):
-            raise ReconstructionError(f"{name}: expected a finite number > 0, found {value!r}")
-        if (
-            name in _NON_NEGATIVE
-            and value is not None
-            and not (_is_real(value) and np.isfinite(value) and value >= 0)
-        ):
-            raise ReconstructionError(f"{name}: expected a finite number >= 0, found {value!r}")
-        if name == "set_model" and value not in SET_MODELS:
-            raise ReconstructionError(
-                f"set_model: expected one of {', '.join(map(repr, SET_MODELS))}, found {value!r}"
-            )
-        if name in _INTEGER and not (
-            _is_real(value) and int(value) == value and value >= _INTEGER[name]
-        ):
-            raise ReconstructionError(
-                f"{name}: expected an integer >= {_INTEGER[name]}, found {value!r}"
-            )
-    return options
-
-
-def _is_real(value: object) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
-
-
 def _recorded(options: dict[str, Any]) -> dict[str, Any]:
     """The scalar options as attrs (JSON-safe: bools as 0/1, dtypes by name)."""
     attrs: dict[str, Any] = {}
@@ -238,13 +195,13 @@ def _spectra_array(
     values = np.ascontiguousarray(np.moveaxis(np.asarray(cube), 0, 1), dtype=np.float32)
     coords = {name: coord for name, coord in rgb.coords.items() if set(coord.dims) <= {"image"}}
     coords["wavelength"] = xr.DataArray(
-        inputs.wavelength, dims="wavelength", attrs={"units": "nm", "long_name": "wavelength"}
+        inputs.wavelength, dims="wavelength", attrs=SPECTRA.spec("wavelength").attrs
     )
     return xr.DataArray(
         values,
         dims=("image", "wavelength", "y", "x"),
         coords=coords,
-        attrs={"units": "1", "long_name": "relative spectral radiance", **attrs},
+        attrs={**SPECTRA.spec("radiance").attrs, **attrs},
     )
 
 
@@ -295,13 +252,105 @@ def _set_model_applies(
     return True
 
 
+class _Solved(NamedTuple):
+    """What one reconstruction gave, before it is dressed as xarray."""
+
+    cube: np.ndarray
+    iterations: int
+    history: np.ndarray
+    converged: bool
+    wall_time: float
+    setup_time: float
+    attrs: dict[str, Any]
+    problem: ReconstructionProblem | None
+
+
+def _solve(
+    resolved: ResolvedMethod, used: dict[str, Any], inputs: ReconstructionInputs, started: float
+) -> _Solved:
+    """Eq. 1 set up (:func:`~.operators.build_problem`) and solved by a solver, then its set
+    model; ``used`` (the options the run uses) is updated to what was applied (the set model,
+    ``gamma_hat``).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3, eqs. 1 and 4.
+    """
+    refit = _set_model_applies(
+        used["set_model"], inputs, resolved.name, given="set_model" in resolved.given
+    )  # fail before the solve
+    if not refit and inputs.n_image > 1:
+        used["set_model"] = "independent"  # a set's spectra kept: recorded as applied
+    setup = {name: used[name] for name in SETUP_OPTIONS}
+    setup["k"] = int(setup["k"])
+    own = {
+        name: used[name]
+        for name in resolved.options
+        if name not in SETUP_OPTIONS and name not in SET_MODEL_OPTIONS
+    }
+    own["max_iterations"] = int(own["max_iterations"])
+    own["initial"] = _initial_cube(own["initial"], inputs)
+    problem = build_problem(inputs, **setup, dtype=used.get("dtype", resolved.method.dtype))
+    setup_time = time.perf_counter() - started
+    solved = resolved.method.function(problem, **own)
+    cube, iterations, history, converged = (
+        solved.cube,
+        int(solved.iterations),
+        solved.residual_history,
+        solved.converged,
+    )
+    set_model_time = 0.0
+    if refit:  # the set model: a texel's spectral shapes shared by the set's images
+        refit_started = time.perf_counter()
+        refine = shared_texel_refine if used["set_model"] == "shared-texel" else material_pooled_refine
+        cube = refine(inputs, cube, inputs.illuminant)
+        set_model_time = time.perf_counter() - refit_started
+    wall_time = time.perf_counter() - started
+    weights = problem.weights
+    if used["gamma_hat"] is None:
+        used["gamma_hat"] = default_gamma_hat(inputs.n_image)
+    attrs = {
+        "method": resolved.name,
+        "iterations": iterations,
+        "residual_history_length": int(len(history)),
+        "final_relative_residual": float(history[-1]),
+        "converged": int(converged),
+        "wall_time_s": float(wall_time),
+        **({"set_model_time_s": float(set_model_time)} if refit else {}),
+        "alpha": float(weights.alpha),
+        "beta": float(weights.beta),
+        "gamma": float(weights.gamma),
+        "filter_constraints": int(weights.n_filters),
+        **_recorded(used),
+    }
+    return _Solved(cube, iterations, history, converged, wall_time, setup_time, attrs, problem)
+
+
+def _confidence(
+    solved: _Solved, inputs: ReconstructionInputs, used: dict[str, Any], spectra: xr.DataArray
+) -> xr.DataArray:
+    """The per-pixel confidence (image, y, x) of a result
+    (:func:`~.confidence.neighbourhood_spread`), from the solver's own neighbours where they
+    are the confidence's (same space and k)."""
+    graph = None
+    if solved.problem is not None and used.get("appearance") == "chromaticity-spatial":
+        graph = solved.problem.neighbours.neighbours
+        graph = graph if graph.shape[1] == CONFIDENCE_NEIGHBOURS else None
+    return xr.DataArray(
+        neighbourhood_spread(np.asarray(solved.cube), inputs.rgb, neighbours=graph),
+        dims=("image", "y", "x"),
+        coords={name: c for name, c in spectra.coords.items() if set(c.dims) <= {"image"}},
+        attrs={"units": "1", "long_name": "estimated per-pixel nRMSE (higher: trust less)"},
+    )
+
+
 # -- the entry point -------------------------------------------------------------------------
 def reconstruct(
     rgb: xr.DataArray,
     bands: xr.DataArray,
     camera_matrix: xr.DataArray,
     *,
-    method: str = DEFAULT_METHOD,
+    method: MethodLike | None = None,
     filter_size: float | Sequence[float] | None = None,
     illuminant: xr.DataArray | np.ndarray | None = None,
     full_output: bool = False,
@@ -336,15 +385,17 @@ def reconstruct(
         ``rgb``'s ``camera`` coordinate; the RGB term is then ``||C_m S(p) - R(p)||^2``
         (:func:`~.inputs.inputs_from_xarray`).
     method
-        A production method of
-        :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`: the
-        solvers ``"mixture-prior-pcg"`` (the default), ``"spectral-prior-pcg"``,
-        ``"guided-prior-pcg"``, ``"block-jacobi-pcg"`` (eq. 1 alone, the paper's model,
-        fast) and ``"paper-cg"`` (the paper's CG), the estimator ``"endmember-mixture"``
-        (non-iterative); or a comparison baseline of
+        A name, a record or a resolved record (:func:`~.methods.resolve_method`; None: the
+        default, :data:`~.methods.DEFAULT_METHOD`, ``"natural-prior-pcg"``). The production
+        methods of :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`:
+        the solvers ``"natural-prior-pcg"``, ``"mixture-prior-pcg"``,
+        ``"spectral-prior-pcg"``, ``"guided-prior-pcg"``, ``"block-jacobi-pcg"`` (eq. 1
+        alone, the paper's model, fast) and ``"paper-cg"`` (the paper's CG), the estimator
+        ``"endmember-mixture"`` (non-iterative); or a comparison baseline of
         :data:`~spectralize.nodes.reconstruction.methods.BASELINE_METHODS`
         (``"pseudo-inverse"``, ``"wiener"``, ``"mallett2019"``, ``"filtered-bands"``,
-        ``"filtered-projected"``, ``"guided-projected"``).
+        ``"filtered-projected"``, ``"guided-projected"``). A resolved record carries its
+        options; ``method_options`` given too are laid over them.
     filter_size
         ``s_i`` [px] of the bands of a ``(y, x, wavelength)`` band cube: one number, or one
         per wavelength.
@@ -421,102 +472,87 @@ def reconstruct(
 
     Examples
     --------
-    >>> spectra = reconstruct(hdr.radiance, bands.radiance, camera_matrix)  # doctest: +SKIP
-    >>> reconstruct(rgb, band_cube, camera_matrix, filter_size=3.0,
-    ...             method="guided-prior-pcg", prior=0.3)  # doctest: +SKIP
-    >>> reconstruct(rgb, bands, camera_matrix, method="wiener")  # a baseline  # doctest: +SKIP
+    One image of two materials, its RGB through a camera of three broad channels and a
+    noisy shot of every band (a band cube, all filtered with ``s_i = 3`` px):
+
+    >>> import numpy as np
+    >>> import xarray as xr
+    >>> wavelength = np.array([450.0, 500.0, 550.0, 600.0])
+    >>> peaks = np.array([[600.0], [540.0], [460.0]])
+    >>> camera_matrix = xr.DataArray(
+    ...     np.exp(-0.5 * ((wavelength - peaks) / 40.0) ** 2),
+    ...     dims=("channel", "wavelength"),
+    ...     coords={"channel": ["R", "G", "B"], "wavelength": wavelength},
+    ... )
+    >>> materials = np.array([[0.2, 0.4, 0.6, 0.8], [0.7, 0.5, 0.4, 0.3]])
+    >>> truth = materials[np.repeat([[0] * 8 + [1] * 8], 16, axis=0)]  # (y, x, wavelength)
+    >>> rgb = xr.DataArray(
+    ...     truth @ camera_matrix.values.T,
+    ...     dims=("y", "x", "channel"),
+    ...     coords={"channel": ["R", "G", "B"]},
+    ... )
+    >>> noise = np.random.default_rng(0).normal(0.0, 0.01, truth.shape)
+    >>> band_cube = xr.DataArray(
+    ...     truth + noise, dims=("y", "x", "wavelength"), coords={"wavelength": wavelength}
+    ... )
+
+    The default method, then another preset with an option of its own, then a baseline:
+
+    >>> spectra = reconstruct(rgb, band_cube, camera_matrix, filter_size=3.0)
+    >>> spectra.dims, spectra.dtype, spectra.attrs["method"]
+    (('wavelength', 'y', 'x'), dtype('float32'), 'natural-prior-pcg')
+    >>> error = np.abs(spectra.transpose("y", "x", "wavelength").values - truth)
+    >>> bool(error.mean() < 0.05)
+    True
+    >>> result = reconstruct(
+    ...     rgb, band_cube, camera_matrix, filter_size=3.0,
+    ...     method="block-jacobi-pcg", k=4, full_output=True,
+    ... )
+    >>> result.method, result.spectra.attrs["k"], result.iterations > 0
+    ('block-jacobi-pcg', 4, True)
+    >>> reconstruct(rgb, band_cube, camera_matrix, filter_size=3.0, method="wiener").attrs["method"]
+    'wiener'
+
+    A method resolved once with its options (:func:`~.methods.resolve_method`, also
+    ``spectralize.nodes.reconstruction.resolve_method``) is passed on as it is:
+
+    >>> paper = resolve_method("paper-cg", max_iterations=5)
+    >>> reconstruct(rgb, band_cube, camera_matrix, filter_size=3.0, method=paper).attrs["iterations"]
+    5
     """
     started = time.perf_counter()
-    record = get_method(method)
-    options = _checked_options(method, dict(method_options))
+    settings = {name: value for name, value in method_options.items() if name not in RUN_INPUTS}
+    resolved = resolve_method(method, **settings)
+    run = resolved.run_inputs(**{n: v for n, v in method_options.items() if n in RUN_INPUTS})
+    used = {**resolved.used(), **run}
     rgb, bands, single = _one_form(rgb, bands, filter_size)
     inputs = inputs_from_xarray(rgb, bands, camera_matrix, illuminant)
     rgb = rgb.transpose("image", "y", "x", "channel")
-    used = {**record.defaults(), **options}
-    problem = None
-    if record.kind == "solver":
-        refit = _set_model_applies(
-            used["set_model"], inputs, method, given="set_model" in options
-        )  # fail before the solve
-        if not refit and inputs.n_image > 1:
-            used["set_model"] = "independent"  # a set's spectra kept: recorded as applied
-        setup = {name: used[name] for name in SETUP_OPTIONS}
-        setup["k"] = int(setup["k"])
-        own = {
-            name: used[name]
-            for name in record.options
-            if name not in SETUP_OPTIONS and name not in SET_MODEL_OPTIONS
-        }
-        own["max_iterations"] = int(own["max_iterations"])
-        own["initial"] = _initial_cube(own["initial"], inputs)
-        problem = build_problem(inputs, **setup, dtype=used.get("dtype", record.dtype))
-        setup_time = time.perf_counter() - started
-        solved = record.function(problem, **own)
-        cube, iterations, history, converged = (
-            solved.cube,
-            int(solved.iterations),
-            solved.residual_history,
-            solved.converged,
-        )
-        set_model_time = 0.0
-        if refit:  # the set model: a texel's spectral shapes shared by the set's images
-            refit_started = time.perf_counter()
-            refine = (
-                shared_texel_refine if used["set_model"] == "shared-texel" else material_pooled_refine
-            )
-            cube = refine(inputs, cube, inputs.illuminant)
-            set_model_time = time.perf_counter() - refit_started
-        wall_time = time.perf_counter() - started
-        weights = problem.weights
-        if used["gamma_hat"] is None:
-            used["gamma_hat"] = default_gamma_hat(inputs.n_image)
-        attrs = {
-            "method": method,
-            "iterations": iterations,
-            "residual_history_length": int(len(history)),
-            "final_relative_residual": float(history[-1]),
-            "converged": int(converged),
-            "wall_time_s": float(wall_time),
-            **({"set_model_time_s": float(set_model_time)} if refit else {}),
-            "alpha": float(weights.alpha),
-            "beta": float(weights.beta),
-            "gamma": float(weights.gamma),
-            "filter_constraints": int(weights.n_filters),
-            **_recorded(used),
-        }
+    if resolved.kind == "solver":
+        solved = _solve(resolved, used, inputs, started)
     else:
-        cube = record.function(inputs, **used)
-        iterations, history, converged = 0, np.zeros(0), True
-        wall_time = setup_time = time.perf_counter() - started
-        attrs = {"method": method, "wall_time_s": float(wall_time), **_recorded(used)}
-    spectra = _spectra_array(cube, rgb, inputs, attrs)
+        cube = resolved.method.function(inputs, **used)
+        wall_time = time.perf_counter() - started
+        attrs = {"method": resolved.name, "wall_time_s": float(wall_time), **_recorded(used)}
+        solved = _Solved(cube, 0, np.zeros(0), True, wall_time, wall_time, attrs, None)
+    spectra = _spectra_array(solved.cube, rgb, inputs, solved.attrs)
     if single:
         spectra = spectra.isel(image=0)
     if not full_output:
         return spectra
     spread = None
     if confidence:
-        # the solver's own neighbours where they are the confidence's (same space and k)
-        graph = None
-        if problem is not None and used.get("appearance") == "chromaticity-spatial":
-            graph = problem.neighbours.neighbours
-            graph = graph if graph.shape[1] == CONFIDENCE_NEIGHBOURS else None
-        spread = xr.DataArray(
-            neighbourhood_spread(np.asarray(cube), inputs.rgb, neighbours=graph),
-            dims=("image", "y", "x"),
-            coords={name: c for name, c in spectra.coords.items() if set(c.dims) <= {"image"}},
-            attrs={"units": "1", "long_name": "estimated per-pixel nRMSE (higher: trust less)"},
-        )
+        spread = _confidence(solved, inputs, used, spectra)
         if single:
             spread = spread.isel(image=0)
     return ReconstructionResult(
         spectra,
-        iterations,
-        np.asarray(history),
-        bool(converged),
-        wall_time,
-        setup_time,
-        method,
-        problem,
+        solved.iterations,
+        np.asarray(solved.history),
+        bool(solved.converged),
+        solved.wall_time,
+        solved.setup_time,
+        resolved.name,
+        solved.problem,
         spread,
     )

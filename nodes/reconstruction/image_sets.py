@@ -179,16 +179,7 @@ def select_image_sets(
             owned = [c == 0] * len(members) + [True] * chunk.size
             sets.append((member, owned))
 
-    width = max(len(m) for m, _ in sets)
-    member = np.full((len(sets), width), -1, dtype=np.int64)
-    owned = np.zeros((len(sets), width), dtype=bool)
-    image_set = np.full(labels.size, -1, dtype=np.int64)
-    for s, (indices, flags) in enumerate(sets):
-        member[s, : len(indices)] = labels[indices]
-        owned[s, : len(indices)] = flags
-        for i, flag in zip(indices, flags, strict=True):
-            if flag:
-                image_set[i] = s
+    member, owned, image_set = _set_table(sets, labels)
     # the seed: the set whose anchor group is most central in light direction
     overall = directions.mean(axis=0)
     seed = int(np.argmax([centres[_group_of(s, sets, groups)] @ overall for s in range(len(sets))]))
@@ -219,6 +210,25 @@ def select_image_sets(
             "anchor_groups": len(groups),
         },
     )
+
+
+def _set_table(
+    sets: list[tuple[list[int], list[bool]]], labels: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sets ``(member indices, owned flags)`` as the group's arrays: ``member`` (set,
+    slot) image labels padded with -1, ``owned`` (set, slot) and ``image_set`` (image), the
+    set that owns each image."""
+    width = max(len(m) for m, _ in sets)
+    member = np.full((len(sets), width), -1, dtype=np.int64)
+    owned = np.zeros((len(sets), width), dtype=bool)
+    image_set = np.full(labels.size, -1, dtype=np.int64)
+    for s, (indices, flags) in enumerate(sets):
+        member[s, : len(indices)] = labels[indices]
+        owned[s, : len(indices)] = flags
+        for i, flag in zip(indices, flags, strict=True):
+            if flag:
+                image_set[i] = s
+    return member, owned, image_set
 
 
 def _group_of(s: int, sets, groups) -> int:

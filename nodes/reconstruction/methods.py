@@ -14,14 +14,42 @@ neighbours, filter placement) and the solver's own settings. The API and the nod
 from that dict, so a preset's settings are read here and nowhere else; an option given by
 the caller replaces its setting. The run-time inputs :data:`RUN_INPUTS` are no settings.
 
+:func:`resolve_method` is the one place a method is looked up, its default applied and the
+caller's options checked: it returns a :class:`ResolvedMethod`, the preset's settings with
+the caller's laid over them, which the API, the nodes and the tiled path pass on (as xarray's
+``get_backend`` takes a name or the backend itself, every function that takes a method takes
+a name, a record or a resolved record, and resolves it no more than once).
+
 References
 ----------
 .. [1] Fast Capture of Spectral Image Series, section 3, eqs. 1 and 4.
+
+Examples
+--------
+The tables' names, a preset's settings, and a preset resolved with an option that replaces
+one of them:
+
+>>> list(RECONSTRUCTION_METHODS)  # doctest: +NORMALIZE_WHITESPACE
+['block-jacobi-pcg', 'guided-prior-pcg', 'spectral-prior-pcg', 'natural-prior-pcg',
+ 'mixture-prior-pcg', 'endmember-mixture', 'paper-cg']
+>>> list(BASELINE_METHODS)  # doctest: +NORMALIZE_WHITESPACE
+['pseudo-inverse', 'wiener', 'mallett2019', 'filtered-bands', 'filtered-projected',
+ 'guided-projected']
+>>> preset = RECONSTRUCTION_METHODS["guided-prior-pcg"]
+>>> preset.kind, preset.settings["prior"], preset.settings["k"]
+('solver', 0.1, 3)
+>>> resolved = resolve_method("guided-prior-pcg", prior=0.3)
+>>> resolved.settings["prior"], resolved.settings["k"], dict(resolved.given)
+(0.3, 3, {'prior': 0.3})
+>>> resolve_method().name == DEFAULT_METHOD
+True
 """
 
 from __future__ import annotations
 
+import difflib
 import inspect
+import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -45,6 +73,8 @@ from .solvers import block_jacobi_pcg, paper_cg, prior_pcg
 
 __all__ = [
     "ReconstructionMethod",
+    "ResolvedMethod",
+    "MethodLike",
     "RECONSTRUCTION_METHODS",
     "BASELINE_METHODS",
     "DEFAULT_METHOD",
@@ -53,6 +83,7 @@ __all__ = [
     "SET_MODEL_OPTIONS",
     "SET_MODELS",
     "get_method",
+    "resolve_method",
 ]
 
 RUN_INPUTS = ("initial", "callback", "endmembers")
@@ -139,6 +170,101 @@ class ReconstructionMethod:
         return {name: self.settings.get(name) for name in self.options}
 
 
+@dataclass(frozen=True)
+class ResolvedMethod:
+    """A method resolved with the caller's options: what a run solves with.
+
+    Made by :func:`resolve_method` only, which checks the options once; the API, the nodes
+    and the tiled path pass it on instead of a name and loose options, so a method is looked
+    up and its options checked once per run, not once per function or tile.
+
+    Attributes
+    ----------
+    method
+        The record of :data:`RECONSTRUCTION_METHODS` or :data:`BASELINE_METHODS` (or the
+        caller's own :class:`ReconstructionMethod`).
+    given
+        The options the caller gave, checked (a given ``set_model`` is applied or refused,
+        a preset's own is applied where it can be: :func:`~.api.reconstruct`).
+    settings
+        The record's settings with ``given`` laid over them: every setting the run uses.
+
+    Examples
+    --------
+    >>> resolved = resolve_method("block-jacobi-pcg", k=4)
+    >>> resolved.name, resolved.settings["k"], resolved.settings["prior"], dict(resolved.given)
+    ('block-jacobi-pcg', 4, 0.0, {'k': 4})
+    >>> resolve_method(resolved) is resolved  # resolved once, passed on
+    True
+    """
+
+    method: ReconstructionMethod
+    given: Mapping[str, Any]
+    settings: Mapping[str, Any]
+
+    @property
+    def name(self) -> str:
+        """The method's name (its key in the tables)."""
+        return self.method.name
+
+    @property
+    def kind(self) -> Literal["solver", "baseline", "estimator"]:
+        """The method's kind (:attr:`ReconstructionMethod.kind`)."""
+        return self.method.kind
+
+    @property
+    def options(self) -> dict[str, inspect.Parameter]:
+        """Every option the method takes (:attr:`ReconstructionMethod.options`)."""
+        return self.method.options
+
+    def used(self) -> dict[str, Any]:
+        """Option name -> the value a run uses: the settings, and None for the run-time
+        inputs (:data:`RUN_INPUTS`), in the order of :attr:`options`."""
+        return {name: self.settings.get(name) for name in self.options}
+
+    def run_inputs(self, **inputs: Any) -> dict[str, Any]:
+        """``inputs`` (:data:`RUN_INPUTS`: a warm start, a callback, an endmember dictionary),
+        checked against the method's options like any option.
+
+        Raises
+        ------
+        ReconstructionError
+            For an input the method does not take, listing its options.
+        """
+        _check_names(self.method, inputs, run_inputs=True)
+        return inputs
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # plain pickle (a dask.distributed task) takes no MappingProxyType
+        method = self.method
+        record = (method.name, method.kind, method.function, method.dtype, method.description)
+        return (_resolved, (record, dict(method.settings), dict(self.given), dict(self.settings)))
+
+    def __dask_tokenize__(self) -> tuple[Any, ...]:
+        function = self.method.function
+        return (
+            type(self).__name__,
+            self.name,
+            f"{function.__module__}.{function.__qualname__}",
+            str(self.method.dtype),
+            tuple((name, repr(value)) for name, value in self.settings.items()),
+            tuple(self.given),
+        )
+
+
+def _resolved(
+    record: tuple[Any, ...], settings: dict[str, Any], given: dict[str, Any], used: dict[str, Any]
+) -> ResolvedMethod:
+    """A :class:`ResolvedMethod` again from its pickled parts (no look-up, no checks)."""
+    method = ReconstructionMethod(*record, MappingProxyType(settings))
+    return ResolvedMethod(method, MappingProxyType(given), MappingProxyType(used))
+
+
+MethodLike = str | ReconstructionMethod | ResolvedMethod
+"""What every function that takes a method takes: a name of :data:`RECONSTRUCTION_METHODS`
+or :data:`BASELINE_METHODS`, a record, or a record resolved with its options."""
+
+
 def _method(
     name: str,
     kind: Literal["solver", "baseline", "estimator"],
@@ -158,31 +284,69 @@ def _method(
     )
 
 
-_MIXTURE_PRIOR_SETTINGS: dict[str, Any] = {
-    # the problem (eq. 4 and neighbourhoods that separate materials)
+# -- the presets, composed from the blocks they share --------------------------------------------
+_PAPER_SETUP: dict[str, Any] = {
     "alpha_hat": 1.0,
     "beta_hat": 1.0,
     "gamma_hat": None,
-    "k": 6,
+    "k": 3,
     "centre_spacing": 2.5,
     "normalize_camera_matrix": True,
+    "appearance": "rgb",
+    "scale_invariant": False,
+}
+"""Eq. 1 as the paper sets it up (:data:`SETUP_OPTIONS`): eq. 4's weights, 3 neighbours in
+RGB, filter centres at most 2.5 px apart."""
+
+_MATERIAL_SETUP: dict[str, Any] = {
+    **_PAPER_SETUP,
+    "k": 6,
     "appearance": "chromaticity-spatial",
     "scale_invariant": True,
-    # the priors
+}
+"""Eq. 1 on neighbourhoods that separate materials: 6 neighbours by chromaticity and
+position, coupled scale-invariantly (``S(p) - (b_p / b_n) S(n)``)."""
+
+_CG_STOP: dict[str, Any] = {"tolerance": 1e-3, "max_iterations": 2000}
+"""When a CG stops: the relative normal-equation residual, and an iteration limit."""
+
+_PCG_SOLVE: dict[str, Any] = {
+    "ridge": 1e-4,
+    **_CG_STOP,
+    "precondition": True,
+    "dtype": np.float32,
+}
+"""The block-Jacobi preconditioned CG in float32 (:mod:`.solvers.block_jacobi_pcg`)."""
+
+_MIXTURE_PRIORS: dict[str, Any] = {
     "prior": 0.3,
     "prior_weighting": "brightness",
     "spectral_prior": 0.003,
     "prior_source": "mixture",
     "natural_prior": 0.0,
     "covariance_floor": 1e-2,
+}
+"""A brightness-weighted guided prior and a spectral prior centred on the endmember mixture
+(:func:`~.solvers.prior_pcg.prior_pcg`)."""
+
+_PRIOR_SOLVE: dict[str, Any] = {
     "ridge": 1e-4,
-    # the solve
+    **_CG_STOP,
     "tolerance": 3e-3,
-    "max_iterations": 2000,
     "projected_iterations": 10,
     "precondition": True,
     "dtype": np.float32,
-    "set_model": "independent",
+}
+"""The prior PCG's solve: as :data:`_PCG_SOLVE`, stopped earlier, then ``S >= 0`` refined."""
+
+_INDEPENDENT: dict[str, Any] = {"set_model": "independent"}
+"""Every image of a set keeps its solver's spectra (:data:`SET_MODELS`)."""
+
+_MIXTURE_PRIOR_SETTINGS: dict[str, Any] = {
+    **_MATERIAL_SETUP,
+    **_MIXTURE_PRIORS,
+    **_PRIOR_SOLVE,
+    **_INDEPENDENT,
 }
 """The settings of ``"mixture-prior-pcg"``; ``"natural-prior-pcg"`` differs only in its prior's
 centre (``prior_source``, ``natural_prior``) and its set model (``set_model``),
@@ -198,23 +362,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             block_jacobi_pcg,
             np.float32,
             "eq. 1 alone, as the paper sets it up: block-Jacobi preconditioned CG, float32",
-            {
-                "alpha_hat": 1.0,
-                "beta_hat": 1.0,
-                "gamma_hat": None,
-                "k": 3,
-                "centre_spacing": 2.5,
-                "normalize_camera_matrix": True,
-                "appearance": "rgb",
-                "scale_invariant": False,
-                "prior": 0.0,
-                "ridge": 1e-4,
-                "tolerance": 1e-3,
-                "max_iterations": 2000,
-                "precondition": True,
-                "dtype": np.float32,
-                "set_model": "independent",
-            },
+            {**_PAPER_SETUP, "prior": 0.0, **_PCG_SOLVE, **_INDEPENDENT},
         ),
         _method(
             "guided-prior-pcg",
@@ -222,23 +370,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             block_jacobi_pcg,
             np.float32,
             "eq. 1 as the paper sets it up plus a prior towards the RGB-guided filtered bands",
-            {
-                "alpha_hat": 1.0,
-                "beta_hat": 1.0,
-                "gamma_hat": None,
-                "k": 3,
-                "centre_spacing": 2.5,
-                "normalize_camera_matrix": True,
-                "appearance": "rgb",
-                "scale_invariant": False,
-                "prior": 0.1,
-                "ridge": 1e-4,
-                "tolerance": 1e-3,
-                "max_iterations": 2000,
-                "precondition": True,
-                "dtype": np.float32,
-                "set_model": "independent",
-            },
+            {**_PAPER_SETUP, "prior": 0.1, **_PCG_SOLVE, **_INDEPENDENT},
         ),
         _method(
             "spectral-prior-pcg",
@@ -293,32 +425,20 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
             paper_cg,
             np.float64,
             "eq. 1 by the paper's CG on the normal equations (CGNR), float64, from zero",
-            {
-                "alpha_hat": 1.0,
-                "beta_hat": 1.0,
-                "gamma_hat": None,
-                "k": 3,
-                "centre_spacing": 2.5,
-                "normalize_camera_matrix": True,
-                "appearance": "rgb",
-                "scale_invariant": False,
-                "tolerance": 1e-3,
-                "max_iterations": 2000,
-                "set_model": "independent",
-            },
+            {**_PAPER_SETUP, **_CG_STOP, **_INDEPENDENT},
         ),
     )
 }
 """The production methods by name: what the set nodes' ``method`` takes. Each stays for a
-reason:
+reason (the measurements: ``benchmarks/results/reconstruction.json``):
 
 ``"natural-prior-pcg"``
     The default (:data:`DEFAULT_METHOD`): ``"mixture-prior-pcg"`` plus the natural-spectra
-    prior, weighed per pixel by the band evidence; a lower median than it on 7 of the
-    benchmark's 8 scene x mode rows, and than the RGB-only baselines on 7 of 8.
+    prior, weighed per pixel by the band evidence; the lowest median error on most of the
+    benchmark's scenes and capture modes, ahead of the RGB-only baselines.
 ``"mixture-prior-pcg"``
-    The previous default: the lowest median on woven sets (1 % below the default) and
-    the lowest p95 on some single images (1-3 %).
+    The previous default: still the lowest median error on woven sets and the lowest p95
+    on some single images.
 ``"spectral-prior-pcg"``
     The same solver with a spectral prior learnt from the scene's guided estimate: a lower
     median than the default on some of the hard scenes.
@@ -330,19 +450,18 @@ reason:
 ``"paper-cg"``
     The paper's own solver, the reference for the fast solvers' accuracy and speed.
 ``"endmember-mixture"``
-    The default's spectral prior on its own: non-iterative, several times faster, close
-    to the default at the median.
+    The default's spectral prior on its own: non-iterative, much faster, close to the
+    default at the median.
 
 The default's ``set_model`` is ``"material-pooled"``: a set of more than one image given
 the illuminant is refitted with one spectral shape per material (:data:`SET_MODELS`; better
-than ``"independent"`` at the median and p95 on every hard set, and at the fraction of
-pixels under 0.03); without the illuminant it keeps its spectra (``"independent"``, recorded
-in the result's attrs). Every other preset's is ``"independent"``; ``"shared-texel"`` and
-``"material-pooled"`` are opt-in there.
+than ``"independent"`` on the hard sets); without the illuminant it keeps its spectra
+(``"independent"``, recorded in the result's attrs). Every other preset's is
+``"independent"``; ``"shared-texel"`` and ``"material-pooled"`` are opt-in there.
 
 Retired: ``"material-prior-pcg"``, the prior PCG without the spectral prior, never best on
-the benchmark; it is ``method="spectral-prior-pcg", spectral_prior=0``. The figures are in
-``benchmarks/results/reconstruction.json``."""
+the benchmark; it is ``method="spectral-prior-pcg", spectral_prior=0``.
+"""
 
 BASELINE_METHODS: dict[str, ReconstructionMethod] = {
     method.name: method
@@ -408,8 +527,137 @@ def get_method(name: str) -> ReconstructionMethod:
     """
     record = RECONSTRUCTION_METHODS.get(name) or BASELINE_METHODS.get(name)
     if record is None:
+        close = difflib.get_close_matches(str(name), [*RECONSTRUCTION_METHODS, *BASELINE_METHODS], n=1)
         raise ReconstructionError(
-            f"unknown method {name!r}; methods: {', '.join(RECONSTRUCTION_METHODS)}; "
+            f"unknown method {name!r}"
+            + (f" (did you mean {close[0]!r}?)" if close else "")
+            + f"; methods: {', '.join(RECONSTRUCTION_METHODS)}; "
             f"baselines: {', '.join(BASELINE_METHODS)}"
         )
     return record
+
+
+def resolve_method(method: MethodLike | None = None, /, **options: Any) -> ResolvedMethod:
+    """``method`` with ``options`` laid over its settings, checked: the one place a method is
+    looked up and its default applied.
+
+    Parameters
+    ----------
+    method
+        A name of :data:`RECONSTRUCTION_METHODS` or :data:`BASELINE_METHODS`, a
+        :class:`ReconstructionMethod`, or a :class:`ResolvedMethod` (returned as it is
+        without ``options``; with them, its options and these resolved together). None:
+        :data:`DEFAULT_METHOD`.
+    **options
+        Settings that replace the method's (names of its :attr:`~ReconstructionMethod.options`
+        other than the run-time inputs :data:`RUN_INPUTS`).
+
+    Returns
+    -------
+    ResolvedMethod
+
+    Raises
+    ------
+    ReconstructionError
+        For an unknown method (listing the known ones), an option the method does not take
+        (listing its options, the closest name and the methods that take it), a run-time
+        input given as a setting, or a value out of range (a weight, a count, a set model).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3, eqs. 1 and 4.
+
+    Examples
+    --------
+    >>> resolve_method().name  # the default
+    'natural-prior-pcg'
+    >>> resolve_method("paper-cg", tolerance=1e-6).settings["tolerance"]
+    1e-06
+    >>> try:
+    ...     resolve_method("paper-cg", tolerence=1e-6)
+    ... except ReconstructionError as error:
+    ...     print(error)  # doctest: +ELLIPSIS
+    method 'paper-cg': unknown option(s) ['tolerence'] (did you mean 'tolerance'?); its ...
+    """
+    if isinstance(method, ResolvedMethod):
+        if not options:
+            return method
+        options = {**method.given, **options}
+        method = method.method
+    if method is None:
+        method = DEFAULT_METHOD
+    if isinstance(method, str):
+        method = get_method(method)
+    if not isinstance(method, ReconstructionMethod):
+        raise ReconstructionError(
+            "method: expected a method name, a ReconstructionMethod or a ResolvedMethod, "
+            f"found {type(method).__name__}"
+        )
+    _check_names(method, options)
+    _check_values(options)
+    given = MappingProxyType(dict(options))
+    return ResolvedMethod(method, given, MappingProxyType({**method.settings, **options}))
+
+
+def _check_names(
+    method: ReconstructionMethod, options: Mapping[str, Any], *, run_inputs: bool = False
+) -> None:
+    """Refuse options the method does not take, and run-time inputs given as settings
+    (unless ``run_inputs``: they are what is checked)."""
+    known = method.options
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        every = {**RECONSTRUCTION_METHODS, **BASELINE_METHODS}
+        takers = {name: [m for m, r in every.items() if name in r.options] for name in unknown}
+        hints = "; ".join(f"{name!r} is an option of {', '.join(t)}" for name, t in takers.items() if t)
+        close = {name: difflib.get_close_matches(name, list(known), n=1) for name in unknown}
+        means = ", ".join(f"{c[0]!r}" for c in close.values() if c)
+        raise ReconstructionError(
+            f"method {method.name!r}: unknown option(s) {unknown}"
+            + (f" (did you mean {means}?)" if means else "")
+            + f"; its options are: {', '.join(known) or 'none'}"
+            + (f" ({hints})" if hints else "")
+        )
+    inputs = [name for name in options if (name in RUN_INPUTS) != run_inputs]
+    if inputs and run_inputs:
+        raise ReconstructionError(
+            f"method {method.name!r}: {inputs} are settings, not inputs of one run; resolve "
+            "them with the method (resolve_method)"
+        )
+    if inputs:
+        raise ReconstructionError(
+            f"method {method.name!r}: {inputs} are inputs of one run, not settings; pass them "
+            "to reconstruct(...) (or solve_set) with the method"
+        )
+
+
+_POSITIVE = ("alpha_hat", "beta_hat", "centre_spacing", "tolerance", "window_scale", "covariance_floor")
+_NON_NEGATIVE = ("gamma_hat", "prior", "spectral_prior", "ridge", "relative_noise", "epsilon")
+_INTEGER = {"k": 1, "max_iterations": 0, "projected_iterations": 0}
+
+
+def _check_values(options: Mapping[str, Any]) -> None:
+    """Refuse weights, counts and set models out of range, naming the option."""
+    for name, value in options.items():
+        if name in _POSITIVE and not (_is_real(value) and np.isfinite(value) and value > 0):
+            raise ReconstructionError(f"{name}: expected a finite number > 0, found {value!r}")
+        if (
+            name in _NON_NEGATIVE
+            and value is not None
+            and not (_is_real(value) and np.isfinite(value) and value >= 0)
+        ):
+            raise ReconstructionError(f"{name}: expected a finite number >= 0, found {value!r}")
+        if name == "set_model" and value not in SET_MODELS:
+            raise ReconstructionError(
+                f"set_model: expected one of {', '.join(map(repr, SET_MODELS))}, found {value!r}"
+            )
+        if name in _INTEGER and not (
+            _is_real(value) and int(value) == value and value >= _INTEGER[name]
+        ):
+            raise ReconstructionError(
+                f"{name}: expected an integer >= {_INTEGER[name]}, found {value!r}"
+            )
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)

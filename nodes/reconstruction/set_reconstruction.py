@@ -17,7 +17,9 @@ per batch, each set solved exactly as its own task would (a full run has thousan
 The node functions' keyword-only arguments are the nodes' parameters (the engine derives
 the parameter models from them; :mod:`~spectralize.nodes.reconstruction.declarations`
 declares the nodes); ``method`` takes exactly the names of
-:data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
+:data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`. A node resolves its
+method with its solver parameters once, at its top (:func:`node_method`), and passes the
+resolved record down to every set, batch and tile task.
 
 References
 ----------
@@ -39,17 +41,23 @@ from dask.highlevelgraph import HighLevelGraph
 from pydantic import AfterValidator, Field
 
 from spectralize.engine import Choices
-from spectralize.schemas.errors import ReconstructionError
-from spectralize.schemas.run import SPECTRA
+from spectralize.schemas.errors import ParameterError, ReconstructionError
+from spectralize.schemas.run import SPECTRA, SPECTRA_SEED
 
 from .confidence import neighbourhood_spread
 from .image_sets import set_members
 from .inputs import illuminant_on_bands, in_paired_camera
-from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, SET_MODELS, get_method
+from .methods import (
+    DEFAULT_METHOD,
+    RECONSTRUCTION_METHODS,
+    SET_MODELS,
+    ResolvedMethod,
+    resolve_method,
+)
 from .tiling import (
+    TileWindow,
     core_chunks,
     join_tiles,
-    method_options,
     set_windows,
     solve_set,
     solve_tile,
@@ -57,6 +65,7 @@ from .tiling import (
 )
 
 __all__ = [
+    "node_method",
     "reconstruct_seed_set",
     "reconstruct_image_sets",
     "DISK_TILE",
@@ -128,7 +137,7 @@ chunk on disk inside one tile."""
 
 def _aligned_tile(tile: int | None) -> int | None:
     if tile is not None and tile % DISK_TILE and DISK_TILE % tile:
-        raise ValueError(
+        raise ParameterError(
             f"expected a divisor or a multiple of the {DISK_TILE} px chunks on disk "
             f"(e.g. 64, 128, 256, 512), or None for one tile; found {tile}"
         )
@@ -214,50 +223,87 @@ def _camera_matrix(
     )
 
 
-def _set_model_settings(
-    method: str, set_model: str | None, calibration: xr.Dataset, wavelength: np.ndarray
-) -> dict[str, Any]:
-    """``set_model`` and the calibration's ``illuminant`` ``L`` (wavelength,) for
-    :func:`~.tiling.solve_set`: ``L`` on the bands' ``wavelength`` (linear), where the
-    calibration group has one (``truth/camera`` does; an unusable one is left out unless
-    a given ``set_model`` needs it: a preset's own set model then keeps the solver's
-    spectra). Checked before any solve.
+# -- the nodes' method, resolved once at their top ------------------------------------------------
+def node_method(
+    method: str,
+    *,
+    gamma_hat: float | None = None,
+    tolerance: float | None = None,
+    max_iterations: int | None = None,
+    k: int | None = None,
+    prior: float | None = None,
+    set_model: str | None = None,
+) -> ResolvedMethod:
+    """The set nodes' ``method`` resolved with their solver parameters, once, before any solve.
+
+    A parameter left None is the method's setting. The solver parameters ``gamma_hat``,
+    ``tolerance``, ``max_iterations`` and ``k`` apply to the methods that take them (the
+    solvers; their descriptions say so); a ``prior`` or a ``set_model`` for a method without
+    one is refused.
+
+    Returns
+    -------
+    ~.methods.ResolvedMethod
+        What the node's sets and tiles are solved with (:func:`~.methods.resolve_method`).
 
     Raises
     ------
     ReconstructionError
-        A ``set_model`` for a method without one, or a given ``"shared-texel"`` or
-        ``"material-pooled"`` without a usable illuminant in the calibration.
+        For an unknown method, a ``prior`` or ``set_model`` the method does not take, or a
+        value out of range.
     """
-    record = get_method(method)
-    if set_model is not None and "set_model" not in record.options:
-        takers = [name for name, m in RECONSTRUCTION_METHODS.items() if "set_model" in m.options]
-        raise ReconstructionError(
-            f"set_model: method {method!r} has no set model; methods with one: {', '.join(takers)}"
-        )
+    record = resolve_method(method)
+    for name, value in (("set_model", set_model), ("prior", prior)):
+        if value is not None and name not in record.options:
+            takers = [n for n, m in RECONSTRUCTION_METHODS.items() if name in m.options]
+            what = "set model" if name == "set_model" else "prior"
+            raise ReconstructionError(
+                f"{name}: method {record.name!r} has no {what}; methods with one: {', '.join(takers)}"
+            )
+    parameters = {
+        "gamma_hat": gamma_hat,
+        "tolerance": tolerance,
+        "max_iterations": max_iterations,
+        "k": k,
+        "prior": prior,
+        "set_model": set_model,
+    }
+    given = {n: v for n, v in parameters.items() if v is not None and n in record.options}
+    return resolve_method(record, **given)
+
+
+def _illuminant(
+    method: ResolvedMethod, calibration: xr.Dataset, wavelength: np.ndarray
+) -> xr.DataArray | None:
+    """The calibration's illuminant ``L`` (wavelength,) on the bands' ``wavelength`` (linear)
+    for the set model of :func:`~.tiling.solve_set`, where the calibration group has one
+    (``truth/camera`` does). An unusable one is left out unless a given ``set_model`` needs
+    it: a preset's own set model then keeps the solver's spectra. Checked before any solve.
+
+    Raises
+    ------
+    ReconstructionError
+        A given ``"shared-texel"`` or ``"material-pooled"`` without a usable illuminant in
+        the calibration.
+    """
+    set_model = method.given.get("set_model")
     needs_light = set_model not in (None, "independent")  # given: refused without L
-    light = None
-    if "illuminant" in calibration:
-        light = calibration["illuminant"].load()
-        light = light.drop_vars([c for c in light.coords if c != "wavelength"])
-        try:
-            on_bands = illuminant_on_bands(light, wavelength)
-        except ReconstructionError as error:
-            if needs_light:
-                raise ReconstructionError(f"calibration: {error}") from None
-            return {"set_model": set_model, "illuminant": None}  # unused: not needed
-        light = xr.DataArray(on_bands, dims="wavelength", coords={"wavelength": wavelength})
-    elif needs_light:
-        raise ReconstructionError(
-            f"set_model: {set_model!r} needs the illuminant L; the calibration group has no "
-            f"'illuminant' (wavelength,) (found variables {sorted(calibration.data_vars)})"
-        )
-    return {"set_model": set_model, "illuminant": light}
-
-
-def _given(**values: Any) -> dict[str, Any]:
-    """The values that are not None."""
-    return {name: value for name, value in values.items() if value is not None}
+    if "illuminant" not in calibration:
+        if needs_light:
+            raise ReconstructionError(
+                f"set_model: {set_model!r} needs the illuminant L; the calibration group has no "
+                f"'illuminant' (wavelength,) (found variables {sorted(calibration.data_vars)})"
+            )
+        return None
+    light = calibration["illuminant"].load()
+    light = light.drop_vars([c for c in light.coords if c != "wavelength"])
+    try:
+        on_bands = illuminant_on_bands(light, wavelength)
+    except ReconstructionError as error:
+        if needs_light:
+            raise ReconstructionError(f"calibration: {error}") from None
+        return None  # unused: not needed
+    return xr.DataArray(on_bands, dims="wavelength", coords={"wavelength": wavelength})
 
 
 def _wavelengths(bands: xr.Dataset) -> np.ndarray:
@@ -265,16 +311,42 @@ def _wavelengths(bands: xr.Dataset) -> np.ndarray:
     return np.unique(np.asarray(bands["wavelength"].values, dtype=float))
 
 
-def _recorded_settings(method: str, options: dict[str, Any]) -> dict[str, Any]:
-    """The method and its scalar settings (its defaults where not given) as attrs."""
-    used = {**get_method(method).defaults(), **options}
-    attrs: dict[str, Any] = {"method": method}
-    for name, value in used.items():
+def _prepared(
+    hdr: xr.Dataset, bands: xr.Dataset, calibration: xr.Dataset
+) -> tuple[xr.Dataset, np.ndarray, xr.DataArray]:
+    """What both nodes solve from: ``hdr`` with each image's RGB in the paired camera's
+    (its ``T_k``, :func:`~.inputs.in_paired_camera`), the bands' wavelengths and ``C`` on
+    them (``T_k C_k`` per camera ``k``, :func:`_camera_matrix`)."""
+    wavelength = _wavelengths(bands)
+    camera_matrix = _camera_matrix(calibration, wavelength, hdr)
+    return in_paired_camera(hdr, calibration), wavelength, camera_matrix
+
+
+def _recorded_settings(method: ResolvedMethod) -> dict[str, Any]:
+    """The method and its scalar settings (given or the preset's) as attrs."""
+    attrs: dict[str, Any] = {"method": method.name}
+    for name, value in method.used().items():
         if isinstance(value, bool | np.bool_):
             attrs[name] = int(value)
         elif isinstance(value, int | float | str):
             attrs[name] = value
     return attrs
+
+
+def _image_coords(hdr: xr.Dataset, labels: Any, wavelength: np.ndarray) -> dict[str, Any]:
+    """The ``spectra`` coords of images ``labels`` (in that order): their per-image coords
+    of ``hdr`` and ``wavelength``, with the schema's attrs."""
+    per_image = hdr.drop_vars(list(hdr.data_vars)).sel(image=labels).load()
+    coords: dict[str, Any] = {
+        name: per_image[name] for name in ("image", *_PER_IMAGE) if name in per_image.coords
+    }
+    coords["wavelength"] = ("wavelength", wavelength, SPECTRA.spec("wavelength").attrs)
+    return coords
+
+
+_RADIANCE_ATTRS = SPECTRA.spec("radiance").attrs
+_CONFIDENCE_ATTRS = SPECTRA.spec("confidence").attrs
+_SEED_ITERATIONS_ATTRS = SPECTRA_SEED.spec("iterations").attrs
 
 
 def reconstruct_seed_set(
@@ -334,36 +406,25 @@ def reconstruct_seed_set(
         (all images, all wavelengths, the tile's core), solved as the runner writes them, so
         memory is bounded by tile x set, not by the image size.
     """
+    resolved = node_method(
+        method,
+        gamma_hat=gamma_hat,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        k=k,
+        prior=prior,
+        set_model=set_model,
+    )
     seed = int(image_sets.attrs["seed_set"])
     members, _ = set_members(image_sets, seed)
-    wavelength = _wavelengths(bands)
-    camera_matrix = _camera_matrix(calibration, wavelength, hdr)  # T_k C_k per camera k
-    hdr = in_paired_camera(hdr, calibration)  # each image's RGB by its T_k
+    hdr, wavelength, camera_matrix = _prepared(hdr, bands, calibration)
+    illuminant = _illuminant(resolved, calibration, wavelength)
     rgb, shots = _set_inputs(hdr, bands, members)
-    settings = {
-        "method": method,
-        "gamma_hat": gamma_hat,
-        "tolerance": tolerance,
-        "max_iterations": max_iterations,
-        "k": k,
-        "prior": prior,
-        **_set_model_settings(method, set_model, calibration, wavelength),
-    }
-    options = method_options(
-        method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
-    )  # fail before any solve
     windows, halo = set_windows(shots, hdr.sizes["y"], hdr.sizes["x"], tile)
-    attrs: dict[str, Any] = {
-        "seed_set": seed,
-        "method": method,
-        **({} if prior is None else {"prior": prior}),
-        **_given(set_model=set_model),
-        "tiles": len(windows),
-        **({"tile": tile, "halo": halo} if len(windows) > 1 else {}),
-    }
-    iterations_attrs = {"long_name": "solver iterations of the seed set (the most over its tiles)"}
     if len(windows) == 1:
-        spectra, iterations, _ = solve_set(rgb, shots, camera_matrix, confidence=True, **settings)
+        spectra, iterations, _ = solve_set(
+            rgb, shots, camera_matrix, method=resolved, illuminant=illuminant, confidence=True
+        )
         spread = spectra["confidence"].transpose("image", "y", "x").values.astype(np.float32)
         spectra = spectra.drop_vars(
             [c for c in spectra.coords if c not in ("image", "wavelength", *_PER_IMAGE)]
@@ -375,36 +436,36 @@ def reconstruct_seed_set(
             shots,
             camera_matrix,
             windows,
-            settings=settings,
+            method=resolved,
+            illuminant=illuminant,
             confidence=True,
             name=f"solve-seed-{seed}",
         )
-        per_image = hdr.drop_vars(list(hdr.data_vars)).sel(image=members).load()
-        coords = {n: per_image[n] for n in ("image", *_PER_IMAGE) if n in per_image.coords}
-        coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
         spectra = xr.DataArray(
             cube,
             dims=("image", "wavelength", "y", "x"),
-            coords=coords,
-            attrs={
-                **_recorded_settings(method, {**options, **_given(set_model=set_model)}),
-                "tile": tile,
-                "halo": halo,
-            },
+            coords=_image_coords(hdr, members, wavelength),
+            attrs={**_recorded_settings(resolved), "tile": tile, "halo": halo},
         )
     return xr.Dataset(
         {
-            "radiance": spectra.assign_attrs(units="1", long_name="relative spectral radiance"),
-            "iterations": ("image", count, iterations_attrs),
+            "radiance": spectra.assign_attrs(_RADIANCE_ATTRS),
+            "iterations": ("image", count, _SEED_ITERATIONS_ATTRS),
             # kept here so that ``reconstruct_image_sets`` need not search neighbours again
             "confidence": (("image", "y", "x"), spread, _CONFIDENCE_ATTRS),
         },
-        attrs=attrs,
+        attrs={
+            "seed_set": seed,
+            **_given_attrs(resolved, "prior", "set_model"),
+            "tiles": len(windows),
+            **({"tile": tile, "halo": halo} if len(windows) > 1 else {}),
+        },
     )
 
 
-_CONFIDENCE_SPEC = next(v for v in SPECTRA.optional_variables if v.name == "confidence")
-_CONFIDENCE_ATTRS = {"units": _CONFIDENCE_SPEC.units, "long_name": _CONFIDENCE_SPEC.long_name}
+def _given_attrs(method: ResolvedMethod, *names: str) -> dict[str, Any]:
+    """The group attrs of a node's method: its name, and those of ``names`` the caller gave."""
+    return {"method": method.name, **{n: method.given[n] for n in names if n in method.given}}
 
 
 def _tile_confidence(cube: np.ndarray, rgb: np.ndarray, inner: tuple[slice, slice]) -> np.ndarray:
@@ -465,7 +526,8 @@ def _solve_sets(
     camera_matrix: xr.DataArray,
     sets: list[tuple[np.ndarray, np.ndarray]],
     *,
-    settings: dict[str, Any],
+    method: ResolvedMethod,
+    illuminant: xr.DataArray | None,
     warm: Any,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve a batch of sets, each whole in one tile, one after the other (one dask task).
@@ -484,7 +546,7 @@ def _solve_sets(
         ``C`` (as :func:`~.tiling.tile_tasks` takes it).
     sets
         Per set ``(labels, owned)`` (:func:`~.image_sets.set_members`), in order.
-    settings, warm
+    method, illuminant, warm
         As for :func:`~.tiling.solve_tile`.
 
     Returns
@@ -504,7 +566,8 @@ def _solve_sets(
             set_shots.isel(y=oy, x=ox),
             camera_matrix,
             window.inner,
-            settings=settings,
+            method=method,
+            illuminant=illuminant,
             keep=owned,
             warm=warm,
             confidence=True,
@@ -550,12 +613,15 @@ def _batch_from_rows(
     shot_image: np.ndarray,
     camera_matrix: xr.DataArray,
     sets: list[tuple[np.ndarray, np.ndarray]],
-    settings: dict[str, Any],
+    method: ResolvedMethod,
+    illuminant: xr.DataArray | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_solve_sets` on a batch's rows, picked from the chunks that hold them."""
     rgb = xr.DataArray(np.concatenate(rgb_rows)[rgb_take], dims=rgb_dims, coords=rgb_coords)
     shots = xr.DataArray(np.concatenate(shot_rows)[shot_take], dims=shot_dims, coords=shot_coords)
-    return _solve_sets(rgb, shots, shot_image, camera_matrix, sets, settings=settings, warm=warm)
+    return _solve_sets(
+        rgb, shots, shot_image, camera_matrix, sets, method=method, illuminant=illuminant, warm=warm
+    )
 
 
 def _batch_tasks(
@@ -565,7 +631,8 @@ def _batch_tasks(
     camera_matrix: xr.DataArray,
     sets: list[tuple[np.ndarray, np.ndarray]],
     *,
-    settings: dict[str, Any],
+    method: ResolvedMethod,
+    illuminant: xr.DataArray | None,
     warm: Any,
     name: str,
 ) -> tuple[da.Array, da.Array, da.Array]:
@@ -574,8 +641,8 @@ def _batch_tasks(
     The batch's task is written by hand on the chunks of ``hdr`` and ``bands`` that hold its
     images (:func:`_row_blocks`; both chunked along their first dim only, as
     :func:`reconstruct_image_sets` gives them): a dask selection of the images per batch
-    builds and optimises a graph over every chunk of the run, seconds and tens of MB per
-    batch for the ~220 batches of a full run.
+    would build and optimise a graph over every chunk of the run for every batch, a cost
+    that grows with the run times its batches.
     """
     labels = np.unique(np.concatenate([members for members, _ in sets]))
     rgb = hdr["radiance"]
@@ -585,8 +652,8 @@ def _batch_tasks(
     rgb_keys, rgb_take = _row_blocks(rgb.data, rgb_at)
     shot_keys, shot_take = _row_blocks(shots.data, picked)
     token = dask.base.tokenize(
-        rgb.data.name, shots.data.name, rgb_at, picked, camera_matrix.values, settings,
-        [tuple(m) for m, _ in sets], warm,
+        rgb.data.name, shots.data.name, rgb_at, picked, camera_matrix.values, method,
+        illuminant, [tuple(m) for m, _ in sets], warm,
     )  # fmt: skip
     key = f"{name}-{token}"
     solve = functools.partial(
@@ -600,7 +667,8 @@ def _batch_tasks(
         shot_image=shot_image[picked],
         camera_matrix=camera_matrix,
         sets=sets,
-        settings=settings,
+        method=method,
+        illuminant=illuminant,
     )
     layer = {key: (solve, list(rgb_keys), list(shot_keys), warm.key)}
     graph = HighLevelGraph.from_collections(key, layer, dependencies=[rgb.data, shots.data, warm])
@@ -666,163 +734,165 @@ def reconstruct_image_sets(
         estimated per-pixel nRMSE, higher where the result deserves less trust), plus
         ``image_set`` and ``iterations`` (image, the most over the set's tiles), lazy.
     """
+    resolved = node_method(
+        method,
+        gamma_hat=gamma_hat,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+        k=k,
+        prior=prior,
+        set_model=set_model,
+    )
     seed = int(spectra_seed.attrs["seed_set"])
-    wavelength = _wavelengths(bands)
-    camera_matrix = _camera_matrix(calibration, wavelength, hdr)  # T_k C_k per camera k
-    hdr = in_paired_camera(hdr, calibration)  # each image's RGB by its T_k
-    ny, nx = hdr.sizes["y"], hdr.sizes["x"]
-    seed_members, seed_owned = set_members(image_sets, seed)
-    seed_rgb = hdr["radiance"].sel(image=seed_members).transpose("image", "y", "x", "channel")
-    seed_cube = (
-        spectra_seed["radiance"].sel(image=seed_members).transpose("image", "y", "x", "wavelength")
-    )
-    seed_counts = spectra_seed["iterations"].sel(image=seed_members)
-    source_rgb, source_spectra, (seed_count,) = _warm_sample(
-        seed_rgb, seed_cube, warm_start_pixels, seed_counts.max().data
-    )
-    warm = (source_rgb, source_spectra)
-    seed_iterations = int(seed_count)
-    warm_task = dask.delayed(warm, name=f"warm-start-{dask.base.tokenize(*warm)}")
-    settings = {
-        "method": method,
-        "gamma_hat": gamma_hat,
-        "tolerance": tolerance,
-        "max_iterations": max_iterations,
-        "k": k,
-        "prior": prior,
-        **_set_model_settings(method, set_model, calibration, wavelength),
-    }
-    method_options(
-        method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
-    )  # fail before any solve
+    hdr, wavelength, camera_matrix = _prepared(hdr, bands, calibration)
+    warm, seed_iterations = _warm_start_source(hdr, image_sets, spectra_seed, warm_start_pixels)
+    illuminant = _illuminant(resolved, calibration, wavelength)
 
     image_sets = image_sets.load()  # small: read once, not once per set
     shot_image = np.asarray(bands["image"].values)
-    owned_sets = [i for i in range(image_sets.sizes["set"]) if set_members(image_sets, i)[1].any()]
+    sets = [(i, *set_members(image_sets, i)) for i in range(image_sets.sizes["set"])]
+    sets = [(index, members, owned) for index, members, owned in sets if owned.any()]
+    ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     whole = tile is None or (ny <= tile and nx <= tile)  # every set solved in one tile
-    per_image = (
-        camera_matrix.sizes["wavelength"] * ny * nx * np.dtype(np.float32).itemsize
-        + ny * nx * np.dtype(np.float32).itemsize
-    )
-    batch_images = BATCH_BYTES // per_image if whole and len(owned_sets) > BATCH_SETS_ABOVE else 0
+    per_image = (camera_matrix.sizes["wavelength"] + 1) * ny * nx * np.dtype(np.float32).itemsize
+    batch_images = BATCH_BYTES // per_image if whole and len(sets) > BATCH_SETS_ABOVE else 0
     if batch_images:  # batches read their rows chunk by chunk (_batch_tasks)
         hdr, bands = _by_rows(hdr, "image"), _by_rows(bands, "shot")
-    pieces, counts, labels, set_of, confidences = [], [], [], [], []
-    batch: list[tuple[int, np.ndarray, np.ndarray]] = []
-
-    def flush() -> None:
-        if not batch:
-            return
-        block, count, confidence = _batch_tasks(
-            hdr,
-            bands,
-            shot_image,
-            camera_matrix,
-            [(members, owned) for _, members, owned in batch],
-            settings=settings,
-            warm=warm_task,
-            name=f"solve-sets-{batch[0][0]}-{batch[-1][0]}",
-        )
-        pieces.append(block)
-        counts.append(count)
-        confidences.append(confidence)
-        batch.clear()
-
-    for index in owned_sets:
-        members, owned = set_members(image_sets, index)
-        n_owned = int(owned.sum())
-        if index != seed and batch_images:
-            if batch and sum(int(o.sum()) for _, _, o in batch) + n_owned > batch_images:
-                flush()
-            batch.append((index, members, owned))
-            labels.extend(members[owned].tolist())
-            set_of.extend([index] * n_owned)
-            continue
-        flush()
-        rgb, shots = _set_inputs(hdr, bands, members, shot_image)
-        windows, _ = set_windows(shots, ny, nx, tile)
-        if index == seed:
-            block = (
-                spectra_seed["radiance"]
-                .sel(image=members[owned])
-                .transpose("image", "wavelength", "y", "x")
-                .data
-            )
-            block = da.asarray(block).astype(np.float32).rechunk((n_owned, -1, *core_chunks(windows)))
-            count = da.asarray(seed_counts.sel(image=members[owned]).data).astype(np.int32)
-            owned_rgb = hdr["radiance"].sel(image=members[owned]).transpose("image", "y", "x", "channel")
-            if "confidence" in spectra_seed:  # solved with the seed set
-                kept = spectra_seed["confidence"].sel(image=members[owned]).transpose("image", "y", "x")
-                confidence = da.asarray(kept.data).astype(np.float32)
-            else:  # a store written before the seed set kept its confidence
-                confidence = join_tiles(
-                    [
-                        da.from_delayed(
-                            dask.delayed(_tile_confidence, pure=True)(
-                                block[:, :, w.outer[0], w.outer[1]],
-                                owned_rgb.data[:, w.outer[0], w.outer[1]],
-                                w.inner,
-                            ),
-                            shape=(n_owned, *w.core_shape),
-                            dtype=np.float32,
-                        )
-                        for w in windows
-                    ],
-                    windows,
-                )
-        else:
-            block, count, confidence = tile_tasks(
-                rgb,
-                shots,
+    pieces, counts, confidences, labels, set_of = [], [], [], [], []
+    for batched, group in _task_groups(sets, seed, batch_images):
+        if batched:
+            block, count, confidence = _batch_tasks(
+                hdr,
+                bands,
+                shot_image,
                 camera_matrix,
-                windows,
-                settings=settings,
-                keep=owned,
-                warm=warm_task,
-                confidence=True,
-                name=f"solve-set-{index}",
+                [(members, owned) for _, members, owned in group],
+                method=resolved,
+                illuminant=illuminant,
+                warm=warm,
+                name=f"solve-sets-{group[0][0]}-{group[-1][0]}",
             )
+        else:
+            ((index, members, owned),) = group
+            rgb, shots = _set_inputs(hdr, bands, members, shot_image)
+            windows, _ = set_windows(shots, ny, nx, tile)
+            if index == seed:
+                block, count, confidence = _seed_copy(spectra_seed, hdr, members[owned], windows)
+            else:
+                block, count, confidence = tile_tasks(
+                    rgb,
+                    shots,
+                    camera_matrix,
+                    windows,
+                    method=resolved,
+                    illuminant=illuminant,
+                    keep=owned,
+                    warm=warm,
+                    confidence=True,
+                    name=f"solve-set-{index}",
+                )
         pieces.append(block)
         counts.append(count)
         confidences.append(confidence)
-        labels.extend(members[owned].tolist())
-        set_of.extend([index] * n_owned)
-    flush()
-    cube = da.concatenate(pieces, axis=0)
-    per_image = hdr.drop_vars([v for v in hdr.data_vars]).sel(image=labels).load()
-    coords = {name: per_image[name] for name in (*_PER_IMAGE, "image") if name in per_image.coords}
-    coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
+        for index, members, owned in group:
+            labels.extend(members[owned].tolist())
+            set_of.extend([index] * int(owned.sum()))
     return xr.Dataset(
         {
             "radiance": (
                 ("image", "wavelength", "y", "x"),
-                cube,
-                {"units": "1", "long_name": "relative spectral radiance"},
+                da.concatenate(pieces, axis=0),
+                _RADIANCE_ATTRS,
             ),
-            "confidence": (
-                ("image", "y", "x"),
-                da.concatenate(confidences, axis=0),
-                _CONFIDENCE_ATTRS,
-            ),
+            "confidence": (("image", "y", "x"), da.concatenate(confidences, axis=0), _CONFIDENCE_ATTRS),
             "image_set": ("image", np.asarray(set_of), {"long_name": "set the image was solved in"}),
-            "iterations": (
-                "image",
-                da.concatenate(counts),
-                {
-                    "long_name": "solver iterations of the image's set (seed: cold start, others: "
-                    "warm-started from the seed)"
-                },
-            ),
+            "iterations": ("image", da.concatenate(counts), _SET_ITERATIONS_ATTRS),
         },
-        coords=coords,
+        coords=_image_coords(hdr, labels, wavelength),
         attrs={
             "seed_set": seed,
-            "method": method,
-            **({} if gamma_hat is None else {"gamma_hat": gamma_hat}),
-            **({} if prior is None else {"prior": prior}),
-            **_given(set_model=set_model),
+            **_given_attrs(resolved, "gamma_hat", "prior", "set_model"),
             "seed_iterations": seed_iterations,
             **({} if tile is None else {"tile": tile}),
             "ordering": "images ordered by image set; use .sel(image=label)",
         },
     )
+
+
+_SET_ITERATIONS_ATTRS = {
+    "long_name": "solver iterations of the image's set (seed: cold start, others: "
+    "warm-started from the seed)"
+}
+
+
+def _warm_start_source(
+    hdr: xr.Dataset, image_sets: xr.Dataset, spectra_seed: xr.Dataset, pixels: int
+) -> tuple[Delayed, int]:
+    """The seed pixels every other set's warm start is transported from, as one dask task
+    shared by the run's sets, and the seed set's iterations (read in the same pass).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4.
+    """
+    members, _ = set_members(image_sets, int(spectra_seed.attrs["seed_set"]))
+    rgb = hdr["radiance"].sel(image=members).transpose("image", "y", "x", "channel")
+    cube = spectra_seed["radiance"].sel(image=members).transpose("image", "y", "x", "wavelength")
+    counts = spectra_seed["iterations"].sel(image=members)
+    source_rgb, source_spectra, (seed_count,) = _warm_sample(rgb, cube, pixels, counts.max().data)
+    warm = (source_rgb, source_spectra)
+    return dask.delayed(warm, name=f"warm-start-{dask.base.tokenize(*warm)}"), int(seed_count)
+
+
+def _task_groups(
+    sets: list[tuple[int, np.ndarray, np.ndarray]], seed: int, batch_images: int
+) -> list[tuple[bool, list[tuple[int, np.ndarray, np.ndarray]]]]:
+    """The run's sets ``(index, members, owned)`` in order, grouped as the tasks that solve
+    them: ``(True, sets)`` a batch of consecutive sets of at most ``batch_images`` owned
+    images (at least one set), ``(False, [set])`` a set of its own (the seed set always;
+    every set without batching, ``batch_images == 0``)."""
+    groups: list[tuple[bool, list[tuple[int, np.ndarray, np.ndarray]]]] = []
+    batch: list[tuple[int, np.ndarray, np.ndarray]] = []
+    for index, members, owned in sets:
+        if index != seed and batch_images:
+            size = sum(int(o.sum()) for _, _, o in batch)
+            if batch and size + int(owned.sum()) > batch_images:
+                groups.append((True, batch))
+                batch = []
+            batch.append((index, members, owned))
+            continue
+        if batch:
+            groups.append((True, batch))
+            batch = []
+        groups.append((False, [(index, members, owned)]))
+    if batch:
+        groups.append((True, batch))
+    return groups
+
+
+def _seed_copy(
+    spectra_seed: xr.Dataset, hdr: xr.Dataset, owned: np.ndarray, windows: list[TileWindow]
+) -> tuple[da.Array, da.Array, da.Array]:
+    """The seed set's owned images ``owned`` (labels) as the ``spectra`` group holds them:
+    spectra, iterations and confidence copied from ``spectra_seed``, chunked by the tiles'
+    cores; a seed group written before it kept its confidence gets it computed again, tile
+    by tile, from its spectra and ``hdr``'s RGB."""
+    n_owned = len(owned)
+    block = spectra_seed["radiance"].sel(image=owned).transpose("image", "wavelength", "y", "x")
+    block = da.asarray(block.data).astype(np.float32).rechunk((n_owned, -1, *core_chunks(windows)))
+    count = da.asarray(spectra_seed["iterations"].sel(image=owned).data).astype(np.int32)
+    if "confidence" in spectra_seed:  # solved with the seed set
+        kept = spectra_seed["confidence"].sel(image=owned).transpose("image", "y", "x")
+        return block, count, da.asarray(kept.data).astype(np.float32)
+    rgb = hdr["radiance"].sel(image=owned).transpose("image", "y", "x", "channel")
+    tiles = [
+        da.from_delayed(
+            dask.delayed(_tile_confidence, pure=True)(
+                block[:, :, w.outer[0], w.outer[1]], rgb.data[:, w.outer[0], w.outer[1]], w.inner
+            ),
+            shape=(n_owned, *w.core_shape),
+            dtype=np.float32,
+        )
+        for w in windows
+    ]
+    return block, count, join_tiles(tiles, windows)

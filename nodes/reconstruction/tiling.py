@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -48,11 +48,12 @@ import xarray as xr
 from spectralize.engine import progress
 from spectralize.nodes.filter_size import filter_radius
 from spectralize.schemas import ReconstructionError
+from spectralize.schemas.run import SPECTRA
 
 from .api import reconstruct
 from .estimators.endmember_mixture import Endmembers, sample_stride, set_endmembers
 from .inputs import inputs_from_xarray
-from .methods import DEFAULT_METHOD, RECONSTRUCTION_METHODS, get_method
+from .methods import MethodLike, resolve_method
 from .solvers.common import counting_iterations
 from .warm_start import warm_start
 
@@ -65,7 +66,6 @@ __all__ = [
     "set_windows",
     "sample_grid",
     "shared_endmembers",
-    "method_options",
     "solve_set",
     "solve_tile",
     "TileTasks",
@@ -350,56 +350,18 @@ def shared_endmembers(rgb: xr.DataArray, shots: xr.DataArray, camera_matrix: xr.
 
 
 # -- one window ----------------------------------------------------------------------------------
-def method_options(
-    method: str,
-    *,
-    gamma_hat: float | None,
-    tolerance: float | None,
-    max_iterations: int | None,
-    k: int | None,
-    prior: float | None,
-) -> dict[str, Any]:
-    """The settings ``method`` takes: all of them for a solver (those not None), none for a
-    baseline.
-
-    Raises
-    ------
-    ReconstructionError
-        For an unknown method, or a ``prior`` for a method without one.
-    """
-    options = get_method(method).options
-    if prior is not None and "prior" not in options:
-        takers = [name for name, m in RECONSTRUCTION_METHODS.items() if "prior" in m.options]
-        raise ReconstructionError(
-            f"prior: method {method!r} has no prior; methods with one: {', '.join(takers)}"
-        )
-    settings = {
-        "gamma_hat": gamma_hat,
-        "tolerance": tolerance,
-        "max_iterations": max_iterations,
-        "k": k,
-        "prior": prior,
-    }
-    return {name: value for name, value in settings.items() if name in options and value is not None}
-
-
 def solve_set(
     rgb: xr.DataArray,
     shots: xr.DataArray,
     camera_matrix: xr.DataArray,
     *,
+    method: MethodLike | None = None,
     initial: xr.DataArray | None = None,
-    method: str = DEFAULT_METHOD,
-    gamma_hat: float | None = None,
-    tolerance: float | None = None,
-    max_iterations: int | None = None,
-    k: int | None = None,
-    prior: float | None = None,
     where: str | None = None,
     endmembers: Endmembers | None = None,
     confidence: bool = False,
-    set_model: str | None = None,
     illuminant: xr.DataArray | None = None,
+    **options: Any,
 ) -> tuple[xr.DataArray, int, float]:
     """Reconstruct one image set on one window (eq. 1 or a baseline), in memory.
 
@@ -412,13 +374,12 @@ def solve_set(
     rgb, shots, camera_matrix
         The set's HDR RGB ``(image, y, x, channel)``, its band shots ``(shot, y, x)`` and
         ``C`` (see :func:`~spectralize.nodes.reconstruction.reconstruct`), cut to the window.
-    initial
-        Warm start ``(image, wavelength, y, x)`` (solvers only; ignored by a baseline).
     method
-        A name in :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`.
-    gamma_hat, tolerance, max_iterations, k, prior
-        Solver settings (a baseline takes none of them); None: the method's setting
-        (:data:`~.methods.RECONSTRUCTION_METHODS`).
+        A method name, record or resolved record (:func:`~.methods.resolve_method`; None:
+        the default).
+    initial
+        Warm start ``(image, wavelength, y, x)`` (a method that takes one; ignored by the
+        others).
     where
         Which part of the images this is (a tile's :attr:`TileWindow.label`), for the
         progress display's label.
@@ -429,10 +390,11 @@ def solve_set(
         Also compute the per-pixel confidence (:func:`~.confidence.neighbourhood_spread`,
         from the solver's own neighbourhoods where it has them), as the coordinate
         ``confidence`` ``(image, y, x)`` of ``spectra``.
-    set_model
-        A solver's set model (:data:`~.methods.SET_MODELS`; None: the method's setting).
     illuminant
-        ``L`` ``(wavelength,)`` for ``set_model="shared-texel"`` (None: none).
+        ``L`` ``(wavelength,)`` for a set model (:data:`~.methods.SET_MODELS`; None: none).
+    **options
+        Settings that replace the method's (``gamma_hat``, ``tolerance``, ``set_model``...,
+        :func:`~.methods.resolve_method`); one given as None is the method's.
 
     Returns
     -------
@@ -453,16 +415,12 @@ def solve_set(
             "an image set without any band shot cannot be solved on its "
             "own: it needs at least one image with bands"
         )
-    options = method_options(
-        method, gamma_hat=gamma_hat, tolerance=tolerance, max_iterations=max_iterations, k=k, prior=prior
-    )
-    record = get_method(method)
-    if initial is not None and "initial" in record.options:
-        options["initial"] = initial
-    if endmembers is not None and "endmembers" in record.options:
-        options["endmembers"] = endmembers
-    if set_model is not None and "set_model" in record.options:
-        options["set_model"] = set_model
+    resolved = resolve_method(method, **{n: v for n, v in options.items() if v is not None})
+    run: dict[str, Any] = {}
+    if initial is not None and "initial" in resolved.options:
+        run["initial"] = initial
+    if endmembers is not None and "endmembers" in resolved.options:
+        run["endmembers"] = endmembers
     start = time.perf_counter()
     # named by its images without band shots (the anchors with shots are in every set)
     images = rgb["image"].values.tolist()
@@ -470,27 +428,27 @@ def solve_set(
     named = [str(i) for i in sorted(i for i in images if i not in anchors) or images]
     more = f" and {len(named) - 3} more" if len(named) > 3 else ""
     label = f"images {', '.join(named[:3])}{more}" + (f", {where}" if where else "")
-    solver = "callback" in record.options
+    solver = "callback" in resolved.options
+    used = resolved.used()
     # a solver's CG iterations, then its S >= 0 refinement's (told when it is done)
-    refinement = int(record.defaults().get("projected_iterations", 0))
-    limit = options.get("max_iterations", record.defaults().get("max_iterations"))
-    total = int(limit) + refinement if solver else None
-    stop = (options.get("tolerance") or record.defaults().get("tolerance")) if solver else None
+    refinement = int(used.get("projected_iterations", 0))
+    total = int(used["max_iterations"]) + refinement if solver else None
+    stop = used["tolerance"] if solver else None
     # the display estimates the time left from the convergence rate (residual per iteration)
     with progress.task(
         label, total=total, tolerance=stop, fixed=refinement if solver else 0
     ) as solving:  # nothing is told when nobody listens
         if solving is not None and solver:
-            options["callback"] = counting_iterations(solving.advance, residual=True)
+            run["callback"] = counting_iterations(solving.advance, residual=True)
         result = reconstruct(
             rgb.load(),
             shots.load(),
             camera_matrix,
-            method=method,
+            method=resolved,
             illuminant=illuminant,
             full_output=True,
             confidence=confidence,
-            **options,
+            **run,
         )
         if solving is not None and solver:
             solving.advance(int(result.iterations))
@@ -507,7 +465,8 @@ def solve_tile(
     camera_matrix: xr.DataArray,
     inner: tuple[slice, slice],
     *,
-    settings: Mapping[str, Any],
+    method: MethodLike | None = None,
+    illuminant: xr.DataArray | None = None,
     keep: np.ndarray | None = None,
     warm: tuple[np.ndarray, np.ndarray] | None = None,
     confidence: bool = False,
@@ -522,8 +481,11 @@ def solve_tile(
         The set's inputs cut to the window, and ``C``.
     inner
         The core inside the window (:attr:`TileWindow.inner`).
-    settings
-        ``method`` and the solver settings of :func:`solve_set`.
+    method
+        The method resolved with its options (:func:`~.methods.resolve_method`, as a
+        set's tile tasks get it; a name is resolved here; None: the default).
+    illuminant
+        ``L`` ``(wavelength,)`` for a set model (:func:`solve_set`), or None.
     keep
         Boolean mask over the set's images: those whose core is returned (None: all); the
         others help solve the window only (a set's images owned by another set).
@@ -548,21 +510,24 @@ def solve_tile(
         ``confidence``).
     """
     keep = np.ones(rgb.sizes["image"], dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
-    method = settings.get("method", DEFAULT_METHOD)
+    method = resolve_method(method)
     initial = None
-    if warm is not None and "initial" in get_method(method).options:
+    if warm is not None and "initial" in method.options:
         source_rgb, source_spectra = warm
         wavelength = camera_matrix["wavelength"].values
-        initial = warm_start(source_rgb, source_spectra, rgb, wavelength, k=settings.get("k") or 3)
+        # transported through the caller's k where given, else through 3 RGB neighbours
+        k = method.given.get("k") or 3
+        initial = warm_start(source_rgb, source_spectra, rgb, wavelength, k=k)
     spectra, iterations, _ = solve_set(
         rgb,
         shots,
         camera_matrix,
+        method=method,
         initial=initial,
         where=where,
         endmembers=endmembers,
         confidence=confidence,
-        **settings,
+        illuminant=illuminant,
     )
     cube = spectra.transpose("image", "wavelength", "y", "x").values
     iy, ix = inner
@@ -608,7 +573,8 @@ def tile_tasks(
     camera_matrix: xr.DataArray,
     windows: list[TileWindow],
     *,
-    settings: Mapping[str, Any],
+    method: MethodLike | None = None,
+    illuminant: xr.DataArray | None = None,
     keep: np.ndarray | None = None,
     warm: Any = None,
     confidence: bool = False,
@@ -620,7 +586,7 @@ def tile_tasks(
     window only). With more than one window and a method that takes an endmember
     dictionary, one more task learns it from the set's :func:`sample_grid` sample
     (:func:`shared_endmembers`) and every tile task takes it. Task keys are deterministic
-    (``{name}-tile-{j}-{token}``, the token hashing inputs, settings, windows and warm
+    (``{name}-tile-{j}-{token}``, the token hashing inputs, method, windows and warm
     start), so a graph built twice solves once.
 
     Parameters
@@ -630,8 +596,11 @@ def tile_tasks(
         or in memory) and ``C`` on the shots' wavelengths.
     windows
         The set's tiles (:func:`set_windows`), row-major.
-    settings
-        ``method`` and the solver settings of :func:`solve_set` (None: the method's default).
+    method
+        The method resolved with its options (:func:`~.methods.resolve_method`), passed to
+        every tile task as it is (a name is resolved here once; None: the default).
+    illuminant
+        ``L`` ``(wavelength,)`` for a set model (:func:`solve_set`), or None.
     keep
         Boolean mask over the set's images whose results are returned (None: all).
     warm
@@ -647,19 +616,20 @@ def tile_tasks(
     TileTasks
     """
     keep = np.ones(rgb.sizes["image"], dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
-    settings = dict(settings)
+    method = resolve_method(method)
     token = dask.base.tokenize(
         rgb.data,
         shots.data,
         camera_matrix.values,
-        settings,
+        method,
+        illuminant,
         [w.core for w in windows],
         keep,
         warm,
     )
     n_kept, n_wavelength = int(np.count_nonzero(keep)), camera_matrix.sizes["wavelength"]
     endmembers = None  # one dictionary for all tiles of the set, learnt once
-    if len(windows) > 1 and "endmembers" in get_method(settings.get("method", DEFAULT_METHOD)).options:
+    if len(windows) > 1 and "endmembers" in method.options:
         grid = sample_grid(rgb)  # cut before the task: only the sample is read
         endmembers = dask.delayed(shared_endmembers, pure=True)(
             rgb.isel(grid),
@@ -675,7 +645,8 @@ def tile_tasks(
             shots.isel(y=oy, x=ox),
             camera_matrix,
             window.inner,
-            settings=settings,
+            method=method,
+            illuminant=illuminant,
             keep=keep,
             warm=warm,
             confidence=confidence,
@@ -705,7 +676,9 @@ def solve_tiled(
     warm: tuple[np.ndarray, np.ndarray] | None = None,
     confidence: bool = False,
     scheduler: str | Any = "synchronous",
-    **settings: Any,
+    method: MethodLike | None = None,
+    illuminant: xr.DataArray | None = None,
+    **options: Any,
 ) -> tuple[xr.DataArray, int, float]:
     """Reconstruct one set tile by tile, now: the flow's tile tasks, computed at once.
 
@@ -728,8 +701,8 @@ def solve_tiled(
         Also compute the per-pixel confidence, as the coordinate ``confidence``.
     scheduler
         Any dask scheduler (``"synchronous"``, ``"threads"``, a distributed client).
-    **settings
-        ``method`` and the solver settings of :func:`solve_set`.
+    method, illuminant, **options
+        As for :func:`solve_set`: the method is resolved with the options once, here.
 
     Returns
     -------
@@ -745,23 +718,30 @@ def solve_tiled(
         For a tile too small for the set's filters, and everything :func:`solve_set` raises.
     """
     started = time.perf_counter()
+    resolved = resolve_method(method, **{n: v for n, v in options.items() if v is not None})
     windows, halo = set_windows(shots, rgb.sizes["y"], rgb.sizes["x"], tile, halo)
     tasks = tile_tasks(
-        rgb, shots, camera_matrix, windows, settings=settings, warm=warm, confidence=confidence
+        rgb,
+        shots,
+        camera_matrix,
+        windows,
+        method=resolved,
+        illuminant=illuminant,
+        warm=warm,
+        confidence=confidence,
     )
     cube, iterations, spread = dask.compute(*tasks, scheduler=scheduler)
     coords: dict[str, Any] = {n: c for n, c in rgb.coords.items() if set(c.dims) <= {"image"}}
     wavelength = camera_matrix["wavelength"].values
-    coords["wavelength"] = ("wavelength", wavelength, {"units": "nm", "long_name": "wavelength"})
+    coords["wavelength"] = ("wavelength", wavelength, SPECTRA.spec("wavelength").attrs)
     if confidence:
         coords["confidence"] = (("image", "y", "x"), spread)
-    method = settings.get("method", DEFAULT_METHOD)
     spectra = xr.DataArray(
         cube,
         dims=("image", "wavelength", "y", "x"),
         coords=coords,
         attrs={
-            "method": method,
+            "method": resolved.name,
             "tiles": len(windows),
             **({"tile": tile, "halo": halo} if tile else {}),
         },

@@ -126,15 +126,23 @@ def test_the_nodes_solver_settings_default_to_the_methods_preset():
         RECONSTRUCT_IMAGE_SETS,
         RECONSTRUCT_SEED_SET,
     )
-    from spectralize.nodes.reconstruction.tiling import method_options
+    from spectralize.nodes.reconstruction.methods import RECONSTRUCTION_METHODS
+    from spectralize.nodes.reconstruction.set_reconstruction import node_method
 
     for node in (RECONSTRUCT_SEED_SET, RECONSTRUCT_IMAGE_SETS):
         parameters = node.parse_parameters({})
         assert parameters.method == DEFAULT_METHOD
-        for name in ("gamma_hat", "tolerance", "max_iterations", "k", "prior"):
+        for name in ("gamma_hat", "tolerance", "max_iterations", "k", "prior", "set_model"):
             assert getattr(parameters, name) is None, name
-    unset = dict.fromkeys(("gamma_hat", "tolerance", "max_iterations", "k", "prior"))
-    assert method_options(DEFAULT_METHOD, **unset) == {}  # reconstruct takes the preset's
+    unset = dict.fromkeys(("gamma_hat", "tolerance", "max_iterations", "k", "prior", "set_model"))
+    resolved = node_method(DEFAULT_METHOD, **unset)
+    assert dict(resolved.given) == {}  # reconstruct takes the preset's
+    assert dict(resolved.settings) == dict(RECONSTRUCTION_METHODS[DEFAULT_METHOD].settings)
+    # a solver parameter given is laid over the preset; the solver parameters do not reach a
+    # method without them (an estimator), as their descriptions say
+    given = node_method("block-jacobi-pcg", **{**unset, "k": 4, "tolerance": 1e-2})
+    assert dict(given.given) == {"tolerance": 1e-2, "k": 4} and given.settings["prior"] == 0.0
+    assert dict(node_method("endmember-mixture", **{**unset, "k": 4}).given) == {}
 
 
 def test_prior_is_a_set_parameter_and_checked_against_the_method():

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from spectralize.flows.runtime import run_node
 from spectralize.nodes.evaluation.pixel_metrics import normalised_rmse
+from spectralize.nodes.reconstruction.methods import resolve_method
 from spectralize.nodes.reconstruction.set_reconstruction import (
     reconstruct_image_sets,
     reconstruct_seed_set,
@@ -129,17 +130,30 @@ def test_tile_tasks_are_lazy_one_task_per_tile_and_keep_the_images_asked_for():
     assert len(windows) == 4 and halo == default_halo(scene.bands["filter_size"].values)
     keep = np.array([True, False, True])
     settings = {"method": "block-jacobi-pcg", "max_iterations": 5}
-    tasks = tile_tasks(
-        scene.rgb, scene.bands, scene.camera_matrix, windows, settings=settings, keep=keep
-    )
+    method = resolve_method("block-jacobi-pcg", max_iterations=5)
+    tasks = tile_tasks(scene.rgb, scene.bands, scene.camera_matrix, windows, method=method, keep=keep)
     n_wavelength = scene.camera_matrix.sizes["wavelength"]
     assert tasks.spectra.shape == (2, n_wavelength, 48, 48)
     assert tasks.spectra.chunks[2:] == ((24, 24), (24, 24)) and tasks.confidence is None
     # built twice, the same keys: a graph that asks for a set twice solves it once
     again = tile_tasks(
-        scene.rgb, scene.bands, scene.camera_matrix, windows, settings=settings, keep=keep
+        scene.rgb,
+        scene.bands,
+        scene.camera_matrix,
+        windows,
+        method=resolve_method("block-jacobi-pcg", max_iterations=5),
+        keep=keep,
     )
     assert again.spectra.name == tasks.spectra.name
+    other = tile_tasks(
+        scene.rgb,
+        scene.bands,
+        scene.camera_matrix,
+        windows,
+        method=resolve_method("block-jacobi-pcg", max_iterations=6),
+        keep=keep,
+    )
+    assert other.spectra.name != tasks.spectra.name  # the method's settings are in the keys
     cube, iterations = dask.compute(tasks.spectra, tasks.iterations, scheduler="synchronous")
     every, _, _ = solve_tiled(scene.rgb, scene.bands, scene.camera_matrix, tile=24, **settings)
     assert np.array_equal(cube, every.values[keep])
