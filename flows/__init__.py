@@ -2,7 +2,7 @@
 
 Prefect's embedded local API (SQLite) is the default; no server needs to be started.
 The environment defaults below are set before Prefect is imported: a new Prefect database
-can take longer than Prefect's 20 s start-up limit, and the embedded server's analytics cause
+can take longer than Prefect's default start-up limit, and the embedded server's analytics cause
 'database is locked' errors.
 
 Nothing is imported eagerly: ``spectralize --help`` and ``spectralize nodes`` answer without
@@ -23,15 +23,16 @@ for _key, _value in {
 
 if TYPE_CHECKING:
     from .pipelines import FLOWS, FlowDefinition, get_flow
-    from .runtime import RunReport, StepReport, run_steps
+    from .runtime import run_steps
+    from .steps import RunReport, StepReport
 
 # where each lazy attribute lives
 _LAZY = {
     "FLOWS": "pipelines",
     "FlowDefinition": "pipelines",
     "get_flow": "pipelines",
-    "RunReport": "runtime",
-    "StepReport": "runtime",
+    "RunReport": "steps",
+    "StepReport": "steps",
     "run_steps": "runtime",
 }
 

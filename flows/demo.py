@@ -18,7 +18,7 @@ from pathlib import Path
 from spectralize.store import RunStore
 
 from . import run_flow
-from .runtime import RunReport
+from .steps import RunReport
 
 __all__ = ["DEMO_STORE", "DEMO_CAPTURE", "run_demo", "run_capture_demo", "write_sample_capture"]
 
@@ -66,8 +66,8 @@ def run_capture_demo(
     Returns the store, the flow's report and the path of the HTML report.
     """
     from .ingest import ingest
+    from .pipelines import report_directory
     from .report import write_run_report
-    from .runtime import report_directory
 
     write_sample_capture(capture, recipe=recipe, progress=progress)
     ingest(capture, store, progress=progress)

@@ -163,8 +163,7 @@ def test_an_unresolvable_annotation_is_a_declaration_error():
 
 
 def test_a_method_typo_in_the_demo_flow_is_the_only_problem_reported():
-    from spectralize.flows.pipelines import FLOWS
-    from spectralize.flows.runtime import step_parameters
+    from spectralize.flows.pipelines import FLOWS, step_parameters
 
     steps = step_parameters(
         FLOWS["demo"].steps, {"reconstruct_image_sets.method": "fastest", "simulate.recipe": "tiyn"}

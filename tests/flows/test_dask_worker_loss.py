@@ -3,7 +3,7 @@
 Real processes: a ``dask scheduler``, one ``dask worker --no-nanny --nthreads 1`` and the
 ``spectralize run`` command line against a real run store. The worker is SIGKILLed while it
 computes; dask then waits without limit for a worker that will not come back, and only the
-watchdog of :func:`spectralize.flows.runtime.dask_scheduler` ends the run.
+watchdog of :func:`spectralize.flows.dask_setup.dask_scheduler` ends the run.
 """
 
 import json
@@ -28,8 +28,8 @@ pytestmark = pytest.mark.slow  # real processes killed mid-run
 LOST_AFTER = 6
 RUN = (
     "import sys\n"
-    "from spectralize.flows import runtime\n"
-    "runtime.LOST_WORKERS_SECONDS = float(sys.argv[1])\n"
+    "from spectralize.flows import dask_setup\n"
+    "dask_setup.LOST_WORKERS_SECONDS = float(sys.argv[1])\n"
     "from spectralize.flows.cli import main\n"
     "sys.exit(main(sys.argv[2:]))\n"
 )

@@ -1,10 +1,10 @@
 """A run on local threads gives its cores to its tasks: BLAS and OpenMP run one thread per
-task meanwhile (issue 27: the libraries' own thread pools spun on a set's small matrices)."""
+task meanwhile (the libraries' own thread pools spun on a set's small matrices)."""
 
 import numpy as np
 from threadpoolctl import threadpool_info
 
-from spectralize.flows.runtime import INNER_THREADS, dask_scheduler
+from spectralize.flows.dask_setup import INNER_THREADS, dask_scheduler
 
 
 def _blas_threads() -> list[int]:

@@ -1,15 +1,15 @@
-"""A run on local threads bounds glibc's malloc arenas (issue 27: a long run's resident set)."""
+"""A run on local threads bounds glibc's malloc arenas (a long run's resident set stays flat)."""
 
 import subprocess
 import sys
 
 import pytest
 
-from spectralize.flows.runtime import MALLOC_ARENAS, bound_malloc_arenas
+from spectralize.flows.dask_setup import MALLOC_ARENAS, bound_malloc_arenas
 
 THREADS = """
 import ctypes, sys, threading
-from spectralize.flows.runtime import bound_malloc_arenas
+from spectralize.flows.dask_setup import bound_malloc_arenas
 print(bound_malloc_arenas(), flush=True)
 def work():
     for _ in range(2000):

@@ -140,7 +140,7 @@ def test_the_summary_lines_carry_each_node_s_peak_for_the_benchmarks(capsys):
 
     from spectralize.flows.cli import _print_report
     from spectralize.flows.progress import PlainProgress
-    from spectralize.flows.runtime import RunReport, StepReport
+    from spectralize.flows.steps import RunReport, StepReport
 
     steps = [
         StepReport("dark_average", "ran", 1.3, {"dark": "f1"}, peak_rss_gb=0.321),

@@ -420,9 +420,9 @@ def test_rot_in_a_report_group_is_found_before_the_report_of_a_run_that_computed
 def test_a_chunk_the_report_reads_that_fails_is_recomputed_and_the_report_written_in_one_run(
     reported_btf, tmp_path, capsys, monkeypatch
 ):
-    from spectralize.flows import runtime
+    from spectralize.flows import repair
 
-    monkeypatch.setattr(runtime, "REPORT_VERIFY_BYTES", 0)  # nothing checked before: the read finds it
+    monkeypatch.setattr(repair, "REPORT_VERIFY_BYTES", 0)  # nothing checked before: the read finds it
     store = copy_run(reported_btf, tmp_path)
     report = tmp_path / "run-report"
     shutil.rmtree(report)  # the report is written again, so it reads its groups
@@ -454,8 +454,8 @@ def test_rot_in_a_raw_group_the_report_shows_fails_the_up_to_date_run_naming_the
 
 @pytest.mark.slow
 def test_the_report_reads_only_the_groups_checked_before_it(reported_btf, tmp_path, monkeypatch):
+    from spectralize.flows.repair import REPORT_GROUPS
     from spectralize.flows.report import write_run_report
-    from spectralize.flows.runtime import REPORT_GROUPS
 
     store = copy_run(reported_btf, tmp_path)
     read: list[str] = []
