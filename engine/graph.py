@@ -97,10 +97,27 @@ def check_graph(
         method table lists the allowed ones), missing inputs, duplicate outputs, cycles,
         schema mismatches.
     """
-    steps = list(steps)
     available = dict(available or {})
     lookup = nodes if nodes is not None else {n: r.node for n, r in registry().items()}
     problems: list[Problem | str] = []
+    planned = _resolve_steps(steps, lookup, problems)
+    planned = _without_orphaned_optional_steps(planned, available)
+    producer = _producers(planned, problems)
+    sorter = _wire_inputs(planned, producer, available, problems)
+    order = _run_order(planned, sorter, problems)
+    if problems:
+        raise PipelineError(f"the node graph cannot run ({len(problems)} problem(s)):", problems)
+    return order
+
+
+def _resolve_steps(
+    steps: Iterable[Step], lookup: Mapping[str, Node], problems: list[Problem | str]
+) -> list[PlannedStep]:
+    """Each step's node, parsed parameters and groups; unknown nodes and bindings are problems.
+
+    A step whose parameters are invalid is still wired (its outputs do not then show up as
+    missing downstream); with a problem recorded, :func:`check_graph` returns nothing.
+    """
     planned: list[PlannedStep] = []
     for step in steps:
         node = lookup.get(step.node)
@@ -116,8 +133,6 @@ def check_graph(
         try:
             params = node.parse_parameters(step.parameters)
         except ParameterError as error:
-            # Still wire the step, so its outputs do not show up as missing downstream; with
-            # a problem recorded, nothing is returned.
             problems.extend(error.problems)
             params = None
         unknown_in = sorted(set(step.inputs) - set(node.inputs))
@@ -140,18 +155,28 @@ def check_graph(
                 step.output_groups(node),
             )
         )
+    return planned
 
-    # Leave out optional steps whose inputs can never be there (repeat: dropping one may
-    # orphan another optional step downstream of it).
+
+def _without_orphaned_optional_steps(
+    planned: list[PlannedStep], available: Mapping[str, str | None]
+) -> list[PlannedStep]:
+    """Leave out optional steps whose inputs can never be there.
+
+    Repeated until none is left: dropping one may orphan another optional step downstream of it.
+    """
     while True:
         made = set(available) | {g for item in planned for g in item.outputs.values()}
         orphans = [
             item for item in planned if item.step.optional and not set(item.inputs.values()) <= made
         ]
         if not orphans:
-            break
+            return planned
         planned = [item for item in planned if item not in orphans]
 
+
+def _producers(planned: Sequence[PlannedStep], problems: list[Problem | str]) -> dict[str, int]:
+    """Group -> index of the step that writes it; a group written by two steps is a problem."""
     producer: dict[str, int] = {}
     for index, item in enumerate(planned):
         for group in item.outputs.values():
@@ -166,33 +191,35 @@ def check_graph(
                 )
             else:
                 producer[group] = index
+    return producer
 
+
+def _wire_inputs(
+    planned: Sequence[PlannedStep],
+    producer: Mapping[str, int],
+    available: Mapping[str, str | None],
+    problems: list[Problem | str],
+) -> graphlib.TopologicalSorter[int]:
+    """Each step after the producers of its inputs; a missing input or one of another schema
+    (written by an earlier step, or in the store) is a problem."""
     sorter: graphlib.TopologicalSorter[int] = graphlib.TopologicalSorter()
     for index, item in enumerate(planned):
         sorter.add(index)
         for argument, group in item.inputs.items():
             wanted = item.node.inputs[argument]
+            where = f"node {item.node.name!r} input {argument!r} (group {group!r})"
             if group in producer:
                 source = planned[producer[group]]
                 sorter.add(index, producer[group])
                 made_schema = next(s for s, g in source.outputs.items() if g == group)
                 if not _provides(made_schema, wanted):
-                    problems.append(
-                        Problem(
-                            f"node {item.node.name!r} input {argument!r} (group {group!r})",
-                            f"schema {wanted!r}",
-                            f"schema {made_schema!r} written by node {source.node.name!r}",
-                        )
-                    )
+                    found = f"schema {made_schema!r} written by node {source.node.name!r}"
+                    problems.append(Problem(where, f"schema {wanted!r}", found))
             elif group in available:
                 have = available[group]
                 if have is not None and not _provides(have, wanted):
                     problems.append(
-                        Problem(
-                            f"node {item.node.name!r} input {argument!r} (group {group!r})",
-                            f"schema {wanted!r}",
-                            f"schema {have!r} in the store",
-                        )
+                        Problem(where, f"schema {wanted!r}", f"schema {have!r} in the store")
                     )
             else:
                 problems.append(
@@ -202,7 +229,15 @@ def check_graph(
                         "no such group",
                     )
                 )
+    return sorter
 
+
+def _run_order(
+    planned: Sequence[PlannedStep],
+    sorter: graphlib.TopologicalSorter[int],
+    problems: list[Problem | str],
+) -> list[PlannedStep]:
+    """The steps in run order, the given order kept among independent ones; a cycle is a problem."""
     order: list[PlannedStep] = []
     try:
         sorter.prepare()
@@ -214,8 +249,6 @@ def check_graph(
             ready = sorted(sorter.get_ready())  # keep the given order among independent steps
             order.extend(planned[i] for i in ready)
             sorter.done(*ready)
-    if problems:
-        raise PipelineError(f"the node graph cannot run ({len(problems)} problem(s)):", problems)
     return order
 
 

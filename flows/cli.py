@@ -287,6 +287,7 @@ _SET_HELP = (
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``spectralize`` parser: the options read anywhere, then one sub-parser per command."""
     parser = _Parser(
         prog="spectralize",
         description="Turns the measurement runs of a spectral BTF gantry into calibrated "
@@ -304,6 +305,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="show Prefect's log lines (INFO) instead of the progress display",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add_command in _COMMANDS:  # in the order --help lists them
+        add_command(commands)
+    return parser
+
+
+_Commands = Any  # argparse's sub-parsers action (its class is private)
+
+
+def _add_nodes(commands: _Commands) -> None:
     nodes = commands.add_parser(
         "nodes", help="list registered nodes, their parameters, defaults and allowed values"
     )
@@ -314,7 +324,13 @@ def build_parser() -> argparse.ArgumentParser:
         "whenever a node's source, a plugin or a version changes)",
     )
     nodes.set_defaults(handler=_cmd_nodes)
+
+
+def _add_flows(commands: _Commands) -> None:
     commands.add_parser("flows", help="list named flows").set_defaults(handler=_cmd_flows)
+
+
+def _add_validate(commands: _Commands) -> None:
     validate = commands.add_parser("validate", help="check a run store against the contract")
     validate.add_argument("store")
     validate.add_argument(
@@ -326,9 +342,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="also require the groups this flow reads (a flow of 'spectralize flows', e.g. btf)",
     )
     validate.set_defaults(handler=_cmd_validate)
+
+
+def _add_clean(commands: _Commands) -> None:
     clean = commands.add_parser("clean", help="remove unfinished writes of killed runs")
     clean.add_argument("store")
     clean.set_defaults(handler=_cmd_clean)
+
+
+def _add_run(commands: _Commands) -> None:
     run = commands.add_parser(
         "run",
         help="run a flow against a store (finished nodes are skipped)",
@@ -357,6 +379,9 @@ def build_parser() -> argparse.ArgumentParser:
         "them (one read of those groups); by default every chunk is checked as it is read",
     )
     run.set_defaults(handler=_cmd_run)
+
+
+def _add_serve(commands: _Commands) -> None:
     serve = commands.add_parser("serve", help="serve scheduled processing of a folder of runs")
     serve.add_argument("root", help="folder whose run stores (*.zarr) are processed")
     serve.add_argument("--flow", default="btf", help="flow to run on each store")
@@ -375,10 +400,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="a capture folder changed more recently than this is left for the next run",
     )
     serve.set_defaults(handler=_cmd_serve)
+
+
+def _add_ingest(commands: _Commands) -> None:
     ingest = commands.add_parser("ingest", help="ingest a capture folder into a run store")
     ingest.add_argument("capture_dir", help="folder with manifest.csv, capture.toml, calibration/")
     ingest.add_argument("store", help="run store to create or extend")
     ingest.set_defaults(handler=_cmd_ingest)
+
+
+def _add_report(commands: _Commands) -> None:
     report = commands.add_parser("report", help="write the HTML report of a run store")
     report.add_argument("store")
     report.add_argument("--out", default=None, help="folder of index.html (default: STORE-report)")
@@ -391,6 +422,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="a pixel whose spectrum is drawn on the first image (besides those chosen per camera)",
     )
     report.set_defaults(handler=_cmd_report)
+
+
+def _add_export(commands: _Commands) -> None:
     export = commands.add_parser("export", help="export spectral cubes as ENVI or netCDF")
     export.add_argument("store")
     export.add_argument("out", help="ENVI: a folder; netCDF: a .nc file (or a folder)")
@@ -408,6 +442,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     export.add_argument("--per-image", action="store_true", help="netCDF: one file per image")
     export.set_defaults(handler=_cmd_export)
+
+
+def _add_demo(commands: _Commands) -> None:
     demo = commands.add_parser("demo", help="make the sample run and process it")
     demo.add_argument(
         "--store", default=None, help="where to put the demo run store (default: demo/run.zarr)"
@@ -427,7 +464,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="node parameter, e.g. simulate.recipe=tiny (repeatable; syntax: see run --help)",
     )
     demo.set_defaults(handler=_cmd_demo)
-    return parser
+
+
+_COMMANDS: tuple[Callable[[_Commands], None], ...] = (
+    _add_nodes,
+    _add_flows,
+    _add_validate,
+    _add_clean,
+    _add_run,
+    _add_serve,
+    _add_ingest,
+    _add_report,
+    _add_export,
+    _add_demo,
+)
+"""Each command's sub-parser, in the order ``spectralize --help`` lists them."""
 
 
 def _version() -> str:
