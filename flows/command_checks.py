@@ -249,8 +249,8 @@ def check_dask_address(address: str, timeout: float = DASK_TIMEOUT_S) -> None:
     Raises
     ------
     UsageError
-        Naming the address and what failed (dask itself would wait 30 s, and only when the
-        first dask node starts).
+        Naming the address and what failed (dask itself would wait out its connect timeout,
+        and only when the first dask node starts).
     """
     scheme, sep, rest = address.partition("://")
     if not sep:

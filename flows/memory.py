@@ -21,7 +21,7 @@ that peak (:func:`process_peak_bytes`), so a caller can still tell the whole pro
 Between blocks, :func:`release_free_memory` hands the memory that Python and the C library
 have freed but kept back to the system (``gc.collect``, then glibc's ``malloc_trim(0)``), so a
 block starts from what is still in use, not from what the blocks before it left in malloc's
-free lists (which grows with the image count of a run: issue 27).
+free lists (which grows with the image count of a run).
 
 Where the mark cannot be read or reset (not Linux, a restricted ``/proc``),
 :class:`PeakMemory` measures nothing and says so (``peak_bytes`` is ``None``); nothing fails.

@@ -7,9 +7,9 @@ and the groups it reads from the store (:mod:`.command_checks` uses it). Both ar
 from one load of the registry and cached together.
 
 Listing the nodes needs every node's parameter model, which the engine derives from the
-node function's signature: loading a node imports its stage (xarray, dask, zarr; about
-1.5 s). The listing changes only when the installed nodes or their sources change, so it
-is cached under a key computed without importing any of them:
+node function's signature: loading a node imports its stage (xarray, dask, zarr: the
+slow part of the command). The listing changes only when the installed nodes or their
+sources change, so it is cached under a key computed without importing any of them:
 
 - the entry points of the group ``spectralize.nodes`` (name, target, distribution and its
   version), Python's version, and pydantic's (the parameter models);

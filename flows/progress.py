@@ -35,7 +35,8 @@ Two displays, with the same numbers:
   (``2,390/5,280 images written``) and the ETA, and under it a bar per running solver
   (share of its work) with its ETA; a finished node leaves one line.
 - :class:`PlainProgress` (a pipe or a file): the same as plain lines, with the ETA in words;
-  a solver run gets a line at most every 10 s (none when it takes less) and one when it ends.
+  a solver run gets a line at most every ``task_interval`` seconds (none when it takes less) and
+  one when it ends.
 
 :func:`quiet_prefect` keeps Prefect's INFO lines off the console (its API still gets them,
 so the Prefect UI shows the run's logs); ``spectralize -v`` keeps them.

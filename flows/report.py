@@ -1022,8 +1022,8 @@ def write_run_report(
         Where to write ``index.html`` (default: the folder ``report`` inside the run store).
     reference
         The long-exposure reference capture: a plan or its total [s] (default: one
-        reference set of bands per image from ``raw/exposure_plan``, else the paper's
-        226.212 s; the report says which). Runs with ground truth only.
+        reference set of bands per image from ``raw/exposure_plan``, else the capture time
+        the paper reports, 226.212 s; the report says which). Runs with ground truth only.
     title
         Title of the page (default: the store's name).
     max_images

@@ -742,7 +742,7 @@ GROUP_SCHEMAS: dict[str, GroupSchema] = {}
 
 
 def register_schema(schema: GroupSchema, *, replace: bool = False) -> GroupSchema:
-    """Add ``schema`` to the contract (nodes of later issues add their groups here)."""
+    """Add ``schema`` to the contract (a new node's output groups are added here)."""
     if schema.name in GROUP_SCHEMAS and not replace and GROUP_SCHEMAS[schema.name] != schema:
         raise SpectralizeError(
             f"schema {schema.name!r} is already registered with a different definition; "

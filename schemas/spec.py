@@ -195,8 +195,8 @@ def _check_values(where: str, array: xr.DataArray, spec: ArraySpec, *, lazy_ok: 
         return problems
     if not lazy_ok:
         return []
-    # dask only here: importing dask.array takes 0.2-1 s, which every command that imports
-    # the schemas would otherwise pay
+    # dask only here: every command that imports the schemas would otherwise pay for
+    # importing dask.array
     import dask
     import dask.array as da
 

@@ -45,6 +45,7 @@ __all__ = [
 MANIFEST_FORMAT = 2  # {"format": 2, "checksum": "crc32", "files": {rel: [size, mtime_ns, crc]}}
 MANIFEST_FILE = "spectralize_manifest.json"  # beside a group's zarr.json
 PARTIAL_SUFFIX = ".partial"  # zarr's local store writes a chunk to NAME.<uuid>.partial, then renames
+READ_BLOCK_BYTES = 4 * 2**20  # a file's checksum is computed on blocks of this size
 
 
 class ChecksumError(StoreError):
@@ -93,10 +94,10 @@ def metadata_files(root: Path) -> list[Path]:
 
 
 def crc32(path: Path) -> int:
-    """CRC-32 of a file's bytes, read in 4 MiB blocks."""
+    """CRC-32 of a file's bytes, read :data:`READ_BLOCK_BYTES` at a time."""
     crc = 0
     with open(path, "rb") as file:
-        while block := file.read(1 << 22):
+        while block := file.read(READ_BLOCK_BYTES):
             crc = zlib.crc32(block, crc)
     return crc
 

@@ -38,14 +38,15 @@ __all__ = [
 ]
 
 SMALL_BYTES = 16 * 2**20
-"""A variable up to this size is one chunk (per-image coordinates of a full run: ~0.4 MB)."""
+"""A variable up to this size is one chunk (the per-image coordinates of a full run fit)."""
 SHARD_BYTES = 32 * 2**20
 """Aimed-at size of one shard (one file) of a large variable; at least one chunk row."""
 CHUNK_BYTES = 2**20
 """Largest chunk (the unit zarr decodes) of a large variable whose dask chunks span many
 indices of its first dim, cut along that dim: a task that reads a few images (a batch of
-image sets) decodes those, not the whole variable. A full run's ``hdr`` with tiny frames was
-one 641 MB chunk, decoded whole by each of its ~220 batches of sets (issue 27)."""
+image sets) decodes those, not the whole variable. Uncut, a full run's ``hdr`` of small
+frames would be one chunk that every batch of sets decodes whole (docs/benchmarks_notes.md,
+full_run)."""
 
 
 def label_permutations(ds: xr.Dataset) -> dict[str, np.ndarray]:
