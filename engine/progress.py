@@ -33,7 +33,7 @@ the ``fixed`` iterations that always follow (the ``S >= 0`` refinement); each co
 time per iteration measured so far. A task without a tolerance counts ``total`` steps
 exactly. The share done is in time, set-up included (:class:`Estimate`).
 
-Standard library only, so any node may import it.
+Standard library only (and the error hierarchy), so any node may import it.
 
 References
 ----------
@@ -50,6 +50,8 @@ import threading
 import time
 from collections.abc import Iterator
 from typing import NamedTuple, Protocol, TypeVar
+
+from spectralize.schemas.errors import ParameterError, Problem
 
 __all__ = [
     "Estimate",
@@ -305,6 +307,14 @@ class Task:
         return Estimate(spent / (spent + seconds_left) if seconds_left > 0 else 1.0, seconds_left)
 
 
+def _refused(label: str, argument: str, expected: str, found: object) -> ParameterError:
+    """The error of a :func:`task` argument out of range, naming the task and the argument."""
+    return ParameterError(
+        f"progress task {label!r} cannot be reported:",
+        [Problem(f"task {label!r} {argument}", expected, repr(found))],
+    )
+
+
 @contextlib.contextmanager
 def task(
     label: str,
@@ -340,13 +350,13 @@ def task(
 
     Raises
     ------
-    ValueError
-        If ``total`` is negative or ``interval`` is negative.
+    ParameterError
+        If ``total`` is negative or ``interval`` is negative (a :class:`ValueError`).
     """
     if total is not None and total < 0:
-        raise ValueError(f"task {label!r}: total must be >= 0 or None, found {total!r}")
+        raise _refused(label, "total", "a step count >= 0, or None", total)
     if interval < 0:
-        raise ValueError(f"task {label!r}: interval must be >= 0 s, found {interval!r}")
+        raise _refused(label, "interval", "seconds >= 0", interval)
     if not _LISTENERS:  # the common case costs one list check
         yield None
         return

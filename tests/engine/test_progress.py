@@ -6,6 +6,7 @@ import threading
 import pytest
 
 from spectralize.engine import progress
+from spectralize.schemas import ParameterError
 
 
 class Recorder:
@@ -116,9 +117,13 @@ def test_a_failing_listener_is_dropped_and_the_task_goes_on(capsys):
 
 @pytest.mark.parametrize("total, interval", [(-1, 0.1), (5, -1.0)])
 def test_invalid_totals_and_intervals_are_refused(total, interval):
-    with pytest.raises(ValueError, match="task 'set'"):
+    with pytest.raises(ParameterError, match="task 'set'") as raised:
         with progress.task("set", total=total, interval=interval):
             pass
+    assert isinstance(raised.value, ValueError)
+    (problem,) = raised.value.problems
+    wrong = ("total", -1) if total < 0 else ("interval", -1.0)
+    assert problem.where == f"task 'set' {wrong[0]}" and problem.found == repr(wrong[1])
 
 
 def test_the_convergence_estimate_reads_the_rate_off_the_residuals():
