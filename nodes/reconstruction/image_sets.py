@@ -179,7 +179,7 @@ def select_image_sets(
             owned = [c == 0] * len(members) + [True] * chunk.size
             sets.append((member, owned))
 
-    member, owned, image_set = _set_table(sets, labels)
+    member, owned_table, image_set = _set_table(sets, labels)
     # the seed: the set whose anchor group is most central in light direction
     overall = directions.mean(axis=0)
     seed = int(np.argmax([centres[_group_of(s, sets, groups)] @ overall for s in range(len(sets))]))
@@ -200,7 +200,7 @@ def select_image_sets(
                 member,
                 {"long_name": "image labels of the members, anchors first, -1: none"},
             ),
-            "owned": (("set", "slot"), owned, {"long_name": "member is owned by the set"}),
+            "owned": (("set", "slot"), owned_table, {"long_name": "member is owned by the set"}),
         },
         coords={"image": ("image", labels), "set": ("set", np.arange(len(sets)))},
         attrs={
@@ -213,7 +213,7 @@ def select_image_sets(
 
 
 def _set_table(
-    sets: list[tuple[list[int], list[bool]]], labels: np.ndarray
+    sets: list[tuple[list[int], list[int]]], labels: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sets ``(member indices, owned flags)`` as the group's arrays: ``member`` (set,
     slot) image labels padded with -1, ``owned`` (set, slot) and ``image_set`` (image), the

@@ -256,7 +256,8 @@ def _resolved(
     record: tuple[Any, ...], settings: dict[str, Any], given: dict[str, Any], used: dict[str, Any]
 ) -> ResolvedMethod:
     """A :class:`ResolvedMethod` again from its pickled parts (no look-up, no checks)."""
-    method = ReconstructionMethod(*record, MappingProxyType(settings))
+    name, kind, function, dtype, description = record
+    method = ReconstructionMethod(name, kind, function, dtype, description, MappingProxyType(settings))
     return ResolvedMethod(method, MappingProxyType(given), MappingProxyType(used))
 
 

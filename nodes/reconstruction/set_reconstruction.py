@@ -759,6 +759,7 @@ def reconstruct_image_sets(
     if batch_images:  # batches read their rows chunk by chunk (_batch_tasks)
         hdr, bands = _by_rows(hdr, "image"), _by_rows(bands, "shot")
     pieces, counts, confidences, labels, set_of = [], [], [], [], []
+    confidence: da.Array | None  # every set's task computes it (confidence=True)
     for batched, group in _task_groups(sets, seed, batch_images):
         if batched:
             block, count, confidence = _batch_tasks(
