@@ -300,7 +300,7 @@ def _solve(
         solved.converged,
     )
     set_model_time = 0.0
-    if refit:  # the set model: a texel's spectral shapes shared by the set's images
+    if refit and inputs.illuminant is not None:  # the set model: shapes shared by the set
         refit_started = time.perf_counter()
         refine = shared_texel_refine if used["set_model"] == "shared-texel" else material_pooled_refine
         cube = refine(inputs, cube, inputs.illuminant)

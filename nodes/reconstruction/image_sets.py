@@ -125,10 +125,12 @@ def select_image_sets(
     directions = light_direction(images["theta_i"].values, images["phi_i"].values)
 
     # anchors in acquisition order (order of their first shot)
-    first_shot = {}
+    first_shot: dict[int, int] = {}
     for index, label in enumerate(shot_images):
         first_shot.setdefault(int(label), index)
-    anchors = sorted(np.flatnonzero(has_bands), key=lambda i: first_shot[int(labels[i])])
+    anchors = sorted(
+        (int(i) for i in np.flatnonzero(has_bands)), key=lambda i: first_shot[int(labels[i])]
+    )
     if anchors_per_set is None:
         if "wavelength" not in shots.coords:
             raise SchemaError(
@@ -153,7 +155,7 @@ def select_image_sets(
         distance[members] = np.degrees(np.arccos(np.clip(directions[members] @ centres[g], -1, 1)))
     distance[others] = np.degrees(np.arccos(cosines[np.arange(others.size), nearest]))
 
-    sets: list[tuple[list[int], list[int]]] = []  # (member indices, owned flags)
+    sets: list[tuple[list[int], list[bool]]] = []  # (member indices, owned flags)
     for g, members in enumerate(groups):
         mine = others[nearest == g]
         mine = mine[np.argsort(distance[mine], kind="stable")]
@@ -213,7 +215,7 @@ def select_image_sets(
 
 
 def _set_table(
-    sets: list[tuple[list[int], list[int]]], labels: np.ndarray
+    sets: list[tuple[list[int], list[bool]]], labels: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sets ``(member indices, owned flags)`` as the group's arrays: ``member`` (set,
     slot) image labels padded with -1, ``owned`` (set, slot) and ``image_set`` (image), the

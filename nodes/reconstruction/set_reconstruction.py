@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Annotated, Any
+from typing import Annotated, Any, cast
 
 import dask
 import dask.array as da
@@ -292,7 +292,7 @@ def _illuminant(
         if needs_light:
             raise ReconstructionError(
                 f"set_model: {set_model!r} needs the illuminant L; the calibration group has no "
-                f"'illuminant' (wavelength,) (found variables {sorted(calibration.data_vars)})"
+                f"'illuminant' (wavelength,) (found variables {sorted(map(str, calibration.data_vars))})"
             )
         return None
     light = calibration["illuminant"].load()
@@ -425,11 +425,13 @@ def reconstruct_seed_set(
         spectra, iterations, _ = solve_set(
             rgb, shots, camera_matrix, method=resolved, illuminant=illuminant, confidence=True
         )
-        spread = spectra["confidence"].transpose("image", "y", "x").values.astype(np.float32)
+        spread: np.ndarray | da.Array | None = (
+            spectra["confidence"].transpose("image", "y", "x").values.astype(np.float32)
+        )
         spectra = spectra.drop_vars(
             [c for c in spectra.coords if c not in ("image", "wavelength", *_PER_IMAGE)]
         )
-        count = np.full(len(members), iterations, dtype=np.int32)
+        count: np.ndarray | da.Array = np.full(len(members), iterations, dtype=np.int32)
     else:
         cube, count, spread = tile_tasks(
             rgb,
@@ -555,7 +557,9 @@ def _solve_sets(
         The owned images' spectra ``(image, wavelength, y, x)`` float32, iterations
         ``(image,)`` int32 and confidence ``(image, y, x)`` float32, set after set.
     """
-    cubes, counts, spreads = [], [], []
+    cubes: list[np.ndarray] = []
+    counts: list[np.ndarray] = []
+    spreads: list[np.ndarray] = []
     for members, owned in sets:
         set_rgb = rgb.sel(image=members)
         set_shots = shots.isel(shot=np.flatnonzero(np.isin(shot_image, members)))
@@ -574,7 +578,7 @@ def _solve_sets(
         )
         cubes.append(cube)
         counts.append(count)
-        spreads.append(spread)
+        spreads.append(cast(np.ndarray, spread))  # given with confidence=True
     return np.concatenate(cubes), np.concatenate(counts), np.concatenate(spreads)
 
 
@@ -660,19 +664,19 @@ def _batch_tasks(
         _batch_from_rows,
         rgb_take=rgb_take,
         shot_take=shot_take,
-        rgb_dims=rgb.dims,
-        rgb_coords={n: (c.dims, c.values) for n, c in rgb.isel(image=rgb_at).coords.items()},
-        shot_dims=shots.dims,
-        shot_coords={n: (c.dims, c.values) for n, c in shots.isel(shot=picked).coords.items()},
+        rgb_dims=tuple(map(str, rgb.dims)),
+        rgb_coords={str(n): (c.dims, c.values) for n, c in rgb.isel(image=rgb_at).coords.items()},
+        shot_dims=tuple(map(str, shots.dims)),
+        shot_coords={str(n): (c.dims, c.values) for n, c in shots.isel(shot=picked).coords.items()},
         shot_image=shot_image[picked],
         camera_matrix=camera_matrix,
         sets=sets,
         method=method,
         illuminant=illuminant,
     )
-    layer = {key: (solve, list(rgb_keys), list(shot_keys), warm.key)}
+    layer: dict[Any, Any] = {key: (solve, list(rgb_keys), list(shot_keys), warm.key)}
     graph = HighLevelGraph.from_collections(key, layer, dependencies=[rgb.data, shots.data, warm])
-    task = Delayed(key, graph, length=3)
+    task: Any = Delayed(key, graph, length=3)  # indexable: a delayed tuple of three
     n_owned = sum(int(owned.sum()) for _, owned in sets)
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     shape = (n_owned, camera_matrix.sizes["wavelength"], ny, nx)

@@ -104,9 +104,10 @@ class TileWindow:
     @property
     def inner(self) -> tuple[slice, slice]:
         """``(y, x)`` slices of the core inside the outer window (to crop a window's result)."""
-        return tuple(
-            slice(c.start - o.start, c.stop - o.start)
-            for c, o in zip(self.core, self.outer, strict=True)
+        (core_y, core_x), (outer_y, outer_x) = self.core, self.outer
+        return (
+            slice(core_y.start - outer_y.start, core_y.stop - outer_y.start),
+            slice(core_x.start - outer_x.start, core_x.stop - outer_x.start),
         )
 
     @property
@@ -731,7 +732,7 @@ def solve_tiled(
         confidence=confidence,
     )
     cube, iterations, spread = dask.compute(*tasks, scheduler=scheduler)
-    coords: dict[str, Any] = {n: c for n, c in rgb.coords.items() if set(c.dims) <= {"image"}}
+    coords: dict[str, Any] = {str(n): c for n, c in rgb.coords.items() if set(c.dims) <= {"image"}}
     wavelength = camera_matrix["wavelength"].values
     coords["wavelength"] = ("wavelength", wavelength, SPECTRA.spec("wavelength").attrs)
     if confidence:
