@@ -46,7 +46,7 @@ def make_raw_dark(
     adc_offset
         Mean ADC offset [DN]; each pixel deviates by a fixed pattern of 1 DN.
     dark_current
-        Mean dark-current rate [DN/s]; 1 % of the pixels are hot (20x).
+        Mean dark-current rate [DN/s]; 1 % of the pixels are hot (twenty times the rate).
     read_noise
         Standard deviation of the Gaussian read noise [DN].
     frames_per_chunk

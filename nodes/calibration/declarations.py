@@ -233,7 +233,7 @@ HDR_MERGE = Node(
     function=merge_hdr_node,
     inputs={"raw_rgb": "raw/rgb", "oecf_rgb": "calibration/oecf_rgb"},
     outputs=("hdr",),
-    read_by_shard=("raw_rgb",),  # every image, streamed: a task per shard (issue 27)
+    read_by_shard=("raw_rgb",),  # every image, streamed: a task per shard
     check=hdr_merge_check,
     description="HDR RGB radiance from the exposure series (Robertson), lazy per chunk.",
 )
@@ -250,7 +250,7 @@ CALIBRATE_BANDS = Node(
         "registration": "registration",
     },
     outputs=("bands",),
-    read_by_shard=("raw_spectral",),  # every shot, streamed: a task per shard (issue 27)
+    read_by_shard=("raw_spectral",),  # every shot, streamed: a task per shard
     description="Band radiance (signal / Q), registered onto the RGB grid, filter size per shot.",
 )
 

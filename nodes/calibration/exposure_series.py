@@ -344,8 +344,8 @@ def target_spectral_series(target: xr.Dataset, group: str) -> tuple[xr.DataArray
         ``y``, ``x``), with coord ``spectral_exposure_time`` (float, [s]), and the spectral
         camera's bit depth (``attrs["spectral_bit_depth"]``, checked 8..16). Nothing is read
         here: the callers reduce the series chunk by chunk (per-frame means, maxima), so the
-        memory a target series needs is a few frames, not bands x exposures x frame (a
-        2048^2 series of 32 bands and 13 exposures is 3.5 GB of uint16, issue 27).
+        memory a target series needs is a few frames, not bands x exposures x frame (at
+        2048^2, gigabytes of uint16 for 32 bands and 13 exposures).
     """
     depth = check_bit_depth(
         target.attrs.get("spectral_bit_depth"), where=f"{group}.attrs['spectral_bit_depth']"
@@ -362,8 +362,8 @@ def target_spectral_series(target: xr.Dataset, group: str) -> tuple[xr.DataArray
 
 FRAME_CHUNK_BYTES = 32 * 2**20
 """Float64 bytes of frames one chunk of :func:`frame_chunks` holds at most: one frame at
-2048^2 px (34 MB), thousands of small ones (a full run of 32 x 32 px frames in tens of tasks
-instead of one per frame: issue 27)."""
+2048^2 px, thousands of small ones (a full run of 32 x 32 px frames in tens of tasks instead
+of one per frame)."""
 
 
 def frame_chunks(array: xr.DataArray, frame_dims: Sequence[str]) -> xr.DataArray:
@@ -372,8 +372,8 @@ def frame_chunks(array: xr.DataArray, frame_dims: Sequence[str]) -> xr.DataArray
     one), 1 along the others.
 
     Numpy-backed input is wrapped without a copy; every computation on the result then
-    holds a few frames at a time instead of the whole stack (issue 27: no node above 8 GB
-    at 2048^2, where a float64 frame is 34 MB and a 32-band stack 1.1 GB).
+    holds a few frames at a time instead of the whole stack (a float64 stack of 32 bands at
+    2048^2 is more than a node's memory budget).
     """
     dims = [d for d in frame_dims if d in array.dims]
     frame = 8 * math.prod(array.sizes[d] for d in array.dims if d not in dims)

@@ -145,8 +145,8 @@ def _merge_block(
 
 BLOCK_BYTES = 4 * 2**20
 """Counts merged per task (whole images: at least one): smaller image chunks are joined up to
-it, larger ones (a shard of a full run's small frames, 33 MB) split, so that a task's float64
-temporaries stay near 100 MB whatever the chunks read."""
+it, larger ones (a shard of a full run's small frames) split, so that a task's float64
+temporaries stay a small multiple of it whatever the chunks read."""
 
 
 def _image_block(counts: xr.DataArray) -> tuple[int, ...]:

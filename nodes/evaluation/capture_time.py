@@ -1,8 +1,9 @@
 """Capture-time accounting: a long-exposure reference capture against the fast capture.
 
-The paper's point is speed: a reference spectral capture of a colour checker took a total
-exposure of 226 212 ms, the fast capture (RGB images plus very short, very noisy band shots)
-7 463 ms, "about 1.5 orders of magnitude" (30x) less, at nearly the same accuracy.
+The paper's point is speed. Its reference spectral capture of a colour checker took a total
+exposure of 226 212 ms (the paper, sec. 5); its fast capture (RGB images plus very short, very
+noisy band shots) took 7 463 ms in the paper, "about 1.5 orders of magnitude" less, at nearly
+the same accuracy.
 :func:`capture_time` sums the exposure of any two plans the same way and states the speed-up
 next to the accuracy the reconstruction reached.
 
@@ -191,7 +192,7 @@ def capture_time(
     References
     ----------
     Fast Capture of Spectral Image Series, sec. 5 "Real Data" and Figure 8: 226 212 ms
-    against 7 463 ms, "about 1.5 orders of magnitude".
+    against 7 463 ms in the paper, "about 1.5 orders of magnitude".
 
     Examples
     --------

@@ -380,12 +380,13 @@ def plot_capture_time(capture: xr.Dataset) -> Figure:
     -------
     matplotlib.figure.Figure
         An Agg bar chart, titled with the speed-up (and the nRMSE median and p95 when
-        ``capture`` holds them); logarithmic when the totals differ by more than 20x.
+        ``capture`` holds them); logarithmic when the totals differ by more than a factor
+        of twenty.
 
     References
     ----------
     Fast Capture of Spectral Image Series, sec. 5 "Real Data" and Figure 8 (226 212 ms
-    against 7 463 ms).
+    against 7 463 ms in the paper).
     """
     names = [str(c) for c in capture["capture"].values]
     spectral = np.asarray(capture["spectral_time"].values, dtype=np.float64)
@@ -406,7 +407,7 @@ def plot_capture_time(capture: xr.Dataset) -> Figure:
     for position, total in zip(positions, totals, strict=True):
         ax.annotate(f"{total:.3g} s", (position, total), ha="center", va="bottom")
     positive = totals[totals > 0]
-    if positive.size and positive.max() > 20 * positive.min():  # a 30x bar would be invisible
+    if positive.size and positive.max() > 20 * positive.min():  # else the short bar would be invisible
         ax.set_yscale("log")
         ax.set_ylim(positive.min() / 3, positive.max() * 3)
         ax.set_ylabel("total exposure [s] (log)")

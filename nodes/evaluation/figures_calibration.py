@@ -1,6 +1,6 @@
 """Figures of the calibration (paper Fig. 2, 3, 4): drawing only, no calibration science.
 
-The numbers come from :func:`spectralize.nodes.calibration.spectral.cross_validate` (or the
+The numbers come from :func:`spectralize.nodes.calibration.cross_validation.cross_validate` (or the
 ``calibration/spectral`` group); this module turns them into a matplotlib figure built without
 pyplot (no global state).
 
@@ -52,7 +52,7 @@ def plot_cross_validation(
     table
         ``measured``, ``predicted`` (patch, channel) and ``relative_error`` (patch), attrs
         ``mean_relative_error`` and ``max_relative_error``: a
-        :func:`~spectralize.nodes.calibration.spectral.cross_validate` table.
+        :func:`~spectralize.nodes.calibration.cross_validation.cross_validate` table.
     columns
         Swatches per row.
     difference_scale

@@ -18,7 +18,7 @@ The named recipes:
              of the 40 deg ring around the mirror direction, 3 rotations, one sparse set
              of 32 bands over 10 LED positions per rotation after the first.
 ``paper``    the paper's gantry: 2048 x 2048 px, 11 RGB cameras (0..75 deg), 198 LEDs,
-             24 rotations; lazy (dask) only: about 5 TB of raw RGB data if computed.
+             24 rotations; lazy (dask) only: terabytes of raw RGB data if computed.
 ===========  =====================================================================
 
 Measured sizes and times are in ``datasets/README.md``.  Use :func:`get_recipe` with
