@@ -20,15 +20,20 @@ Colour
     :func:`~.colorimetry.xyz_weights` with equal energy), so a perfect reflector relit has
     ``Y = 1`` and the chromaticity of the new light's white on these bands.
 Exposure
-    Relative radiance has no absolute level, and a scene's reflectance factors are not
-    those of a chart, so each image is exposed once, from its truth: the XYZ of truth *and*
+    The band radiance is in the units of the measured illuminant (the band radiance of a
+    white diffuser), so ``R`` is a reflectance factor and ``Y = 1`` the white diffuser,
+    CIE 015's relative colorimetry of reflecting objects (``white_percentile=None``). A
+    BTF image's factors also hold the shading of its geometry, so by default each image
+    is exposed as it would be displayed, once, from its truth: the XYZ of truth *and*
     estimate are multiplied by ``1 / P(Y_truth)``, the truth's ``white_percentile``-th
-    percentile of ``Y`` over the image's pixels (one factor per image and light, stored).
+    percentile of ``Y`` over the image's pixels (one factor per image and light, stored),
+    as :func:`~.colorimetry.render_srgb` exposes a render.
 CIEDE2000
     CIELAB relative to the new light's white (``Y = 1``), then
     ``colour.delta_E(..., method="CIE 2000")`` per pixel. Pixels whose exposed truth has
-    ``Y < dark_floor`` are left out (NaN): near black, CIELAB differences are perceptually
-    meaningless and dominated by noise.
+    ``Y < dark_floor`` are left out (NaN): default :data:`DARK_FLOOR`, the veiling flare
+    of sRGB's reference viewing condition, below which a displayed colour is the flare's
+    rather than its own.
 
 Band averaging matters for line spectra: the emission lines of FL11 in the CIE table lie
 between the centres of the paper's bands, which point sampling would miss.
@@ -94,8 +99,9 @@ LIGHTS: tuple[str, ...] = ("A", "FL11", "D65")
 #: times (see the module's notes).
 LIGHT_FLOOR: float = 0.01
 
-#: Pixels whose exposed truth has a relit luminance ``Y`` below this (near black) are
-#: left out of the colour difference: near black, CIELAB differences mean little.
+#: Pixels whose exposed truth has a relit luminance ``Y`` below this are left out of the
+#: colour difference: sRGB's reference viewing flare (IEC 61966-2-1, a hundredth of white),
+#: below which a displayed colour is the flare's rather than its own.
 DARK_FLOOR: float = 0.01
 
 #: The percentile of the truth's relit ``Y`` over an image's pixels that is exposed as white
@@ -334,9 +340,11 @@ def relight(
     return relit
 
 
-def _check_options(white_percentile: float, dark_floor: float, targets: Sequence[Illuminant]) -> None:
+def _check_options(
+    white_percentile: float | None, dark_floor: float, targets: Sequence[Illuminant]
+) -> None:
     problems = []
-    if not 0.0 < white_percentile <= 100.0:
+    if white_percentile is not None and not 0.0 < white_percentile <= 100.0:
         problems.append(Problem("white_percentile", "a percentile in (0, 100]", repr(white_percentile)))
     if not (np.isfinite(dark_floor) and 0.0 <= dark_floor < 1.0):
         problems.append(Problem("dark_floor", "a relative luminance in [0, 1)", repr(dark_floor)))
@@ -347,9 +355,13 @@ def _check_options(white_percentile: float, dark_floor: float, targets: Sequence
         raise ParameterError("cannot measure the relit colour difference:", problems)
 
 
-def _exposure(luminance: np.ndarray, percentile: float) -> np.ndarray:
-    """(image,) ``1 / P(Y)`` of (image, y, x) luminance; NaN where no positive level."""
-    flat = luminance.reshape(luminance.shape[0], -1)
+def _exposure(luminance: xr.DataArray, percentile: float | None) -> np.ndarray:
+    """(image,) ``1 / P(Y)`` of (image, y, x) luminance; NaN where no positive level; ones
+    for ``percentile=None`` (the white diffuser is white; nothing is computed)."""
+    if percentile is None:
+        return np.ones(luminance.sizes["image"])
+    flat = np.asarray(luminance.transpose("image", "y", "x").values)
+    flat = flat.reshape(flat.shape[0], -1)
     scale = np.full(flat.shape[0], np.nan)
     for i, values in enumerate(flat):
         values = values[np.isfinite(values)]
@@ -383,7 +395,7 @@ def relit_delta_e(
     *,
     targets: Sequence[Illuminant] = LIGHTS,
     light_floor: float = LIGHT_FLOOR,
-    white_percentile: float = WHITE_PERCENTILE,
+    white_percentile: float | None = WHITE_PERCENTILE,
     dark_floor: float = DARK_FLOOR,
 ) -> xr.Dataset:
     """Per-pixel CIEDE2000 of the estimate against the truth, both relit under each light.
@@ -391,9 +403,9 @@ def relit_delta_e(
     Both cubes are relit (:func:`relight`: ``S / max(L, f max L)`` times the light's band
     averages), converted to CIE XYZ (CIE 1931 2 degree observer), exposed with one factor
     per image and light taken from the truth (its ``white_percentile``-th percentile of
-    ``Y`` becomes ``Y = 1``), converted to CIELAB relative to the light's white and
-    compared with ``colour.delta_E(method="CIE 2000")``. Lazy over images when the cubes
-    are dask-backed (the truth's luminance is computed once for the exposure).
+    ``Y`` becomes ``Y = 1``; see the module's notes), converted to CIELAB relative to the
+    light's white and compared with ``colour.delta_E(method="CIE 2000")``. Lazy over images
+    when the cubes are dask-backed (the truth's luminance is computed once for the exposure).
 
     Parameters
     ----------
@@ -407,7 +419,8 @@ def relit_delta_e(
     light_floor
         ``f``: see :data:`LIGHT_FLOOR`.
     white_percentile
-        Percentile of the truth's relit ``Y`` over an image that is exposed as white.
+        Percentile of the truth's relit ``Y`` over an image that is exposed as white;
+        ``None``: no exposure, the white diffuser (``R = 1``) is white.
     dark_floor
         Pixels whose exposed truth has ``Y`` below this are NaN; 0 keeps every pixel.
 
@@ -446,7 +459,7 @@ def relit_delta_e(
         power = light_on_bands(target, wavelength)
         weights = (power.values / light)[:, None] * cmfs  # radiance -> relit XYZ
         luminance = xr.dot(t.astype(np.float64), xr.DataArray(weights[:, 1], dims="wavelength"))
-        scale = _exposure(np.asarray(luminance.transpose("image", "y", "x").values), white_percentile)
+        scale = _exposure(luminance, white_percentile)
         white = np.asarray(power.attrs["white_xy"])
         scale_da = xr.DataArray(
             scale, dims="image", coords={"image": t["image"]} if "image" in t.coords else {}
@@ -476,11 +489,16 @@ def _relit_dataset(
     names: list[str],
     truth: xr.DataArray,
     light_floor: float,
-    white_percentile: float,
+    white_percentile: float | None,
     dark_floor: float,
 ) -> xr.Dataset:
     light = xr.DataArray(names, dims="light", attrs={"long_name": "light relit under"})
     delta_e = xr.concat(maps, dim=light)
+    exposure = (
+        "1 (the white diffuser, R = 1, is white)"
+        if white_percentile is None
+        else f"1 / the truth's {white_percentile:g}th percentile of the relit luminance Y over the image"
+    )
     image_coords = {"image": truth["image"]} if "image" in truth.coords else {}
     return xr.Dataset(
         {
@@ -493,11 +511,7 @@ def _relit_dataset(
                 np.stack(scales),
                 dims=("light", "image"),
                 coords={"light": light, **image_coords},
-                attrs={
-                    "units": "1",
-                    "long_name": f"factor on both XYZ: 1 / the truth's {white_percentile:g}th "
-                    "percentile of the relit luminance Y over the image",
-                },
+                attrs={"units": "1", "long_name": f"factor on both XYZ: {exposure}"},
             ),
             "white_xy": xr.DataArray(
                 np.stack(whites),
@@ -509,12 +523,12 @@ def _relit_dataset(
         attrs={
             "observer": OBSERVER,
             "light_floor": float(light_floor),
-            "white_percentile": float(white_percentile),
+            "white_percentile": "none" if white_percentile is None else float(white_percentile),
             "dark_floor": float(dark_floor),
             "normalisation": "both cubes relit as S / max(L, light_floor max L) times the "
             "light's band averages (a perfect reflector: Y = 1), then both XYZ multiplied by "
-            f"one factor per image and light: 1 / the truth's {white_percentile:g}th percentile "
-            "of Y; CIELAB relative to the light's white (Y = 1)",
+            f"one factor per image and light, {exposure}; CIELAB relative to the light's "
+            "white (Y = 1)",
             "excluded": f"pixels whose exposed truth has Y < {dark_floor:g}, or that hold NaN",
         },
     )

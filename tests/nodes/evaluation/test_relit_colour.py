@@ -198,3 +198,16 @@ def test_bad_inputs_raise_naming_the_array_or_parameter():
     assert "dark_floor" in str(raised.value)  # every problem at once
     with pytest.raises(ParameterError, match="targets"):
         relit_delta_e(truth, truth, led(), targets=("A", "A"))
+
+
+def test_without_exposure_the_white_diffuser_is_white():
+    light = led()
+    truth = checker_under(light, n_image=2)  # radiance = reflectance x L: R is the reflectance
+    estimate = truth.copy(data={"radiance": truth["radiance"].values * 1.05})
+    absolute = relit_delta_e(estimate, truth, light, white_percentile=None, dark_floor=0.0)
+    np.testing.assert_array_equal(absolute["exposure_scale"].values, 1.0)
+    assert "white diffuser" in absolute.attrs["normalisation"]
+    assert absolute.attrs["white_percentile"] == "none"
+    exposed = relit_delta_e(estimate, truth, light, dark_floor=0.0)
+    assert (exposed["exposure_scale"].values > 1).all()  # the chart's brightest patch is below 1
+    assert not np.allclose(absolute["delta_e"].values, exposed["delta_e"].values)
