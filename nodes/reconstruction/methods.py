@@ -34,7 +34,7 @@ one of them:
  'mixture-prior-pcg', 'endmember-mixture', 'paper-cg']
 >>> list(BASELINE_METHODS)  # doctest: +NORMALIZE_WHITESPACE
 ['pseudo-inverse', 'wiener', 'mallett2019', 'filtered-bands', 'filtered-projected',
- 'guided-projected']
+ 'guided-projected', 'hysure', 'cnmf']
 >>> preset = RECONSTRUCTION_METHODS["guided-prior-pcg"]
 >>> preset.kind, preset.settings["prior"], preset.settings["k"]
 ('solver', 0.1, 3)
@@ -60,9 +60,11 @@ import numpy as np
 from spectralize.schemas.errors import ReconstructionError
 
 from .baselines import (
+    cnmf,
     filtered_bands,
     filtered_bands_projected,
     guided_filtered_projected,
+    hysure,
     mallett2019_basis,
     pseudo_inverse,
     wiener_estimation,
@@ -502,6 +504,20 @@ BASELINE_METHODS: dict[str, ReconstructionMethod] = {
             guided_filtered_projected,
             np.float64,
             "RGB-guided filtered bands projected onto C S = R",
+        ),
+        _method(
+            "hysure",
+            "baseline",
+            hysure,
+            np.float64,
+            "HySure (Simoes et al. 2015): filtered bands fused with the RGB in a subspace, vector TV",
+        ),
+        _method(
+            "cnmf",
+            "baseline",
+            cnmf,
+            np.float64,
+            "CNMF (Yokoya et al. 2012): filtered bands and RGB unmixed by coupled NMF",
         ),
     )
 }

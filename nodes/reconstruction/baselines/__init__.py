@@ -25,6 +25,14 @@ benchmarks and evaluation, not the production nodes) and run through
     Every band image filtered with the RGB image as guide (He et al.'s guided filter with
     Gaussian windows), then projected onto ``C S = R``. The PCG solvers' guided estimate
     ``S_0`` (start and prior centre, :mod:`..solvers.guided_estimate`).
+``"hysure"`` (:mod:`.hysure`)
+    Hyperspectral-multispectral fusion as remote sensing does it (Simoes et al.): the
+    filtered bands (each blurred by its own Gaussian) and the RGB fused in a subspace
+    learnt from the filtered bands, with vector total variation, by ADMM (:mod:`.fusion`).
+``"cnmf"`` (:mod:`.cnmf`)
+    Coupled nonnegative matrix factorisation unmixing (Yokoya et al.): the filtered bands
+    and the RGB unmixed alternately into endmembers and abundances, coupled by the blurs
+    and ``C``; ``S = W_h H_m``.
 
 References
 ----------
@@ -36,15 +44,23 @@ References
    sRGB Reflectance. Eurographics Symposium on Rendering.
 .. [4] Fast Capture of Spectral Image Series, section 2 ("Hybrid Methods") and section 3.
 .. [5] He, K., Sun, J., Tang, X. (2013). Guided Image Filtering. IEEE TPAMI 35(6).
+.. [6] Simoes, M., Bioucas-Dias, J., Almeida, L. B., Chanussot, J. (2015). A convex
+   formulation for hyperspectral image superresolution via subspace-based regularization.
+   IEEE TGRS 53(6).
+.. [7] Yokoya, N., Yairi, T., Iwasaki, A. (2012). Coupled nonnegative matrix factorization
+   unmixing for hyperspectral and multispectral data fusion. IEEE TGRS 50(2).
 """
 
+from .cnmf import cnmf
 from .filtered_bands import filtered_bands, filtered_bands_projected
+from .fusion import FusionData, fusion_data
 from .guided_filter import (
     GUIDED_EPSILON,
     GUIDED_WINDOW_SCALE,
     guided_filtered_bands,
     guided_filtered_projected,
 )
+from .hysure import hysure
 from .mallett2019 import mallett2019_basis
 from .projection import project_onto_rgb
 from .pseudo_inverse import pseudo_inverse
@@ -61,6 +77,10 @@ __all__ = [
     "guided_filtered_projected",
     "GUIDED_WINDOW_SCALE",
     "GUIDED_EPSILON",
+    "hysure",
+    "cnmf",
+    "FusionData",
+    "fusion_data",
     "project_onto_rgb",
     "training_reflectances",
     "estimate_illuminant",
