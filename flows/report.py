@@ -12,11 +12,15 @@ then one section per part of the run that exists:
   and angles, spectra at pixels chosen per camera to show its range (near saturation,
   typical, dark, least confident), and, when the ``spectra`` group has a ``confidence`` (an
   estimated nRMSE), its maps on one percentile scale and a headline of reconstruction
-  quality without truth (median, 95th percentile, share of pixels above 0.03);
+  quality without truth (median, 95th percentile, share of pixels above 0.03); where the
+  store holds the light ``L`` the spectra were captured under, the first images relit under
+  CIE A, FL11 and D65 beside the capture's render;
 - **Accuracy** (simulated runs with ``truth/spectra``): statistics per subset and per image,
   nRMSE histograms over all pixels (Fig. 7, normalised, with an overflow bin), capture time
   (Fig. 8), baselines, and for a few images chosen to show the range of the nRMSE the ground
-  truth, reconstruction and error map with the representative spectra (Figs. 5 and 6).
+  truth, reconstruction and error map with the representative spectra (Figs. 5 and 6); with
+  the light ``L``, the CIEDE2000 of the spectra relit under CIE A, FL11 and D65 against the
+  truth relit alike (:mod:`spectralize.nodes.evaluation.relit_colour`).
 
 Thumbnails are PNGs encoded straight from the arrays (no matplotlib), so a run's report
 takes seconds.
@@ -55,7 +59,13 @@ from spectralize.nodes.evaluation.capture_time import (
     capture_time_from_run,
     run_capture_time,
 )
-from spectralize.nodes.evaluation.colorimetry import render_srgb
+from spectralize.nodes.evaluation.colorimetry import (
+    auto_exposure,
+    render_srgb,
+    spectra_to_xyz,
+    white_point,
+    xyz_to_srgb,
+)
 from spectralize.nodes.evaluation.comparison import METHOD_DIM, compare_methods
 from spectralize.nodes.evaluation.figures import (
     image_label,
@@ -79,6 +89,13 @@ from spectralize.nodes.evaluation.figures_calibration import (
     plot_response_histograms,
     registration_precision,
     response_histograms,
+)
+from spectralize.nodes.evaluation.relit_colour import (
+    LIGHT_FLOOR,
+    LIGHTS,
+    relight,
+    relit_delta_e,
+    relit_statistics,
 )
 from spectralize.nodes.evaluation.statistics import DEFAULT_THRESHOLD, STATISTICS
 from spectralize.schemas import ParameterError, Problem, SchemaError, SpectralizeError
@@ -293,6 +310,46 @@ def _baselines_table(evaluation: xr.Dataset, table: xr.Dataset, threshold: float
     return _table("baselines", "Comparison of methods on all images of the run", header, rows)
 
 
+def _relit_colour(
+    spectra: xr.Dataset, truth: xr.Dataset, light: xr.DataArray | None, source: str
+) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
+    """The headline and table of the CIEDE2000 of the spectra relit under :data:`LIGHTS`
+    against the truth relit alike, or a text saying why it is not measured."""
+    if light is None:
+        return [], [
+            _text(
+                "Colour under other lights is not measured: the run has no measured light L "
+                f"({source}) to take out of the spectra before relighting them."
+            )
+        ]
+    try:
+        relit = relit_delta_e(spectra, truth, light)
+    except SchemaError as error:
+        return [], [_text(f"Colour under other lights is not measured: {error}")]
+    stats = relit_statistics(relit)
+    rows = [
+        [name, _fmt(v["median"]), _fmt(v["p95"]), _percent(v["excluded"])] for name, v in stats.items()
+    ]
+    table = _table(
+        "relit-colour",
+        "Colour under other lights: CIEDE2000 of the spectra relit under CIE A (tungsten), FL11 "
+        "(a three-line fluorescent lamp) and D65 (daylight) against the truth relit the same "
+        f"way, over all pixels of all images. The light L taken out is {source}; "
+        f"{relit.attrs['normalisation']}. Left out: {relit.attrs['excluded']}. Where L is "
+        f"below {relit.attrs['light_floor']:g} of its peak it is raised to that before dividing "
+        "(the estimate's noise there would be amplified without bound).",
+        ["light", "ΔE00 median", "ΔE00 p95", "pixels left out"],
+        rows,
+    )
+    headline = [
+        (
+            "CIEDE2000 relit under " + " / ".join(stats) + " (median)",
+            " / ".join(_fmt(v["median"], 3) for v in stats.values()),
+        )
+    ]
+    return headline, [table]
+
+
 def accuracy_renders(
     spectra: xr.Dataset,
     truth: xr.Dataset,
@@ -369,6 +426,8 @@ def _accuracy(
     shots: xr.Dataset | None,
     max_images: int,
     exposure_percentile: float,
+    light: xr.DataArray | None = None,
+    light_source: str = "none given",
 ) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
     threshold = float(evaluation.attrs.get("threshold", DEFAULT_THRESHOLD))
     all_px = evaluation["nrmse_subset_statistics"].sel(subset="all")
@@ -384,6 +443,8 @@ def _accuracy(
             _fmt(evaluation["delta_e_subset_statistics"].sel(subset="all", statistic="median")),
         ),
     ]
+    relit_headline, relit_blocks = _relit_colour(spectra, truth, light, light_source)
+    headline += relit_headline
     sections = [
         _section(
             "accuracy",
@@ -395,6 +456,7 @@ def _accuracy(
                     _summary_header(threshold),
                     _summary_rows(evaluation, [str(s) for s in evaluation["subset"].values]),
                 ),
+                *relit_blocks,
                 _per_image_table(evaluation),
                 _figure(
                     plot_histograms(evaluation),
@@ -806,12 +868,75 @@ def _camera_spectra(
     )
 
 
+#: Images relit under every light of :data:`LIGHTS` beside the capture's render: enough to
+#: see what the light changes; the ground-truth comparison covers every image.
+MAX_RELIT_IMAGES = 4
+
+
+def _display_render(radiance: xr.DataArray, percentile: float) -> np.ndarray:
+    """(image, y, x, channel) uint8 sRGB of a radiance cube as a display shows a scene: the
+    luminance's ``percentile``-th percentile is white and sRGB's white, D65, is neutral
+    (no adaptation), so daylight looks white and tungsten orange."""
+    xyz = spectra_to_xyz(radiance, illuminant=None)
+    scaled = xyz * auto_exposure(xyz, percentile=percentile)
+    rgb = xyz_to_srgb(scaled, white=white_point("D65"))
+    return np.asarray(rgb.transpose("image", "y", "x", "channel").values)
+
+
+def _relit_renders(
+    cube: xr.Dataset,
+    light: xr.DataArray,
+    source: str,
+    captions: list[str],
+    *,
+    exposure_percentile: float,
+) -> list[dict[str, Any]]:
+    """The first images as captured and relit under each of :data:`LIGHTS`, one row each.
+
+    Every render of a row is exposed alike (the ``exposure_percentile``-th percentile of its
+    light's luminance over the images relit is white) and shows its light's own colour
+    against sRGB's white, D65 (:func:`_display_render`).
+    """
+    n = min(MAX_RELIT_IMAGES, cube.sizes["image"])
+    radiance = cube["radiance"].isel(image=slice(0, n))
+    try:
+        renders = {"captured": _display_render(radiance, exposure_percentile)} | {
+            name: _display_render(relight(radiance, light, name), exposure_percentile) for name in LIGHTS
+        }
+    except SchemaError as error:
+        return [_text(f"No renders under other lights: {error}")]
+    blocks = [
+        _text(
+            f"The first {n} images as captured and relit under CIE "
+            + ", ".join(LIGHTS)
+            + f": the spectra divided by the light L they were captured under ({source}; "
+            f"raised to {LIGHT_FLOOR:g} of its peak where lower) times the new light. Each "
+            "render is exposed like those above and shows its light's colour against sRGB's "
+            "white (D65): daylight looks white, tungsten (A) orange."
+        )
+    ]
+    labels = _labels(cube)
+    for k in range(n):
+        items = [(_png(renders["captured"][k]), f"{captions[k]} · as captured")]
+        items += [(_png(renders[name][k]), f"image {int(labels[k])} · under {name}") for name in LIGHTS]
+        blocks.append(
+            _gallery(
+                f"relit-{int(labels[k])}",
+                f"Image {int(labels[k])} under the capture's light and under " + ", ".join(LIGHTS) + ".",
+                items,
+            )
+        )
+    return blocks
+
+
 def _reconstruction(
     spectra: xr.Dataset,
     *,
     max_images: int,
     pixels: Sequence[tuple[int, int]] | None,
     exposure_percentile: float,
+    light: xr.DataArray | None = None,
+    light_source: str = "none given",
 ) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
     labels = sorted(int(v) for v in _labels(spectra))
     shown = labels[: int(max_images)]
@@ -839,6 +964,10 @@ def _reconstruction(
             [(_png(rgb8[k]), captions[k]) for k in range(len(shown))],
         )
     )
+    if light is not None:
+        blocks += _relit_renders(
+            cube, light, light_source, captions, exposure_percentile=exposure_percentile
+        )
     brightness = np.asarray(cube["radiance"].mean("wavelength").transpose("image", "y", "x").values)
     confidence = (
         np.asarray(cube["confidence"].transpose("image", "y", "x").values, dtype=float)
@@ -867,6 +996,27 @@ def _reconstruction(
     if "confidence" in cube:
         blocks.append(_confidence_gallery(cube["confidence"], captions))
     return headline, [_section("reconstruction", "Reconstruction", blocks)]
+
+
+#: Where a run store holds the light L its spectra are radiance under, in the order looked at:
+#: the calibration's measurement (what the reconstruction uses), the white reference's raw
+#: group, a simulated run's true light.
+LIGHT_SOURCES: tuple[tuple[str, str], ...] = (
+    ("calibration/spectral", "illuminant"),
+    ("raw/white_reference", "illuminant"),
+    ("truth/camera", "illuminant"),
+)
+
+
+def _capture_light(store: RunStore) -> tuple[xr.DataArray | None, str]:
+    """The light L of the run (wavelength,) and where it was read, or None and where it
+    was looked for."""
+    for group, name in LIGHT_SOURCES:
+        if store.has(group):
+            ds = store.read(group)
+            if name in ds and ds[name].dims == ("wavelength",):
+                return ds[name].load(), f"{group}:{name}"
+    return None, "none in " + ", ".join(f"{g}:{n}" for g, n in LIGHT_SOURCES)
 
 
 # -- writing ---------------------------------------------------------------------------------
@@ -912,6 +1062,7 @@ def write_report(
     max_images: int = 24,
     exposure_percentile: float = 99.0,
     calibration: xr.Dataset | None = None,
+    illuminant: xr.DataArray | None = None,
 ) -> Path:
     """Write the report of an evaluation against ground truth: one self-contained HTML file.
 
@@ -949,6 +1100,11 @@ def write_report(
     calibration
         Group ``calibration/spectral``; its colour-checker cross-validation (Figure 4) is
         tabulated and drawn.
+    illuminant
+        The light ``L`` the spectra were captured under, on their bands (e.g.
+        ``calibration/spectral``'s ``illuminant``): the colour of the spectra relit under
+        CIE A, FL11 and D65 is then compared with the truth's (a CIEDE2000 table). Without
+        it, the report says that colour under other lights is not measured.
 
     Returns
     -------
@@ -983,6 +1139,8 @@ def write_report(
         shots=shots,
         max_images=max_images,
         exposure_percentile=exposure_percentile,
+        light=illuminant,
+        light_source="the illuminant given" if illuminant is not None else "none given",
     )
     if calibration is not None and "measured_rgb" in calibration:
         sections.insert(1, _section("calibration", "Calibration", _cross_validation(calibration)))
@@ -1013,6 +1171,9 @@ def write_run_report(
     ``raw/exposure_plan``, ``calibration/*``, ``registration``), reconstruction
     (``spectra``), accuracy (``truth/spectra``: the stored ``evaluation`` group, else an
     evaluation made now) and capture time (``raw/spectral``, ``raw/rgb``, ``raw/exposure_plan``).
+    Where the store holds the light ``L`` (:data:`LIGHT_SOURCES`), the first images are also
+    shown relit under CIE A, FL11 and D65 and, with ground truth, the relit colour is
+    compared with the truth's.
 
     Parameters
     ----------
@@ -1058,10 +1219,16 @@ def write_run_report(
     found, calibration_sections = _calibration(run)
     headline += found
     groups: dict[str, xr.Dataset] = {}
+    light, light_source = _capture_light(run)
     if spectra is not None:
         groups["spectra"] = spectra
         found, recon = _reconstruction(
-            spectra, max_images=max_images, pixels=pixels, exposure_percentile=exposure_percentile
+            spectra,
+            max_images=max_images,
+            pixels=pixels,
+            exposure_percentile=exposure_percentile,
+            light=light,
+            light_source=light_source,
         )
         headline = found + headline
         sections += recon
@@ -1093,6 +1260,8 @@ def write_run_report(
             shots=shots,
             max_images=max_images,
             exposure_percentile=exposure_percentile,
+            light=light,
+            light_source=light_source,
         )
         headline = found + headline
         sections = accuracy + sections

@@ -1,11 +1,13 @@
 import base64
 import html
+import io
 from html.parser import HTMLParser
 
 import colour
 import numpy as np
 import pytest
 import xarray as xr
+from PIL import Image
 from support.browser import screenshot
 from support.cubes import cube_dataset
 from support.page_layout import browser_overlaps, figure_overlaps
@@ -15,6 +17,7 @@ from spectralize.flows.report import error_map_figures, write_report, write_run_
 from spectralize.nodes.evaluation.accuracy import evaluate
 from spectralize.nodes.evaluation.capture_time import capture_time
 from spectralize.nodes.evaluation.figures import nrmse_histograms
+from spectralize.nodes.evaluation.relit_colour import relit_delta_e, relit_statistics
 from spectralize.schemas import SchemaError
 from spectralize.store import RunStore
 
@@ -26,6 +29,12 @@ def _cube(values, attrs=None):
 
 
 PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def led_light() -> np.ndarray:
+    """The light of the ``run`` fixture's spectra on its bands (LED-B3, max 1)."""
+    light = colour.SDS_ILLUMINANTS["LED-B3"].copy().align(SHAPE).values
+    return light / light.max()
 
 
 @pytest.fixture(scope="module")
@@ -294,6 +303,7 @@ def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_
                 "measured_rgb": (("patch", "channel"), measured),
                 "predicted_rgb": (("patch", "channel"), measured * 1.02),
                 "relative_error": ("patch", np.full(24, 0.02)),
+                "illuminant": ("wavelength", led_light()),
             },
             coords={
                 "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
@@ -336,6 +346,20 @@ def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_
     shown = np.linspace(0, 1, 3 * 12 * 18)
     low, high = np.percentile(shown, [2, 98])
     assert f"{low:.4f} (dark) to {high:.4f} (bright)" in text
+    # no truth: the first images relit under A, FL11 and D65 beside the capture's render
+    relit = {k: v for k, v in figures.items() if k.startswith("relit-")}
+    assert set(relit) == {f"relit-{label}-{k}" for label in range(3) for k in range(4)}
+    assert "calibration/spectral:illuminant" in text and "relit-colour" not in page.tables
+    for label in range(3):
+        captions = [html.unescape(c) for c in _captions(text, f"relit-{label}")]
+        assert captions[0].startswith(f"image {label} · camera") and captions[0].endswith("as captured")
+        assert captions[1:] == [f"image {label} · under {name}" for name in ("A", "FL11", "D65")]
+    warmth = {}
+    for k, name in enumerate(("captured", "A", "FL11", "D65")):
+        pixels = np.asarray(Image.open(io.BytesIO(relit[f"relit-0-{k}"])), dtype=float)
+        assert pixels.shape == (12, 18, 3) and pixels.std() > 5  # a picture, not a flat field
+        warmth[name] = pixels[..., 0].mean() / pixels[..., 2].mean()
+    assert warmth["A"] > 1.2 * warmth["D65"]  # tungsten renders warmer than daylight
     # a real browser lays it out: every image decodes, no two text lines or images overlap
     layout = browser_overlaps(index, tmp_path)
     assert layout["images"] == len(page.images) and layout["broken"] == 0
@@ -350,6 +374,82 @@ def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_
     colours = np.unique(shot.reshape(-1, 3) // 16, axis=0)
     assert len(colours) > 50  # text, tables and figures, not a blank page
     assert (shot < 128).any(axis=-1).mean() > 0.01
+
+
+def _captions(text: str, gallery: str) -> list[str]:
+    """The thumbnail captions of a gallery, in page order."""
+    start = text.index(f'<figure class="gallery" id="{gallery}">')
+    block = text[start : text.index("</div>\n</figure>", start)]
+    return [part.split("</figcaption>")[0] for part in block.split("<figcaption>")[2:]]
+
+
+def test_with_truth_and_the_light_the_report_tabulates_the_relit_colour(run, tmp_path):
+    spectra, truth, shots, evaluation = run
+    index = write_report(
+        evaluation, spectra=spectra, truth=truth, directory=tmp_path, shots=shots, illuminant=led_light()
+    )
+    page = parse(index)
+    assert page.tables == ["summary", "relit-colour", "per-image", "run"]
+    expected = relit_statistics(relit_delta_e(spectra, truth, led_light()))
+    cells = page.cells
+    start = cells.index("pixels left out") + 1
+    rows = [cells[start + 4 * k : start + 4 * k + 4] for k in range(3)]
+    assert [row[0] for row in rows] == ["A", "FL11", "D65"]
+    for row in rows:
+        stats = expected[row[0]]
+        assert row[1:3] == [f"{stats['median']:.4g}", f"{stats['p95']:.4g}"]
+        assert 0.05 < stats["median"] < 5  # a 2 % noise is a visible, not a huge, difference
+    text = html.unescape(index.read_text())
+    headline = text[text.index('id="headline"') : text.index("<section")]
+    medians = " / ".join(f"{expected[name]['median']:.3g}" for name in ("A", "FL11", "D65"))
+    assert f"CIEDE2000 relit under A / FL11 / D65 (median)</dt><dd>{medians}" in headline
+    assert "the illuminant given" in text and "99th percentile" in text
+    # a light on other wavelengths: the report says why it cannot relight, and is written
+    shifted = xr.DataArray(led_light(), dims="wavelength", coords={"wavelength": SHAPE.wavelengths + 5})
+    index = write_report(
+        evaluation, spectra=spectra, truth=truth, directory=tmp_path / "shifted", illuminant=shifted
+    )
+    assert "relit-colour" not in parse(index).tables
+    assert "not measured" in index.read_text() and "illuminant_L:wavelength" in index.read_text()
+    # without the light: said so, no table
+    index = write_report(evaluation, spectra=spectra, truth=truth, directory=tmp_path / "none")
+    assert "Colour under other lights is not measured" in index.read_text()
+
+
+def test_a_run_store_with_truth_relights_with_its_calibrated_light(run, tmp_path):
+    spectra, truth, _, _ = run
+    store = RunStore.create(tmp_path / "run.zarr")
+    store.write("truth/spectra", truth.drop_attrs(deep=False), fingerprint="truth-fp")
+    store.write("spectra", spectra.drop_attrs(deep=False), fingerprint="spectra-fp")
+    index = write_run_report(store.path, max_images=2)
+    assert "relit-colour" not in parse(index).tables  # no light in the store
+    store.write(
+        "calibration/spectral",
+        xr.Dataset(
+            {
+                "quantum_efficiency": ("wavelength", np.linspace(0.2, 1.0, SHAPE.wavelengths.size)),
+                "camera_matrix": (("channel", "wavelength"), np.ones((3, SHAPE.wavelengths.size))),
+                "measured_rgb": (("patch", "channel"), np.full((24, 3), 0.5)),
+                "predicted_rgb": (("patch", "channel"), np.full((24, 3), 0.51)),
+                "relative_error": ("patch", np.full(24, 0.02)),
+                "illuminant": ("wavelength", led_light()),
+            },
+            coords={
+                "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
+                "patch": np.arange(24),
+                "channel": ["R", "G", "B"],
+            },
+            attrs={"mean_relative_error": 0.02, "max_relative_error": 0.02},
+        ).pipe(relative),
+        fingerprint="calibration-fp",
+    )
+    index = write_run_report(store.path, max_images=2)
+    page = parse(index)
+    assert "relit-colour" in page.tables and "calibration/spectral:illuminant" in index.read_text()
+    expected = relit_statistics(relit_delta_e(spectra, truth, led_light()))
+    assert f"{expected['FL11']['p95']:.4g}" in page.cells
+    # relit renders of the 2 images shown: the capture's and three lights each
+    assert {f"relit-{label}-{k}" for label in range(2) for k in range(4)} <= set(embedded(page))
 
 
 def test_calibration_cross_validation_is_tabulated_and_drawn(run, tmp_path):
