@@ -17,7 +17,9 @@ Progress goes to stdout line by line; the LAST line is one JSON object, also wri
 simulated capture (``benchmarks/reconstruction_scene.py``: the project's ground-truth
 texture and exposure plan, eq. 2/3, 3 DN noise). Per method: median, p95, p99 of the
 per-pixel nRMSE (RMSE over bands / mean ground-truth intensity of the image, paper Fig. 5),
-the fraction of pixels under 0.03, wall and CPU time, peak memory and iterations.
+the fraction of pixels under 0.03, wall and CPU time, peak memory and iterations; on the hard
+scenes also the CIEDE2000 of the spectra relit under CIE A, FL11 and D65 against the truth
+relit alike (median / p95 per light, ``relit_de2000``).
 
 Memory: ``peak_traced_mb`` is the tracemalloc peak during the call (numpy and scipy arrays
 are traced; the k-d tree's own C++ buffers are not); the scaling cases run in fresh
@@ -478,6 +480,11 @@ def hard_scenes(args) -> dict:
                 f"baseline {row['best_baseline_median']['method']} "
                 f"{row['best_baseline_median']['value']:.4f}"
                 f" / {row['best_baseline_p95']['method']} {row['best_baseline_p95']['value']:.4f}"
+                "; default relit dE00 "
+                + " ".join(
+                    f"{light} {v['median']:.2f}/{v['p95']:.2f}"
+                    for light, v in row["relit_de2000"][DEFAULT_METHOD].items()
+                )
             )
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(report, indent=1) + "\n")

@@ -10,7 +10,11 @@ it runs on them again with the set models ``"independent"`` and ``"shared-texel"
 (:data:`SET_VARIANTS`), side by side. Per method: median, p95, p99 and the fraction under
 0.03 of the per-pixel nRMSE (RMSE over bands / the image's mean truth, paper Fig. 5), for a
 set also split into images with and without band shots; wall time, iterations, tracemalloc
-peak, and the fraction of negative output values. Run through ``benchmarks/reconstruction.py``.
+peak, and the fraction of negative output values; and colour under other lights: the CIEDE2000
+of the spectra relit under CIE A, FL11 and D65 against the truth relit the same way
+(:func:`~spectralize.nodes.evaluation.relit_colour.relit_delta_e` with its defaults; the scene's
+LED as the light ``L`` taken out), median and p95 per light and the fraction of pixels left out
+as near black (``relit_de2000``). Run through ``benchmarks/reconstruction.py``.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import tracemalloc
 import numpy as np
 from scipy.stats import spearmanr
 
+from spectralize.nodes.evaluation.relit_colour import LIGHTS, relit_delta_e, relit_statistics
 from spectralize.nodes.reconstruction import (
     BASELINE_METHODS,
     DEFAULT_METHOD,
@@ -54,8 +59,14 @@ TARGETS = {
     "set_fraction_under_0.03_min_woven_halftone": 0.40,
     "without_vs_with_bands_max_ratio": 1.1,
     "cost_vs_previous_default_max": 1.5,  # per Mpx-image, paper_scale_throughput's check
+    # issue 38: colour under other lights, on every set row (scene, the worse seed)
+    "set_relit_de2000_median_max_A_FL11": 1.0,
+    "set_relit_de2000_p95_max_A_FL11": 3.0,
 }
-"""Issue 29's targets (the cost target is checked by ``paper_scale_throughput``)."""
+"""Issues 29's and 38's targets (the cost target is checked by ``paper_scale_throughput``)."""
+
+RELIT_TARGET_LIGHTS = ("A", "FL11")
+"""The lights of the relit-colour targets."""
 
 
 def log(message: str) -> None:
@@ -86,6 +97,18 @@ def scene_illuminant(capture) -> np.ndarray:
     return sharp_led(capture.camera_matrix["wavelength"].values)
 
 
+def relit_colour(spectra, capture) -> tuple[dict, float]:
+    """Per light: CIEDE2000 median and p95 of the spectra relit against the truth relit alike
+    and the fraction of pixels left out (near-black truth, ``excluded``); and its seconds."""
+    wall = time.perf_counter()
+    relit = relit_delta_e(spectra, capture.truth, scene_illuminant(capture), targets=LIGHTS)
+    out = {
+        light: {key: round(value, 4) for key, value in stats.items()}
+        for light, stats in relit_statistics(relit).items()
+    }
+    return out, round(time.perf_counter() - wall, 3)
+
+
 def run_method(capture, method: str, illuminant: np.ndarray | None = None, **options) -> dict:
     tracemalloc.start()
     tracemalloc.reset_peak()
@@ -104,6 +127,7 @@ def run_method(capture, method: str, illuminant: np.ndarray | None = None, **opt
     tracemalloc.stop()
     spectra = result.spectra.values
     e = nrmse_per_pixel(spectra, capture.truth.values)
+    relit, relit_wall = relit_colour(result.spectra, capture)
     confidence = np.asarray(result.confidence.values).reshape(e.shape)
     row = {
         **statistics(e),
@@ -116,6 +140,8 @@ def run_method(capture, method: str, illuminant: np.ndarray | None = None, **opt
         "peak_traced_mb": round(peak / 2**20, 1),
         "negative_fraction": round(float(np.mean(spectra < 0)), 5),
         "min_value": round(float(spectra.min()), 4),
+        "relit_de2000": relit,
+        "relit_wall_s": relit_wall,
     }
     if e.shape[0] > 1:
         have = capture.images_with_bands
@@ -144,7 +170,10 @@ def run_case(name: str, seed: int, size: int, n_images: int, methods: list[str])
         log(
             f"{name:16s} seed {seed} {n_images:2d}x{size} {method:20s} median {r['median']:.4f} "
             f"p95 {r['p95']:.4f} <0.03 {r['fraction_under_0.03']:.3f} neg {r['negative_fraction']:.3f} "
-            f"{r['wall_s']:.1f} s {r['iterations']} it"
+            f"{r['wall_s']:.1f} s {r['iterations']} it; relit dE00 "
+            + " ".join(
+                f"{light} {v['median']:.2f}/{v['p95']:.2f}" for light, v in r["relit_de2000"].items()
+            )
         )
     if n_images == 1:  # the bias floor of the default: noise-free bands
         clean = capture.bands.copy(data=capture.truth.values[0][np.arange(capture.bands.sizes["shot"])])
@@ -160,6 +189,19 @@ def run_case(name: str, seed: int, size: int, n_images: int, methods: list[str])
         case["default_on_noise_free_bands"] = run_method(clean_capture, DEFAULT_METHOD)
     case["methods"] = rows
     return case
+
+
+def worst_relit(chosen: list[dict], method: str) -> dict:
+    """Per light, the worse seed's relit CIEDE2000 median and p95 and the larger share left out."""
+    rows = [c["methods"][method]["relit_de2000"] for c in chosen]
+    return {
+        light: {
+            "median": max(r[light]["median"] for r in rows),
+            "p95": max(r[light]["p95"] for r in rows),
+            "excluded": max(r[light]["excluded"] for r in rows),
+        }
+        for light in rows[0]
+    }
 
 
 def summarise(cases: list[dict]) -> dict:
@@ -191,6 +233,11 @@ def summarise(cases: list[dict]) -> dict:
                 for m in (*RECONSTRUCTION_METHODS, *SET_VARIANTS)
                 if worst(m, "median") is not None
             }
+            relit = {
+                m: worst_relit(chosen, m)
+                for m in (*RECONSTRUCTION_METHODS, *SET_VARIANTS, *BASELINES)
+                if all(m in c["methods"] for c in chosen)
+            }
             rgb_only = {b: v for b, v in baselines.items() if b in RGB_ONLY_BASELINES}
             best_rgb = min(rgb_only.items(), key=lambda kv: kv[1][0])
             others = {
@@ -216,6 +263,7 @@ def summarise(cases: list[dict]) -> dict:
                 "default_negative_fraction": max(
                     c["methods"][DEFAULT_METHOD]["negative_fraction"] for c in chosen
                 ),
+                "relit_de2000": relit,
             }
             targets = {
                 "le_every_other_method": not row["beaten_by"],
@@ -233,6 +281,12 @@ def summarise(cases: list[dict]) -> dict:
                     else "set_fraction_under_0.03_min_woven_halftone"
                 ]
                 targets[f"fraction_under_0.03_ge_{wanted}"] = default["fraction_under_0.03"] >= wanted
+                default_relit = relit[DEFAULT_METHOD]
+                for key in ("median", "p95"):
+                    bound = TARGETS[f"set_relit_de2000_{key}_max_A_FL11"]
+                    targets[f"relit_A_FL11_{key}_le_{bound}"] = all(
+                        default_relit[light][key] <= bound for light in RELIT_TARGET_LIGHTS
+                    )
                 targets["without_within_1.1x_of_with"] = all(
                     without[k] <= TARGETS["without_vs_with_bands_max_ratio"] * with_[k]
                     for k in ("median", "p95")
