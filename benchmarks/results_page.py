@@ -140,6 +140,8 @@ def reconstruction(data: Json) -> list[str]:
                 ]
             )
         out += [f"**{title}** (median / p95 nRMSE)", table(["method"] + names, rows)]
+    for mode, title in (("single", "Single images"), ("set", "Sets")):
+        out += relit_colour(data, mode, title)
     target_rows = []
     for mode in ("single", "set"):
         for scene, summary in data["summary"][mode].items():
@@ -166,6 +168,36 @@ def reconstruction(data: Json) -> list[str]:
     if data.get("note_paper_cg_sets"):
         out.append(f"Note from the JSON: {data['note_paper_cg_sets']}.")
     return out
+
+
+def relit_colour(data: Json, mode: str, title: str) -> list[str]:
+    """The relit CIEDE2000 of every method per scene (worse seed), if the JSON has it."""
+    scenes = data["summary"][mode]
+    if not all("relit_de2000" in row for row in scenes.values()):
+        return []
+    names = list(scenes)
+    methods = list(next(iter(scenes.values()))["relit_de2000"])
+    lights = list(next(iter(next(iter(scenes.values()))["relit_de2000"].values())))
+
+    def cell(scene: str, method: str) -> str:
+        relit = scenes[scene]["relit_de2000"].get(method)
+        return "-" if relit is None else ", ".join(pair(relit[light]) for light in lights)
+
+    rows = [[f"`{m}`"] + [cell(s, m) for s in names] for m in methods]
+    default = data["default_method"]
+    rows.append(
+        ["default: pixels left out (near black)"]
+        + [
+            ", ".join(pct(scenes[s]["relit_de2000"][default][light]["excluded"]) for light in lights)
+            for s in names
+        ]
+    )
+    return [
+        f"**{title}: colour under other lights** (CIEDE2000 of the spectra relit under "
+        + ", ".join(lights)
+        + ", in that order, against the truth relit alike; median / p95, worse seed)",
+        table(["method"] + names, rows),
+    ]
 
 
 def reconstruction_legacy(data: Json) -> list[str]:
