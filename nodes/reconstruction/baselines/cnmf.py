@@ -22,10 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spectralize.schemas.errors import ReconstructionError
-
 from ..inputs import ReconstructionInputs
-from .fusion import FusionData, dct2, fusion_data, pure_pixels
+from .fusion import FusionData, check_count, dct2, fusion_data, pure_pixels
 
 __all__ = ["cnmf", "coupled_endmembers", "multiplicative_abundances", "multiplicative_endmembers"]
 
@@ -108,13 +106,9 @@ def cnmf(
        50(2), section III.
     .. [2] Fast Capture of Spectral Image Series, section 3, "Filtering" and eq. 3.
     """
-    for name, value, least in (
-        ("n_endmembers", n_endmembers, 1),
-        ("outer_iterations", outer_iterations, 0),
-        ("inner_iterations", inner_iterations, 0),
-    ):
-        if isinstance(value, bool) or not float(value).is_integer() or value < least:
-            raise ReconstructionError(f"{name}: expected an integer >= {least}, found {value!r}")
+    check_count("n_endmembers", n_endmembers, 1)
+    check_count("outer_iterations", outer_iterations, 0)
+    check_count("inner_iterations", inner_iterations, 0)
     data = fusion_data(inputs, "cnmf")
     inner = int(inner_iterations)
     n_wavelength, n_image = data.n_wavelength, data.n_image

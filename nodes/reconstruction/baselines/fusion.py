@@ -31,6 +31,7 @@ References
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,6 +53,7 @@ __all__ = [
     "adjoint_differences",
     "pure_pixels",
     "leading_subspace",
+    "check_count",
 ]
 
 
@@ -148,6 +150,20 @@ def fusion_data(inputs: ReconstructionInputs, method: str) -> FusionData:
         start=filtered_bands(inputs) / scale,
         scale=scale,
     )
+
+
+def check_count(name: str, value: object, least: int) -> None:
+    """Refuse a count (a dimension, endmembers, iterations) that is not an integer ``>=
+    least``.
+
+    Raises
+    ------
+    ReconstructionError
+        Naming ``name``, what was expected and what was found.
+    """
+    number = float(value) if isinstance(value, numbers.Real) and not isinstance(value, bool) else None
+    if number is None or not (np.isfinite(number) and number.is_integer() and number >= least):
+        raise ReconstructionError(f"{name}: expected an integer >= {least}, found {value!r}")
 
 
 # -- the DCT domain ------------------------------------------------------------------------------

@@ -31,6 +31,7 @@ from ..inputs import ReconstructionInputs
 from .fusion import (
     FusionData,
     adjoint_differences,
+    check_count,
     dct2,
     difference_spectrum,
     forward_differences,
@@ -171,14 +172,13 @@ def _check_settings(
     subspace: int, lambda_m: float, lambda_phi: float, iterations: int, mu: float
 ) -> None:
     """Refuse settings out of range, naming the setting."""
-    for name, value, least in (("subspace", subspace, 1), ("iterations", iterations, 0)):
-        if isinstance(value, bool) or not float(value).is_integer() or value < least:
-            raise ReconstructionError(f"{name}: expected an integer >= {least}, found {value!r}")
-    for name, value in (("lambda_m", lambda_m), ("lambda_phi", lambda_phi), ("mu", mu)):
+    check_count("subspace", subspace, 1)
+    check_count("iterations", iterations, 0)
+    for name, weight in (("lambda_m", lambda_m), ("lambda_phi", lambda_phi), ("mu", mu)):
         positive = name == "mu"
-        if not np.isfinite(value) or value < 0 or (positive and value == 0):
+        if not np.isfinite(weight) or weight < 0 or (positive and weight == 0):
             wanted = "> 0" if positive else ">= 0"
-            raise ReconstructionError(f"{name}: expected a finite number {wanted}, found {value!r}")
+            raise ReconstructionError(f"{name}: expected a finite number {wanted}, found {weight!r}")
 
 
 def hysure_problem(data: FusionData, image: int, basis: np.ndarray) -> HySureProblem:
