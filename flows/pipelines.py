@@ -64,6 +64,7 @@ def _btf_steps() -> tuple[Step, ...]:
         Step("estimate_registration"),
         Step("calibrate_bands"),
         Step("select_image_sets"),
+        Step("endmember_library", inputs={"calibration": "calibration/spectral"}),
         Step("reconstruct_seed_set", inputs={"calibration": "calibration/spectral"}),
         Step("reconstruct_image_sets", inputs={"calibration": "calibration/spectral"}),
         # simulated runs only: evaluation against ground truth (left out without truth/spectra)

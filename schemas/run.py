@@ -36,6 +36,7 @@ __all__ = [
     "BANDS",
     "REGISTRATION",
     "IMAGE_SETS",
+    "ENDMEMBER_LIBRARY",
     "SPECTRA",
     "SPECTRA_SEED",
     "CAMERA_MATRIX",
@@ -480,6 +481,56 @@ IMAGE_SETS = GroupSchema(
     attrs={"seed_set": "set solved first to warm-start the others"},
 )
 
+ENDMEMBER_LIBRARY = GroupSchema(
+    name="endmember_library",
+    description="the run's endmember library: material spectra learnt once from the pooled "
+    "band shots of a sample of its image sets, shared by every set's solve",
+    variables=(
+        ArraySpec(
+            "atoms",
+            ("endmember", "wavelength"),
+            "kind:f",
+            "1",
+            "endmember spectrum: relative spectral radiance under the run's light per unit "
+            "channel-balanced RGB brightness (a reflectance times the light, up to scale)",
+            finite=True,
+        ),
+        ArraySpec(
+            "centre",
+            ("endmember", "chromaticity"),
+            "kind:f",
+            "1",
+            "channel-balanced RGB chromaticity of the endmember (r and g shares)",
+            (0, 1),
+            finite=True,
+        ),
+        ArraySpec(
+            "channel_scale",
+            ("channel",),
+            "kind:f",
+            "1",
+            "RGB channel scale of the chromaticity (mean RGB of the pooled pixels)",
+            finite=True,
+        ),
+        ArraySpec(
+            "split_angle",
+            ("endmember",),
+            "kind:f",
+            "degree",
+            "spectral angle to the nearest endmember learnt from either half of the pooled "
+            "pixels (mean of the two halves): how reproducible the fit is",
+            (0, 180),
+        ),
+    ),
+    coords=(
+        ArraySpec("wavelength", ("wavelength",), "kind:f", "nm", "wavelength", (300, 1100), finite=True),
+        ArraySpec(
+            "highlight", ("endmember",), "bool", None, "the highlight atom (the light's spectrum)"
+        ),
+    ),
+    attrs={"image_sets": "indices of the image sets whose band shots were pooled"},
+)
+
 # -- radiometric calibration (paper section 4) --------------------------------------------
 CALIBRATION_OECF_RGB = GroupSchema(
     name="calibration/oecf_rgb",
@@ -765,6 +816,7 @@ for _schema in (
     BANDS,
     REGISTRATION,
     IMAGE_SETS,
+    ENDMEMBER_LIBRARY,
     CAMERA_MATRIX,
     SPECTRA,
     SPECTRA_SEED,

@@ -1,6 +1,8 @@
-"""Node declarations of the reconstruction stage: image sets, seed set, all sets.
+"""Node declarations of the reconstruction stage: image sets, the run's endmember library,
+seed set, all sets.
 
-The science lives beside this module (:mod:`.image_sets`, :mod:`.set_reconstruction`); each
+The science lives beside this module (:mod:`.image_sets`, :mod:`.endmember_library`,
+:mod:`.set_reconstruction`); each
 node's parameters are its function's keyword-only arguments, from which the engine derives
 the frozen parameter model (``method`` takes exactly the production methods of
 :data:`~spectralize.nodes.reconstruction.methods.RECONSTRUCTION_METHODS`, checked when the
@@ -14,6 +16,7 @@ References
 """
 
 from spectralize.engine import Node
+from spectralize.nodes.reconstruction.endmember_library import endmember_library
 from spectralize.nodes.reconstruction.image_sets import select_image_sets
 from spectralize.nodes.reconstruction.set_reconstruction import (
     DISK_TILE,
@@ -21,7 +24,7 @@ from spectralize.nodes.reconstruction.set_reconstruction import (
     reconstruct_seed_set,
 )
 
-__all__ = ["SELECT_IMAGE_SETS", "RECONSTRUCT_SEED_SET", "RECONSTRUCT_IMAGE_SETS"]
+__all__ = ["SELECT_IMAGE_SETS", "ENDMEMBER_LIBRARY", "RECONSTRUCT_SEED_SET", "RECONSTRUCT_IMAGE_SETS"]
 
 SELECT_IMAGE_SETS = Node(
     name="select_image_sets",
@@ -30,6 +33,16 @@ SELECT_IMAGE_SETS = Node(
     inputs={"images": "raw/rgb", "shots": "raw/spectral"},
     outputs=("image_sets",),
     description="Split the run into sets of images with band shots plus similar-light images.",
+)
+
+ENDMEMBER_LIBRARY = Node(
+    name="endmember_library",
+    version="1",
+    function=endmember_library,
+    inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix", "image_sets": "image_sets"},
+    outputs=("endmember_library",),
+    description="Learn the run's endmember library once from the pooled band shots of a "
+    "sample of its image sets.",
 )
 
 RECONSTRUCT_SEED_SET = Node(
@@ -41,9 +54,16 @@ RECONSTRUCT_SEED_SET = Node(
     # 7: each image through its own camera's C (T_k C_k from camera_matrices)
     # 8: the mixture prior's compiled passes (box windows, 3 x 3 inverses: float noise)
     # 9: the default's set model 'material-pooled' where the calibration has the illuminant
-    version="9",
+    # 10: the run's endmember library (input endmember_library) mixed instead of the set's own
+    version="10",
     function=reconstruct_seed_set,
-    inputs={"hdr": "hdr", "bands": "bands", "calibration": "camera_matrix", "image_sets": "image_sets"},
+    inputs={
+        "hdr": "hdr",
+        "bands": "bands",
+        "calibration": "camera_matrix",
+        "image_sets": "image_sets",
+        "endmember_library": "endmember_library",
+    },
     outputs=("spectra_seed",),
     chunks={"spectra_seed": {"y": DISK_TILE, "x": DISK_TILE}},
     description="Solve eq. 1 for the seed image set from a cold start, tile by tile.",
@@ -53,8 +73,9 @@ RECONSTRUCT_IMAGE_SETS = Node(
     name="reconstruct_image_sets",
     # 2: tiled (parameter ``tile``), warm start from a strided seed sample; 3: as the seed
     # set's version 4; 4: as the seed set's version 5; 5: as the seed set's version 6;
-    # 6: as the seed set's version 7; 7: as the seed set's version 8; 8: as its version 9
-    version="8",
+    # 6: as the seed set's version 7; 7: as the seed set's version 8; 8: as its version 9;
+    # 9: as its version 10
+    version="9",
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",
@@ -62,6 +83,7 @@ RECONSTRUCT_IMAGE_SETS = Node(
         "calibration": "camera_matrix",
         "image_sets": "image_sets",
         "spectra_seed": "spectra_seed",
+        "endmember_library": "endmember_library",
     },
     outputs=("spectra",),
     chunks={"spectra": {"y": DISK_TILE, "x": DISK_TILE}},  # the tiles line up with them

@@ -8,7 +8,10 @@ run in parallel on dask (:func:`reconstruct_image_sets`). Every set is solved ti
 with the tasks of :func:`~spectralize.nodes.reconstruction.tiling.tile_tasks`: one dask task
 per set and tile, so memory is bounded by tile x set, and for a method with an endmember
 dictionary (the default) one more task per set that learns it from a strided sample of the
-set, shared by the set's tiles. The cube is written set by set: each set is one resumable
+set, shared by the set's tiles; given the run's endmember library
+(:mod:`~spectralize.nodes.reconstruction.endmember_library`, learnt once from the pooled band
+shots of a sample of the run's sets), every set and tile mixes its endmembers instead, as every
+set starts from the seed's spectra. The cube is written set by set: each set is one resumable
 region of the ``spectra`` group, so a crash loses at most the sets in flight. A run of more
 than :data:`BATCH_SETS_ABOVE` sets of tiny frames (every set in one tile) solves consecutive
 sets in batches of about :data:`BATCH_BYTES` of spectra, one task and one resumable region
@@ -45,6 +48,7 @@ from spectralize.schemas.errors import ParameterError, ReconstructionError
 from spectralize.schemas.run import SPECTRA, SPECTRA_SEED
 
 from .confidence import neighbourhood_spread
+from .estimators.endmember_mixture import Endmembers
 from .image_sets import set_members
 from .inputs import illuminant_on_bands, in_paired_camera
 from .methods import (
@@ -66,6 +70,7 @@ from .tiling import (
 
 __all__ = [
     "node_method",
+    "library_endmembers",
     "reconstruct_seed_set",
     "reconstruct_image_sets",
     "DISK_TILE",
@@ -123,6 +128,13 @@ SetModel = Annotated[
         "(one shape per material, fitted to its texels' pooled band shots); both need the "
         "calibration's illuminant; None: the method's (the default's: 'material-pooled' "
         "where the calibration has the illuminant, else 'independent'); solvers only",
+    ),
+]
+RunLibrary = Annotated[
+    bool,
+    Field(
+        description="mix the endmembers of the run's library (input endmember_library) in "
+        "every set; False: each set learns its own from its own band shots",
     ),
 ]
 WarmStartPixels = Annotated[
@@ -349,11 +361,70 @@ _CONFIDENCE_ATTRS = SPECTRA.spec("confidence").attrs
 _SEED_ITERATIONS_ATTRS = SPECTRA_SEED.spec("iterations").attrs
 
 
+def library_endmembers(library: xr.Dataset, wavelength: np.ndarray) -> Endmembers:
+    """The :class:`~.estimators.endmember_mixture.Endmembers` of a group
+    ``endmember_library`` on the bands' ``wavelength`` (within 0.5 nm), the highlight atom
+    last, as the sets' solves take it.
+
+    Raises
+    ------
+    ReconstructionError
+        For a library without one atom on each of the bands' wavelengths, or without exactly
+        one highlight atom.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, sections 3 and 5.
+    """
+    wavelength = np.asarray(wavelength, dtype=np.float64)
+    have = np.asarray(library["wavelength"].values, dtype=np.float64)
+    nearest = np.abs(have[None, :] - wavelength[:, None]).argmin(axis=1)
+    if have.size == 0 or np.any(np.abs(have[nearest] - wavelength) > 0.5):
+        raise ReconstructionError.single(
+            "endmember_library: wavelength",
+            f"every band wavelength {wavelength.tolist()} nm (within 0.5 nm)",
+            f"{have.tolist()} nm",
+        )
+    highlight = np.asarray(library["highlight"].values, dtype=bool)
+    if highlight.sum() != 1:
+        raise ReconstructionError.single(
+            "endmember_library: highlight", "exactly one highlight atom", f"{int(highlight.sum())}"
+        )
+    atoms = np.asarray(library["atoms"].transpose("endmember", "wavelength").values, np.float64)
+    centre = np.asarray(library["centre"].transpose("endmember", "chromaticity").values, np.float64)
+    order = np.concatenate([np.flatnonzero(~highlight), np.flatnonzero(highlight)])
+    return Endmembers(
+        np.ascontiguousarray(atoms[order][:, nearest]),
+        np.ascontiguousarray(centre[~highlight]),
+        np.asarray(library["channel_scale"].values, dtype=np.float64),
+    )
+
+
+def _run_endmembers(
+    library: xr.Dataset | None, use: bool, method: ResolvedMethod, wavelength: np.ndarray
+) -> Endmembers | None:
+    """The run's endmember dictionary on the bands' ``wavelength`` for a method that mixes
+    endmembers, or None (no library, not used, or a method without a dictionary: each set
+    then learns its own where its method needs one)."""
+    if library is None or not use or "endmembers" not in method.options:
+        return None
+    return library_endmembers(library, wavelength)
+
+
+def _library_task(endmembers: Endmembers | None) -> Delayed | None:
+    """The run's dictionary as one dask value every set's tasks share (keyed by its content)."""
+    if endmembers is None:
+        return None
+    token = dask.base.tokenize(endmembers.atoms, endmembers.centres, endmembers.scale)
+    return cast(Delayed, dask.delayed(endmembers, name=f"endmember-library-{token}"))
+
+
 def reconstruct_seed_set(
     hdr: xr.Dataset,
     bands: xr.Dataset,
     calibration: xr.Dataset,
     image_sets: xr.Dataset,
+    endmember_library: xr.Dataset | None = None,
     *,
     method: Method = DEFAULT_METHOD,
     gamma_hat: GammaHat = None,
@@ -362,6 +433,7 @@ def reconstruct_seed_set(
     k: Neighbours = None,
     prior: Prior = None,
     set_model: SetModel = None,
+    run_library: RunLibrary = True,
     tile: Tile = DISK_TILE,
 ) -> xr.Dataset:
     """Solve the seed set from a cold start (eq. 1 by any solver, or a baseline), tile by tile.
@@ -382,6 +454,10 @@ def reconstruct_seed_set(
         the solve as ``L`` (interpolated onto the bands' wavelengths) for ``set_model``.
     image_sets
         Group ``image_sets``; its ``seed_set`` attr names the set solved here.
+    endmember_library
+        Group ``endmember_library`` (:func:`~.endmember_library.endmember_library`): the
+        run's endmembers, mixed by the set's solve for a method with an endmember dictionary
+        (the default); None: the set learns its own.
     method, gamma_hat, tolerance, max_iterations, k, prior
         Method and solver settings (see :func:`spectralize.nodes.reconstruction.reconstruct`);
         a baseline takes none of the solver settings.
@@ -389,6 +465,9 @@ def reconstruct_seed_set(
         ``"independent"`` or ``"shared-texel"`` (a solver's set model, see
         :func:`~spectralize.nodes.reconstruction.reconstruct`; needs the calibration's
         ``illuminant``); None: the method's setting.
+    run_library
+        Mix the endmembers of ``endmember_library`` (False: the set learns its own, as
+        without a library).
     tile
         Tile size [px] (:mod:`~.tiling`): every tile is solved with all images of the set on
         its core plus a halo of the set's largest filter, and its core kept. ``None``, or a
@@ -401,7 +480,8 @@ def reconstruct_seed_set(
         seed set, ``iterations`` (image) int32 (the set's solver iterations, the most
         over its tiles) and ``confidence`` (image, y, x) float32 (computed with the solve,
         from its neighbour graph; ``reconstruct_image_sets`` passes it on); attrs
-        ``seed_set``, ``method``, ``tiles`` (and ``tile``, ``halo`` when tiled). Solved
+        ``seed_set``, ``method``, ``endmembers`` (``"run"``: the run's library mixed,
+        ``"set"``: the set's own, or none), ``tiles`` (and ``tile``, ``halo`` when tiled). Solved
         whole, the data are in memory; tiled, they are lazy: one dask task per tile, chunked
         (all images, all wavelengths, the tile's core), solved as the runner writes them, so
         memory is bounded by tile x set, not by the image size.
@@ -419,11 +499,18 @@ def reconstruct_seed_set(
     members, _ = set_members(image_sets, seed)
     hdr, wavelength, camera_matrix = _prepared(hdr, bands, calibration)
     illuminant = _illuminant(resolved, calibration, wavelength)
+    endmembers = _run_endmembers(endmember_library, run_library, resolved, wavelength)
     rgb, shots = _set_inputs(hdr, bands, members)
     windows, halo = set_windows(shots, hdr.sizes["y"], hdr.sizes["x"], tile)
     if len(windows) == 1:
         spectra, iterations, _ = solve_set(
-            rgb, shots, camera_matrix, method=resolved, illuminant=illuminant, confidence=True
+            rgb,
+            shots,
+            camera_matrix,
+            method=resolved,
+            illuminant=illuminant,
+            endmembers=endmembers,
+            confidence=True,
         )
         spread: np.ndarray | da.Array | None = (
             spectra["confidence"].transpose("image", "y", "x").values.astype(np.float32)
@@ -440,6 +527,7 @@ def reconstruct_seed_set(
             windows,
             method=resolved,
             illuminant=illuminant,
+            endmembers=_library_task(endmembers),
             confidence=True,
             name=f"solve-seed-{seed}",
         )
@@ -459,6 +547,7 @@ def reconstruct_seed_set(
         attrs={
             "seed_set": seed,
             **_given_attrs(resolved, "prior", "set_model"),
+            "endmembers": "run" if endmembers is not None else "set",
             "tiles": len(windows),
             **({"tile": tile, "halo": halo} if len(windows) > 1 else {}),
         },
@@ -531,6 +620,7 @@ def _solve_sets(
     method: ResolvedMethod,
     illuminant: xr.DataArray | None,
     warm: Any,
+    endmembers: Endmembers | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve a batch of sets, each whole in one tile, one after the other (one dask task).
 
@@ -548,8 +638,8 @@ def _solve_sets(
         ``C`` (as :func:`~.tiling.tile_tasks` takes it).
     sets
         Per set ``(labels, owned)`` (:func:`~.image_sets.set_members`), in order.
-    method, illuminant, warm
-        As for :func:`~.tiling.solve_tile`.
+    method, illuminant, warm, endmembers
+        As for :func:`~.tiling.solve_tile` (``endmembers``: the run's dictionary, or None).
 
     Returns
     -------
@@ -575,6 +665,7 @@ def _solve_sets(
             keep=owned,
             warm=warm,
             confidence=True,
+            endmembers=endmembers,
         )
         cubes.append(cube)
         counts.append(count)
@@ -607,6 +698,7 @@ def _batch_from_rows(
     rgb_rows: list[np.ndarray],
     shot_rows: list[np.ndarray],
     warm: Any,
+    endmembers: Endmembers | None,
     *,
     rgb_take: np.ndarray,
     shot_take: np.ndarray,
@@ -624,7 +716,15 @@ def _batch_from_rows(
     rgb = xr.DataArray(np.concatenate(rgb_rows)[rgb_take], dims=rgb_dims, coords=rgb_coords)
     shots = xr.DataArray(np.concatenate(shot_rows)[shot_take], dims=shot_dims, coords=shot_coords)
     return _solve_sets(
-        rgb, shots, shot_image, camera_matrix, sets, method=method, illuminant=illuminant, warm=warm
+        rgb,
+        shots,
+        shot_image,
+        camera_matrix,
+        sets,
+        method=method,
+        illuminant=illuminant,
+        warm=warm,
+        endmembers=endmembers,
     )
 
 
@@ -638,6 +738,7 @@ def _batch_tasks(
     method: ResolvedMethod,
     illuminant: xr.DataArray | None,
     warm: Any,
+    endmembers: Delayed | None,
     name: str,
 ) -> tuple[da.Array, da.Array, da.Array]:
     """The lazy results of :func:`_solve_sets` on a batch: spectra, iterations, confidence.
@@ -646,7 +747,8 @@ def _batch_tasks(
     images (:func:`_row_blocks`; both chunked along their first dim only, as
     :func:`reconstruct_image_sets` gives them): a dask selection of the images per batch
     would build and optimise a graph over every chunk of the run for every batch, a cost
-    that grows with the run times its batches.
+    that grows with the run times its batches. ``endmembers``: the run's dictionary as one
+    shared task (:func:`_library_task`), or None.
     """
     labels = np.unique(np.concatenate([members for members, _ in sets]))
     rgb = hdr["radiance"]
@@ -657,7 +759,7 @@ def _batch_tasks(
     shot_keys, shot_take = _row_blocks(shots.data, picked)
     token = dask.base.tokenize(
         rgb.data.name, shots.data.name, rgb_at, picked, camera_matrix.values, method,
-        illuminant, [tuple(m) for m, _ in sets], warm,
+        illuminant, [tuple(m) for m, _ in sets], warm, endmembers,
     )  # fmt: skip
     key = f"{name}-{token}"
     solve = functools.partial(
@@ -674,8 +776,10 @@ def _batch_tasks(
         method=method,
         illuminant=illuminant,
     )
-    layer: dict[Any, Any] = {key: (solve, list(rgb_keys), list(shot_keys), warm.key)}
-    graph = HighLevelGraph.from_collections(key, layer, dependencies=[rgb.data, shots.data, warm])
+    library = None if endmembers is None else endmembers.key
+    layer: dict[Any, Any] = {key: (solve, list(rgb_keys), list(shot_keys), warm.key, library)}
+    needed = [rgb.data, shots.data, warm, *([] if endmembers is None else [endmembers])]
+    graph = HighLevelGraph.from_collections(key, layer, dependencies=needed)
     task: Any = Delayed(key, graph, length=3)  # indexable: a delayed tuple of three
     n_owned = sum(int(owned.sum()) for _, owned in sets)
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
@@ -693,6 +797,7 @@ def reconstruct_image_sets(
     calibration: xr.Dataset,
     image_sets: xr.Dataset,
     spectra_seed: xr.Dataset,
+    endmember_library: xr.Dataset | None = None,
     *,
     method: Method = DEFAULT_METHOD,
     gamma_hat: GammaHat = None,
@@ -701,6 +806,7 @@ def reconstruct_image_sets(
     k: Neighbours = None,
     prior: Prior = None,
     set_model: SetModel = None,
+    run_library: RunLibrary = True,
     warm_start_pixels: WarmStartPixels = 200_000,
     tile: Tile = DISK_TILE,
 ) -> xr.Dataset:
@@ -724,7 +830,10 @@ def reconstruct_image_sets(
         As for :func:`reconstruct_seed_set`.
     spectra_seed
         Group ``spectra_seed`` (:func:`reconstruct_seed_set`): the seed set's spectra.
-    method, gamma_hat, tolerance, max_iterations, k, prior, set_model, tile
+    endmember_library
+        Group ``endmember_library``: the run's endmembers, one shared task handed to every
+        set and tile (as the warm start's seed pixels are); None: each set learns its own.
+    method, gamma_hat, tolerance, max_iterations, k, prior, set_model, run_library, tile
         As for :func:`reconstruct_seed_set`.
     warm_start_pixels
         At most this many seed pixels (read on a strided grid, not the whole seed set)
@@ -751,6 +860,7 @@ def reconstruct_image_sets(
     hdr, wavelength, camera_matrix = _prepared(hdr, bands, calibration)
     warm, seed_iterations = _warm_start_source(hdr, image_sets, spectra_seed, warm_start_pixels)
     illuminant = _illuminant(resolved, calibration, wavelength)
+    library = _library_task(_run_endmembers(endmember_library, run_library, resolved, wavelength))
 
     image_sets = image_sets.load()  # small: read once, not once per set
     shot_image = np.asarray(bands["image"].values)
@@ -775,6 +885,7 @@ def reconstruct_image_sets(
                 method=resolved,
                 illuminant=illuminant,
                 warm=warm,
+                endmembers=library,
                 name=f"solve-sets-{group[0][0]}-{group[-1][0]}",
             )
         else:
@@ -793,6 +904,7 @@ def reconstruct_image_sets(
                     illuminant=illuminant,
                     keep=owned,
                     warm=warm,
+                    endmembers=library,
                     confidence=True,
                     name=f"solve-set-{index}",
                 )
@@ -818,6 +930,7 @@ def reconstruct_image_sets(
             "seed_set": seed,
             **_given_attrs(resolved, "gamma_hat", "prior", "set_model"),
             "seed_iterations": seed_iterations,
+            "endmembers": "run" if library is not None else "set",
             **({} if tile is None else {"tile": tile}),
             "ordering": "images ordered by image set; use .sel(image=label)",
         },

@@ -578,17 +578,19 @@ def tile_tasks(
     illuminant: xr.DataArray | None = None,
     keep: np.ndarray | None = None,
     warm: Any = None,
+    endmembers: Any = None,
     confidence: bool = False,
     name: str = "solve-set",
 ) -> TileTasks:
     """The dask graph of one set solved tile by tile: one task per tile, lazy results.
 
     Each task is :func:`solve_tile` on its window's inputs (cut lazily, so a task reads its
-    window only). With more than one window and a method that takes an endmember
-    dictionary, one more task learns it from the set's :func:`sample_grid` sample
-    (:func:`shared_endmembers`) and every tile task takes it. Task keys are deterministic
-    (``{name}-tile-{j}-{token}``, the token hashing inputs, method, windows and warm
-    start), so a graph built twice solves once.
+    window only). Every tile task takes the run's endmember dictionary where one is given;
+    else, with more than one window and a method that takes an endmember dictionary, one
+    more task learns it from the set's :func:`sample_grid` sample (:func:`shared_endmembers`)
+    and every tile task takes it. Task keys are deterministic (``{name}-tile-{j}-{token}``,
+    the token hashing inputs, method, windows, warm start and dictionary), so a graph built
+    twice solves once.
 
     Parameters
     ----------
@@ -607,6 +609,10 @@ def tile_tasks(
     warm
         Seed pixels' ``(rgb, spectra)`` for a warm start (:func:`solve_tile`), or a
         :class:`dask.delayed.Delayed` of them (one task shared by a run's sets), or None.
+    endmembers
+        The run's endmember dictionary (:mod:`~.endmember_library`), or a
+        :class:`dask.delayed.Delayed` of it (one task shared by a run's sets), for every
+        tile; None: the set's own, learnt from its sample with more than one window.
     confidence
         Also return the per-pixel confidence.
     name
@@ -627,10 +633,11 @@ def tile_tasks(
         [w.core for w in windows],
         keep,
         warm,
+        endmembers,
     )
     n_kept, n_wavelength = int(np.count_nonzero(keep)), camera_matrix.sizes["wavelength"]
-    endmembers = None  # one dictionary for all tiles of the set, learnt once
-    if len(windows) > 1 and "endmembers" in method.options:
+    # one dictionary for all tiles of the set: the run's, or the set's own learnt once
+    if endmembers is None and len(windows) > 1 and "endmembers" in method.options:
         grid = sample_grid(rgb)  # cut before the task: only the sample is read
         endmembers = dask.delayed(shared_endmembers, pure=True)(
             rgb.isel(grid),

@@ -39,7 +39,7 @@ def test_demo_runs_then_skips(tmp_path):
     assert f"report: {report}" in first.stdout and report.is_file()
     # not a terminal: progress as plain lines on stderr, the images written (the time left
     # from the second region on: tests/flows/test_progress.py); Prefect's INFO lines stay off
-    assert "[1/13] simulate" in first.stderr and "[13/13] report" in first.stderr
+    assert "[1/14] simulate" in first.stderr and "[14/14] report" in first.stderr
     written = re.findall(
         r"reconstruct_image_sets: spectra: ([\d,]+)/([\d,]+) images written", first.stderr
     )

@@ -107,6 +107,7 @@ def test_method_takes_exactly_the_table_and_fails_at_graph_check():
         "camera_matrix": "camera_matrix",
         "image_sets": "image_sets",
         "spectra_seed": "spectra_seed",
+        "endmember_library": "endmember_library",
     }
     with pytest.raises(PipelineError) as info:
         check_graph(
