@@ -3,7 +3,9 @@ decodes nothing before it checks the header; damage is repaired, not repeated; s
 commands leave nothing behind. Real files, real symbolic links, a real decompression bomb,
 real processes and signals."""
 
+import contextlib
 import functools
+import io
 import json
 import os
 import re
@@ -355,11 +357,23 @@ def test_verify_names_a_rotten_raw_chunk_before_anything_runs(prefect_api, chain
 
 # -- 3b. the report's groups: rot that kept its times is repaired by the same run ---------------
 @pytest.fixture(scope="module")
-def reported_btf(prefect_api, tmp_path_factory):
-    """A finished btf run of the tiny simulated run, with its report (made once per module)."""
+def good_btf(prefect_api, tmp_path_factory):
+    """The tiny simulated run as a store btf can run on: ``validate --flow btf``, then
+    ``run btf`` (with its report) on it, once per module. The codes and stderr of both."""
     path = tmp_path_factory.mktemp("btf") / "run.zarr"
     btf_store(path, None)
-    assert cli.main(["run", "btf", str(path)]) == 0
+    with contextlib.redirect_stderr(io.StringIO()) as checked:
+        validated = cli.main(["validate", str(path), "--flow", "btf"])
+    with contextlib.redirect_stderr(io.StringIO()) as ran:
+        code = cli.main(["run", "btf", str(path)])
+    return path, (validated, checked.getvalue()), (code, ran.getvalue())
+
+
+@pytest.fixture(scope="module")
+def reported_btf(good_btf):
+    """A finished btf run of the tiny simulated run, with its report (made once per module)."""
+    path, _, (code, err) = good_btf
+    assert code == 0, err
     return path
 
 
@@ -814,10 +828,12 @@ def test_validate_flow_btf_refuses_what_run_btf_refuses(prefect_api, tmp_path, c
 
 
 @pytest.mark.slow
-def test_a_good_store_passes_validate_flow_btf_and_run_btf(prefect_api, tmp_path, capsys):
-    store = btf_store(tmp_path / "run.zarr", None)
-    assert cli.main(["validate", str(store.path), "--flow", "btf"]) == 0, capsys.readouterr().err
-    assert cli.main(["run", "btf", str(store.path)]) == 0, capsys.readouterr().err
+def test_a_good_store_passes_validate_flow_btf_and_run_btf(good_btf):
+    # the module's btf run (the report tests copy it): validated, then run, on the same store
+    path, (validated, checked), (code, ran) = good_btf
+    assert validated == 0, checked
+    assert code == 0, ran
+    store = RunStore.open(path)
     assert store.has("calibration/oecf_rgb") and store.has("hdr") and store.validate() == []
 
 
