@@ -13,9 +13,13 @@ from spectralize.store import RunStore
 EXE = [sys.executable, "-m", "spectralize.flows.cli"]
 
 
-def cli(*args, cwd):
+def cli(*args, cwd, api=None):
+    """``spectralize *args`` in a subprocess; with ``api``, on that Prefect API (the session's:
+    no embedded server to start), else on its own embedded one, as a user's first run."""
     # Prefect's own console level is the command's to set: quiet unless -v
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_LOGGING_")}
+    if api is not None:
+        env["PREFECT_API_URL"] = api
     return subprocess.run([*EXE, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
@@ -26,7 +30,12 @@ def tree(path: Path):
 
 
 @pytest.mark.slow
-def test_demo_runs_then_skips(tmp_path):
+def test_demo_runs_then_skips(prefect_api, tmp_path):
+    from prefect.settings import PREFECT_API_URL
+
+    # the first demo as a user runs it (its own embedded Prefect server); the runs after it
+    # on the session's API, as what they check (skips, a changed parameter) is the store's
+    api = PREFECT_API_URL.value()
     first = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     assert "simulate                 ran" in first.stdout
@@ -46,7 +55,7 @@ def test_demo_runs_then_skips(tmp_path):
     assert len(written) >= 2 and written[0][0] != written[0][1] and written[-1][0] == written[-1][1]
     assert "Finished in state" not in first.stderr and "| INFO" not in first.stderr
 
-    second = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path)
+    second = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path, api=api)
     assert second.returncode == 0, second.stderr
     assert "simulate                 skipped" in second.stdout
     assert "dark_average             skipped" in second.stdout
@@ -76,7 +85,7 @@ def test_demo_runs_then_skips(tmp_path):
     assert tree(store) == before
 
     # a changed parameter re-runs the node through `run`
-    rerun = cli("run", "dark", str(store), "--set", "ddof=0", "-v", cwd=tmp_path)
+    rerun = cli("run", "dark", str(store), "--set", "ddof=0", "-v", cwd=tmp_path, api=api)
     assert rerun.returncode == 0, rerun.stderr
     assert "| INFO" in rerun.stderr  # -v: Prefect's lines instead of the progress lines
     assert not re.search(r"^\[1/1\] dark_average", rerun.stderr, re.MULTILINE)
