@@ -553,6 +553,22 @@ CALIBRATION_OECF_RGB = GroupSchema(
             "DN",
             "each camera's black level: codes at or below it get weight 0 (the HDR merge's too)",
         ),
+        ArraySpec(
+            "white_level",
+            ("camera",),
+            "kind:iu",
+            "DN",
+            "the code each camera's raw values clip at: capture.toml's rgb.white_level_dn, else "
+            "found in the longest exposures, else the top code",
+        ),
+        ArraySpec(
+            "saturation",
+            ("camera",),
+            "kind:iu",
+            "DN",
+            "each camera's first saturated code (its white level less the noise): codes at or "
+            "above it get weight 0 (the HDR merge's and the targets' series' too)",
+        ),
     ),
     coords=(
         ArraySpec("camera", ("camera",), "kind:iu", None, "RGB camera index"),
@@ -562,7 +578,7 @@ CALIBRATION_OECF_RGB = GroupSchema(
     attrs={
         "bit_depth": "ADC bit depth",
         "black_level": "under-exposed codes (weight 0): the lowest camera's",
-        "saturation": "saturated codes (weight 0)",
+        "saturation": "saturated codes (weight 0): the lowest camera's",
     },
 )
 

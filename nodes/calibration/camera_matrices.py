@@ -40,6 +40,7 @@ __all__ = [
     "fit_camera_matrices",
     "method_settings",
     "camera_table",
+    "camera_saturation",
 ]
 
 CAMERA_MATRIX_METHODS = {
@@ -88,9 +89,12 @@ class CameraFits(NamedTuple):
     """The RGB camera paired with the spectral camera (``rgb_camera`` attr)."""
 
 
-def _rgb_series(target: xr.Dataset, group: str, camera: int | None = None) -> xr.Dataset:
+def _rgb_series(
+    target: xr.Dataset, group: str, camera: int | None = None, saturation: int | None = None
+) -> xr.Dataset:
     """One camera's RGB exposure series of a target (default: the paired camera's) as a
-    one-image raw/rgb Dataset (usable exposures)."""
+    one-image raw/rgb Dataset (usable exposures: not every value at or above ``saturation``,
+    default the top code, nor every value dark)."""
     depth = check_bit_depth(target.attrs.get("rgb_bit_depth"), where=f"{group}.attrs['rgb_bit_depth']")
     camera = int(target.attrs.get("rgb_camera", 0)) if camera is None else camera
     counts, times = target["rgb_counts"], target["rgb_exposure_time"]
@@ -103,9 +107,8 @@ def _rgb_series(target: xr.Dataset, group: str, camera: int | None = None) -> xr
         counts = counts.isel(camera=cameras.index(camera))
         times = times.isel(camera=cameras.index(camera)) if "camera" in times.dims else times
     counts = counts.transpose("rgb_exposure", "y", "x", "channel").load()
-    _, _, not_saturated, not_dark = frame_flags(
-        counts, ("y", "x"), black_level=0, saturation=2**depth - 1
-    )
+    saturation = 2**depth - 1 if saturation is None else saturation
+    _, _, not_saturated, not_dark = frame_flags(counts, ("y", "x"), black_level=0, saturation=saturation)
     usable = not_saturated.all(axis=1) & not_dark.all(axis=1)  # per exposure
     if usable.sum() < 1:
         raise CalibrationError(
@@ -132,11 +135,15 @@ def _white_rgb(
     group: str,
     margin: float = 0.1,
     camera: int | None = None,
+    saturation: int | None = None,
 ) -> xr.DataArray:
     """HDR RGB (channel,) of the white reference: median over the frame less a border of
-    ``margin`` of its size (hot pixels and the target's edge do not move a median)."""
-    raw = _rgb_series(white_reference, group, camera).drop_vars("camera")
-    hdr = merge_hdr(raw, response.assign_attrs(dict(attrs) | response.attrs))["radiance"].isel(image=0)
+    ``margin`` of its size (hot pixels and the target's edge do not move a median); codes at
+    or above ``saturation`` (default the response's) saturated."""
+    raw = _rgb_series(white_reference, group, camera, saturation).drop_vars("camera")
+    hdr = merge_hdr(raw, response.assign_attrs(dict(attrs) | response.attrs), saturation=saturation)[
+        "radiance"
+    ].isel(image=0)
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     dy, dx = int(margin * ny), int(margin * nx)
     centre = hdr.isel(y=slice(dy, ny - dy), x=slice(dx, nx - dx))
@@ -145,6 +152,17 @@ def _white_rgb(
         .compute()
         .drop_vars([c for c in centre.coords if c != "channel"], errors="ignore")
     )
+
+
+def camera_saturation(oecf_rgb: xr.Dataset, camera: int) -> int | None:
+    """The first saturated code of ``camera`` in ``calibration/oecf_rgb`` (its ``saturation``
+    over ``camera``, below the camera's white level); None where the group has none (the
+    response's own attrs decide)."""
+    if "saturation" not in oecf_rgb.data_vars or "camera" not in oecf_rgb["saturation"].dims:
+        return None
+    per_camera = oecf_rgb["saturation"]
+    cameras = per_camera["camera"].values.tolist()
+    return int(per_camera.sel(camera=camera if camera in cameras else cameras[0]))
 
 
 def _bare(data: xr.DataArray, keep: str) -> xr.DataArray:
@@ -215,13 +233,18 @@ def _fit_camera(
     """``C`` of one RGB camera from its own HDR RGB of the chart (and the white reference),
     through its own response and patch label image."""
     group = "raw/colour_checker"
-    rgb_raw = _rgb_series(colour_checker, group, camera)
+    saturation = camera_saturation(oecf_rgb, camera)
+    rgb_raw = _rgb_series(colour_checker, group, camera, saturation)
     response = oecf_rgb["response"]
     if "camera" in response.dims:
         response = response.sel(
             camera=camera if camera in response["camera"].values.tolist() else response["camera"][0]
         )
-    hdr = merge_hdr(rgb_raw.drop_vars("camera"), response.assign_attrs(oecf_rgb.attrs | response.attrs))
+    hdr = merge_hdr(
+        rgb_raw.drop_vars("camera"),
+        response.assign_attrs(oecf_rgb.attrs | response.attrs),
+        saturation=saturation,
+    )
     index = colour_checker["patch_index"]
     if "rgb_patch_index" in colour_checker:
         index = colour_checker["rgb_patch_index"].isel(
@@ -234,7 +257,12 @@ def _fit_camera(
     fit_rgb, fit_spectra = measured, spectra
     if white_patch:
         white_rgb = _white_rgb(
-            white_reference, response, oecf_rgb.attrs, "raw/white_reference", camera=camera
+            white_reference,
+            response,
+            oecf_rgb.attrs,
+            "raw/white_reference",
+            camera=camera,
+            saturation=saturation,
         )
         white_spectrum = (white_reference["target_reflectance"] * white_reference["illuminant"]).load()
         white_spectrum = white_spectrum.interp(wavelength=spectra["wavelength"].values)

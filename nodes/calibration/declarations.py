@@ -184,8 +184,11 @@ RECOVER_RGB_OECF = Node(
     # the calibration targets with its raw/rgb series; 3: the response a cubic spline of
     # SMOOTH_RGB coefficients (Robertson's solution over that space); 4: the black level per
     # camera as a variable (black_level over camera, DN) for the HDR merge, and the series read
-    # once, at most MAX_IMAGES images per camera (a deterministic spread)
-    version="4",
+    # once, at most MAX_IMAGES images per camera (a deterministic spread); 5: each camera's
+    # white level (declared, else found in its longest exposures) and the saturation under it
+    # (white_level, saturation over camera), which the fit, the targets' series and the HDR
+    # merge use
+    version="5",
     function=recover_rgb_oecf,
     inputs={
         "raw_rgb": "raw/rgb",
@@ -209,9 +212,10 @@ RECOVER_SPECTRAL_OECF = Node(
 
 CALIBRATE_SPECTRAL = Node(
     name="calibrate_spectral",
-    version="5",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
+    version="6",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
     # 4: C held to zero where the targets had little light (weak_light); 5: the measured
-    # illuminant L on the band wavelengths (illuminant), which set_model 'shared-texel' reads
+    # illuminant L on the band wavelengths (illuminant), which set_model 'shared-texel' reads;
+    # 6: the targets' RGB series saturated at each camera's saturation (calibration/oecf_rgb)
     function=calibrate_spectral,
     inputs={
         "white_reference": "raw/white_reference",

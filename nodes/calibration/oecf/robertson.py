@@ -48,6 +48,7 @@ from spectralize.nodes.calibration.oecf.weighting import (
     Weighting,
     weighting_function,
 )
+from spectralize.nodes.calibration.white_level import camera_white_levels, white_level_variables
 from spectralize.schemas import CalibrationError, SchemaError, SpectralizeError
 from spectralize.schemas.errors import Problem
 
@@ -1183,10 +1184,17 @@ def recover_rgb_oecf(
         Group ``calibration/oecf_rgb``: ``response`` (camera, channel, code) float64
         [1], relative exposure per code normalised to 1 at the mid code; ``samples``
         (camera, channel, code); ``black_level`` (camera) int [DN], each camera's own
-        black level, which the HDR merge weights that camera's images with. Attrs
-        ``bit_depth``, ``black_level`` (the lowest camera's), ``black_levels`` (per camera,
-        as the variable), ``saturation``, ``weighting``, ``per_camera``, ``converged``,
-        ``iterations``, ``sampled_images``.
+        black level, which the HDR merge weights that camera's images with;
+        ``white_level`` (camera) int [DN], the code the camera's raw values clip at, and
+        ``saturation`` (camera) int [DN], the first code taken as saturated (the white level
+        less its noise; the top code when the white level is the top code), which the fit,
+        the targets' series and the HDR merge use (:func:`~.white_level.camera_white_levels`:
+        capture.toml's ``rgb.white_level_dn``, else a pile-up of codes below the top code in
+        the camera's longest exposures). Attrs ``bit_depth``, ``black_level`` (the lowest
+        camera's), ``black_levels`` (per camera, as the variable), ``saturation`` (the lowest
+        camera's), ``white_level_source`` (per camera: ``"declared"``, ``"found"`` or
+        ``"top code"``), ``weighting``, ``per_camera``, ``converged``, ``iterations``,
+        ``sampled_images``.
 
     Raises
     ------
@@ -1216,14 +1224,20 @@ def recover_rgb_oecf(
         "smooth": smooth,
         "frames_checked": True,
     }
-    targets = [t for t in (colour_checker, white_reference) if t is not None and calibration_targets]
-    own = {}  # one response per camera, each with its own black level (and target series)
+    given = [t for t in (colour_checker, white_reference) if t is not None]
+    whites = camera_white_levels(loaded, given, depth)
+    targets = given if calibration_targets else []
+    own = {}  # one response per camera, each with its own levels (and target series)
     for c, level in levels.items():
+        saturation = whites[c].saturation
         series = with_target_series(
-            data.isel(image=np.flatnonzero(cameras == c)), targets, c, level, 2**depth - 1
+            data.isel(image=np.flatnonzero(cameras == c)), targets, c, level, saturation
         )
         own[c] = recover_oecf(
-            series, black_level=level, **{**options, "max_pixels": _capped(series, max_pixels)}
+            series,
+            black_level=level,
+            saturation=saturation,
+            **{**options, "max_pixels": _capped(series, max_pixels)},
         )
     black_level = min(levels.values())
     if per_camera:
@@ -1237,7 +1251,10 @@ def recover_rgb_oecf(
     else:
         pooled = data.drop_vars("camera")  # the sample, in memory
         result = recover_oecf(
-            pooled, black_level=black_level, **{**options, "max_pixels": _capped(pooled, max_pixels)}
+            pooled,
+            black_level=black_level,
+            saturation=min(w.saturation for w in whites.values()),
+            **{**options, "max_pixels": _capped(pooled, max_pixels)},
         )
         _warn_pooled(own, result, "recover_rgb_oecf: raw/rgb")
     response = result["response"]
@@ -1258,16 +1275,19 @@ def recover_rgb_oecf(
             "long_name": "black level: codes at or below it are under-exposed (weight 0)",
         },
     )
+    order = [int(c) for c in response["camera"].values]
     out = xr.Dataset(
         {
             "response": response.assign_attrs(attrs),
             "samples": samples.assign_attrs(units="1", long_name="samples per code (0: interpolated)"),
             "black_level": per_camera_black,
+            **white_level_variables(whites, order),
         },
         attrs={
             "bit_depth": depth,
             "black_level": int(black_level),
-            "saturation": int(attrs.get("saturation", 2**depth - 1)),
+            "saturation": min(whites[c].saturation for c in order),
+            "white_level_source": [whites[c].source for c in order],
             "weighting": weighting,
             "per_camera": bool(per_camera),
             "black_levels": [int(levels[int(c)]) for c in response["camera"].values],

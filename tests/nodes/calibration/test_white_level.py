@@ -1,0 +1,59 @@
+"""The white level found from the data: a pile-up of codes below the top code."""
+
+import numpy as np
+import pytest
+
+from spectralize.nodes.calibration.white_level import saturation_code, white_level, white_margin
+from spectralize.schemas import CalibrationError
+
+
+def frames(clip: int, bit_depth: int = 12, seed: int = 0) -> np.ndarray:
+    """Long exposures of a textured scene, some of it far past the top, clipped at ``clip``."""
+    rng = np.random.default_rng(seed)
+    exposure = rng.lognormal(np.log(2500.0), 0.5, size=(4, 64, 64))
+    codes = exposure + rng.normal(0.0, 4.0, exposure.shape)
+    return np.clip(np.round(codes), 0, clip).astype(np.uint16)
+
+
+def test_a_12_bit_sensor_clipping_at_3900_is_found():
+    level, evidence = white_level(frames(3900), 12)
+    assert level == 3900
+    assert evidence.max_code == 3900 and evidence.share > 0.05
+    assert evidence.at_max > 100 * evidence.baseline
+
+
+def test_clipping_at_the_top_code_is_no_white_level():
+    level, evidence = white_level(frames(4095), 12)
+    assert level is None and evidence.max_code == 4095
+
+
+def test_unclipped_frames_have_no_white_level():
+    rng = np.random.default_rng(1)
+    codes = np.round(rng.normal(2000.0, 150.0, size=(4, 64, 64))).astype(np.uint16)
+    level, evidence = white_level(codes, 12)
+    assert level is None and evidence.max_code < 4095
+
+
+def test_a_flat_target_far_below_the_top_is_no_white_level():
+    """A uniform frame of little noise piles its values up too, but in the lower half."""
+    codes = np.full((2, 32, 32), 900, dtype=np.uint16)
+    assert white_level(codes, 12)[0] is None
+
+
+def test_a_few_clipped_pixels_are_no_evidence():
+    codes = frames(4095)
+    codes = np.minimum(codes, 3000)  # most of the scene under 3000 ...
+    codes[codes == 3000] = 2999
+    codes.flat[:5] = 3900  # ... and five hot pixels at 3900
+    assert white_level(codes, 12)[0] is None
+
+
+def test_codes_beyond_the_bit_depth_are_refused():
+    with pytest.raises(CalibrationError, match="bit depth 10"):
+        white_level(np.array([0, 1100]), 10)
+
+
+def test_the_saturated_codes_start_at_the_white_level_less_its_noise():
+    assert saturation_code(None, 12) == 4095 and saturation_code(4095, 12) == 4095
+    assert saturation_code(3900, 12) == 3900 - white_margin(12)
+    assert white_margin(10) == 3 and white_margin(12) == 8
