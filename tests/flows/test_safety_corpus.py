@@ -561,7 +561,7 @@ FLOW_STATE = textwrap.dedent(
 
 
 @pytest.mark.slow
-def test_sigterm_stops_a_run_like_ctrl_c(tmp_path):
+def test_sigterm_stops_a_run_like_ctrl_c(prefect_api, tmp_path):
     store = big_raw_store(tmp_path / "run.zarr")
     run = spawn("run", "dark", str(store.path), "--set", "frames_per_chunk=2")
     started: list[psutil.Process] = []
@@ -592,7 +592,15 @@ def test_sigterm_stops_a_run_like_ctrl_c(tmp_path):
     )
     assert state.stdout.strip() == "CRASHED", state.stdout + state.stderr
     assert not store.has("dark")
-    rerun = subprocess.run([*EXE, "run", "dark", str(store.path)], capture_output=True, text=True)
+    from prefect.settings import PREFECT_API_URL
+
+    # the store is whole for the next run (on the session's API: no embedded server to start)
+    rerun = subprocess.run(
+        [*EXE, "run", "dark", str(store.path)],
+        env={**os.environ, "PREFECT_API_URL": PREFECT_API_URL.value()},
+        capture_output=True,
+        text=True,
+    )
     assert rerun.returncode == 0, rerun.stderr
     assert store.has("dark") and store.validate() == []
 
