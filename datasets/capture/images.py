@@ -1,6 +1,7 @@
 """The image files of a capture folder: their header, their pixels, and a probe against a camera.
 
-Image files are TIFF (tifffile) or PNG (pypng: Pillow cannot read 16-bit RGB PNG), 16-bit
+Image files are TIFF (tifffile; compressed ones, LZW, Deflate or PackBits as camera software
+writes them, decoded by imagecodecs) or PNG (pypng: Pillow cannot read 16-bit RGB PNG), 16-bit
 unsigned (8-bit for cameras of at most 8 bits), monochrome ``(y, x)`` for the spectral camera
 and RGB ``(y, x, 3)`` for the RGB cameras, values right-aligned (at most
 ``2**bit_depth - 1``, as the ADC gives them).
