@@ -30,8 +30,11 @@ reconstruction_inputs = _module.reconstruction_inputs
 SETTINGS = ["--set", "tolerance=1e-6", "--set", "max_iterations=3000"]
 
 
-def cli(*args, **kwargs):
+def cli(*args, api=None, **kwargs):
+    """The CLI in a subprocess: on its own embedded Prefect API, or on ``api``."""
     env = {**os.environ, "PREFECT_LOGGING_LEVEL": "INFO"}
+    if api is not None:
+        env["PREFECT_API_URL"] = api
     return subprocess.Popen(
         [sys.executable, "-m", "spectralize.flows.cli", *args],
         env=env,
@@ -63,13 +66,15 @@ def region_flags(store: Path) -> list[Path]:
     )
 
 
-def test_killed_reconstruction_resumes_without_recomputing_finished_sets(tmp_path):
+def test_killed_reconstruction_resumes_without_recomputing_finished_sets(prefect_api, tmp_path):
+    from prefect.settings import PREFECT_API_URL
+
     killed = prepared_store(tmp_path / "killed.zarr").path
     clean = tmp_path / "clean.zarr"
     shutil.copytree(killed, clean)
 
-    # an uninterrupted run, for comparison
-    reference = cli("run", "reconstruct_image_sets", str(clean), *SETTINGS)
+    # an uninterrupted run, for comparison (on the session's API: no embedded server to start)
+    reference = cli("run", "reconstruct_image_sets", str(clean), *SETTINGS, api=PREFECT_API_URL.value())
     out, _ = reference.communicate(timeout=600)
     assert reference.returncode == 0, out
 
