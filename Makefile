@@ -21,11 +21,13 @@ demo: $(STAMP)
 
 # Lint, types and the whole suite, as CI runs it (.ci/run): one pytest worker per core (a test
 # module stays on one worker, so its fixtures are built once), then the tests marked `timing`
-# (they assert on wall time or an ETA) alone, so that no other test's load skews them.
+# (they assert on wall time or an ETA) alone, so that no other test's load skews them. Each
+# pass ends with its slowest tests (setup, call and teardown apart): where the time goes.
 PYTEST_WORKERS ?= auto
+PYTEST_DURATIONS ?= 40
 test: lint typecheck browser
-	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile -m "not timing"
-	$(BIN)/python -m pytest -m timing
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile -m "not timing" --durations=$(PYTEST_DURATIONS)
+	$(BIN)/python -m pytest -m timing --durations=$(PYTEST_DURATIONS)
 
 # The inner loop: the suite without the tests marked `slow` (real flows, killed processes,
 # the wheel install); about a third of the time.
