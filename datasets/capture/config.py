@@ -1,7 +1,10 @@
 """The parser of ``capture.toml``: text in, a :class:`~.model.Config` and problems out.
 
 ``capture.toml`` names the cameras, their bit depths, the exposure plan's constants (eq. 2
-and 3: ``t0``, ``s0``, ``omega``) and the colour chart.
+and 3: ``t0``, ``s0``, ``omega``) and the colour chart. A key the parser does not read is
+refused, with the closest known one (a misspelt optional key would otherwise leave its
+default in force without a word), as a node's unknown parameter is; the ``[source]`` table
+(where the folder came from) is free.
 
 References
 ----------
@@ -10,7 +13,9 @@ Fast Capture of Spectral Image Series, sec. 4, eq. 2 and 3 (the exposure plan).
 
 from __future__ import annotations
 
+import difflib
 import tomllib
+from collections.abc import Iterable
 from typing import Any
 
 from spectralize.schemas import Problem
@@ -18,6 +23,10 @@ from spectralize.schemas import Problem
 from .model import CALIBRATION, CAPTURE_FORMAT, CONFIG, Config
 
 __all__ = ["parse_config"]
+
+_FREE_KEYS = ("version", "source")
+"""Top-level keys of ``capture.toml`` no check reads: the format's version (one so far) and the
+``[source]`` table, free text about where the folder came from."""
 
 
 def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Problem]]:
@@ -43,15 +52,19 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
     except (tomllib.TOMLDecodeError, RecursionError) as error:
         problems.append(Problem(where, "a readable TOML file", f"{type(error).__name__}: {error}"))
         return None, problems
-    if raw.get("format", CAPTURE_FORMAT) != CAPTURE_FORMAT:
+    top = _Table(raw, _FREE_KEYS)
+    tables = {"": top}  # every table read, by section: the keys asked are the known ones
+    if top.get("format", CAPTURE_FORMAT) != CAPTURE_FORMAT:
         problems.append(Problem(f"{where}: format", repr(CAPTURE_FORMAT), repr(raw.get("format"))))
+    name = str(top.get("name", default_name))
 
     def section(name: str) -> dict[str, Any]:
-        value = raw.get(name, {})
+        value = top.get(name, {})
         if not isinstance(value, dict):
             problems.append(Problem(f"{where}: [{name}]", "a table", repr(value)))
             return {}
-        return value
+        tables[name] = _Table(value)
+        return tables[name]
 
     def get(table: dict, sect: str, key: str, kind: type | tuple, default: Any = ...) -> Any:
         label = f"{where}: {sect + '.' if sect else ''}{key}"
@@ -100,8 +113,8 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
     values = {
         "rgb_depth": depth(rgb, "rgb"),
         "spectral_depth": depth(spectral, "spectral"),
-        "rotation_step": get(raw, "", "rotation_step_deg", float),
-        "tolerance": get(raw, "", "angle_tolerance_deg", float, 0.5),
+        "rotation_step": get(top, "", "rotation_step_deg", float),
+        "tolerance": get(top, "", "angle_tolerance_deg", float, 0.5),
         "t0": get(plan, "exposure_plan", "t0", float),
         "s0": get(plan, "exposure_plan", "s0", float),
         "omega": get(plan, "exposure_plan", "omega", float),
@@ -113,7 +126,7 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
     patch_index = get(
         checker, "colour_checker", "patch_index", str, f"{CALIBRATION}/colour_checker_patches.png"
     )
-    follow = get(raw, "", "follow_symlinks", bool, False)
+    follow = get(top, "", "follow_symlinks", bool, False)
     shared = get(checker, "colour_checker", "shared_patch_index", bool, False)
     models = _camera_table(rgb, "rgb", "models", str, cameras, problems)
     black = _camera_table(rgb, "rgb", "black_level_dn", int, cameras, problems)
@@ -127,10 +140,11 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
                 )
             )
     indices = _camera_table(checker, "colour_checker", "patch_indices", str, cameras, problems)
+    problems += _unknown_keys(tables)  # last: every key this parser knows was asked for
     if problems:
         return None, problems
     config = Config(
-        name=str(raw.get("name", default_name)),
+        name=name,
         rgb_cameras=tuple(cameras),
         rgb_bit_depth=values["rgb_depth"],
         paired_camera=paired,
@@ -172,3 +186,55 @@ def _camera_table(
         else:
             out[str(camera)] = item
     return out
+
+
+class _Table(dict):
+    """A table of ``capture.toml`` that remembers which keys the parser asked for.
+
+    The keys asked for (``in``, ``[]``, ``get``) are the ones the parser knows, so the list
+    of known keys cannot drift from the parser: a key it never asks for is an unknown one
+    (:func:`_unknown_keys`). Every key is asked for on every parse, in the order it is read.
+    """
+
+    def __init__(self, table: dict[str, Any], free: Iterable[str] = ()) -> None:
+        super().__init__(table)
+        self.asked: dict[str, None] = dict.fromkeys(free)
+
+    def __contains__(self, key: object) -> bool:
+        self.asked[str(key)] = None
+        return super().__contains__(key)
+
+    def __getitem__(self, key: str) -> Any:
+        self.asked[key] = None
+        return super().__getitem__(key)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        self.asked[key] = None
+        return super().get(key, default)
+
+
+def _unknown_keys(tables: dict[str, _Table]) -> list[Problem]:
+    """One problem per key of a table that the parser never asked for, with the closest
+    known key ("did you mean"), as the engine lists a node's unknown parameters."""
+    problems = []
+    for sect, table in tables.items():
+        known = list(table.asked)
+        for key in dict.keys(table):
+            if key not in table.asked:
+                problems.append(
+                    Problem(
+                        f"{CONFIG}: {sect + '.' if sect else ''}{key}",
+                        f"one of: {', '.join(known)}",
+                        f"an unknown key{_did_you_mean(key, known)}",
+                    )
+                )
+    return problems
+
+
+def _did_you_mean(word: str, candidates: Iterable[str]) -> str:
+    """``; did you mean 'x'?`` for the closest candidates, or nothing (the wording of the
+    command line's checks, ``spectralize.flows.command_checks.did_you_mean``)."""
+    close = difflib.get_close_matches(word, list(candidates), n=3, cutoff=0.6)
+    if not close:
+        return ""
+    return f"; did you mean {' or '.join(repr(c) for c in close)}?"
