@@ -139,6 +139,18 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
                     repr(value),
                 )
             )
+    white = _camera_table(rgb, "rgb", "white_level_dn", int, cameras, problems)
+    for camera, value in white.items():
+        low = black.get(camera, 0) + 1
+        if values["rgb_depth"] is not None and not low <= value <= 2 ** values["rgb_depth"] - 1:
+            problems.append(
+                Problem(
+                    f"{where}: rgb.white_level_dn.{camera}",
+                    f"{low}..{2 ** values['rgb_depth'] - 1} DN (above the black level, at most "
+                    "the top code)",
+                    repr(value),
+                )
+            )
     indices = _camera_table(checker, "colour_checker", "patch_indices", str, cameras, problems)
     problems += _unknown_keys(tables)  # last: every key this parser knows was asked for
     if problems:
@@ -161,6 +173,7 @@ def parse_config(text: str, default_name: str) -> tuple[Config | None, list[Prob
         follow_symlinks=bool(follow),
         rgb_models=models,
         black_level_dn=black,
+        white_level_dn=white,
         patch_indices=indices,
         shared_patch_index=bool(shared),
         raw=raw,

@@ -120,6 +120,7 @@ class Config:
     follow_symlinks: bool = False  # follow symbolic links whose target is inside the folder
     rgb_models: dict[str, str] = field(default_factory=dict)  # camera -> sensor model (rgb.models)
     black_level_dn: dict[str, int] = field(default_factory=dict)  # camera -> black level [DN]
+    white_level_dn: dict[str, int] = field(default_factory=dict)  # camera -> white level [DN]
     patch_indices: dict[str, str] = field(default_factory=dict)  # camera -> patch label image
     shared_patch_index: bool = False  # cameras without their own label image use patch_index
     raw: dict[str, Any] = field(default_factory=dict, compare=False)

@@ -278,6 +278,12 @@ def _rgb_group(capture: Capture, sources: FrameSources) -> RawGroup:
             "camera_names": list(config.rgb_cameras),
             "camera_models": [config.model_of(c) or "" for c in config.rgb_cameras],
             "black_level_dn": [config.black_level_dn.get(c, -1) for c in config.rgb_cameras],
+            # only where capture.toml declares one (a capture without keeps its fingerprint)
+            **(
+                {"white_level_dn": [config.white_level_dn.get(c, -1) for c in config.rgb_cameras]}
+                if config.white_level_dn
+                else {}
+            ),
             "led_power_from": "calibration/led_power.csv" if capture.led_power else "none (each LED 1)",
         },
     )
