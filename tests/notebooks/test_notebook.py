@@ -2,6 +2,7 @@
 ground truth, the store the capture path makes (sample capture folder -> ingest -> btf: no
 truth) and a simulated run."""
 
+import os
 import subprocess
 import sys
 from html.parser import HTMLParser
@@ -165,20 +166,24 @@ def test_notebook_executes_against_a_run_with_truth(tmp_path, monkeypatch):
     assert all(source.startswith("data:image/png;base64,") for source in page.sources)  # one file
 
 
-def cli(*args: str, cwd: Path) -> None:
+def cli(*args: str, cwd: Path, env: dict | None = None) -> None:
     done = subprocess.run(
-        [sys.executable, "-m", *args], cwd=cwd, capture_output=True, text=True, timeout=600
+        [sys.executable, "-m", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600
     )
     assert done.returncode == 0, done.stderr[-3000:]
 
 
 @pytest.fixture(scope="module")
-def capture_store(tmp_path_factory) -> Path:
-    """The capture path, as a user takes it: a sample capture folder, ingested, btf run."""
+def capture_store(prefect_api, tmp_path_factory) -> Path:
+    """The capture path, as a user takes it: a sample capture folder, ingested, btf run (on the
+    session's Prefect API: no embedded server to start)."""
+    from prefect.settings import PREFECT_API_URL
+
     work = tmp_path_factory.mktemp("capture-path")
     cli("spectralize.datasets.capture.sample", "capture", "--recipe", "tiny", cwd=work)
     cli("spectralize.flows.cli", "ingest", "capture", "run.zarr", cwd=work)
-    cli("spectralize.flows.cli", "run", "btf", "run.zarr", cwd=work)
+    api = {**os.environ, "PREFECT_API_URL": PREFECT_API_URL.value()}
+    cli("spectralize.flows.cli", "run", "btf", "run.zarr", cwd=work, env=api)
     return work / "run.zarr"
 
 
@@ -197,7 +202,7 @@ def test_notebook_executes_on_the_store_the_capture_path_makes(capture_store, tm
 
 
 @pytest.mark.slow
-def test_notebook_executes_on_a_simulated_run(tmp_path, monkeypatch):
+def test_notebook_executes_on_a_simulated_run(prefect_api, tmp_path, monkeypatch):
     from spectralize.flows import run_flow
 
     run_flow("demo", tmp_path / "run.zarr", parameters={"simulate.recipe": "tiny"})
