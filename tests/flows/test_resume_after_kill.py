@@ -47,6 +47,7 @@ def cli(*args, api=None, **kwargs):
 
 
 def prepared_store(path: Path) -> RunStore:
+    from spectralize.nodes.reconstruction.endmember_library import endmember_library
     from spectralize.nodes.reconstruction.set_reconstruction import reconstruct_seed_set
 
     hdr, bands, camera, sets, _ = reconstruction_inputs()
@@ -55,6 +56,8 @@ def prepared_store(path: Path) -> RunStore:
     store.write("bands", bands, fingerprint="bands")
     store.write("camera_matrix", xr.Dataset({"camera_matrix": camera.camera_matrix}), fingerprint="c")
     store.write("image_sets", sets, fingerprint="sets")
+    library = endmember_library(hdr, bands, camera, sets)
+    store.write("endmember_library", library, fingerprint="library")
     store.write("spectra_seed", reconstruct_seed_set(hdr, bands, camera, sets), fingerprint="seed")
     return store
 
