@@ -88,7 +88,9 @@ from .staging import (
     adopt_abandoned,
     flags_path,
     pack_staged,
+    packed_path,
     regions_path,
+    remove_abandoned,
     remove_tree,
     replace_group,
     replaced_group,
@@ -660,6 +662,7 @@ class RunStore:
             try:
                 staging.mkdir(exist_ok=True)
                 if resumable_along is None:
+                    remove_abandoned(self._staging_dirs(), prefix, staged)
                     ds = shard_layout(ds, enc, keep=chunks or ())
                     ds.to_zarr(
                         str(staged),
@@ -682,9 +685,14 @@ class RunStore:
                     pack_staged(staged, keep=chunks or (), dim=resumable_along)
                 self._commit(staged, target, group, records or {})
             except BaseException as error:
-                keep = resumable_along is not None and not (
-                    isinstance(error, OSError) and error.errno in _NO_SPACE
+                # kept for the next write to resume: the regions of an interrupted resumable
+                # write (its flags say which are done); never a copy being packed
+                keep = (
+                    resumable_along is not None
+                    and flags_path(staged).is_dir()
+                    and not (isinstance(error, OSError) and error.errno in _NO_SPACE)
                 )
+                remove_tree(packed_path(staged))
                 if not keep:  # only this write's own staged copy, never another's
                     remove_tree(staged, flags_path(staged), regions_path(staged))
                 if isinstance(error, OSError):

@@ -11,6 +11,9 @@ Large outputs are written region by region (:func:`write_regions`): every finish
 flagged in a small array beside the staged group (:func:`flags_path`), and a later writer
 with the same fingerprint adopts an abandoned staged group (:func:`adopt_abandoned`, renaming
 it to its own name, under the lock) and writes only the regions that were not finished.
+Whatever else an earlier writer of the same data left (a copy it was packing, a staged group
+no longer resumable) is removed then (:func:`remove_abandoned`): a failed or killed write
+leaves nothing that outlives the next write of its group.
 Of a write with more than :data:`JOIN_REGIONS_ABOVE` regions, small consecutive ones (image
 sets of tiny frames) are written together, up to :data:`REGION_BYTES`, so that the cost per
 region does not dominate a run of thousands of sets. A staged group complete in its regions
@@ -46,9 +49,11 @@ __all__ = [
     "staged_path",
     "flags_path",
     "regions_path",
+    "packed_path",
     "remove_partial_chunks",
     "remove_tree",
     "adopt_abandoned",
+    "remove_abandoned",
     "write_regions",
     "plan_regions",
     "stage_region",
@@ -84,6 +89,11 @@ def flags_path(staged: Path) -> Path:
 def regions_path(staged: Path) -> Path:
     """The regions of a resumable write, beside its staged group: a zarr store per region."""
     return staged.with_name(f"{staged.name}.regions")
+
+
+def packed_path(staged: Path) -> Path:
+    """Where a staged group is packed (:func:`pack_staged`), beside it, before it replaces it."""
+    return staged.with_name(f"{staged.name}.packed")
 
 
 def region_path(staged: Path, index: int) -> Path:
@@ -153,16 +163,32 @@ def adopt_abandoned(staging_dirs: Iterable[Path], prefix: str, staged: Path) -> 
         p
         for d in staging_dirs
         for p in d.glob(f"{prefix}.*")
-        if not p.name.endswith((".done", ".regions"))
+        if not p.name.endswith((".done", ".regions", ".packed"))
     ]
     resumable = [p for p in candidates if p.is_dir() and flags_path(p).is_dir() and p != staged]
-    if not resumable:
-        return
-    latest = max(resumable, key=lambda p: flags_path(p).stat().st_mtime_ns)
-    os.rename(flags_path(latest), flags_path(staged))
-    if regions_path(latest).is_dir():
-        os.rename(regions_path(latest), regions_path(staged))
-    os.rename(latest, staged)
+    if resumable:
+        latest = max(resumable, key=lambda p: flags_path(p).stat().st_mtime_ns)
+        os.rename(flags_path(latest), flags_path(staged))
+        if regions_path(latest).is_dir():
+            os.rename(regions_path(latest), regions_path(staged))
+        os.rename(latest, staged)
+    remove_abandoned(staging_dirs, prefix, staged)
+
+
+def remove_abandoned(staging_dirs: Iterable[Path], prefix: str, staged: Path) -> None:
+    """Remove what earlier writers of the same data left in staging (under the lock, so they
+    are gone): every entry named after ``prefix`` but this write's own (``staged`` and the
+    flags and regions beside it), such as a copy a killed writer was packing, or a staged
+    group whose regions were all written (its flags removed) and so is never resumed."""
+    own = {staged, flags_path(staged), regions_path(staged)}
+    for directory in staging_dirs:
+        for entry in [directory / prefix, *directory.glob(f"{prefix}.*")]:
+            if entry in own or not os.path.lexists(entry):
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
 
 
 def write_regions(
@@ -317,7 +343,7 @@ def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) 
                 )
             }
     template = shard_layout(template, encoding, keep=keep)
-    packed = staged.with_name(f"{staged.name}.packed")
+    packed = packed_path(staged)
     shutil.rmtree(packed, ignore_errors=True)
     template.to_zarr(
         str(packed), mode="w-", consolidated=False, zarr_format=3, compute=False, encoding=encoding
