@@ -62,6 +62,7 @@ def run_flow(
     retries: int = 0,
     dask_address: str | None = None,
     verify: bool = False,
+    strict: bool = False,
 ) -> "RunReport":
     """Run the named flow (see ``spectralize flows``) against ``store``.
 
@@ -79,6 +80,9 @@ def run_flow(
         Address of an existing ``dask.distributed`` scheduler; local threads by default.
     verify
         Recompute every checksum of the groups the flow reads or writes before trusting them.
+    strict
+        Stop with a :class:`~spectralize.schemas.CalibrationError` when a calibration node's
+        result check warns (before the reconstruction); else the warnings are only logged.
     """
     from .pipelines import get_flow, step_parameters
     from .runtime import run_steps
@@ -95,4 +99,5 @@ def run_flow(
         dask_address=dask_address,
         report=definition.report,
         verify=verify,
+        strict=strict,
     )

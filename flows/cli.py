@@ -127,6 +127,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             retries=args.retries,
             dask_address=args.dask_address,
             verify=args.verify,
+            strict=args.strict,
         )
     _print_report(report)
     return 0
@@ -377,6 +378,13 @@ def _add_run(commands: _Commands) -> None:
         action="store_true",
         help="recompute every checksum of the groups the flow reads or writes before trusting "
         "them (one read of those groups); by default every chunk is checked as it is read",
+    )
+    run.add_argument(
+        "--strict",
+        action="store_true",
+        help="stop (exit 2) before the reconstruction when a calibration node's check of its "
+        "result warns (a chart cross-check far above a sane gantry's, a response that does not "
+        "rise, C not of RGB shape, Q rippling); by default the warnings are printed",
     )
     run.set_defaults(handler=_cmd_run)
 

@@ -52,7 +52,8 @@ from .repair import (
     verify_deep,
     verify_report_groups,
 )
-from .run_log import info_logger
+from .result_checks import report_warnings, step_warnings
+from .run_log import info_logger, warn
 from .signals import sigterm_as_interrupt
 from .steps import RunReport, StepReport, expected_outputs, output_fingerprint, run_node
 
@@ -101,6 +102,7 @@ def run_steps(
     dask_address: str | None = None,
     report: bool = False,
     verify: bool = False,
+    strict: bool = False,
 ) -> RunReport:
     """Run ``steps`` against the store at ``store_path`` as one Prefect flow run.
 
@@ -115,6 +117,9 @@ def run_steps(
     flow reads or writes first (:mod:`.repair`). ``dask_address``: an existing
     ``dask.distributed`` scheduler (default: ``$DASK_SCHEDULER_ADDRESS``, else local threads;
     its workers must reach the store at the same path). SIGTERM is handled like Ctrl-C.
+    The calibration nodes' results are checked after their steps (:mod:`.result_checks`):
+    their warnings go to the log; ``strict`` makes them an error (a
+    :class:`~spectralize.schemas.CalibrationError`) before the next step runs.
     """
     with sigterm_as_interrupt():
         return _run_steps(
@@ -127,6 +132,7 @@ def run_steps(
             dask_address,
             report,
             verify,
+            strict,
         )
 
 
@@ -140,6 +146,7 @@ def _run_steps(
     dask_address: str | None,
     report: bool,
     verify: bool,
+    strict: bool = False,
 ) -> RunReport:
     path = Path(store_path).absolute()
     dask_address = dask_address or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
@@ -164,7 +171,7 @@ def _run_steps(
         if verify:
             verify_deep(store, planned, print)
         try:
-            up_to_date = _up_to_date_report(store, flow_name, planned, report)
+            up_to_date = _up_to_date_report(store, flow_name, planned, report, strict)
         except Exception as error:  # the report read a damaged chunk: repair, then run
             found = checksum_error_of(error)
             if found is None:
@@ -182,6 +189,7 @@ def _run_steps(
             retry_delay_seconds,
             dask_address,
             report,
+            strict,
         )
 
 
@@ -195,9 +203,14 @@ def _require_store_or_first_steps_without_inputs(path: Path, steps: Sequence[Ste
 
 
 def _up_to_date_report(
-    store: RunStore, flow_name: str, planned: Sequence[PlannedStep], report: bool
+    store: RunStore,
+    flow_name: str,
+    planned: Sequence[PlannedStep],
+    report: bool,
+    strict: bool = False,
 ) -> RunReport | None:
-    """The run's report if every step is up to date and passes the cheap check, else ``None``."""
+    """The run's report if every step is up to date and passes the cheap check, else ``None``
+    (the calibration results' warnings printed, an error with ``strict``)."""
     fingerprints: dict[str, str] = {}
     run_report = RunReport(str(store.path), flow_name)
     for item in planned:
@@ -216,6 +229,12 @@ def _up_to_date_report(
             return None
         fingerprints.update(expected)
         run_report.steps.append(StepReport(item.node.name, "skipped", 0.0, expected))
+    for item in planned:
+        report_warnings(
+            step_warnings(store, item.node.name, item.inputs, item.outputs.values()),
+            warn,
+            strict=strict,
+        )
     if report:
         if not verify_report_groups(store, groups_made_by(planned), set()):
             return None  # a damaged group was marked: the flow recomputes it, then reports
@@ -272,6 +291,7 @@ def _graph_flow(
     retry_delay_seconds: float = 10.0,
     dask_address: str | None = None,
     report: bool = False,
+    strict: bool = False,
 ) -> RunReport:
     from prefect.runtime import flow_run
 
@@ -291,6 +311,7 @@ def _graph_flow(
                 dask_address,
                 report and not checked_report,
                 report,
+                strict,
             )
             if earlier is not None:  # what ran in the pass stopped before the report counts
                 result.steps = [
@@ -316,6 +337,7 @@ def _run_planned(
     dask_address: str | None,
     check_report: bool,
     report: bool,
+    strict: bool = False,
 ) -> RunReport:
     """The steps of a flow run in order (up-to-date ones skipped), then its report.
 
@@ -356,6 +378,11 @@ def _run_planned(
             repaired.update(step_report.outputs)
         fingerprints.update(step_report.outputs)
         run_report.steps.append(step_report)
+        report_warnings(
+            step_warnings(store, item.node.name, item.inputs, step_report.outputs),
+            log.warning,
+            strict=strict,
+        )
     ran = sum(s.status == "ran" for s in run_report.steps)
     log.info(f"{flow_name}: {ran} node(s) ran, {len(run_report.steps) - ran} skipped")
     if check_report:
