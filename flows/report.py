@@ -615,6 +615,22 @@ def _camera_calibration(
     return [table, figure]
 
 
+def _white_levels(oecf_rgb: xr.Dataset, store: RunStore) -> str:
+    """Each RGB camera's white level and where it comes from (declared in capture.toml,
+    found in the data, or the top code): ``rgb15 1000 DN (found), ...``."""
+    raw = _read(store, "raw/rgb")
+    names = list(raw.attrs.get("camera_names") or []) if raw is not None else []
+    sources = list(oecf_rgb.attrs.get("white_level_source") or [])
+    parts = []
+    for k, (camera, level) in enumerate(
+        zip(oecf_rgb["camera"].values.tolist(), oecf_rgb["white_level"].values.tolist(), strict=True)
+    ):
+        name = names[camera] if camera < len(names) else f"camera {camera}"
+        source = f" ({sources[k]})" if k < len(sources) else ""
+        parts.append(f"{name} {int(level)} DN{source}")
+    return ", ".join(parts)
+
+
 def _percent(fraction: float) -> str:
     """``2.31 %`` (``—`` when not finite)."""
     return f"{100 * float(fraction):.2f} %" if np.isfinite(fraction) else "—"
@@ -683,6 +699,8 @@ def _calibration(store: RunStore) -> tuple[list[tuple[str, str]], list[dict[str,
         _read(store, "calibration/oecf_rgb"),
         _read(store, "calibration/oecf_spectral"),
     )
+    if oecf_rgb is not None and "white_level" in oecf_rgb:
+        headline.append(("RGB white level (codes clip at)", _white_levels(oecf_rgb, store)))
     if oecf_rgb is not None or oecf_spectral is not None:
         blocks.append(
             _figure(

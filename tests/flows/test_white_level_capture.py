@@ -70,6 +70,8 @@ def test_an_undeclared_white_level_is_found_and_the_spectra_stay_as_good(prefect
     truth = simulate_run(get_recipe("tiny", seed=0))["truth/spectra"]
     nrmse = evaluate(store.read("spectra"), truth, shots=store.read("raw/spectral"))["nrmse"]
     assert float(np.nanmedian(nrmse.values)) < 1.1 * UNCLIPPED_NRMSE
+    report = (tmp_path / "run-report" / "index.html").read_text()
+    assert f"rgb15 {WHITE} DN (found), rgb45 {WHITE} DN (found)" in report
 
 
 def test_a_declared_white_level_is_used_as_given(prefect_api, sample, tmp_path):
