@@ -143,7 +143,11 @@ def spectral_warnings(
       :data:`RIPPLE_WARNING`): band shots saturated or under-exposed?
     """
     found = []
-    depth = int((oecf_rgb.attrs.get("bit_depth") if oecf_rgb is not None else None) or 16)
+    depth = int(
+        (colour_checker.attrs.get("rgb_bit_depth") if colour_checker is not None else None)
+        or (oecf_rgb.attrs.get("bit_depth") if oecf_rgb is not None else None)
+        or 16
+    )
     if "camera_mean_relative_error" in spectral:
         errors = np.asarray(spectral["camera_mean_relative_error"].values, dtype=float)
         cameras = (

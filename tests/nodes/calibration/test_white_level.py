@@ -57,3 +57,58 @@ def test_the_saturated_codes_start_at_the_white_level_less_its_noise():
     assert saturation_code(None, 12) == 4095 and saturation_code(4095, 12) == 4095
     assert saturation_code(3900, 12) == 3900 - white_margin(12)
     assert white_margin(10) == 3 and white_margin(12) == 8
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    from spectralize.nodes.simulation.assembly import simulate_run
+    from spectralize.nodes.simulation.recipes import get_recipe
+
+    return {k: v.load() for k, v in simulate_run(get_recipe("tiny", seed=0)).items()}
+
+
+def _response_error(oecf, truth, below):
+    """Median and largest |f / f_true - 1| (one scale per channel) over codes 40 .. below."""
+    codes = oecf["code"].values
+    errors = []
+    for ch in "RGB":
+        offset = float(truth["adc_offset"].sel(sensor=ch))
+        f = oecf["response"].sel(channel=ch).isel(camera=0).values
+        true = np.interp(codes - offset, truth["code"].values, truth["oecf"].sel(sensor=ch).values)
+        keep = (codes >= 40) & (codes <= below)
+        scale = (f[keep] @ true[keep]) / (f[keep] @ f[keep])
+        errors.append(np.abs(scale * f[keep] / true[keep] - 1))
+    errors = np.concatenate(errors)
+    return float(np.median(errors)), float(errors.max())
+
+
+def test_recover_rgb_oecf_finds_the_white_level_of_clipped_frames(tiny):
+    from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
+
+    white = 1000
+
+    def clip(ds, name):
+        return ds.assign({name: ds[name].clip(max=white).astype(ds[name].dtype)})
+
+    rgb = clip(tiny["raw/rgb"], "counts")
+    checker = clip(tiny["raw/colour_checker"], "rgb_counts")
+    reference = clip(tiny["raw/white_reference"], "rgb_counts")
+    found = recover_rgb_oecf(rgb, checker, reference)
+    assert found["white_level"].values.tolist() == [white, white]
+    assert found.attrs["white_level_source"] == ["found", "found"]
+    assert found["saturation"].values.tolist() == [white - white_margin(10)] * 2
+    median, worst = _response_error(found, tiny["truth/camera"], white - 4)
+    assert median < 0.003 and worst < 0.02
+    # the white level taken for the top code: only 1023 saturated, the clamped codes fitted
+    blind = recover_rgb_oecf(rgb.assign_attrs(white_level_dn=[1023, 1023]), checker, reference)
+    assert blind.attrs["white_level_source"] == ["declared", "declared"]
+    assert _response_error(blind, tiny["truth/camera"], white - 4)[0] > 0.05
+
+
+def test_unclipped_frames_keep_the_top_code(tiny):
+    from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
+
+    out = recover_rgb_oecf(tiny["raw/rgb"], tiny["raw/colour_checker"], tiny["raw/white_reference"])
+    assert out["white_level"].values.tolist() == [1023, 1023]
+    assert out["saturation"].values.tolist() == [1023, 1023] and out.attrs["saturation"] == 1023
+    assert out.attrs["white_level_source"] == ["top code", "top code"]
