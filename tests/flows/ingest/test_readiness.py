@@ -41,7 +41,7 @@ def test_nightly_run_ingests_complete_capture_folders_processes_and_reports_them
     assert not (tmp_path / "runs" / "night2.zarr").exists()
     assert outcome[str(captures / "night1")].startswith("ingested: raw/rgb")
     store = RunStore.open(tmp_path / "runs" / "night1.zarr")
-    assert "10 node(s) ran" in outcome[str(store.path)]  # btf without the evaluation (no truth)
+    assert "11 node(s) ran" in outcome[str(store.path)]  # btf without the evaluation (no truth)
     assert {"spectra", "calibration/spectral", "registration"} <= set(store.groups())
     page = report_directory(store.path) / "index.html"
     assert page.is_file() and f"report {page}" in outcome[str(store.path)]
