@@ -464,8 +464,10 @@ class RunStore:
         checksum of every file whose time changed; ``deep=True`` recomputes every checksum
         (finds bit rot that left the time alone). A group marked damaged
         (:meth:`mark_damaged`: a chunk failed its checksum when it was read) fails either
-        check until it is written again. Groups imported by other means have no manifest and
-        always pass.
+        check until it is written again. Groups imported by other means (no fingerprint) have
+        no manifest and always pass; a group with a fingerprint but no manifest fails: it was
+        rewritten by other means (xarray keeps a group's attrs, its fingerprint among them, but
+        not the manifest beside them), so nothing vouches for its files.
         """
         attrs = self.group_attrs(group)
         problems = []
@@ -474,6 +476,16 @@ class RunStore:
         manifest = read_manifest(self.manifest(group))
         if manifest:
             problems += verify_files(self._group_path(group), manifest, group, deep=deep)
+        elif FINGERPRINT_ATTR in attrs:
+            problems.append(
+                Problem(
+                    group,
+                    f"its checksum manifest ({MANIFEST_FILE}, written with its fingerprint)",
+                    "none: it was rewritten by other means (xarray keeps a group's attrs, its "
+                    "fingerprint among them, not the manifest beside them), so its fingerprint "
+                    "vouches for nothing",
+                )
+            )
         return problems
 
     def mark_damaged(self, group: str, reason: str) -> None:
