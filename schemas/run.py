@@ -161,7 +161,10 @@ HDR = GroupSchema(
 BANDS = GroupSchema(
     name="bands",
     description="calibrated, registered noisy band radiance with the filter size of its band",
-    variables=(ArraySpec("radiance", ("shot", "y", "x"), "float32", "1", "relative band radiance"),),
+    # finite: the reconstruction's data term (eq. 1) has no use for NaN, and refuses it
+    variables=(
+        ArraySpec("radiance", ("shot", "y", "x"), "float32", "1", "relative band radiance", finite=True),
+    ),
     coords=(
         *shot_coords(),
         ArraySpec(
