@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from spectralize.flows.runtime import run_node
 from spectralize.nodes.evaluation.pixel_metrics import normalised_rmse
+from spectralize.nodes.reconstruction.endmember_library import endmember_library
 from spectralize.nodes.reconstruction.methods import resolve_method
 from spectralize.nodes.reconstruction.set_reconstruction import (
     reconstruct_image_sets,
@@ -211,6 +212,7 @@ SEED_INPUTS = {
     "bands": "bands",
     "calibration": "camera_matrix",
     "image_sets": "image_sets",
+    "endmember_library": "endmember_library",
 }
 
 
@@ -222,6 +224,8 @@ def _run_reconstruction(path: Path, inputs, parameters: dict) -> RunStore:
     store.write("bands", bands, fingerprint="bands")
     store.write("camera_matrix", xr.Dataset({"camera_matrix": camera.camera_matrix}), fingerprint="c")
     store.write("image_sets", sets, fingerprint="sets")
+    library = endmember_library(hdr, bands, camera, sets)
+    store.write("endmember_library", library, fingerprint="library")
     fingerprints = {group: store.fingerprint(group) for group in SEED_INPUTS.values()}
     run_node(
         str(path),
