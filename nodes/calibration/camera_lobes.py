@@ -69,6 +69,9 @@ __all__ = [
     "lobe_camera_matrix",
     "cross_validated_ridge",
     "check_chart_pair",
+    "chart_arrays",
+    "fit_residual",
+    "camera_matrix_dataset",
 ]
 
 LOBE_WIDTHS: tuple[float, ...] = (15.0, 25.0, 40.0, 60.0)
@@ -315,10 +318,7 @@ def lobe_camera_matrix(
         raise CalibrationError(f"{where}: weak_light must be >= 0, got {weak_light}")
     if not weak_light_floor > 0:
         raise CalibrationError(f"{where}: weak_light_floor must be > 0, got {weak_light_floor}")
-    s = np.asarray(spectra.transpose("patch", "wavelength").values, dtype=np.float64)
-    r = np.asarray(rgb.transpose("patch", "channel").values, dtype=np.float64)
-    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(r))):
-        raise CalibrationError(f"{where}: rgb and spectra must be finite")
+    s, r = chart_arrays(rgb, spectra, where)
     wavelength = (
         np.asarray(spectra["wavelength"].values, dtype=np.float64)
         if "wavelength" in spectra.coords
@@ -336,30 +336,19 @@ def lobe_camera_matrix(
     design = sw @ basis
     extra = _weak_rows(design, sw, basis, weak_light, weak_light_floor)
     c = np.stack([basis @ _ridge_nnls(design, rw[:, k], ridges[k], extra) for k in range(r.shape[1])])
-    residual = s @ c.T - r
-    rel = float(np.sqrt(np.mean(residual**2)) / max(np.sqrt(np.mean(r**2)), 1e-300))
-    channel = rgb["channel"].values if "channel" in rgb.coords else np.arange(r.shape[1])
-    coords = {"channel": channel, "wavelength": wavelength}
-    patch = {"patch": rgb["patch"].values} if "patch" in rgb.coords else {}
-    out = xr.Dataset(
-        {
-            "camera_matrix": (
-                ("channel", "wavelength"),
-                c,
-                {"units": "1", "long_name": "RGB camera matrix C (spectral sensitivity)"},
-            ),
-            "residual": (
-                ("patch", "channel"),
-                residual,
-                {"units": "1", "long_name": "C S - R on the calibration patches"},
-            ),
+    residual, rel = fit_residual(c, s, r)
+    out = camera_matrix_dataset(
+        c,
+        residual,
+        rgb,
+        wavelength,
+        variables={
             "ridge": (
                 "channel",
                 ridges,
                 {"units": "1", "long_name": "relative ridge weight on the lobe amplitudes"},
             ),
         },
-        coords={**coords, **patch},
         attrs={
             "method": "non-negative sum of Gaussian lobes, ridge on amplitudes"
             + (", held to zero where the light is weak" if weak_light else ""),
@@ -411,3 +400,75 @@ def check_chart_pair(rgb: xr.DataArray, spectra: xr.DataArray, where: str) -> No
             raise CalibrationError(f"{where}: rgb and spectra list different patches")
     if spectra.sizes["wavelength"] < 3:
         raise CalibrationError(f"{where}: need at least 3 bands, got {spectra.sizes['wavelength']}")
+
+
+def chart_arrays(rgb: xr.DataArray, spectra: xr.DataArray, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """``S`` (patch, wavelength) and ``R`` (patch, channel) of eq. 1 from a chart pair that
+    :func:`check_chart_pair` passed, as float64.
+
+    Raises
+    ------
+    CalibrationError
+        For NaN or inf in either, naming ``where``.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, eq. 1 and section 4.
+    """
+    s = np.asarray(spectra.transpose("patch", "wavelength").values, dtype=np.float64)
+    r = np.asarray(rgb.transpose("patch", "channel").values, dtype=np.float64)
+    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(r))):
+        raise CalibrationError(f"{where}: rgb and spectra must be finite")
+    return s, r
+
+
+def fit_residual(c: np.ndarray, s: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
+    """The residual ``C S - R`` (patch, channel) of a fitted ``C`` on the chart, and its RMS
+    relative to that of ``R``.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, eq. 1.
+    """
+    residual = s @ c.T - r
+    return residual, float(np.sqrt(np.mean(residual**2)) / max(np.sqrt(np.mean(r**2)), 1e-300))
+
+
+def camera_matrix_dataset(
+    c: np.ndarray,
+    residual: np.ndarray,
+    rgb: xr.DataArray,
+    wavelength: np.ndarray,
+    *,
+    variables: dict[str, tuple[object, ...]],
+    attrs: dict[str, object],
+) -> xr.Dataset:
+    """A fitted ``C`` as the camera-matrix fits return it: ``camera_matrix`` (channel,
+    wavelength) and ``residual`` (patch, channel) ``C S - R``, then the fit's own
+    ``variables``, on ``rgb``'s channels and patches (where it names them) and ``wavelength``,
+    with the fit's ``attrs``.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, eq. 1 and section 4.
+    """
+    channel = rgb["channel"].values if "channel" in rgb.coords else np.arange(c.shape[0])
+    coords = {"channel": channel, "wavelength": wavelength}
+    patch = {"patch": rgb["patch"].values} if "patch" in rgb.coords else {}
+    return xr.Dataset(
+        {
+            "camera_matrix": (
+                ("channel", "wavelength"),
+                c,
+                {"units": "1", "long_name": "RGB camera matrix C (spectral sensitivity)"},
+            ),
+            "residual": (
+                ("patch", "channel"),
+                residual,
+                {"units": "1", "long_name": "C S - R on the calibration patches"},
+            ),
+            **variables,
+        },
+        coords={**coords, **patch},
+        attrs=attrs,
+    )

@@ -15,7 +15,12 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from spectralize.nodes.calibration.camera_lobes import check_chart_pair
+from spectralize.nodes.calibration.camera_lobes import (
+    camera_matrix_dataset,
+    chart_arrays,
+    check_chart_pair,
+    fit_residual,
+)
 from spectralize.schemas import CalibrationError
 
 __all__ = ["camera_matrix", "SMOOTHNESS_CANDIDATES", "cross_validated_smoothness"]
@@ -87,10 +92,7 @@ def camera_matrix(
     check_chart_pair(rgb, spectra, where)
     if smoothness < 0:
         raise CalibrationError(f"{where}: smoothness must be >= 0, got {smoothness}")
-    s = np.asarray(spectra.transpose("patch", "wavelength").values, dtype=np.float64)
-    r = np.asarray(rgb.transpose("patch", "channel").values, dtype=np.float64)
-    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(r))):
-        raise CalibrationError(f"{where}: rgb and spectra must be finite")
+    s, r = chart_arrays(rgb, spectra, where)
     n_bands = s.shape[1]
     d2 = _second_difference(n_bands)
     mu = smoothness * float(np.sum(s**2)) / float(np.sum(d2**2))
@@ -102,29 +104,14 @@ def camera_matrix(
             c[k] = optimize.nnls(a, b, maxiter=50 * n_bands)[0]
         else:
             c[k] = np.linalg.lstsq(a, b, rcond=None)[0]
-    residual = s @ c.T - r
-    rel = float(np.sqrt(np.mean(residual**2)) / max(np.sqrt(np.mean(r**2)), 1e-300))
-    coords = {
-        "channel": rgb["channel"].values if "channel" in rgb.coords else np.arange(r.shape[1]),
-        "wavelength": spectra["wavelength"].values
-        if "wavelength" in spectra.coords
-        else np.arange(n_bands),
-    }
-    patch = {"patch": rgb["patch"].values} if "patch" in rgb.coords else {}
-    return xr.Dataset(
-        {
-            "camera_matrix": (
-                ("channel", "wavelength"),
-                c,
-                {"units": "1", "long_name": "RGB camera matrix C (spectral sensitivity)"},
-            ),
-            "residual": (
-                ("patch", "channel"),
-                residual,
-                {"units": "1", "long_name": "C S - R on the calibration patches"},
-            ),
-        },
-        coords={**coords, **patch},
+    residual, rel = fit_residual(c, s, r)
+    wavelength = spectra["wavelength"].values if "wavelength" in spectra.coords else np.arange(n_bands)
+    return camera_matrix_dataset(
+        c,
+        residual,
+        rgb,
+        wavelength,
+        variables={},
         attrs={
             "method": "nnls + second-difference penalty"
             if nonnegative
