@@ -35,6 +35,7 @@ from spectralize.schemas import CalibrationError
 __all__ = [
     "CAMERA_MATRIX_METHODS",
     "target_cameras",
+    "CameraFitSettings",
     "CameraFit",
     "CameraFits",
     "fit_camera_matrices",
@@ -57,6 +58,27 @@ def target_cameras(target: xr.Dataset) -> list[int]:
     if "camera" in target["rgb_counts"].dims:
         return [int(v) for v in target["camera"].values]
     return [int(target.attrs.get("rgb_camera", 0))]
+
+
+class CameraFitSettings(NamedTuple):
+    """How :func:`fit_camera_matrices` fits ``C`` of every camera (the spectral
+    calibration's parameters of the same names)."""
+
+    method: str
+    """A key of :data:`CAMERA_MATRIX_METHODS`."""
+    ridge: float | None
+    """``"lobes"``: the ridge of :func:`~.lobe_camera_matrix` (None: cross-validated)."""
+    weak_light: float
+    """``"lobes"``: the weak-light weight of :func:`~.lobe_camera_matrix`."""
+    smoothness: float | None
+    """``"smooth"``: the smoothness of :func:`~.camera_matrix` (None: cross-validated by
+    :func:`~.cross_validated_smoothness`)."""
+    nonnegative: bool
+    """``"smooth"``: constrain ``C >= 0``."""
+    white_patch: bool
+    """Fit ``C`` to the white reference as one more patch."""
+    patch_margin: int
+    """Pixels removed at every patch border before patch means."""
 
 
 class CameraFit(NamedTuple):
@@ -221,17 +243,11 @@ def _fit_camera(
     white_reference: xr.Dataset,
     colour_checker: xr.Dataset,
     oecf_rgb: xr.Dataset,
-    *,
-    method: str,
-    ridge: float | None,
-    weak_light: float,
-    smoothness: float | None,
-    nonnegative: bool,
-    white_patch: bool,
-    patch_margin: int,
+    settings: CameraFitSettings,
 ) -> CameraFit:
     """``C`` of one RGB camera from its own HDR RGB of the chart (and the white reference),
     through its own response and patch label image."""
+    method, ridge, weak_light, smoothness, nonnegative, white_patch, patch_margin = settings
     group = "raw/colour_checker"
     saturation = camera_saturation(oecf_rgb, camera)
     rgb_raw = _rgb_series(colour_checker, group, camera, saturation)
@@ -291,24 +307,18 @@ def fit_camera_matrices(
     white_reference: xr.Dataset,
     colour_checker: xr.Dataset,
     oecf_rgb: xr.Dataset,
-    *,
-    method: str,
-    ridge: float | None,
-    weak_light: float,
-    smoothness: float | None,
-    nonnegative: bool,
-    white_patch: bool,
-    patch_margin: int,
+    settings: CameraFitSettings,
 ) -> CameraFits:
     """``C`` of every RGB camera from its own HDR RGB of the colour checker.
 
     Each camera's RGB exposure series of the chart is merged to HDR through its own response
     (:func:`~spectralize.nodes.calibration.hdr.merge_hdr`), averaged over its own patch label
-    image less ``patch_margin`` pixels at the borders, and fitted against the patches'
-    reflectance times the measured illuminant; with ``white_patch`` the white reference's HDR
-    RGB (median over the frame less a border of a tenth of its size) against its reflectance
-    times the illuminant is one more patch. ``method`` is a key of
-    :data:`CAMERA_MATRIX_METHODS`; ``ridge`` and ``weak_light`` are those of
+    image less ``settings.patch_margin`` pixels at the borders, and fitted against the
+    patches' reflectance times the measured illuminant; with ``settings.white_patch`` the
+    white reference's HDR RGB (median over the frame less a border of a tenth of its size)
+    against its reflectance times the illuminant is one more patch. ``settings`` (a
+    :class:`CameraFitSettings`) names the method, a key of :data:`CAMERA_MATRIX_METHODS`,
+    and its settings: ``ridge`` and ``weak_light`` are those of
     :func:`~spectralize.nodes.calibration.camera_lobes.lobe_camera_matrix`, ``smoothness``
     (``None``: chosen by :func:`~.cross_validated_smoothness`) and ``nonnegative`` those of
     :func:`~.camera_matrix`. Cameras named in ``calibration_borrowed`` (no chart frames of
@@ -325,22 +335,7 @@ def fit_camera_matrices(
     """
     cameras = target_cameras(colour_checker)
     paired = int(colour_checker.attrs.get("rgb_camera", cameras[0]))
-    fits = {
-        k: _fit_camera(
-            k,
-            white_reference,
-            colour_checker,
-            oecf_rgb,
-            method=method,
-            ridge=ridge,
-            weak_light=weak_light,
-            smoothness=smoothness,
-            nonnegative=nonnegative,
-            white_patch=white_patch,
-            patch_margin=patch_margin,
-        )
-        for k in cameras
-    }
+    fits = {k: _fit_camera(k, white_reference, colour_checker, oecf_rgb, settings) for k in cameras}
     names_of, lender_of = _camera_names(colour_checker, cameras)
     reference = paired if paired in fits else lender_of[paired]
     return CameraFits(fits, names_of, lender_of, reference, paired)

@@ -37,6 +37,7 @@ from spectralize.nodes.calibration.camera_lobes import WEAK_LIGHT_WEIGHT
 from spectralize.nodes.calibration.camera_matrices import (
     CAMERA_MATRIX_METHODS,
     CameraFit,
+    CameraFitSettings,
     camera_table,
     fit_camera_matrices,
     method_settings,
@@ -175,13 +176,9 @@ def calibrate_spectral(
         white_reference,
         colour_checker,
         oecf_rgb,
-        method=camera_matrix_method,
-        ridge=ridge,
-        weak_light=weak_light,
-        smoothness=smoothness,
-        nonnegative=nonnegative,
-        white_patch=white_patch,
-        patch_margin=patch_margin,
+        CameraFitSettings(
+            camera_matrix_method, ridge, weak_light, smoothness, nonnegative, white_patch, patch_margin
+        ),
     )
     fit = fitted.fits[fitted.reference]
     patch_spectra = checker_patch_spectra(
