@@ -279,6 +279,27 @@ def relative(ds: xr.Dataset) -> xr.Dataset:
     return ds
 
 
+def spectral_calibration(measured: np.ndarray, predicted: np.ndarray) -> xr.Dataset:
+    """A calibration/spectral group of 24 patches: the chart's measured and predicted RGB, Q,
+    a flat C and the LED light."""
+    return xr.Dataset(
+        {
+            "quantum_efficiency": ("wavelength", np.linspace(0.2, 1.0, SHAPE.wavelengths.size)),
+            "camera_matrix": (("channel", "wavelength"), np.ones((3, SHAPE.wavelengths.size))),
+            "measured_rgb": (("patch", "channel"), measured),
+            "predicted_rgb": (("patch", "channel"), predicted),
+            "relative_error": ("patch", np.full(24, 0.02)),
+            "illuminant": ("wavelength", led_light()),
+        },
+        coords={
+            "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
+            "patch": np.arange(24),
+            "channel": ["R", "G", "B"],
+        },
+        attrs={"mean_relative_error": 0.02, "max_relative_error": 0.02},
+    ).pipe(relative)
+
+
 @pytest.mark.slow
 def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_path, monkeypatch):
     spectra, _, _, _ = run
@@ -296,22 +317,7 @@ def test_a_run_without_ground_truth_gets_a_report_that_a_browser_shows(run, tmp_
     measured = np.random.default_rng(0).uniform(0.1, 1.0, (24, 3))
     store.write(
         "calibration/spectral",
-        xr.Dataset(
-            {
-                "quantum_efficiency": ("wavelength", np.linspace(0.2, 1.0, SHAPE.wavelengths.size)),
-                "camera_matrix": (("channel", "wavelength"), np.ones((3, SHAPE.wavelengths.size))),
-                "measured_rgb": (("patch", "channel"), measured),
-                "predicted_rgb": (("patch", "channel"), measured * 1.02),
-                "relative_error": ("patch", np.full(24, 0.02)),
-                "illuminant": ("wavelength", led_light()),
-            },
-            coords={
-                "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
-                "patch": np.arange(24),
-                "channel": ["R", "G", "B"],
-            },
-            attrs={"mean_relative_error": 0.02, "max_relative_error": 0.02},
-        ).pipe(relative),
+        spectral_calibration(measured, measured * 1.02),
         fingerprint="calibration-fp",
     )
     drawn = {}
@@ -425,22 +431,7 @@ def test_a_run_store_with_truth_relights_with_its_calibrated_light(run, tmp_path
     assert "relit-colour" not in parse(index).tables  # no light in the store
     store.write(
         "calibration/spectral",
-        xr.Dataset(
-            {
-                "quantum_efficiency": ("wavelength", np.linspace(0.2, 1.0, SHAPE.wavelengths.size)),
-                "camera_matrix": (("channel", "wavelength"), np.ones((3, SHAPE.wavelengths.size))),
-                "measured_rgb": (("patch", "channel"), np.full((24, 3), 0.5)),
-                "predicted_rgb": (("patch", "channel"), np.full((24, 3), 0.51)),
-                "relative_error": ("patch", np.full(24, 0.02)),
-                "illuminant": ("wavelength", led_light()),
-            },
-            coords={
-                "wavelength": ("wavelength", SHAPE.wavelengths, {"units": "nm"}),
-                "patch": np.arange(24),
-                "channel": ["R", "G", "B"],
-            },
-            attrs={"mean_relative_error": 0.02, "max_relative_error": 0.02},
-        ).pipe(relative),
+        spectral_calibration(np.full((24, 3), 0.5), np.full((24, 3), 0.51)),
         fingerprint="calibration-fp",
     )
     index = write_run_report(store.path, max_images=2)

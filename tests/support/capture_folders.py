@@ -1,10 +1,27 @@
-"""The sample capture folder shared by the tests of the capture format and of ingest."""
+"""The sample capture folder and a valid capture.toml, shared by the capture format and ingest tests."""
 
 import csv
 
 import pytest
 
 from spectralize.datasets.capture.sample import write_capture_folder
+
+GOOD_CONFIG = """
+rotation_step_deg = 15
+[rgb]
+cameras = ["arc15", "arc45"]
+bit_depth = 12
+paired_camera = "arc45"
+[spectral]
+camera = "mono"
+bit_depth = 10
+[exposure_plan]
+t0 = 0.02
+s0 = 0.25
+omega = 0.8
+"""
+"""A valid capture.toml (two RGB cameras, a spectral camera, the exposure plan) that the tests
+of its parser and of the manifest rules start from."""
 
 
 @pytest.fixture(scope="session")

@@ -1,26 +1,12 @@
 """The rules manifest rows keep against capture.toml, by row and together."""
 
+from support.capture_folders import GOOD_CONFIG
+
 from spectralize.datasets.capture import Row
 from spectralize.datasets.capture.checks import check_rows, check_structure, pair
 from spectralize.datasets.capture.config import parse_config
 
-CONFIG, _ = parse_config(
-    """
-rotation_step_deg = 15
-[rgb]
-cameras = ["arc15", "arc45"]
-bit_depth = 12
-paired_camera = "arc45"
-[spectral]
-camera = "mono"
-bit_depth = 12
-[exposure_plan]
-t0 = 0.02
-s0 = 0.25
-omega = 0.8
-""",
-    "x",
-)
+CONFIG, _ = parse_config(GOOD_CONFIG, "x")
 
 
 def row(line, file, kind, camera, t=0.01, wl=None, rotation=0, led=0, angles=(40.0, 10.0, 45.0, 0.0)):

@@ -1,21 +1,8 @@
 """capture.toml text into a Config: every bad key is a problem naming it."""
 
-from spectralize.datasets.capture.config import parse_config
+from support.capture_folders import GOOD_CONFIG as GOOD
 
-GOOD = """
-rotation_step_deg = 15
-[rgb]
-cameras = ["arc15", "arc45"]
-bit_depth = 12
-paired_camera = "arc45"
-[spectral]
-camera = "mono"
-bit_depth = 10
-[exposure_plan]
-t0 = 0.02
-s0 = 0.25
-omega = 0.8
-"""
+from spectralize.datasets.capture.config import parse_config
 
 
 def test_a_good_config_and_its_defaults():

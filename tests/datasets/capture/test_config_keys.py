@@ -1,24 +1,10 @@
 """capture.toml: an unknown key is refused with the closest known one, as node parameters are."""
 
 import pytest
+from support.capture_folders import GOOD_CONFIG as GOOD
 
 from spectralize.datasets.capture import CaptureError, read_capture
 from spectralize.datasets.capture.config import parse_config
-
-GOOD = """
-rotation_step_deg = 15
-[rgb]
-cameras = ["arc15", "arc45"]
-bit_depth = 12
-paired_camera = "arc45"
-[spectral]
-camera = "mono"
-bit_depth = 10
-[exposure_plan]
-t0 = 0.02
-s0 = 0.25
-omega = 0.8
-"""
 
 
 def unknown(problems):
