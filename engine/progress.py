@@ -99,7 +99,7 @@ class Estimate(NamedTuple):
 
 #: Iterations a solver's convergence rate is measured over before it is trusted (CG's first
 #: iterations fall irregularly).
-MIN_ITERATIONS = 10
+MIN_ITERATIONS = 20
 
 
 def convergence_estimate(

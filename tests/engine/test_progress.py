@@ -127,13 +127,13 @@ def test_invalid_totals_and_intervals_are_refused(total, interval):
 
 
 def test_the_convergence_estimate_reads_the_rate_off_the_residuals():
-    # r_k = 0.5^k: log(2^-10 / 2^-30) / log 2 = 20 iterations left, plus 5 fixed ones
-    residuals = [(k, 0.5**k) for k in range(1, 11)]
+    # r_k = 0.5^k: log(2^-20 / 2^-30) / log 2 = 10 iterations left, plus 5 fixed ones
+    residuals = [(k, 0.5**k) for k in range(1, 21)]
     done, left = progress.convergence_estimate(residuals, 2.0**-30, fixed=5)
-    assert done == 10 and left == pytest.approx(25.0)
+    assert done == 20 and left == pytest.approx(15.0)
     assert progress.convergence_estimate(residuals[:1], 1e-9) is None  # no rate yet
-    assert progress.convergence_estimate([(10, 0.1), (11, 0.2)], 1e-9) is None  # no decrease
-    assert progress.convergence_estimate([(10, 0.1), (11, 1e-10)], 1e-9) == (11.0, 0.0)
+    assert progress.convergence_estimate([(20, 0.1), (21, 0.2)], 1e-9) is None  # no decrease
+    assert progress.convergence_estimate([(20, 0.1), (21, 1e-10)], 1e-9) == (21.0, 0.0)
 
 
 def test_a_solver_task_is_estimated_from_its_convergence_not_its_limit(monkeypatch):
@@ -142,12 +142,12 @@ def test_a_solver_task_is_estimated_from_its_convergence_not_its_limit(monkeypat
     recorder = Recorder()
     with progress.listening(recorder):
         with progress.task("set", total=1000, tolerance=2.0**-30, interval=0.0) as task:
-            for k in range(1, 11):  # 2 s per iteration, residual halves each time
+            for k in range(1, 21):  # 2 s per iteration, residual halves each time
                 now[0] = 2.0 * k
                 task.advance(k, 0.5**k)
     fraction, seconds = recorder.estimates[-1]
-    # 20 iterations left at 2 s each (measured since the first), not 990 of the limit; the
-    # share done in time: 20 s spent of 60 s
-    assert seconds == pytest.approx(40.0) and fraction == pytest.approx(1 / 3)
+    # 10 iterations left at 2 s each (measured since the first), not 980 of the limit; the
+    # share done in time: 40 s spent of 60 s
+    assert seconds == pytest.approx(20.0) and fraction == pytest.approx(2 / 3)
     assert recorder.estimates[0] is None  # one report: no rate yet
-    assert recorder.estimates[8] is None  # 9 iterations: not trusted yet
+    assert recorder.estimates[18] is None  # 19 iterations: not trusted yet
