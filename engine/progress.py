@@ -10,6 +10,9 @@ the tasks into bars under the running node's line)::
         callback = None if solving is None else counting_iterations(solving.advance, residual=True)
         result = reconstruct(..., callback=callback)
 
+A task that completes some of the run's images says how many (``images=``: a set's owned
+images, a tile's share of them), so a display can count the run's images done, not its tasks.
+
 Without a listener :func:`task` yields ``None``: nothing is reported and the node passes no
 callback, so library use and tests pay nothing.
 
@@ -78,6 +81,12 @@ class TaskListener(Protocol):
     def task_advanced(self, key: int, done: int, estimate: Estimate | None) -> None: ...
 
     def task_finished(self, key: int, done: int) -> None: ...
+
+    # Optional (a listener without it is not told): the run's images a task completes, told
+    # right after ``task_started`` by a task reported with ``images`` (a set: its owned
+    # images; a tile: their share in its core), so a display counts images, not tasks.
+
+    def task_images(self, key: int, images: float) -> None: ...
 
 
 class Estimate(NamedTuple):
@@ -227,6 +236,8 @@ class Task:
         The relative residual a solver stops at (its convergence is then measured).
     fixed
         Steps that always follow convergence.
+    images
+        The run's images the task completes (a share of them for a tile), or ``None``.
     done
         The last value given to :meth:`advance`.
     interval
@@ -239,6 +250,7 @@ class Task:
         "total",
         "tolerance",
         "fixed",
+        "images",
         "done",
         "interval",
         "_told",
@@ -255,12 +267,14 @@ class Task:
         interval: float,
         tolerance: float | None = None,
         fixed: int = 0,
+        images: float | None = None,
     ) -> None:
         self.key = key
         self.label = label
         self.total = total
         self.tolerance = tolerance
         self.fixed = int(fixed)
+        self.images = images
         self.done = 0
         self.interval = interval
         self._told = -float("inf")
@@ -323,6 +337,7 @@ def task(
     tolerance: float | None = None,
     fixed: int = 0,
     interval: float = 0.1,
+    images: float | None = None,
 ) -> Iterator[Task | None]:
     """Report one long task (e.g. a solver run) to the listeners for the duration of the block.
 
@@ -340,6 +355,10 @@ def task(
         Steps that always follow convergence (a refinement of fixed length).
     interval
         Least time [s] between two reports of :meth:`Task.advance`.
+    images
+        The run's images the task completes (a set's owned images; a tile: those times its
+        core's share of the image), told to the listeners that count images
+        (``task_images``); ``None``: not told.
 
     Yields
     ------
@@ -351,17 +370,22 @@ def task(
     Raises
     ------
     ParameterError
-        If ``total`` is negative or ``interval`` is negative (a :class:`ValueError`).
+        If ``total``, ``interval`` or ``images`` is negative or ``images`` is not finite (a
+        :class:`ValueError`).
     """
     if total is not None and total < 0:
         raise _refused(label, "total", "a step count >= 0, or None", total)
     if interval < 0:
         raise _refused(label, "interval", "seconds >= 0", interval)
+    if images is not None and not (math.isfinite(images) and images >= 0):
+        raise _refused(label, "images", "a finite image count >= 0, or None", images)
     if not _LISTENERS:  # the common case costs one list check
         yield None
         return
-    reported = Task(next(_KEYS), str(label), total, interval, tolerance, fixed)
+    reported = Task(next(_KEYS), str(label), total, interval, tolerance, fixed, images)
     _emit("task_started", reported.key, reported.label, total)
+    if images is not None:
+        _emit("task_images", reported.key, float(images))
     try:
         yield reported
     finally:

@@ -25,8 +25,10 @@ the time left is the work left at that rate. So the bar moves as the work is don
 jumps when sets finish. Where a region takes several solver runs (a batch of sets solved one
 after the other in one task, or a set's tiles), which is measured (more runs solved and not
 written than can be in flight), the runs no longer tell how far a region is: the time left is
-then the time so far per image written (per region, without a count along the dim) times the
-images left.
+then the time so far per image done (per region, without a count along the dim) times the
+images left, an image done once its run is solved where the runs say which images they
+complete (a set's owned images, a tile's share of them), so a batch of sets counts set by set.
+The bars count images done of the images in all wherever the store counts along the dim.
 
 Two displays, with the same numbers:
 
@@ -93,6 +95,11 @@ class Listener(Protocol):
     def task_advanced(self, node: str, key: int, done: int, estimate: Any) -> None: ...
 
     def task_finished(self, node: str, key: int, done: int) -> None: ...
+
+    # Optional: the run's images a task completes (its owned images; a tile: their share),
+    # told right after its ``task_started`` where the node reports it.
+
+    def task_images(self, node: str, key: int, images: float) -> None: ...
 
     # Optional: a node's peak resident set in GB (flows/memory.py; None where it cannot be
     # measured), told just before its ``step_finished``.
@@ -176,6 +183,9 @@ class _NodeTasks:
     def task_finished(self, key: int, done: int) -> None:
         notify("task_finished", self.node, key, done)
 
+    def task_images(self, key: int, images: float) -> None:
+        notify("task_images", self.node, key, images)
+
 
 @contextlib.contextmanager
 def node_tasks(node: str) -> Iterator[None]:
@@ -254,6 +264,13 @@ class SetClock:
     :math:`t \, (N - n) / (n - n_0)`: the time :math:`t` since its first run started, per
     index :math:`n - n_0` written along the dim since then (images; regions without a
     count), times the :math:`N - n` left.
+
+    Where the runs say which of the run's images they complete (``task_images``: a set's
+    owned images, a tile's share of them), :math:`n - n_0` counts the images solved as well
+    as written (the larger of the two: a region copied without a solve, the seed set, is
+    written only) plus the running runs' shares of theirs, so the count and the time left
+    move set by set, not batch by batch. The work done (:meth:`estimate`) is counted in
+    indices along the dim (images) wherever the store counts them, in regions otherwise.
     """
 
     def __init__(self) -> None:
@@ -263,8 +280,11 @@ class SetClock:
         self._running: dict[tuple[str, int], list[Any]] = {}
         self._took: dict[str, list[float]] = {}  # node -> seconds each finished solve took
         self._after: dict[str, list[float]] = {}  # node -> seconds from solved to written
-        # node -> (time solved, seconds it took) of each set solved, not yet written, in order
-        self._solved: dict[str, list[tuple[float, float]]] = {}
+        # node -> (time solved, seconds it took, images or None) of each set solved, not yet
+        # written, in order
+        self._solved: dict[str, list[tuple[float, float, float | None]]] = {}
+        self._images: dict[tuple[str, int], float] = {}  # (node, key) -> images it completes
+        self._finished: dict[str, float] = {}  # node -> images of the runs finished
         self._regions: dict[str, tuple[int, int, int]] = {}  # node -> (done, total, resumed)
         # node -> [done, total, base]: indices along the dim, base counted before the measure
         self._counted: dict[str, list[int]] = {}
@@ -283,15 +303,22 @@ class SetClock:
         running = sum(1 for n, _ in self._running if n == node)
         self._most[node] = max(self._most.get(node, 0), running)
 
+    def task_images(self, node: str, key: int, images: float) -> None:
+        if (node, key) in self._running:
+            self._images[(node, key)] = float(images)
+
     def task_advanced(self, node: str, key: int, estimate: Any) -> None:
         if (node, key) in self._running and estimate is not None:
             self._running[(node, key)][1] = min(1.0, max(0.0, float(estimate.fraction)))
 
     def task_finished(self, node: str, key: int, now: float) -> None:
         state = self._running.pop((node, key), None)
+        images = self._images.pop((node, key), None)
         if state is not None:
             self._took.setdefault(node, []).append(now - state[0])
-            self._solved.setdefault(node, []).append((now, now - state[0]))
+            self._solved.setdefault(node, []).append((now, now - state[0], images))
+            if images is not None:
+                self._finished[node] = self._finished.get(node, 0.0) + images
 
     @staticmethod
     def _mean(values: list[float] | None) -> float | None:
@@ -312,13 +339,21 @@ class SetClock:
         after = self._mean(self._after.get(node)) or 0.0
         return min(0.99, spent / (solve + after))
 
-    def _waiting(self, node: str, now: float) -> float:
-        """The share done of the sets solved but not yet written."""
+    def _waiting(self, node: str, now: float) -> list[tuple[float, float | None]]:
+        """The share done of each set solved but not yet written, with its images."""
         after = self._mean(self._after.get(node)) or 0.0
-        return sum(
-            min(0.99, (took + now - solved) / (took + after)) if took + after > 0 else 1.0
-            for solved, took in self._solved.get(node, ())
-        )
+        return [
+            (min(0.99, (took + now - solved) / (took + after)) if took + after > 0 else 1.0, images)
+            for solved, took, images in self._solved.get(node, ())
+        ]
+
+    def _running_shares(self, node: str, now: float) -> list[tuple[float, float | None]]:
+        """The share done of each running set (:meth:`_share`), with its images."""
+        return [
+            (self._share(node, state, now), self._images.get(key))
+            for key, state in self._running.items()
+            if key[0] == node
+        ]
 
     def regions(
         self, node: str, done: int, total: int, resumed: int, now: float, counted: Counted | None = None
@@ -338,40 +373,76 @@ class SetClock:
         waiting = self._solved.get(node, [])
         for _ in range(max(0, done - previous)):
             if waiting:
-                solved, _ = waiting.pop(0)
+                solved, _, _ = waiting.pop(0)
                 self._after.setdefault(node, []).append(now - solved)
         # one-run regions leave at most one run solved and unwritten per region in flight
         if len(waiting) > self._most.get(node, 0) + 1:
             self._batched.add(node)
 
     def _per_written(self, node: str, now: float) -> tuple[float, float | None]:
-        """A node of several runs per region: the time so far per index written along the dim
-        (per region without a count) times the indices left. Regions in flight count nothing
-        until written, so with ``c`` computed at a time the estimate right after a region is at
-        most ``(k + c - 1) / k`` times the time left, ``k`` written so far (never less)."""
+        """A node of several runs per region: the time so far per index done along the dim
+        (per region without a count) times the indices left.
+
+        Without the runs' images, regions in flight count nothing until written, so with
+        ``c`` computed at a time the estimate right after a region is at most
+        ``(k + c - 1) / k`` times the time left, ``k`` written so far (never less). With
+        them, an image counts once its run is solved (and a running run's share of its images
+        counts), so the count moves run by run."""
         done, total, resumed = self._regions[node]
         written, size, base = self._counted.get(node, (done, total, resumed))
         elapsed = now - self._start.get(node, self._first.get(node, now))
-        if written <= base or elapsed <= 0:
-            return float(done), None
-        return float(done), elapsed / (written - base) * (size - written)
+        work = float(written - base)
+        running = [
+            (state[1] or 0.0, self._images[key])
+            for key, state in self._running.items()
+            if key[0] == node and key in self._images
+        ]
+        if node in self._finished or running:
+            solved = max(work, self._finished.get(node, 0.0))
+            work = min(float(size - base), solved + sum(share * images for share, images in running))
+        if work <= 0 or elapsed <= 0:
+            return float(base + max(work, 0.0)), None
+        return base + work, elapsed / work * (size - base - work)
+
+    def _in_images(self, node: str, now: float) -> float | None:
+        """A node of one run per region: the images done (written, plus each solved or running
+        set's share of its images: its own count where told, else the mean images per
+        region), or None where the store does not count along the dim."""
+        if node not in self._counted:
+            return None
+        done, total, _ = self._regions[node]
+        written, size, _ = self._counted[node]
+        mean = size / total if total else 0.0
+        partial = [*self._waiting(node, now), *self._running_shares(node, now)]
+        return min(float(size), written + sum(s * (mean if i is None else i) for s, i in partial))
+
+    def size(self, node: str) -> int | None:
+        """What :meth:`estimate` counts to: the indices along the dim (images) where the store
+        counts them, else the regions; None before the node's first region message."""
+        if node in self._counted:
+            return self._counted[node][1]
+        return self._regions[node][1] if node in self._regions else None
 
     def estimate(self, node: str, now: float) -> tuple[float, float | None]:
-        """``(sets done, seconds left)``: sets done counts the share of sets in progress;
-        the seconds left are ``None`` until some work is measured."""
+        """``(work done, seconds left)``: the work done in indices along the dim (images, see
+        :meth:`size`), counting the share of sets in progress; the seconds left are ``None``
+        until some work is measured."""
         if node not in self._regions:
             return 0.0, None
         done, total, resumed = self._regions[node]
         if node in self._batched:
             return self._per_written(node, now)
-        running = sum(self._share(node, st, now) for (n, _), st in self._running.items() if n == node)
-        work = min(float(total - resumed), done - resumed + self._waiting(node, now) + running)
+        partial = [share for share, _ in (*self._waiting(node, now), *self._running_shares(node, now))]
+        work = min(float(total - resumed), done - resumed + sum(partial))
+        images = self._in_images(node, now)
+        sets = resumed + max(work, 0.0)
         elapsed = now - self._start.get(node, self._first.get(node, now))
         if work <= 0 or elapsed <= 0:
-            return resumed + max(work, 0.0), None
+            return (sets if images is None else images), None
         by_rate = elapsed / work * (total - resumed - work)
         whole = self._makespan(node, now)
-        return resumed + work, (by_rate * whole) ** 0.5 if whole > by_rate else by_rate
+        left = (by_rate * whole) ** 0.5 if whole > by_rate else by_rate
+        return (sets if images is None else images), left
 
     def _makespan(self, node: str, now: float) -> float:
         """The time left if the sets not yet started run whole, a mean set's time each, on
@@ -390,7 +461,7 @@ class SetClock:
                 solve = spent / fraction if fraction else max(took or 0.0, spent)
                 free.append(solve - spent)
                 solves.append(solve)
-        waiting = [max(0.0, after - (now - solved)) for solved, _ in self._solved.get(node, ())]
+        waiting = [max(0.0, after - (now - solved)) for solved, _, _ in self._solved.get(node, ())]
         done, total, _ = self._regions[node]
         unstarted = total - done - len(waiting) - len(free)
         whole = took or max(solves, default=0.0)  # a set's solve
@@ -411,11 +482,14 @@ class SetClock:
             self._regions,
             self._counted,
             self._most,
+            self._finished,
         ):
             table.pop(node, None)
         self._batched.discard(node)
         for key in [k for k in self._running if k[0] == node]:
             del self._running[key]
+        for key in [k for k in self._images if k[0] == node]:
+            del self._images[key]
 
 
 def _solver_text(done: int, estimate: Any) -> str:
@@ -478,6 +552,10 @@ class PlainProgress:
             now = self.clock()
             self.sets.task_started(node, key, now)
             self._tasks[(node, key)] = [label, now, None]
+
+    def task_images(self, node: str, key: int, images: float) -> None:
+        with self._lock:
+            self.sets.task_images(node, key, images)
 
     def task_advanced(self, node: str, key: int, done: int, estimate: Any = None) -> None:
         # a line only after task_interval without one (since the start), so a solver run
@@ -604,11 +682,12 @@ class RichProgress:
                 self.progress.update(self._steps[node], description=f"{self._labels[node]}: {text}")
 
     def _update_sets(self, node: str) -> None:
-        """Move the node's image-set bars to the work done, with the time left."""
+        """Move the node's image-set bars to the work done (images where the store counts
+        them), with the time left."""
         work, left = self.sets.estimate(node, self.clock())
         for (owner, _), bar in self._bars.items():
             if owner == node:
-                self.progress.update(bar, completed=work, eta=left)
+                self.progress.update(bar, completed=work, total=self.sets.size(node), eta=left)
 
     def regions(
         self, node: str, group: str, done: int, total: int, resumed: int, counted: Counted | None = None
@@ -616,10 +695,11 @@ class RichProgress:
         with self._lock:
             self.sets.regions(node, done, total, resumed, self.clock(), counted)
             key = (node, group)
+            size, before = (total, resumed) if counted is None else (counted.total, counted.resumed)
             if key not in self._bars:
-                self._bars[key] = self.progress.add_task(f"    {group}", total=total, completed=resumed)
+                self._bars[key] = self.progress.add_task(f"    {group}", total=size, completed=before)
             count = f"{_written_text(done, total, counted)} written"
-            self.progress.update(self._bars[key], total=total, count=count)
+            self.progress.update(self._bars[key], count=count)
             self._update_sets(node)
 
     def task_started(self, node: str, key: int, label: str, total: int | None) -> None:
@@ -628,6 +708,11 @@ class RichProgress:
             self._tasks[(node, key)] = self.progress.add_task(
                 f"    {label}", total=1.0 if total else None, count=""
             )
+
+    def task_images(self, node: str, key: int, images: float) -> None:
+        with self._lock:
+            self.sets.task_images(node, key, images)
+            self._update_sets(node)
 
     def task_advanced(self, node: str, key: int, done: int, estimate: Any = None) -> None:
         with self._lock:

@@ -666,6 +666,7 @@ def _solve_sets(
             warm=warm,
             confidence=True,
             endmembers=endmembers,
+            images=float(np.count_nonzero(owned)),  # the progress display counts images
         )
         cubes.append(cube)
         counts.append(count)

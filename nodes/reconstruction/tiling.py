@@ -362,6 +362,7 @@ def solve_set(
     endmembers: Endmembers | None = None,
     confidence: bool = False,
     illuminant: xr.DataArray | None = None,
+    images: float | None = None,
     **options: Any,
 ) -> tuple[xr.DataArray, int, float]:
     """Reconstruct one image set on one window (eq. 1 or a baseline), in memory.
@@ -393,6 +394,9 @@ def solve_set(
         ``confidence`` ``(image, y, x)`` of ``spectra``.
     illuminant
         ``L`` ``(wavelength,)`` for a set model (:data:`~.methods.SET_MODELS`; None: none).
+    images
+        The run's images this solve completes, for the progress display to count images
+        (:func:`spectralize.engine.progress.task`; None: not told).
     **options
         Settings that replace the method's (``gamma_hat``, ``tolerance``, ``set_model``...,
         :func:`~.methods.resolve_method`); one given as None is the method's.
@@ -424,9 +428,9 @@ def solve_set(
         run["endmembers"] = endmembers
     start = time.perf_counter()
     # named by its images without band shots (the anchors with shots are in every set)
-    images = rgb["image"].values.tolist()
+    members = rgb["image"].values.tolist()
     anchors = set(shots["image"].values.tolist())
-    named = [str(i) for i in sorted(i for i in images if i not in anchors) or images]
+    named = [str(i) for i in sorted(i for i in members if i not in anchors) or members]
     more = f" and {len(named) - 3} more" if len(named) > 3 else ""
     label = f"images {', '.join(named[:3])}{more}" + (f", {where}" if where else "")
     solver = "callback" in resolved.options
@@ -437,7 +441,7 @@ def solve_set(
     stop = used["tolerance"] if solver else None
     # the display estimates the time left from the convergence rate (residual per iteration)
     with progress.task(
-        label, total=total, tolerance=stop, fixed=refinement if solver else 0
+        label, total=total, tolerance=stop, fixed=refinement if solver else 0, images=images
     ) as solving:  # nothing is told when nobody listens
         if solving is not None and solver:
             run["callback"] = counting_iterations(solving.advance, residual=True)
@@ -473,6 +477,7 @@ def solve_tile(
     confidence: bool = False,
     where: str | None = None,
     endmembers: Endmembers | None = None,
+    images: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Solve one set on one tile's outer window (:func:`solve_set`) and keep the tile's core.
 
@@ -501,6 +506,9 @@ def solve_tile(
         The tile's label in the progress display.
     endmembers
         The set's shared dictionary (:func:`shared_endmembers`), or None.
+    images
+        The run's images the tile completes (the kept images times its core's share of the
+        image), for the progress display (:func:`solve_set`; None: not told).
 
     Returns
     -------
@@ -529,6 +537,7 @@ def solve_tile(
         endmembers=endmembers,
         confidence=confidence,
         illuminant=illuminant,
+        images=images,
     )
     cube = spectra.transpose("image", "wavelength", "y", "x").values
     iy, ix = inner
@@ -660,6 +669,8 @@ def tile_tasks(
             confidence=confidence,
             where=window.label if len(windows) > 1 else None,
             endmembers=endmembers,
+            # the kept images' share in this core, for the progress display's image count
+            images=n_kept * float(np.prod(window.core_shape)) / (rgb.sizes["y"] * rgb.sizes["x"]),
             dask_key_name=f"{name}-tile-{j}-{token}",
         )
         shape = (n_kept, n_wavelength, *window.core_shape)

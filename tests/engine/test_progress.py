@@ -126,6 +126,28 @@ def test_invalid_totals_and_intervals_are_refused(total, interval):
     assert problem.where == f"task 'set' {wrong[0]}" and problem.found == repr(wrong[1])
 
 
+def test_a_task_tells_the_images_it_completes_to_the_listeners_that_count_them():
+    """``images=``: told right after the start to a listener with ``task_images``; a listener
+    without the method hears the same start and end, and a negative count is refused."""
+
+    class Counting(Recorder):
+        def task_images(self, key, images):
+            with self.lock:
+                self.calls.append(("images", key, images))
+
+    counting, older = Counting(), Recorder()
+    with progress.listening(counting), progress.listening(older):
+        with progress.task("images 4, 5", total=3, images=2) as task:
+            task.advance(3)
+    key = task.key
+    assert counting.calls[:2] == [("started", key, "images 4, 5", 3), ("images", key, 2.0)]
+    assert [c[0] for c in older.calls] == ["started", "advanced", "finished"]
+    for wrong in (-1.0, float("nan")):
+        with pytest.raises(ParameterError, match="task 'set' images"):
+            with progress.task("set", images=wrong):
+                pass
+
+
 def test_the_convergence_estimate_reads_the_rate_off_the_residuals():
     # r_k = 0.5^k: log(2^-20 / 2^-30) / log 2 = 10 iterations left, plus 5 fixed ones
     residuals = [(k, 0.5**k) for k in range(1, 21)]

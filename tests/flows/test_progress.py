@@ -501,12 +501,14 @@ def test_the_image_sets_eta_of_a_flow_run_is_within_twice_the_time_really_left(t
 # -- regions of many solver runs: a batch of image sets in one task (a full run) --------------
 
 
-def replay_batches(display, regions=23, per_region=11, lanes=1, region_images=240):
+def replay_batches(display, regions=23, per_region=11, lanes=1, region_images=240, images=False):
     """Drive ``display`` (the real class, its clock injected) through a write of ``regions``
     regions, each one task solving ``per_region`` sets one after the other (a solver run of
     ``18 * lanes / per_region`` s each, so a region is written every 18 s), ``lanes`` tasks at
-    a time as the store computes them; the store's messages in their order. Returns
-    ``(time, seconds left at that time)`` per region written, from the display's SetClock."""
+    a time as the store computes them; the store's messages in their order; with ``images``
+    each solver run tells its images (``region_images / per_region``), as the node's do.
+    Returns ``(time, seconds left at that time)`` per region written, from the display's
+    SetClock."""
     node, now, key = "reconstruct_image_sets", [0.0], 0
     display.clock = lambda: now[0]
     solve = 18.0 * lanes / per_region
@@ -518,6 +520,8 @@ def replay_batches(display, regions=23, per_region=11, lanes=1, region_images=24
         for _ in range(per_region):
             key += 1
             events.append((t, 0, ("task_started", node, key, f"set {key}", 40)))
+            if images:
+                events.append((t, 0, ("task_images", node, key, region_images / per_region)))
             for share in (0.4, 0.8):  # the engine's estimates of the tiny solves: ~0 s left
                 estimate = Estimate(share, (1 - share) * solve)
                 events.append((t + share * solve, 1, ("task_advanced", node, key, 20, estimate)))
@@ -586,3 +590,79 @@ def test_the_rich_display_shows_the_same_eta_and_count_for_batches():
     seen = [eta for task_id, eta in given if task_id == bar.id]
     assert pytest.approx(21 * 18.0) in seen  # its bar's ETA after 2 of 23 regions
     assert min(eta for eta in seen[:-1] if eta is not None) > 1.0  # never "0 s" before the end
+
+
+# -- images, not batches: the node's solver runs tell the images they complete ---------------
+
+
+def test_a_batch_of_sets_and_a_sets_tiles_tell_the_images_they_complete():
+    """A batch's set tells its owned images (image 11 of 10, 11), a set's four tiles a
+    quarter of its two images each: what the display counts, image by image."""
+    from spectralize.nodes.reconstruction.set_reconstruction import _solve_sets
+
+    class Counting(TaskRecorder):
+        def task_images(self, *args):
+            self.calls.append(("task_images", *args))
+
+    rgb, shots, camera = small_set(size=16)
+    recorder = Counting()
+    with listening(recorder), node_tasks("reconstruct_image_sets"):
+        _solve_sets(
+            rgb,
+            shots,
+            shots["image"].values,
+            camera,
+            [(np.array([10, 11]), np.array([False, True]))],
+            method=None,
+            illuminant=None,
+            warm=None,
+        )
+        solve_tiled(rgb, shots, camera, tile=8, halo=2, tolerance=1e-6, max_iterations=20)
+    told = [c[3] for c in recorder.calls if c[0] == "task_images"]
+    assert told == [1.0, 0.5, 0.5, 0.5, 0.5]
+    started = [c[2] for c in recorder.calls if c[0] == "task_started"]
+    assert [c[2] for c in recorder.calls if c[0] == "task_images"] == started  # one per run
+
+
+def test_the_count_and_eta_of_batches_move_set_by_set_where_the_sets_tell_their_images():
+    """The full run's batches of 11 sets: between two regions written, each set solved adds
+    its images to the work done (without them the count stands still for a whole batch),
+    and two batches computed at a time give the time really left after either of a pair."""
+    looks = []
+
+    class Looking(PlainProgress):
+        def task_finished(self, node, key, done):
+            super().task_finished(node, key, done)
+            looks.append(self.sets.estimate(node, self.clock())[0])
+
+    replay_batches(Looking(io.StringIO()), images=True)
+    second = looks[2 * 11 - 11 : 2 * 11 - 1]  # the second batch's sets, before it is written
+    assert second == pytest.approx([240 + j * 240 / 11 for j in range(1, 11)])
+    left = replay_batches(PlainProgress(io.StringIO()), lanes=2, images=True)
+    assert [seconds for _, seconds in left[:-1]] == pytest.approx(
+        [18.0 * (23 - 2 * ((k + 1) // 2)) for k in range(1, 23)]
+    )
+
+
+def test_the_rich_bar_counts_images_done_of_images_in_all():
+    from rich.console import Console
+
+    with RichProgress(Console(file=io.StringIO(), force_terminal=True, width=120)) as display:
+        display.step_started(10, 11, "reconstruct_image_sets")
+        completed = []
+        update = display.progress.update
+
+        def watch(task_id, **fields):
+            if "completed" in fields and task_id == display._bars.get(
+                ("reconstruct_image_sets", "spectra")
+            ):
+                completed.append(fields["completed"])
+            update(task_id, **fields)
+
+        display.progress.update = watch
+        replay_batches(display, images=True)
+        (bar,) = [t for t in display.progress.tasks if t.description.strip() == "spectra"]
+        assert bar.total == 5520 and bar.completed == 5520
+    moved = sorted(set(round(c, 6) for c in completed))
+    assert len(moved) > 5 * 23  # set by set, not one step per batch
+    assert completed == sorted(completed)
