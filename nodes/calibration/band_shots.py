@@ -5,7 +5,7 @@
 - :func:`longest_unsaturated_shots`: from a calibration target's (wavelength, exposure)
   series, one shot per band, the longest exposure without a saturated pixel.
 - :func:`checked_shots`, :func:`dark_for_shots`, :func:`linearise`, :func:`shot_levels`,
-  :func:`saturated_by_band`: the pieces :mod:`~.white_reference` and
+  :func:`saturated_by_band`, :func:`band_batches`: the pieces :mod:`~.white_reference` and
   :mod:`~.cross_validation` share.
 
 References
@@ -15,9 +15,12 @@ Fast Capture of Spectral Image Series, section 4 ("Calibration"), eq. 5 and Fig.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import xarray as xr
 
+from spectralize.nodes.calibration import exposure_series
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import (
     frame_chunks,
@@ -34,6 +37,7 @@ __all__ = [
     "dark_for_shots",
     "linearise",
     "shot_levels",
+    "band_batches",
     "saturated_by_band",
     "longest_unsaturated",
     "shot_frames",
@@ -206,13 +210,27 @@ def shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int, group: str)
     ).assign_attrs(bit_depth=depth, source=f"{group}:spectral_counts")
 
 
+def band_batches(counts: xr.DataArray) -> list[slice]:
+    """The bands of a (wavelength, ...) series that are read and reduced together: as many
+    whole bands (every frame of each) as fit in
+    :data:`~spectralize.nodes.calibration.exposure_series.FRAME_CHUNK_BYTES` as float64, at
+    least one. A large sensor's series goes one band at a time (one computation over the
+    series would read the stored tiles of every band ahead of their reductions, which split
+    each tile into its exposures' frames); the bands of small frames go in one computation
+    instead of one each (a computation's scheduling costs more than reducing a small band).
+    """
+    per_band = 8 * math.prod(size for dim, size in counts.sizes.items() if dim != "wavelength")
+    step = max(1, exposure_series.FRAME_CHUNK_BYTES // max(per_band, 1))
+    n = counts.sizes["wavelength"]
+    return [slice(start, min(start + step, n)) for start in range(0, n, step)]
+
+
 def saturated_by_band(counts: xr.DataArray, depth: int) -> np.ndarray:
-    """:func:`~.saturated_frames` of a (wavelength, exposure, y, x) series, one band per
-    computation: the frames of one band are read and reduced before the next band's. (One
-    computation over the series would read the stored tiles of every band ahead of their
-    maxima, which split each tile into its exposures' frames.)"""
+    """:func:`~.saturated_frames` of a (wavelength, exposure, y, x) series, the bands of each
+    of :func:`band_batches` in one computation: the frames of a batch are read and reduced
+    before the next batch's."""
     return np.concatenate(
-        [saturated_frames(counts.isel(wavelength=[k]), depth) for k in range(counts.sizes["wavelength"])]
+        [saturated_frames(counts.isel(wavelength=part), depth) for part in band_batches(counts)]
     )
 
 
