@@ -125,10 +125,15 @@ def merge_hdr_node(
 
 # -- value checks (Node.check): what each node refuses before computing ---------------------
 def rgb_oecf_check(inputs: Mapping[str, xr.Dataset], parameters: Parameters) -> list[SpectralizeError]:
-    """``recover_rgb_oecf``: raw/rgb's series, with the black level the node would use."""
+    """``recover_rgb_oecf``: raw/rgb's series, with the black level the node would use and each
+    camera's white level as the node finds it (declared, else in the longest exposures of
+    raw/rgb and the calibration targets)."""
     if "raw_rgb" not in inputs:
         return []
-    return rgb_oecf_refusals(inputs["raw_rgb"], black_level=parameters.model_dump()["black_level"])
+    targets = [inputs[name] for name in ("colour_checker", "white_reference") if name in inputs]
+    return rgb_oecf_refusals(
+        inputs["raw_rgb"], black_level=parameters.model_dump()["black_level"], targets=targets
+    )
 
 
 def hdr_merge_check(inputs: Mapping[str, xr.Dataset], parameters: Parameters) -> list[SpectralizeError]:
@@ -187,8 +192,9 @@ RECOVER_RGB_OECF = Node(
     # once, at most MAX_IMAGES images per camera (a deterministic spread); 5: each camera's
     # white level (declared, else found in its longest exposures) and the saturation under it
     # (white_level, saturation over camera), which the fit, the targets' series and the HDR
-    # merge use
-    version="5",
+    # merge use; 6: the white level found in each source's longest exposures apart (the
+    # scene's, each target's), and frames entirely at or above it refused before computing
+    version="6",
     function=recover_rgb_oecf,
     inputs={
         "raw_rgb": "raw/rgb",

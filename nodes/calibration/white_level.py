@@ -171,14 +171,20 @@ class CameraWhiteLevel(NamedTuple):
     """The pile-up of the channel the level was found in (``"found"`` only)."""
 
 
-def _longest_frames(sample: xr.Dataset, targets: Sequence[xr.Dataset], camera: int) -> np.ndarray:
-    """A camera's longest exposures ``(frame, y * x, channel)``: the last exposure of each of its
-    images in ``sample`` (raw/rgb's, exposure times increasing) and the
-    :data:`LONGEST_TARGET_EXPOSURES` longest of each target's RGB series of it."""
+def _longest_frames(sample: xr.Dataset, targets: Sequence[xr.Dataset], camera: int) -> list[np.ndarray]:
+    """A camera's longest exposures, one ``(values, channel)`` array per source: the last
+    exposure of each of its images in ``sample`` (raw/rgb's, exposure times increasing), and
+    the :data:`LONGEST_TARGET_EXPOSURES` longest of each target's RGB series of it.
+
+    Each source apart: a pile-up is the largest code *of its source*, so codes of one source
+    above another's pile-up (a scene unclipped to the top code beside targets that clip under
+    it) do not hide it.
+    """
     counts = sample["counts"].transpose("image", "exposure", "y", "x", "channel")
     own = np.flatnonzero(np.asarray(sample["camera"].values) == camera)
     longest = np.asarray(counts.isel(image=own, exposure=-1).values)
-    parts = [longest.reshape(longest.shape[0], -1, longest.shape[-1])]
+    channels = longest.shape[-1]
+    parts = [longest.reshape(-1, channels)]
     for target in targets:
         rgb = target["rgb_counts"] if "rgb_counts" in target else None
         if rgb is None or "camera" not in rgb.dims or camera not in target["camera"].values:
@@ -191,9 +197,9 @@ def _longest_frames(sample: xr.Dataset, targets: Sequence[xr.Dataset], camera: i
             .transpose("rgb_exposure", "y", "x", "channel")
             .values
         )
-        if frames.shape[-1] == parts[0].shape[-1]:
-            parts.append(frames.reshape(frames.shape[0], -1, frames.shape[-1]))
-    return np.concatenate([p.reshape(-1, p.shape[-1]) for p in parts])
+        if frames.shape[-1] == channels:
+            parts.append(frames.reshape(-1, channels))
+    return parts
 
 
 def camera_white_levels(
@@ -204,9 +210,9 @@ def camera_white_levels(
     ``sample`` is raw/rgb (or the images of it the response is recovered from) with its attrs;
     its ``white_level_dn`` (one per camera, ``-1``: not given), from capture.toml's
     ``rgb.white_level_dn``, decides where given. Else :func:`white_level` per channel of the
-    camera's longest exposures (:func:`_longest_frames`: the scene's and the calibration
-    targets'), the lowest level found over the channels (a channel that never reaches it
-    shows none).
+    camera's longest exposures, each source apart (:func:`_longest_frames`: the scene's and
+    each calibration target's), the lowest level found over the channels and sources (a
+    channel or source that never reaches it shows none).
 
     Returns
     -------
@@ -222,9 +228,12 @@ def camera_white_levels(
             level = min(declared[camera], top)
             out[camera] = CameraWhiteLevel(level, saturation_code(level, bit_depth), "declared", None)
             continue
-        codes = _longest_frames(sample, targets, camera)
-        found = [white_level(codes[:, k], bit_depth) for k in range(codes.shape[-1])]
-        found = [(lvl, ev) for lvl, ev in found if lvl is not None]
+        found = [
+            (lvl, ev)
+            for codes in _longest_frames(sample, targets, camera)
+            for lvl, ev in (white_level(codes[:, k], bit_depth) for k in range(codes.shape[-1]))
+            if lvl is not None
+        ]
         if not found:
             out[camera] = CameraWhiteLevel(top, top, "top code", None)
             continue

@@ -18,7 +18,7 @@ References
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Hashable, Iterable, Iterator
+from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Annotated, Literal, NamedTuple
@@ -48,7 +48,11 @@ from spectralize.nodes.calibration.oecf.weighting import (
     Weighting,
     weighting_function,
 )
-from spectralize.nodes.calibration.white_level import camera_white_levels, white_level_variables
+from spectralize.nodes.calibration.white_level import (
+    CameraWhiteLevel,
+    camera_white_levels,
+    white_level_variables,
+)
 from spectralize.schemas import CalibrationError, SchemaError, SpectralizeError
 from spectralize.schemas.errors import Problem
 
@@ -1211,7 +1215,11 @@ def recover_rgb_oecf(
     # the refusals and the recovery both run on these values
     images = rgb_oecf_sample(raw_rgb)
     loaded = _load_sample(raw_rgb, images)
-    raise_first(rgb_oecf_refusals(raw_rgb, black_level=black_level, sample=loaded, images=images))
+    given = [t for t in (colour_checker, white_reference) if t is not None]
+    refusals, whites = _rgb_oecf_refusals(
+        raw_rgb, black_level=black_level, sample=loaded, images=images, targets=given
+    )
+    raise_first(refusals)
     depth = int(raw_rgb.attrs["bit_depth"])
     cameras = np.asarray(loaded["camera"].values)
     levels = camera_black_levels(loaded) if black_level is None else {}
@@ -1224,8 +1232,6 @@ def recover_rgb_oecf(
         "smooth": smooth,
         "frames_checked": True,
     }
-    given = [t for t in (colour_checker, white_reference) if t is not None]
-    whites = camera_white_levels(loaded, given, depth)
     targets = given if calibration_targets else []
     own = {}  # one response per camera, each with its own levels (and target series)
     for c, level in levels.items():
@@ -1472,12 +1478,16 @@ def rgb_oecf_refusals(
     black_level: int | None = None,
     sample: xr.Dataset | None = None,
     images: np.ndarray | None = None,
+    targets: Sequence[xr.Dataset] = (),
 ) -> list[SpectralizeError]:
     """What :func:`recover_rgb_oecf` refuses in raw/rgb before computing (its value check).
 
     The bit depth (8..16); exposure times positive, finite and strictly increasing per image
     (every image); and in the images the node reads (:func:`rgb_oecf_sample`): values within
-    the bit depth; no frame entirely saturated; each camera's black level
+    the bit depth; no frame entirely saturated (every value at or above its camera's
+    saturation: its white level less its noise, :func:`~.white_level.camera_white_levels`,
+    declared or found in the camera's longest exposures of raw/rgb and of the calibration
+    ``targets``, as the node finds it); each camera's black level
     (:func:`camera_black_levels` when ``black_level`` is ``None``: from the data here, so
     ``validate --flow`` applies the threshold the node applies); no frame entirely dark
     (every value at or below its camera's black level). One pass over the sampled counts
@@ -1489,13 +1499,28 @@ def rgb_oecf_refusals(
     list of SpectralizeError
         Each error the node would raise (empty: accepted).
     """
+    return _rgb_oecf_refusals(
+        raw_rgb, black_level=black_level, sample=sample, images=images, targets=targets
+    )[0]
+
+
+def _rgb_oecf_refusals(
+    raw_rgb: xr.Dataset,
+    *,
+    black_level: int | None,
+    sample: xr.Dataset | None,
+    images: np.ndarray | None,
+    targets: Sequence[xr.Dataset],
+) -> tuple[list[SpectralizeError], dict[int, CameraWhiteLevel]]:
+    """:func:`rgb_oecf_refusals` and the cameras' white levels it checked the frames with
+    (empty where the values are beyond the bit depth), which the node then uses."""
     where = "recover_rgb_oecf: raw/rgb"
     depth = refused(
         lambda: check_bit_depth(raw_rgb.attrs.get("bit_depth"), where="raw/rgb.attrs['bit_depth']")
     )
     if depth:
-        return depth
-    saturation = 2 ** int(raw_rgb.attrs["bit_depth"]) - 1
+        return depth, {}
+    top = 2 ** int(raw_rgb.attrs["bit_depth"]) - 1
     times = raw_rgb["exposure_time"]
     found = refused(lambda: check_exposure_times(times.transpose(..., "exposure"), "exposure", where))
     if sample is None:
@@ -1513,41 +1538,51 @@ def rgb_oecf_refusals(
     n_image = raw_rgb.sizes["image"]
     if len(images) != n_image:  # at raw/rgb's positions (the errors name them); others pass
         full_min = np.zeros((n_image,) + frame_min.shape[1:], frame_min.dtype)
-        full_max = np.full((n_image,) + frame_max.shape[1:], saturation, frame_max.dtype)
+        full_max = np.full((n_image,) + frame_max.shape[1:], top, frame_max.dtype)
         full_min[images], full_max[images] = frame_min, frame_max
         frame_min, frame_max = full_min, full_max
     cameras = np.asarray(raw_rgb["camera"].values)
     shape = [1] * frame_max.ndim
     shape[0] = -1
 
-    def frames(black: int, camera: int | None = None) -> None:
-        other = True if camera is None else (cameras != camera).reshape(shape)
+    def frames(black: int, saturation: int, camera: int | Sequence[int] | None = None) -> None:
+        other = True if camera is None else ~np.isin(cameras, camera).reshape(shape)
         raise_for_frames(
             lo,
             hi,
-            frame_min < saturation,
+            (frame_min < saturation) | other,
             (frame_max > black) | other,
             frame_dims=frame_dims,
             black_level=black,
             saturation=saturation,
-            max_code=saturation,
+            max_code=top,
             where=f"{where}:counts",
             times=times,
         )
 
-    bright = refused(lambda: frames(-1))  # saturated frames first: they decide the black level
+    # the values within the bit depth first; then each camera's saturated frames: they decide
+    # the black level
+    bright = refused(lambda: frames(-1, top + 1))
     if bright:
-        return found + bright
+        return found + bright, {}
+    whites = camera_white_levels(_in_memory(sample, raw_rgb), targets, int(raw_rgb.attrs["bit_depth"]))
+    by_saturation: dict[int, list[int]] = {}  # cameras of one saturation checked together
+    for camera in np.unique(cameras[images]).tolist():
+        by_saturation.setdefault(whites[int(camera)].saturation, []).append(int(camera))
+    for saturation, group in sorted(by_saturation.items(), reverse=True):
+        bright += refused(lambda s=saturation, g=group: frames(-1, s, g))
+    if bright:
+        return found + bright[:1], whites
     levels: dict[int, int] = {}
     if black_level is None:
         found += refused(lambda: levels.update(camera_black_levels(_in_memory(sample, raw_rgb))))
     else:
         levels = {int(c): int(black_level) for c in np.unique(cameras[images])}
     for camera, level in levels.items():
-        dark = refused(lambda c=camera, b=level: frames(b, c))
+        dark = refused(lambda c=camera, b=level: frames(b, top + 1, c))
         if dark:
-            return found + dark
-    return found
+            return found + dark, whites
+    return found, whites
 
 
 def _in_memory(sample: xr.Dataset, raw_rgb: xr.Dataset) -> xr.Dataset:

@@ -112,3 +112,22 @@ def test_unclipped_frames_keep_the_top_code(tiny):
     assert out["white_level"].values.tolist() == [1023, 1023]
     assert out["saturation"].values.tolist() == [1023, 1023] and out.attrs["saturation"] == 1023
     assert out.attrs["white_level_source"] == ["top code", "top code"]
+
+
+def test_targets_that_clip_below_codes_the_scene_reaches_show_their_white_level(tiny):
+    """Each source's longest exposures apart: the scene's codes up to the top code do not hide
+    the targets' pile-up a few codes below it."""
+    from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
+
+    white = 1020
+
+    def clip(ds):
+        return ds.assign(rgb_counts=ds["rgb_counts"].clip(max=white).astype(ds["rgb_counts"].dtype))
+
+    rgb = tiny["raw/rgb"]
+    assert int(rgb["counts"].max()) > white  # the scene reaches above the targets' white level
+    found = recover_rgb_oecf(rgb, clip(tiny["raw/colour_checker"]), clip(tiny["raw/white_reference"]))
+    assert found["white_level"].values.tolist() == [white, white]
+    assert found.attrs["white_level_source"] == ["found", "found"]
+    median, worst = _response_error(found, tiny["truth/camera"], white - 4)
+    assert median < 0.003 and worst < 0.02
