@@ -83,6 +83,7 @@ from spectralize.nodes.evaluation.figures_calibration import (
     plot_camera_matrices,
     plot_cross_validation,
     plot_exposure_plan,
+    plot_flat_field,
     plot_oecf,
     plot_quantum_efficiency,
     plot_registration,
@@ -719,6 +720,17 @@ def _calibration(store: RunStore) -> tuple[list[tuple[str, str]], list[dict[str,
                 "RGB camera matrix C.",
             )
         )
+        flat = plot_flat_field(spectral)
+        if flat is not None:
+            blocks.append(
+                _figure(
+                    flat,
+                    "flat_field",
+                    "Flat fields from the white reference: each RGB camera's lens falloff (1 at "
+                    "the frame centre) and the spectral camera's along the frame diagonal, per "
+                    "band; every image and band shot is divided by its camera's.",
+                )
+            )
     registration = _read(store, "registration")
     if registration is not None:
         shift = np.asarray(registration["shift"].values, dtype=float)

@@ -696,6 +696,39 @@ def _map_spec(name: str, units: str, long_name: str) -> ArraySpec:
 EVALUATION = GroupSchema(
     name="evaluation",
     description="accuracy of the reconstruction against the ground truth (sec. 5, Fig. 5-7)",
+        # calibrate_spectral v7 on: each camera's flat field from the white reference, as
+        # Legendre coefficients over flat_term (orders flat_power_y, flat_power_x), 1 at the
+        # frame centre (attrs flat_field_frame, flat_field_degree)
+        ArraySpec(
+            "flat_field_rgb",
+            ("camera", "channel", "flat_term"),
+            "kind:f",
+            "1",
+            "flat field of each RGB camera and channel (Legendre coefficients)",
+            finite=True,
+        ),
+        ArraySpec(
+            "flat_field_rgb_noise",
+            ("camera", "channel"),
+            "kind:f",
+            "1",
+            "noise floor of each RGB camera's flat field (NaN: borrowed map)",
+        ),
+        ArraySpec(
+            "flat_field",
+            ("wavelength", "flat_term"),
+            "kind:f",
+            "1",
+            "flat field of the spectral camera per band (Legendre coefficients)",
+            finite=True,
+        ),
+        ArraySpec(
+            "flat_field_noise",
+            ("wavelength",),
+            "kind:f",
+            "1",
+            "noise floor of the spectral camera's flat field per band",
+        ),
     variables=(
         _map_spec("nrmse", "1", "normalised RMSE over wavelength"),
         _map_spec("spectral_angle", "degree", "spectral angle"),

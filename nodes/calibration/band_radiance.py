@@ -3,7 +3,8 @@
 :func:`calibrate_bands` (node ``calibrate_bands``) turns every raw band shot into relative
 band radiance in the units of the measured illuminant, the input of the reconstruction:
 dark subtracted (negative values kept), linearised with the spectral camera's response, per
-second, divided by the quantum efficiency of its band, scaled from its LED's power to that of
+second, divided by its band's flat field (the lens and filter falloff) and by the quantum
+efficiency of its band, scaled from its LED's power to that of
 the RGB image it pairs with (``calibration/led_power.csv``), and resampled onto the RGB pixel
 grid.
 
@@ -22,6 +23,7 @@ from pydantic import Field
 
 from spectralize.nodes.calibration.band_shots import band_signal, shot_levels
 from spectralize.nodes.calibration.exposure_series import frame_chunks
+from spectralize.nodes.calibration.flat_field_maps import from_calibration
 from spectralize.nodes.calibration.matched_level_qe import matched_quantum_efficiency
 from spectralize.nodes.calibration.registration import register_frames
 from spectralize.schemas import CalibrationError, SchemaError
@@ -73,9 +75,10 @@ def calibrate_bands(
 ) -> xr.Dataset:
     """Band radiance of every shot: ``band_signal / Q(lambda_shot)``, registered to RGB.
 
-    ``L_shot(p) = f(I_shot(p + shift) - dark_t) / (t Q_lambda)`` (eq. 5 solved for the
-    radiance ``x``), ``Q_lambda`` of the white-reference exposure at the shot's own mean level
-    where ``calibration/spectral`` has it
+    ``L_shot(p) = f(I_shot(p + shift) - dark_t) / (t Q_lambda F_lambda(p + shift))`` (eq. 5
+    solved for the radiance ``x``, ``F_lambda`` the band's flat field where
+    ``calibration/spectral`` has one: ``flat_field``), ``Q_lambda`` of the white-reference
+    exposure at the shot's own mean level where ``calibration/spectral`` has it
     (:mod:`~spectralize.nodes.calibration.matched_level_qe`: the response's level-dependent
     error cancels instead of rippling from band to band). Dark subtracted (negative values
     kept, never clipped), linearised with the spectral response, per second, divided by the
@@ -166,6 +169,9 @@ def calibrate_bands(
     write_shots = min(counts.chunks[0][0] if counts.chunks is not None else WRITE_SHOTS, WRITE_SHOTS)
     counts = frame_chunks(counts, ("shot",))
     signal = band_signal(raw_spectral.assign(counts=counts), dark, response=oecf_spectral)
+    flat = from_calibration(spectral, "spectral")
+    if flat is not None:  # flat field: each shot over its band's map (before registration)
+        signal = flat.divide(signal, flat.rows(wavelengths, "raw/spectral wavelength"))
     matched = "qe_by_level" in spectral and spectral.attrs.get("matched_levels", True)
     if matched:  # Q of the white reference at each shot's own level (one pass over the shots)
         q_shot = xr.DataArray(
@@ -201,6 +207,7 @@ def calibrate_bands(
             "quantum_efficiency": "white reference at the shot's own level" if matched else "per band",
             "registration_shift_px": [float(v) for v in registration["shift"].values],
             "negative_values": "kept (noise below the dark level)",
+            "flat_field": "the band's, from the white reference" if flat is not None else "none",
             "led_power": "scaled to the paired RGB image's LED (calibration/led_power.csv)"
             if led_power and "led_power" in raw_spectral.coords
             else "not scaled (no LED power table)",

@@ -28,6 +28,7 @@ from spectralize.nodes.calibration.camera_smooth import camera_matrix, cross_val
 from spectralize.nodes.calibration.chart_patches import eroded_labels, patch_means
 from spectralize.nodes.calibration.cross_validation import cross_validate
 from spectralize.nodes.calibration.exposure_series import check_bit_depth, frame_flags
+from spectralize.nodes.calibration.flat_field_maps import FlatField
 from spectralize.nodes.calibration.hdr import merge_hdr
 from spectralize.nodes.calibration.rgb_transform import rgb_transform
 from spectralize.schemas import CalibrationError
@@ -158,14 +159,19 @@ def _white_rgb(
     margin: float = 0.1,
     camera: int | None = None,
     saturation: int | None = None,
+    flat_field: FlatField | None = None,
 ) -> xr.DataArray:
     """HDR RGB (channel,) of the white reference: median over the frame less a border of
     ``margin`` of its size (hot pixels and the target's edge do not move a median); codes at
-    or above ``saturation`` (default the response's) saturated."""
+    or above ``saturation`` (default the response's) saturated; divided by the camera's
+    ``flat_field`` where given."""
     raw = _rgb_series(white_reference, group, camera, saturation).drop_vars("camera")
-    hdr = merge_hdr(raw, response.assign_attrs(dict(attrs) | response.attrs), saturation=saturation)[
-        "radiance"
-    ].isel(image=0)
+    hdr = merge_hdr(
+        raw,
+        response.assign_attrs(dict(attrs) | response.attrs),
+        saturation=saturation,
+        flat_field=flat_field,
+    )["radiance"].isel(image=0)
     ny, nx = hdr.sizes["y"], hdr.sizes["x"]
     dy, dx = int(margin * ny), int(margin * nx)
     centre = hdr.isel(y=slice(dy, ny - dy), x=slice(dx, nx - dx))
@@ -244,9 +250,11 @@ def _fit_camera(
     colour_checker: xr.Dataset,
     oecf_rgb: xr.Dataset,
     settings: CameraFitSettings,
+    flat_field: FlatField | None = None,
 ) -> CameraFit:
     """``C`` of one RGB camera from its own HDR RGB of the chart (and the white reference),
-    through its own response and patch label image."""
+    through its own response and patch label image, divided by its ``flat_field`` (the map
+    of this camera alone) where given."""
     method, ridge, weak_light, smoothness, nonnegative, white_patch, patch_margin = settings
     group = "raw/colour_checker"
     saturation = camera_saturation(oecf_rgb, camera)
@@ -260,6 +268,7 @@ def _fit_camera(
         rgb_raw.drop_vars("camera"),
         response.assign_attrs(oecf_rgb.attrs | response.attrs),
         saturation=saturation,
+        flat_field=flat_field,
     )
     index = colour_checker["patch_index"]
     if "rgb_patch_index" in colour_checker:
@@ -279,6 +288,7 @@ def _fit_camera(
             "raw/white_reference",
             camera=camera,
             saturation=saturation,
+            flat_field=flat_field,
         )
         white_spectrum = (white_reference["target_reflectance"] * white_reference["illuminant"]).load()
         white_spectrum = white_spectrum.interp(wavelength=spectra["wavelength"].values)
@@ -308,6 +318,7 @@ def fit_camera_matrices(
     colour_checker: xr.Dataset,
     oecf_rgb: xr.Dataset,
     settings: CameraFitSettings,
+    flat_field: FlatField | None = None,
 ) -> CameraFits:
     """``C`` of every RGB camera from its own HDR RGB of the colour checker.
 
@@ -322,7 +333,9 @@ def fit_camera_matrices(
     :func:`~spectralize.nodes.calibration.camera_lobes.lobe_camera_matrix`, ``smoothness``
     (``None``: chosen by :func:`~.cross_validated_smoothness`) and ``nonnegative`` those of
     :func:`~.camera_matrix`. Cameras named in ``calibration_borrowed`` (no chart frames of
-    their own) borrow the ``C`` of a camera of the same model.
+    their own) borrow the ``C`` of a camera of the same model. With ``flat_field`` (each
+    camera's, :func:`~spectralize.nodes.calibration.flat_field.rgb_flat_field`) the chart's
+    and the white reference's HDR RGB are divided by the camera's map, as the scene's are.
 
     Raises
     ------
@@ -335,7 +348,17 @@ def fit_camera_matrices(
     """
     cameras = target_cameras(colour_checker)
     paired = int(colour_checker.attrs.get("rgb_camera", cameras[0]))
-    fits = {k: _fit_camera(k, white_reference, colour_checker, oecf_rgb, settings) for k in cameras}
+    fits = {
+        k: _fit_camera(
+            k,
+            white_reference,
+            colour_checker,
+            oecf_rgb,
+            settings,
+            None if flat_field is None else flat_field.only(k),
+        )
+        for k in cameras
+    }
     names_of, lender_of = _camera_names(colour_checker, cameras)
     reference = paired if paired in fits else lender_of[paired]
     return CameraFits(fits, names_of, lender_of, reference, paired)

@@ -23,6 +23,7 @@ from spectralize.nodes.calibration.band_shots import (
     shot_levels,
 )
 from spectralize.nodes.calibration.chart_patches import eroded_labels, patch_means
+from spectralize.nodes.calibration.flat_field_maps import FlatField
 from spectralize.nodes.calibration.matched_level_qe import matched_quantum_efficiency
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
@@ -153,6 +154,7 @@ def checker_patch_spectra(
     *,
     patch_margin: int,
     patch: np.ndarray,
+    flat_field: FlatField | None = None,
 ) -> xr.DataArray:
     """Band radiance of every chart patch from the spectral camera's capture of the chart.
 
@@ -178,6 +180,10 @@ def checker_patch_spectra(
         Pixels removed at every patch border.
     patch
         The ``patch`` coordinate of the result (the measured RGB's).
+    flat_field
+        The spectral camera's flat field per band
+        (:func:`~spectralize.nodes.calibration.flat_field.spectral_flat_field`), by which each
+        band's signal is divided (as ``Q`` was measured through it); ``None``: none.
 
     Returns
     -------
@@ -200,6 +206,8 @@ def checker_patch_spectra(
         signal = band_signal(shots, dark, response=oecf_spectral)
     except CalibrationError as error:
         raise CalibrationError(f"{group}:spectral_counts: {error}") from None
+    if flat_field is not None:  # flat field: each band over its map, as the white's was
+        signal = flat_field.divide(signal, flat_field.rows(shots["wavelength"].values, "band"))
     q_shot = quantum_efficiency.sel(wavelength=shots["wavelength"].values).values
     # Band by band: each computation reads one band's shot, linearises it and reduces it
     # before the next band's is read (one computation over every band would read the bands'

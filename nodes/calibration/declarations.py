@@ -17,8 +17,8 @@ node                       function                             groups
                                                                 calibration/oecf_rgb,
                                                                 calibration/oecf_spectral
                                                                 -> calibration/spectral
-``hdr_merge``              :func:`merge_hdr_node` (wiring to    raw/rgb, calibration/oecf_rgb
-                           :func:`.hdr.merge_hdr`)              -> hdr
+``hdr_merge``              :func:`merge_hdr_node` (wiring to    raw/rgb, calibration/oecf_rgb,
+                           :func:`.hdr.merge_hdr`)              raw/white_reference -> hdr
 ``estimate_registration``  :func:`.registration.                raw/registration -> registration
                            estimate_registration`
 ``calibrate_bands``        :func:`.band_radiance.               raw/spectral, dark,
@@ -62,6 +62,7 @@ from spectralize.engine import Node, Parameters
 from spectralize.nodes.calibration.band_radiance import calibrate_bands
 from spectralize.nodes.calibration.dark import average_dark_frames
 from spectralize.nodes.calibration.exposure_series import target_series_refusals
+from spectralize.nodes.calibration.flat_field import camera_flat_fields
 from spectralize.nodes.calibration.hdr import merge_hdr, merge_hdr_refusals
 from spectralize.nodes.calibration.oecf.low_snr import recover_spectral_oecf, spectral_oecf_refusals
 from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf, rgb_oecf_refusals
@@ -89,6 +90,7 @@ __all__ = [
 def merge_hdr_node(
     raw_rgb: xr.Dataset,
     oecf_rgb: xr.Dataset,
+    white_reference: xr.Dataset | None = None,
     *,
     black_level: Annotated[
         int | None,
@@ -108,7 +110,10 @@ def merge_hdr_node(
     Wires the groups to :func:`~spectralize.nodes.calibration.hdr.merge_hdr`: each image's
     codes are weighted with its own camera's levels, ``calibration/oecf_rgb``'s
     ``black_level`` (camera) [DN] and ``saturation``, and the group's ``weighting``, unless
-    ``black_level``/``saturation`` are given here (then for every camera).
+    ``black_level``/``saturation`` are given here (then for every camera). With
+    ``white_reference`` (group ``raw/white_reference``) each image is divided by its camera's
+    flat field (:func:`~spectralize.nodes.calibration.flat_field.camera_flat_fields`, the
+    maps ``calibrate_spectral`` stores and fits ``C`` through).
 
     Returns
     -------
@@ -116,7 +121,11 @@ def merge_hdr_node(
         Group ``hdr``: ``radiance`` (image, y, x, channel) float32 [1] and the per-image
         coords of raw/rgb.
     """
-    out = merge_hdr(raw_rgb, oecf_rgb, black_level=black_level, saturation=saturation)
+    flat = None
+    if white_reference is not None:
+        cameras = sorted({int(c) for c in np.asarray(raw_rgb["camera"].values).tolist()})
+        flat = camera_flat_fields(white_reference, oecf_rgb, cameras)
+    out = merge_hdr(raw_rgb, oecf_rgb, black_level=black_level, saturation=saturation, flat_field=flat)
     out["radiance"] = (
         out["radiance"].astype(np.float32).assign_attrs(units="1", long_name="relative RGB radiance")
     )
@@ -218,10 +227,12 @@ RECOVER_SPECTRAL_OECF = Node(
 
 CALIBRATE_SPECTRAL = Node(
     name="calibrate_spectral",
-    version="6",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
+    version="7",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
     # 4: C held to zero where the targets had little light (weak_light); 5: the measured
     # illuminant L on the band wavelengths (illuminant), which set_model 'shared-texel' reads;
-    # 6: the targets' RGB series saturated at each camera's saturation (calibration/oecf_rgb)
+    # 6: the targets' RGB series saturated at each camera's saturation (calibration/oecf_rgb);
+    # 7: every camera's flat field from the white reference (flat_field_rgb, flat_field), the
+    # targets divided by it before Q and C are fitted
     function=calibrate_spectral,
     inputs={
         "white_reference": "raw/white_reference",
@@ -238,10 +249,15 @@ CALIBRATE_SPECTRAL = Node(
 HDR_MERGE = Node(
     name="hdr_merge",
     # 2: each image's codes weighted with its own camera's black level (calibration/oecf_rgb's
-    # black_level over camera), not the lowest camera's for all
-    version="2",
+    # black_level over camera), not the lowest camera's for all; 3: each image divided by its
+    # camera's flat field from the white reference (raw/white_reference)
+    version="3",
     function=merge_hdr_node,
-    inputs={"raw_rgb": "raw/rgb", "oecf_rgb": "calibration/oecf_rgb"},
+    inputs={
+        "raw_rgb": "raw/rgb",
+        "oecf_rgb": "calibration/oecf_rgb",
+        "white_reference": "raw/white_reference",
+    },
     outputs=("hdr",),
     read_by_shard=("raw_rgb",),  # every image, streamed: a task per shard
     check=hdr_merge_check,
@@ -250,7 +266,8 @@ HDR_MERGE = Node(
 
 CALIBRATE_BANDS = Node(
     name="calibrate_bands",
-    version="3",  # 3: shots scaled to their paired RGB image's LED power (led_power.csv)
+    version="4",  # 3: shots scaled to their paired RGB image's LED power (led_power.csv);
+    # 4: each shot divided by its band's flat field (calibration/spectral flat_field)
     function=calibrate_bands,
     inputs={
         "raw_spectral": "raw/spectral",

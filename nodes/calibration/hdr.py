@@ -33,6 +33,7 @@ from spectralize.nodes.calibration.exposure_series import (
     raise_for_frames,
     refused,
 )
+from spectralize.nodes.calibration.flat_field_maps import FlatField
 from spectralize.nodes.calibration.oecf.response import response_at_codes
 from spectralize.nodes.calibration.oecf.weighting import Weighting, weighting_function
 from spectralize.schemas import CalibrationError, SchemaError, SpectralizeError
@@ -337,6 +338,7 @@ def merge_hdr(
     saturation: CameraLevels | None = None,
     weighting: Weighting | None = None,
     chunks: Mapping[str, int] | None = None,
+    flat_field: FlatField | None = None,
 ) -> xr.Dataset:
     """Merge LDR exposure series into relative HDR radiance (Robertson's estimator).
 
@@ -365,6 +367,10 @@ def merge_hdr(
         Dask chunk sizes for ``image``, ``y``, ``x`` when ``raw_rgb`` is not already chunked;
         default ``{"image": 1, "y": 512, "x": 512}``. ``exposure`` and ``channel`` are never
         split.
+    flat_field
+        Each camera's flat field (:func:`~spectralize.nodes.calibration.flat_field.
+        rgb_flat_field`): each image's radiance is divided by its camera's map (a map of one
+        camera: by it, for every image). ``None``: no flat field.
 
     Returns
     -------
@@ -487,6 +493,11 @@ def merge_hdr(
         dask="parallelized",
         output_dtypes=[np.float32],
     ).transpose("image", "y", "x", "channel")
+    if flat_field is not None:  # flat field: each image over its camera's map (eq. 5, Q F(p))
+        rows = np.zeros(counts.sizes["image"], dtype=int)
+        if len(flat_field.keys) > 1:
+            rows = flat_field.rows(np.asarray(raw_rgb["camera"].values), "raw/rgb camera")
+        radiance = flat_field.divide(radiance, rows)
     if not lazy:
         radiance = radiance.compute()
     else:
@@ -508,6 +519,7 @@ def merge_hdr(
             "n_saturated": n_sat,
             "n_underexposed": n_dark,
             "n_unresolved": n_other,
+            "flat_field": "each camera's white reference" if flat_field is not None else "none",
         },
     )
     return out

@@ -25,6 +25,10 @@ __all__ = [
     "CROSS_CHECK_WARNING",
     "NEAR_WHITE_DN",
     "RIPPLE_WARNING",
+    "UNEVEN_WARNING",
+    "GRADIENT_WARNING",
+    "CORNER_RANGE",
+    "flat_field_warnings",
     "oecf_rgb_warnings",
     "spectral_warnings",
     "result_warnings",
@@ -43,6 +47,20 @@ top code) above this points at a white level below the top code."""
 
 RIPPLE_WARNING = 0.2
 """``Q`` whose median relative second difference from band to band exceeds this warns."""
+
+UNEVEN_WARNING = 0.03
+"""A white reference deviating locally from its smooth flat field by more than this (and more
+than its noise gives) warns: a shadow or a smudge on the target, which the flat field would
+otherwise write into every image."""
+
+GRADIENT_WARNING = 0.03
+"""A flat field whose odd part about the frame centre exceeds this warns: a lens falloff is
+even about its axis, a tilted or unevenly lit target is not."""
+
+CORNER_RANGE = (0.6, 1.05)
+"""A flat field's corners outside this range warn: more than 40 % falloff (the corners'
+signal and the fit's extrapolation there are poor) or corners brighter than the centre (not
+a lens: a hot spot or flare on the target)."""
 
 
 def _camera_names(group: xr.Dataset, n: int) -> list[str]:
@@ -164,6 +182,7 @@ def spectral_warnings(
             cause = _cross_check_cause(cameras[k], colour_checker, oecf_rgb, depth)
             found.append(f"camera {names[k]}: chart cross-check {100 * error:.0f} %, {cause}")
     found += _matrix_shape_warnings(spectral)
+    found += flat_field_warnings(spectral)
     q = np.asarray(spectral["quantum_efficiency"].values, dtype=float)
     if q.size >= 5 and np.all(q > 0):
         ripple = float(np.median(np.abs(np.diff(q, 2)) / q[1:-1]))
@@ -172,6 +191,77 @@ def spectral_warnings(
                 f"Q ripples from band to band (median relative second difference "
                 f"{100 * ripple:.0f} %): band shots saturated or under-exposed?"
             )
+    return found
+
+
+def flat_field_warnings(spectral: xr.Dataset) -> list[str]:
+    """Warnings on the flat fields of ``calibration/spectral`` (RGB cameras per camera, the
+    spectral camera over its bands), each with the measured non-uniformity:
+
+    - the white reference not even: a local deviation from the smooth map above
+      :data:`UNEVEN_WARNING` and above what its noise gives (a shadow, a smudge);
+    - a gradient: the map's odd part about the frame centre above :data:`GRADIENT_WARNING`
+      (a tilted or unevenly lit target);
+    - corners outside :data:`CORNER_RANGE`.
+    """
+    found = []
+    if "flat_field_rgb_unevenness" in spectral:
+        names = _camera_names(spectral, spectral.sizes["camera"])
+        for k, name in enumerate(names):
+            found += _flat_warnings(spectral.isel(camera=k), "flat_field_rgb", f"camera {name}")
+    if "flat_field_unevenness" in spectral:
+        found += _flat_warnings(spectral, "flat_field", "the spectral camera")
+    return found
+
+
+def _flat_warnings(group: xr.Dataset, prefix: str, who: str) -> list[str]:
+    """:func:`flat_field_warnings` of one camera: its measures over channels or bands."""
+
+    def worst(name: str, score) -> tuple[float, str]:
+        values = group[f"{prefix}_{name}"]
+        flat = np.asarray(values.values, dtype=float).ravel()
+        if not np.isfinite(flat).any():
+            return np.nan, ""
+        i = int(np.nanargmax(score(flat)))
+        label = ""
+        if values.dims:
+            dim = values.dims[0]
+            label = (
+                f" (channel {values[dim].values.ravel()[i]})"
+                if dim == "channel"
+                else (f" (worst band {float(values[dim].values.ravel()[i]):g} nm)")
+            )
+        return float(flat[i]), label
+
+    found = []
+    floor = np.asarray(group[f"{prefix}_unevenness_floor"].values, dtype=float)
+    uneven = np.asarray(group[f"{prefix}_unevenness"].values, dtype=float)
+    excess = np.where(np.abs(uneven) > np.maximum(UNEVEN_WARNING, floor), np.abs(uneven), 0.0)
+    if np.nanmax(excess, initial=0.0) > 0:
+        value, label = worst("unevenness", lambda v: np.where(np.isfinite(v), excess.ravel(), -1))
+        kind = "dip" if value < 0 else "bright spot"
+        found.append(
+            f"{who}: the white reference is not even: a local {kind} of {100 * abs(value):.1f} % "
+            f"the smooth lens falloff cannot explain{label} (a shadow or a smudge on the target?)"
+        )
+    value, label = worst("gradient", lambda v: np.nan_to_num(v, nan=-1.0))
+    if value > GRADIENT_WARNING:
+        found.append(
+            f"{who}: the white reference has a gradient of +-{100 * value:.1f} % across the frame"
+            f"{label}, which a lens falloff (even about its axis) cannot make (a tilted or "
+            "unevenly lit target?)"
+        )
+    value, label = worst("corner", lambda v: np.nan_to_num(np.abs(v - 1.0), nan=-1.0))
+    low, high = CORNER_RANGE
+    if np.isfinite(value) and not low <= value <= high:
+        found.append(
+            f"{who}: the flat field is {value:.2f} in a corner{label} (expected {low}..{high}): "
+            + (
+                "a falloff this strong leaves the corners poorly measured"
+                if value < low
+                else "corners brighter than the centre are no lens falloff (flare on the target?)"
+            )
+        )
     return found
 
 

@@ -8,6 +8,8 @@ camera matrix ``C`` of every RGB camera and the cross-validation of paper Fig. 4
 module                 step
 =====================  ====================================================================
 ``band_shots``         band signal: dark-subtracted, linearised band shots per second
+``flat_field``         every camera's flat field (lens falloff) from its white-reference
+                       frames: per RGB camera and channel, per band
 ``white_reference``    ``Q`` per band, the measured illuminant ``L`` on the bands, ``Q`` per
                        level of the white reference's exposure series
 ``camera_smooth``      ``C`` by a second-difference penalty (``camera_lobes``: by smooth
@@ -43,6 +45,11 @@ from spectralize.nodes.calibration.camera_matrices import (
     method_settings,
 )
 from spectralize.nodes.calibration.cross_validation import checker_patch_spectra, cross_validate
+from spectralize.nodes.calibration.flat_field import (
+    flat_field_variables,
+    rgb_flat_field,
+    spectral_flat_field,
+)
 from spectralize.nodes.calibration.white_reference import (
     WhiteReferenceCalibration,
     calibrate_white_reference,
@@ -122,6 +129,11 @@ def calibrate_spectral(
 ) -> xr.Dataset:
     """Quantum efficiency, camera matrix C and the cross-validation of paper Fig. 4.
 
+    - Flat fields: each RGB camera's per channel from its HDR of the white reference
+      (:func:`~.rgb_flat_field`), the spectral camera's per band from the white reference's
+      band series (:func:`~.spectral_flat_field`); every target below is divided by its
+      camera's map before ``Q`` and ``C`` are fitted, as the scene's images and band shots
+      are (``hdr_merge``, ``calibrate_bands``).
     - ``Q`` per band: the white reference's longest unsaturated exposure of each band,
       linearised with the spectral response, per second, divided by the target reflectance
       times the measured illuminant (:func:`~.calibrate_white_reference`).
@@ -155,7 +167,10 @@ def calibrate_spectral(
         cross-validation scores, when chosen), ``qe_by_level`` and ``qe_level`` (the white
         reference's level table), and per RGB camera (``camera``) the variables of
         :func:`~.camera_table`. Attrs ``mean_relative_error``,
-        ``max_relative_error``, ``worst_patch``, ``c_relative_rms_residual`` and the chosen
+        ``max_relative_error``, ``worst_patch``, ``c_relative_rms_residual``, the flat fields
+        (:func:`~.flat_field_variables`: ``flat_field_rgb`` (camera, channel, flat_term) and
+        ``flat_field`` (wavelength, flat_term) Legendre coefficients with their noise floor
+        and evenness measures) and the chosen
         settings: ``camera_matrix_method``, ``white_patch``, ``ridge`` (per channel),
         ``lobe_widths_nm``, ``weak_light`` and ``weak_light_floor``, or ``smoothness`` and
         ``nonnegative``.
@@ -171,7 +186,11 @@ def calibrate_spectral(
     ----------
     .. [1] Fast Capture of Spectral Image Series, section 4, eq. 1 and 5, Figs. 3 and 4.
     """
-    white = calibrate_white_reference(white_reference, dark, oecf_spectral, min_snr=min_snr)
+    rgb_flat, rgb_fits = rgb_flat_field(white_reference, oecf_rgb)
+    band_flat, band_fits = spectral_flat_field(white_reference, dark, oecf_spectral)
+    white = calibrate_white_reference(
+        white_reference, dark, oecf_spectral, min_snr=min_snr, flat_field=band_flat
+    )
     fitted = fit_camera_matrices(
         white_reference,
         colour_checker,
@@ -179,6 +198,7 @@ def calibrate_spectral(
         CameraFitSettings(
             camera_matrix_method, ridge, weak_light, smoothness, nonnegative, white_patch, patch_margin
         ),
+        flat_field=rgb_flat,
     )
     fit = fitted.fits[fitted.reference]
     patch_spectra = checker_patch_spectra(
@@ -189,6 +209,7 @@ def calibrate_spectral(
         white.levels if matched_levels else None,
         patch_margin=patch_margin,
         patch=fit.measured["patch"].values,
+        flat_field=band_flat,
     )
     table = cross_validate(fit.measured, patch_spectra, fit.cm)
     per_camera = camera_table(fitted, patch_spectra, colour_checker)
@@ -202,6 +223,16 @@ def calibrate_spectral(
     }
     out = _spectral_group(white, fit, patch_spectra, table, settings)
     out = out.merge(per_camera.assign_coords(patch=out["patch"].values))
+    flats = flat_field_variables(
+        rgb_flat,
+        rgb_fits,
+        band_flat,
+        band_fits,
+        [int(k) for k in out["camera"].values],
+        fitted.lender_of,
+    )
+    out = out.merge(flats.assign_coords(channel=white_reference["channel"].values))
+    out.attrs.update(flats.attrs)
     if "patch_name" in colour_checker.coords:
         names = [str(v) for v in colour_checker["patch_name"].values]
         out = out.assign_coords(patch_name=("patch", names))

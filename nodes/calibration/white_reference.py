@@ -33,6 +33,7 @@ from spectralize.nodes.calibration.band_shots import (
 )
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import frame_chunks
+from spectralize.nodes.calibration.flat_field_maps import FlatField
 from spectralize.nodes.calibration.matched_level_qe import level_table
 from spectralize.schemas import CalibrationError, SchemaError
 from spectralize.schemas.errors import Problem
@@ -87,11 +88,14 @@ def quantum_efficiency(
     response: xr.Dataset | xr.DataArray | None = None,
     roi: Mapping[str, slice] | None = None,
     min_snr: float = 1.0,
+    flat_field: FlatField | None = None,
 ) -> xr.Dataset:
     """Quantum efficiency ``Q_lambda`` per band from white-reference shots.
 
-    ``Q_lambda = mean_roi(f(I - dark) / t) / (rho_lambda L_lambda)`` (eq. 5 with the radiance
-    of a white reference ``x = rho L``); several shots at one wavelength are averaged.
+    ``Q_lambda = mean_roi(f(I - dark) / (t F_lambda)) / (rho_lambda L_lambda)`` (eq. 5 with
+    the radiance of a white reference ``x = rho L`` and the band's flat field ``F_lambda``,
+    1 at the frame centre, where given: ``Q`` is then the centre's); several shots at one
+    wavelength are averaged.
 
     Parameters
     ----------
@@ -114,6 +118,9 @@ def quantum_efficiency(
         Smallest accepted ratio of the mean dark-subtracted signal in the ROI [DN] to the
         per-pixel noise (the mean of ``dark.std`` in the ROI, or the spatial standard
         deviation of the dark-subtracted ROI when ``dark`` has no ``std``).
+    flat_field
+        The spectral camera's flat field per band
+        (:func:`~spectralize.nodes.calibration.flat_field.spectral_flat_field`); ``None``: none.
 
     Returns
     -------
@@ -172,6 +179,9 @@ def quantum_efficiency(
             f"{snr[i]:.3g} < min_snr {min_snr}); use a longer exposure or more light"
         )
     signal = linearise(part, dark_part, response, where)
+    if flat_field is not None:  # each shot over its band's map
+        origin = tuple(region[d].indices(counts.sizes[d])[0] if d in region else 0 for d in ("y", "x"))
+        signal = flat_field.divide(signal, flat_field.rows(wavelengths, "band"), origin)
     per_shot = np.asarray(signal.mean(("y", "x")).values, dtype=np.float64)
     rho = _on_wavelengths(reflectance, wavelengths, "reflectance", where)
     light = _on_wavelengths(illuminant, wavelengths, "illuminant", where)
@@ -261,6 +271,7 @@ def white_level_table(
     light: np.ndarray,
     group: str,
     min_snr: float = 10.0,
+    flat_field: FlatField | None = None,
 ) -> xr.Dataset:
     """:func:`~spectralize.nodes.calibration.matched_level_qe.level_table` of the white
     reference's whole exposure series (exposures without dark frames left out).
@@ -269,7 +280,8 @@ def white_level_table(
     ``response`` the spectral camera's OECF, ``light`` the white's radiance (reflectance
     times illuminant) per band. An exposure is usable in a band when it has no saturated
     pixel, its mean signal above dark is at least ``min_snr`` times the noise and its
-    linearised level is positive.
+    linearised level is positive. With ``flat_field`` (per band) each frame is divided by its
+    band's map before its mean, as :func:`quantum_efficiency` divides it.
 
     Read band by band: one band's series (its exposures, stored together) and the dark
     frames of the series' exposure times (read once) are in memory, and every reduction
@@ -295,14 +307,20 @@ def white_level_table(
     if found:
         darks = dark_frames_at(dark, times[found], used_by=group, dim="shot", frame_shape=frame)
         darks = darks.drop_vars("exposure_time").transpose("shot", "y", "x").load()
+    bands = np.asarray(counts["wavelength"].values, dtype=float)
     for k in range(n_bands):
         series = counts.isel(wavelength=k).drop_vars(list(counts.coords)).load()
+        falloff = 1.0  # the band's flat field, one frame
+        if flat_field is not None:
+            falloff = xr.DataArray(
+                flat_field.maps(flat_field.rows(bands[k : k + 1], "band"))[0], dims=("y", "x")
+            )
         for i, e in enumerate(found):
             shot = series.isel(spectral_exposure=e).assign_coords(exposure_time=times[e])
             mean = darks["mean"].isel(shot=i)
             above = shot.astype(np.float64) - mean
             noise = darks["std"].isel(shot=i).mean() if "std" in darks else above.std()
-            signal[k, e] = float(linearise(shot, mean, response, group).mean())
+            signal[k, e] = float((linearise(shot, mean, response, group) / falloff).mean())
             usable[k, e] = (
                 top[k, e]
                 and float(above.mean()) >= min_snr * max(float(noise), 1e-12)
@@ -328,13 +346,15 @@ def calibrate_white_reference(
     oecf_spectral: xr.Dataset,
     *,
     min_snr: float = 1.0,
+    flat_field: FlatField | None = None,
 ) -> WhiteReferenceCalibration:
     """``Q``, ``L`` on the bands and ``Q`` per level from the ``raw/white_reference`` group.
 
     ``Q`` from each band's longest unsaturated exposure (:func:`quantum_efficiency`, the
     target reflectance times the measured illuminant as the white's radiance), the measured
     illuminant on ``Q``'s wavelengths (:func:`measured_illuminant_on_bands`) and the level
-    table of the whole series (:func:`white_level_table`).
+    table of the whole series (:func:`white_level_table`), each through the spectral camera's
+    ``flat_field`` where given.
 
     Raises
     ------
@@ -357,6 +377,7 @@ def calibrate_white_reference(
             reflectance=white_reference["target_reflectance"].load(),
             response=oecf_spectral,
             min_snr=min_snr,
+            flat_field=flat_field,
         )
     except CalibrationError as error:
         raise CalibrationError(f"{group}:spectral_counts: {error}") from None
@@ -365,6 +386,12 @@ def calibrate_white_reference(
         wavelength=counts["wavelength"].values
     )
     levels = white_level_table(
-        counts, depth, dark, oecf_spectral, np.asarray(light.values, float), group
+        counts,
+        depth,
+        dark,
+        oecf_spectral,
+        np.asarray(light.values, float),
+        group,
+        flat_field=flat_field,
     )
     return WhiteReferenceCalibration(qe, band_illuminant, levels)

@@ -27,6 +27,7 @@ __all__ = [
     "plot_exposure_plan",
     "plot_oecf",
     "plot_quantum_efficiency",
+    "plot_flat_field",
     "CROSS_VALIDATION_FLAG",
     "MODEL_DIFFERENCE_FLAG",
     "camera_calibration_rows",
@@ -350,6 +351,93 @@ def plot_quantum_efficiency(calibration: xr.Dataset) -> Figure:
     ax_c.legend(fontsize=8)
     for ax in (ax_q, ax_c):
         ax.grid(alpha=0.3)
+    return fig
+
+
+FLAT_FIELD_SAMPLES = 96
+"""Points per frame side at which a falloff map is drawn (the maps are smooth)."""
+
+
+def plot_flat_field(calibration: xr.Dataset, *, max_cameras: int = 6) -> Figure | None:
+    """Falloff maps of the RGB cameras and the spectral camera's per-band profile.
+
+    One panel per RGB camera (at most ``max_cameras``): its flat field (mean over channels,
+    1 at the frame centre) with its corner value and noise floor; one panel of the spectral
+    camera's map at its middle band; one panel of the spectral camera's flat field along the
+    frame diagonal (corner to corner), one curve per band coloured by wavelength. ``None``
+    where ``calibration/spectral`` has no flat field.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 (white reference) and eq. 5.
+    """
+    from matplotlib import colormaps
+    from matplotlib.figure import Figure
+
+    from spectralize.nodes.calibration.flat_field_maps import from_calibration
+
+    rgb, bands = from_calibration(calibration, "rgb"), from_calibration(calibration, "spectral")
+    if rgb is None or bands is None:
+        return None
+    ny, nx = bands.frame
+    sample = (
+        slice(0, ny, max(1, ny // FLAT_FIELD_SAMPLES)),
+        slice(0, nx, max(1, nx // FLAT_FIELD_SAMPLES)),
+    )
+    cameras = list(range(min(len(rgb.keys), max_cameras)))
+    names = (
+        [str(v) for v in calibration["camera_name"].values]
+        if "camera_name" in calibration.coords
+        else [str(k) for k in rgb.keys]
+    )
+    maps = [rgb.maps([k], *sample)[0].mean(axis=-1) for k in cameras]
+    middle = len(bands.keys) // 2
+    maps.append(bands.maps([middle], *sample)[0])
+    low = min(0.5, min(float(m.min()) for m in maps))
+    fig = Figure(figsize=(2.6 * (len(maps) + 1.6), 3.0), layout="constrained")
+    axes = fig.subplots(1, len(maps) + 1, gridspec_kw={"width_ratios": [1] * len(maps) + [1.6]})
+    noise_rgb = calibration.get("flat_field_rgb_noise")
+    for i, (ax, image) in enumerate(zip(axes[:-1], maps, strict=True)):
+        shown = ax.imshow(image, vmin=low, vmax=1.02, cmap="magma", extent=(0, nx, ny, 0))
+        ax.contour(
+            np.linspace(0, nx, image.shape[1]),
+            np.linspace(0, ny, image.shape[0]),
+            image,
+            levels=np.arange(0.5, 1.0, 0.05),
+            colors="w",
+            linewidths=0.5,
+        )
+        corners = image[[0, 0, -1, -1], [0, -1, 0, -1]].mean()
+        if i < len(cameras):
+            floor = (
+                float(np.nanmax(noise_rgb.isel(camera=i).values)) if noise_rgb is not None else np.nan
+            )
+            title = f"camera {names[i]}\ncorners {corners:.2f}, noise {100 * floor:.2f} %"
+        else:
+            title = f"spectral, {float(bands.keys[middle]):g} nm\ncorners {corners:.2f}"
+        ax.set_title(title, fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(shown, ax=axes[:-1].tolist(), shrink=0.8, label="flat field (1 at the centre)")
+    steps = max(ny, nx)
+    diagonal = (
+        np.linspace(0, ny - 1, steps).round().astype(int),
+        np.linspace(0, nx - 1, steps).round().astype(int),
+    )
+    full = bands.maps(np.arange(len(bands.keys)))[:, diagonal[0], diagonal[1]]
+    wavelength = np.asarray(bands.keys, dtype=float)
+    colour = colormaps["viridis"]((wavelength - wavelength.min()) / max(np.ptp(wavelength), 1e-9))
+    position = np.linspace(-1.0, 1.0, steps)
+    ax = axes[-1]
+    for row in range(len(wavelength)):
+        ax.plot(position, full[row], color=colour[row], linewidth=0.8)
+    ax.set_xlabel("frame diagonal (corner to corner)")
+    ax.set_ylabel("flat field")
+    ax.set_title(
+        f"spectral camera per band ({wavelength.min():g} nm violet .. {wavelength.max():g} nm yellow)",
+        fontsize=8,
+    )
+    ax.grid(alpha=0.3)
     return fig
 
 

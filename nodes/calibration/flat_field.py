@@ -1,0 +1,297 @@
+"""Flat field: each camera's lens falloff measured on its own white-reference frames.
+
+A lens darkens towards the corners of its image and a tunable filter adds an off-axis loss
+that depends on the wavelength, so the sensitivity in eq. 5 is a map, ``Q_lambda F(p)``, not a
+number. The capture contract has every camera photograph the white reference, an even diffuse
+target; its frames, linearised through the camera's response and averaged over the exposure
+series, are ``F`` up to a scale and the noise.
+
+- :func:`fit_flat_field`, :class:`FlatField`, :func:`from_calibration` (from
+  :mod:`~spectralize.nodes.calibration.flat_field_maps`, which the HDR merge, the band
+  radiance and the targets' fits import): one frame of the white reference -> a smooth map
+  ``F`` (a low-order Legendre polynomial in the frame coordinates, 1 at the frame centre),
+  its noise floor and the measures of an uneven target; the maps of several cameras or
+  bands, divided out of images or band shots block by block.
+- :func:`rgb_flat_field`: the RGB cameras' maps from their HDR of the white reference.
+- :func:`spectral_flat_field`: the spectral camera's map per band from the white
+  reference's band series (dark subtracted, linearised, time-weighted over the exposures).
+- :func:`flat_field_variables`: the maps' variables of ``calibration/spectral``.
+
+Why a polynomial, not a Gaussian filter: falloff is smooth across the whole frame and
+steepest in the corners, where a filter window runs off the frame (mirrored or padded
+edges bias the corners, exactly where the correction matters most); a polynomial fit of
+block means extrapolates the smooth falloff into the corners, averages the noise of the
+whole frame into few coefficients (its noise floor follows from the fit's covariance), stores
+as a handful of numbers per camera whatever the frame size, and what it cannot explain (a
+shadow, a smudge) is left in its residuals, which is what the evenness check measures. Total
+degree :data:`DEGREE` follows a ``cos^4``-type falloff of a third in the corners to well
+under a per cent. The map is normalised to 1 at the frame centre (the optical axis of a
+centred lens), not to its mean: it then reads as the falloff itself (0.8 in a corner: 20 %
+less light there), the radiance at the centre is what it was without a flat field, and the
+scale divides out anyway (``Q`` and ``C`` are fitted to flat-fielded targets). Per-pixel
+response non-uniformity is left in: the fit is smooth by design, so the white reference's
+own noise is not written into every image.
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, section 4 ("taking images of a white diffuse
+   reference surface") and eq. 5 (``I = f^-1(x t Q_lambda)``, here with ``Q_lambda F(p)``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+from spectralize.nodes.calibration.band_shots import linearise, saturated_by_band
+from spectralize.nodes.calibration.camera_matrices import (
+    _camera_names,
+    _rgb_series,
+    camera_saturation,
+    target_cameras,
+)
+from spectralize.nodes.calibration.dark import dark_frames_at
+from spectralize.nodes.calibration.exposure_series import target_spectral_series
+from spectralize.nodes.calibration.flat_field_maps import (
+    BLOCKS,
+    DEGREE,
+    FlatField,
+    FlatFieldFit,
+    fit_flat_field,
+    flat_field_basis,
+    from_calibration,
+    legendre_powers,
+)
+from spectralize.nodes.calibration.hdr import merge_hdr
+from spectralize.schemas import CalibrationError
+
+__all__ = [
+    "DEGREE",
+    "BLOCKS",
+    "MIN_SNR",
+    "FlatFieldFit",
+    "FlatField",
+    "legendre_powers",
+    "flat_field_basis",
+    "fit_flat_field",
+    "rgb_flat_field",
+    "camera_flat_fields",
+    "spectral_flat_field",
+    "flat_field_variables",
+    "from_calibration",
+]
+
+MIN_SNR = 10.0
+"""Smallest mean signal over the noise of a white-reference band exposure averaged into the
+spectral camera's flat field."""
+
+
+def rgb_flat_field(white_reference: xr.Dataset, oecf_rgb: xr.Dataset) -> tuple[FlatField, list]:
+    """Each RGB camera's flat field per channel from its HDR of the white reference.
+
+    Each camera's exposure series of the white reference is merged to HDR through its own
+    response (codes at or above its saturation left out,
+    :func:`~spectralize.nodes.calibration.hdr.merge_hdr`: Robertson's time-weighted average
+    over the series) and each channel fitted by :func:`fit_flat_field`.
+
+    Returns
+    -------
+    tuple
+        The :class:`FlatField` (rows: the cameras of ``raw/white_reference``, (camera,
+        channel, term)) and the :class:`FlatFieldFit` of every camera and channel.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, sections 4 and 5 (Robertson's HDR merge).
+    """
+    group = "raw/white_reference"
+    cameras = target_cameras(white_reference)
+    coefficients, fits = [], []
+    for camera in cameras:
+        saturation = camera_saturation(oecf_rgb, camera)
+        response = oecf_rgb["response"]
+        if "camera" in response.dims:
+            known = response["camera"].values.tolist()
+            response = response.sel(camera=camera if camera in known else known[0])
+        raw = _rgb_series(white_reference, group, camera, saturation).drop_vars("camera")
+        hdr = merge_hdr(
+            raw, response.assign_attrs(oecf_rgb.attrs | response.attrs), saturation=saturation
+        )
+        radiance = np.asarray(hdr["radiance"].isel(image=0).transpose("y", "x", "channel").values)
+        per_channel = [fit_flat_field(radiance[..., c]) for c in range(radiance.shape[-1])]
+        coefficients.append(np.stack([f.coefficients for f in per_channel]))
+        fits.append(per_channel)
+    frame = (white_reference.sizes["y"], white_reference.sizes["x"])
+    flat = FlatField(np.stack(coefficients), legendre_powers(), frame, np.asarray(cameras))
+    return flat, fits
+
+
+def camera_flat_fields(
+    white_reference: xr.Dataset, oecf_rgb: xr.Dataset, cameras: list[int]
+) -> FlatField:
+    """:func:`rgb_flat_field` for the RGB cameras ``cameras`` (raw/rgb's): a camera without
+    white-reference frames takes the map of the camera whose calibration it borrows (same
+    model, ``calibration_borrowed``), else none (ones)."""
+    flat, _ = rgb_flat_field(white_reference, oecf_rgb)
+    _, lender_of = _camera_names(white_reference, target_cameras(white_reference))
+    return flat.select(cameras, lender_of)
+
+
+def spectral_flat_field(
+    white_reference: xr.Dataset, dark: xr.Dataset, oecf_spectral: xr.Dataset | None
+) -> tuple[FlatField, list[FlatFieldFit]]:
+    """The spectral camera's flat field per band from the white reference's band series.
+
+    Per band, every exposure without a saturated pixel whose mean signal is at least
+    :data:`MIN_SNR` times the dark noise (else the longest unsaturated one) is dark
+    subtracted and linearised (:func:`~.linearise`), and the exposures averaged weighted by
+    their exposure time (``sum f(I - dark) / sum t``: each exposure's signal per second,
+    weighted by its signal); the average is fitted by :func:`fit_flat_field`. Read band by
+    band: one band's series and the dark frames are in memory at a time.
+
+    Returns
+    -------
+    tuple
+        The :class:`FlatField` (rows: the bands, (wavelength, term)) and the
+        :class:`FlatFieldFit` of every band.
+
+    Raises
+    ------
+    CalibrationError
+        A band saturated at every exposure or darker than the noise in its longest
+        unsaturated one (naming ``raw/white_reference:spectral_counts``), dark frames missing.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4, eq. 5 and Fig. 3.
+    """
+    group = "raw/white_reference"
+    counts, depth = target_spectral_series(white_reference, group)
+    unsaturated = ~saturated_by_band(counts, depth)
+    times = np.asarray(counts["spectral_exposure_time"].values, dtype=np.float64)
+    frame = (counts.sizes["y"], counts.sizes["x"])
+    darks = dark_frames_at(dark, times, used_by=group, dim="shot", frame_shape=frame)
+    darks = darks.drop_vars("exposure_time").transpose("shot", "y", "x").load()
+    coefficients, fits = [], []
+    for k in range(counts.sizes["wavelength"]):
+        if not unsaturated[k].any():
+            raise CalibrationError(
+                f"{group}:spectral_counts: every exposure of band "
+                f"{float(counts['wavelength'][k])} nm has saturated pixels; add shorter exposures"
+            )
+        series = counts.isel(wavelength=k).drop_vars(list(counts.coords)).load()
+        total, weight, fallback = np.zeros(frame), 0.0, int(np.flatnonzero(unsaturated[k])[-1])
+        for e in np.flatnonzero(unsaturated[k]):
+            shot = series.isel(spectral_exposure=int(e)).assign_coords(exposure_time=times[e])
+            mean = darks["mean"].isel(shot=int(e))
+            above = float((shot.astype(np.float64) - mean).mean())
+            noise = float(darks["std"].isel(shot=int(e)).mean()) if "std" in darks else 1.0
+            if e == fallback and weight == 0 and above < max(noise, 1e-12):
+                raise CalibrationError(
+                    f"{group}:spectral_counts: white reference band "
+                    f"{float(counts['wavelength'][k])} nm is darker than the noise: mean signal "
+                    f"{above:.3g} DN above dark vs noise {noise:.3g} DN in its longest "
+                    "unsaturated exposure; use a longer exposure or more light"
+                )
+            if above < MIN_SNR * max(noise, 1e-12) and not (weight == 0 and e == fallback):
+                continue
+            signal = np.asarray(linearise(shot, mean, oecf_spectral, group).values)
+            total, weight = total + signal * times[e], weight + times[e]
+        fit = fit_flat_field(total / weight)
+        coefficients.append(fit.coefficients)
+        fits.append(fit)
+    wavelengths = np.asarray(counts["wavelength"].values, dtype=float)
+    return FlatField(np.stack(coefficients), legendre_powers(), frame, wavelengths), fits
+
+
+def _measures(prefix: str, dims: tuple, values: dict[str, np.ndarray], what: str) -> dict:
+    """The noise floor and evenness measures of :class:`FlatFieldFit` as variables."""
+    unit = {"units": "1"}
+    long_names = {
+        "noise": f"noise floor of {what}",
+        "unevenness": f"largest local deviation of the white reference from {what} (a shadow, a smudge)",
+        "unevenness_floor": "what the noise alone gives the unevenness",
+        "gradient": f"largest odd part of {what} about the frame centre (a tilted or unevenly "
+        "lit target)",
+        "corner": f"corner value of {what} farthest from 1",
+    }
+    return {
+        f"{prefix}_{name}": (dims, values[name], unit | {"long_name": long_name})
+        for name, long_name in long_names.items()
+    }
+
+
+def _fit_values(fits: list, shape: tuple[int, ...]) -> dict[str, np.ndarray]:
+    """Each :class:`FlatFieldFit` measure over ``fits`` (nested lists of fits, or None where a
+    camera has no map of its own: NaN) as an array of ``shape``."""
+    names = ("noise", "unevenness", "unevenness_floor", "gradient", "corner")
+    flat = np.asarray(fits, dtype=object).reshape(-1)
+    return {
+        name: np.array([np.nan if f is None else getattr(f, name) for f in flat]).reshape(shape)
+        for name in names
+    }
+
+
+def flat_field_variables(
+    rgb: FlatField,
+    rgb_fits: list[list[FlatFieldFit]],
+    spectral: FlatField,
+    spectral_fits: list[FlatFieldFit],
+    cameras: list[int],
+    lender_of: dict[int, int] | None = None,
+) -> xr.Dataset:
+    """The flat fields' variables of ``calibration/spectral``.
+
+    Coefficients, noise floor and evenness measures per RGB camera of ``cameras`` and channel
+    (``flat_field_rgb*``, (camera, channel)): a camera without white-reference frames takes
+    its lender's map (:meth:`FlatField.select`; its measures NaN), and per band
+    (``flat_field*``, (wavelength,)); the Legendre orders as coords (``flat_power_y``,
+    ``flat_power_x`` over ``flat_term``), the frame and the degree in the attrs.
+    """
+    unit = {"units": "1"}
+    own = {int(k): row for k, row in zip(np.asarray(rgb.keys).tolist(), rgb_fits, strict=True)}
+    per_camera = rgb.select(cameras, lender_of)
+    n_channel = rgb.coefficients.shape[1]
+    camera_fits = [own.get(int(k), [None] * n_channel) for k in cameras]
+    rgb_dims, band_dims = ("camera", "channel"), ("wavelength",)
+    return xr.Dataset(
+        {
+            "flat_field_rgb": (
+                (*rgb_dims, "flat_term"),
+                per_camera.coefficients,
+                unit
+                | {
+                    "long_name": "Legendre coefficients of each RGB camera's flat field "
+                    "(1 at the frame centre)"
+                },
+            ),
+            **_measures(
+                "flat_field_rgb",
+                rgb_dims,
+                _fit_values(camera_fits, (len(cameras), n_channel)),
+                "the RGB flat field",
+            ),
+            "flat_field": (
+                (*band_dims, "flat_term"),
+                spectral.coefficients,
+                unit
+                | {
+                    "long_name": "Legendre coefficients of the spectral camera's flat "
+                    "field per band (1 at the frame centre)"
+                },
+            ),
+            **_measures(
+                "flat_field",
+                band_dims,
+                _fit_values(spectral_fits, (len(spectral_fits),)),
+                "the band's flat field",
+            ),
+        },
+        coords={
+            "camera": ("camera", np.asarray(cameras, dtype=np.int64)),
+            "wavelength": ("wavelength", np.asarray(spectral.keys, dtype=float)),
+            "flat_power_y": ("flat_term", rgb.powers[:, 0]),
+            "flat_power_x": ("flat_term", rgb.powers[:, 1]),
+        },
+        attrs={"flat_field_frame": [int(v) for v in rgb.frame], "flat_field_degree": DEGREE},
+    )

@@ -1,0 +1,211 @@
+"""Flat field: a lens falloff measured on hand-made white-reference series and taken out."""
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from spectralize.nodes.calibration.flat_field import (
+    FlatField,
+    fit_flat_field,
+    flat_field_variables,
+    from_calibration,
+    legendre_powers,
+    rgb_flat_field,
+    spectral_flat_field,
+)
+from spectralize.nodes.calibration.hdr import merge_hdr
+from spectralize.nodes.calibration.result_checks import flat_field_warnings
+from spectralize.schemas import CalibrationError
+
+NY, NX = 48, 60
+YY, XX = np.mgrid[0:NY, 0:NX] + 0.5
+R2 = ((YY - NY / 2) ** 2 + (XX - NX / 2) ** 2) / ((NY / 2) ** 2 + (NX / 2) ** 2)
+INNER = (slice(NY // 16, -NY // 16), slice(NX // 16, -NX // 16))
+
+
+def falloff(corner: float) -> np.ndarray:
+    """A cos^4-type falloff, 1 at the centre and ``corner`` in the corners."""
+    return 1.0 / (1.0 + (corner**-0.5 - 1.0) * R2) ** 2
+
+
+def fitted_map(frame: np.ndarray) -> np.ndarray:
+    fit = fit_flat_field(frame)
+    return FlatField(fit.coefficients[None], legendre_powers(), (NY, NX), np.array([0])).maps([0])[0]
+
+
+def test_a_noisy_falloff_is_recovered_within_a_per_cent_away_from_the_border():
+    truth = falloff(0.7)
+    noisy = 900.0 * truth * (1 + 0.01 * np.random.default_rng(1).standard_normal(truth.shape))
+    fit = fit_flat_field(noisy)
+    got = fitted_map(noisy)
+    assert np.abs(got / truth - 1)[INNER].max() < 0.01
+    assert 0 < fit.noise < 0.01 and fit.corner == pytest.approx(0.7, abs=0.02)
+    assert abs(fit.gradient) < 0.01 and abs(fit.unevenness) < 0.03
+
+
+def test_an_even_white_reference_gives_a_flat_field_of_one_within_its_noise():
+    frame = 500.0 * (1 + 0.01 * np.random.default_rng(2).standard_normal((NY, NX)))
+    fit = fit_flat_field(frame)
+    assert np.abs(fitted_map(frame) - 1).max() < 4 * fit.noise
+    assert fit.corner == pytest.approx(1.0, abs=4 * fit.noise)
+
+
+def test_a_tilted_and_a_shadowed_target_are_measured():
+    tilted = fit_flat_field(falloff(0.8) * (1 + 0.12 * (XX / NX - 0.5)))
+    assert tilted.gradient == pytest.approx(0.06, abs=0.01)
+    shadow = 1 - 0.2 * np.exp(-((YY - 14) ** 2 + (XX - 40) ** 2) / (2 * 4.0**2))
+    shaded = fit_flat_field(falloff(0.8) * shadow)
+    assert shaded.unevenness < -0.08  # the dip, left in the residual of the robust fit
+    robust = FlatField(shaded.coefficients[None], legendre_powers(), (NY, NX), np.array([0]))
+    far = R2 < 0.5  # the map away from the shadow is the lens's
+    assert np.abs(robust.maps([0])[0] / falloff(0.8) - 1)[far & (np.abs(XX - 40) > 12)].max() < 0.02
+
+
+def test_divide_is_the_same_lazy_and_loaded_and_refuses_another_frame():
+    coefficients = np.stack(
+        [fit_flat_field(falloff(c)).coefficients for c in (0.8, 0.6)]
+    )  # two cameras, one map each (no channel)
+    flat = FlatField(coefficients, legendre_powers(), (NY, NX), np.array([3, 5]))
+    data = xr.DataArray(np.ones((4, NY, NX), np.float32), dims=("image", "y", "x"))
+    rows = flat.rows(np.array([5, 3, 3, 5]), "camera")
+    eager = flat.divide(data, rows)
+    lazy = flat.divide(data.chunk({"image": 3, "y": 20, "x": 25}), rows)
+    assert lazy.chunks is not None and eager.dtype == np.float32
+    np.testing.assert_allclose(lazy.values, eager.values, rtol=1e-6)
+    np.testing.assert_allclose(eager.values[0][INNER], (1 / falloff(0.6))[INNER], rtol=0.01)
+    with pytest.raises(CalibrationError, match=r"no map for camera \[4.0\]"):
+        flat.rows(np.array([4]), "camera")
+    with pytest.raises(CalibrationError, match="frames of"):
+        flat.divide(data.isel(x=slice(0, 10)), rows)
+
+
+def white_reference(truth: np.ndarray, cameras=(0, 1)) -> xr.Dataset:
+    """A raw/white_reference of a linear 12-bit RGB camera per camera (three exposures) and a
+    spectral camera of two bands (four exposures) seeing ``truth`` (y, x) as falloff."""
+    rng = np.random.default_rng(3)
+    rgb_times = np.array([0.01, 0.02, 0.06])
+    level = np.array([600.0, 500.0, 400.0])  # DN per 10 ms, per channel
+    rgb = truth[None, None, :, :, None] * level * rgb_times[None, :, None, None, None] / 0.01
+    rgb = np.repeat(rgb, len(cameras), axis=0) + 64 + rng.normal(0, 2, (len(cameras), 3, NY, NX, 3))
+    band_times = np.array([0.01, 0.02, 0.06, 0.12])
+    band = np.array([1.0, 1.6])[:, None, None, None] * truth * band_times[None, :, None, None] * 3e4
+    spectral = band + 100 + rng.normal(0, 2, band.shape)
+    return xr.Dataset(
+        {
+            "rgb_counts": (
+                ("camera", "rgb_exposure", "y", "x", "channel"),
+                np.clip(np.round(rgb), 0, 4095).astype(np.uint16),
+            ),
+            "spectral_counts": (
+                ("wavelength", "spectral_exposure", "y", "x"),
+                np.clip(np.round(spectral), 0, 4095).astype(np.uint16),
+            ),
+        },
+        coords={
+            "camera": list(cameras),
+            "channel": ["R", "G", "B"],
+            "wavelength": [500.0, 600.0],
+            "rgb_exposure_time": (("camera", "rgb_exposure"), np.tile(rgb_times, (len(cameras), 1))),
+            "spectral_exposure_time": ("spectral_exposure", band_times),
+        },
+        attrs={"rgb_bit_depth": 12, "spectral_bit_depth": 12, "rgb_camera": cameras[-1]},
+    )
+
+
+def linear_oecf(cameras=(0, 1)) -> xr.Dataset:
+    codes = np.arange(4096)
+    response = np.tile(np.clip(codes - 64.0, 0, None) / 2000.0, (len(cameras), 3, 1))
+    return xr.Dataset(
+        {
+            "response": (("camera", "channel", "code"), response),
+            "black_level": ("camera", [70] * len(cameras)),
+            "saturation": ("camera", [4000] * len(cameras)),
+        },
+        coords={"camera": list(cameras), "channel": ["R", "G", "B"], "code": codes},
+        attrs={"bit_depth": 12},
+    )
+
+
+def dark_frames(times: np.ndarray) -> xr.Dataset:
+    return xr.Dataset(
+        {
+            "mean": (("exposure_time", "y", "x"), np.full((len(times), NY, NX), 100.0, np.float32)),
+            "std": (("exposure_time", "y", "x"), np.full((len(times), NY, NX), 2.0, np.float32)),
+        },
+        coords={"exposure_time": times},
+    )
+
+
+def test_rgb_and_band_flat_fields_from_a_white_reference_series():
+    truth = falloff(0.75)
+    white = white_reference(truth)
+    flat, fits = rgb_flat_field(white, linear_oecf())
+    assert flat.coefficients.shape == (2, 3, len(legendre_powers()))
+    for row in range(2):
+        maps = flat.maps([row])[0]
+        for c in range(3):
+            assert np.abs(maps[..., c] / truth - 1)[INNER].max() < 0.01
+            assert fits[row][c].noise < 0.005
+    bands, band_fits = spectral_flat_field(
+        white, dark_frames(white["spectral_exposure_time"].values), None
+    )
+    for row in range(2):
+        assert np.abs(bands.maps([row])[0] / truth - 1)[INNER].max() < 0.01
+    # the HDR merge through the flat field makes the white reference flat
+    series = white["rgb_counts"].isel(camera=[1]).rename(camera="image", rgb_exposure="exposure")
+    raw = xr.Dataset(
+        {"counts": series.transpose("image", "exposure", "y", "x", "channel")},
+        coords={
+            "exposure_time": (("image", "exposure"), white["rgb_exposure_time"].values[[1]]),
+            "camera": ("image", [1]),
+        },
+        attrs={"bit_depth": 12},
+    )
+    hdr = merge_hdr(raw, linear_oecf(), flat_field=flat)["radiance"].values[0]
+    assert np.abs(hdr / hdr[NY // 2, NX // 2] - 1)[INNER].max() < 0.02
+    # stored and read back as calibration/spectral variables
+    group = flat_field_variables(flat, fits, bands, band_fits, [0, 1, 2], {2: 0})
+    back = from_calibration(group.assign_coords(channel=["R", "G", "B"]), "rgb")
+    np.testing.assert_allclose(back.coefficients[2], flat.coefficients[0])  # borrowed
+    assert np.isnan(group["flat_field_rgb_noise"].values[2]).all()
+    assert flat_field_warnings(group.assign_coords(channel=["R", "G", "B"])) == []
+
+
+def test_an_uneven_white_reference_and_strong_corners_warn_with_the_numbers():
+    shadow = 1 - 0.25 * np.exp(-((YY - 14) ** 2 + (XX - 40) ** 2) / (2 * 5.0**2))
+    tilt = 1 + 0.15 * (XX / NX - 0.5)
+    white = white_reference(falloff(0.8) * shadow, cameras=(0,))
+    flat, fits = rgb_flat_field(white, linear_oecf((0,)))
+    tilted = white_reference(falloff(0.45) * tilt, cameras=(0,))
+    bands, band_fits = spectral_flat_field(
+        tilted, dark_frames(tilted["spectral_exposure_time"].values), None
+    )
+    group = flat_field_variables(flat, fits, bands, band_fits, [0]).assign_coords(
+        channel=["R", "G", "B"], camera_name=("camera", ["rgb45"])
+    )
+    found = flat_field_warnings(group)
+    assert any(
+        m.startswith("camera rgb45: the white reference is not even: a local dip of") for m in found
+    )
+    gradient = [m for m in found if m.startswith("the spectral camera: the white reference has a")]
+    assert gradient and float(gradient[0].split("+-")[1].split(" %")[0]) > 3.0  # the tilt
+    assert any("the spectral camera: the flat field is 0.4" in m and "corner" in m for m in found)
+
+
+def test_the_report_figure_draws_every_camera_and_the_band_profiles():
+    from spectralize.nodes.evaluation.figures_calibration import plot_flat_field
+
+    white = white_reference(falloff(0.8))
+    flat, fits = rgb_flat_field(white, linear_oecf())
+    bands, band_fits = spectral_flat_field(
+        white, dark_frames(white["spectral_exposure_time"].values), None
+    )
+    group = flat_field_variables(flat, fits, bands, band_fits, [0, 1]).assign_coords(
+        channel=["R", "G", "B"], camera_name=("camera", ["top", "rgb45"])
+    )
+    figure = plot_flat_field(group)
+    titles = [ax.get_title() for ax in figure.axes]
+    assert titles[0].startswith("camera top\ncorners 0.8") and titles[1].startswith("camera rgb45")
+    assert titles[2].startswith("spectral, 600 nm") and "per band" in titles[3]
+    assert len(figure.axes[3].lines) == 2  # one diagonal profile per band
+    assert plot_flat_field(group.drop_vars("flat_field")) is None
