@@ -94,6 +94,10 @@ SHAPE_ITERATIONS = 4
 """Power iterations of each texel's starting shape: the top right singular vector of its
 ``(m, w)`` initial spectra times its singular value (shared-texel's start for ``r = 1``)."""
 
+TEXEL_BLOCK = 4096
+"""Texels whose ``W x W`` shape systems are built and solved at a time (:func:`texel_shapes`):
+bounds that step's memory by the block, not by the set's texels."""
+
 KMEANS_SAMPLE = 20000
 """At most this many texels (a fixed random subset) place the k-means centres; all are
 then assigned to the nearest centre."""
@@ -233,6 +237,7 @@ def material_pooled_refine(
     _check(inputs, initial, highlight, int(clusters))
     n_w, n_m, h, w = inputs.cube_shape
     t = fit_terms(inputs, initial, highlight, prior, band_sigma)
+    del initial  # the float64 copy: the fit holds it as ``x0`` (texel-major)
     ell, x0, rgb, cams, rgb_weight, prior_weight, shot_image, shot_band, data, shot_weight, ctc = t
     rgb_terms = (rgb * rgb_weight, cams)  # C_m^T W R_m, applied per texel as needed
     terms = (cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight)
@@ -263,9 +268,12 @@ def material_pooled_refine(
         pooled = _pooled_shapes(weights, label, k, *shape_terms)
         shapes = pooled[label]
         weights = texel_weights(shapes, ell, *terms)
-    fit = (weights[:, :, 0, None] * shapes[:, None, :] + weights[:, :, 1, None] * ell).transpose(2, 1, 0)
-    fit = fit.reshape(n_w, n_m, h, w)
-    return _project(np.ascontiguousarray(fit), inputs)
+    # a_m E + h_m L, written wavelength by wavelength into the (w, m, y, x) cube (one cube
+    # in memory, not the (n, m, w) products, their sum and its transposed copy)
+    fit = np.empty((n_w, n_m, h * w))
+    for band in range(n_w):
+        fit[band] = (weights[:, :, 0] * shapes[:, band, None] + weights[:, :, 1] * ell[band]).T
+    return _project(fit.reshape(n_w, n_m, h, w), inputs)
 
 
 def _pooled_shapes(
@@ -384,19 +392,46 @@ def texel_shapes(
 ):
     """``(n, w)``: per texel the rank-1 shape for fixed weights, one ``W x W`` system each:
     :func:`~.shared_texel.shared_texel_refine`'s shapes step for ``r = 1``, with the band
-    terms gathered by matrix products."""
+    terms gathered by matrix products.
+
+    The systems are built and solved :data:`TEXEL_BLOCK` texels at a time: all of them at
+    once are ``n x W x W`` floats (more than the spectra of all the set's images, twice over
+    while LAPACK solves a copy). The ridge needs every system's trace first, which comes
+    from the diagonals alone.
+    """
     n_w = ell.size
     a, hl = weights[:, :, 0], weights[:, :, 1]
     a_shot = a[:, shot_image]  # (n, shots)
-    mat = ((a**2) @ ctc.reshape(ctc.shape[0], -1)).reshape(-1, n_w, n_w)
+    gram = ctc.reshape(ctc.shape[0], -1)  # C_m^T W C_m, (m, w * w)
     diagonal = ((a**2) @ prior_weight)[:, None] + _group_sum(a_shot**2 * shot_weight, shot_band, n_w)
     idx = np.arange(n_w)
-    mat[:, idx, idx] += diagonal
     # sum_m a_m (C_m^T W R_m + pw_m S^0_m - h_m (C_m^T W C_m + pw_m) L)
     rhs = _rgb_rhs(a, *rgb_terms) + np.matmul((a * prior_weight)[:, None, :], x0)[:, 0]
     rhs -= (a * hl) @ (ctc @ ell + prior_weight[:, None] * ell)
     rhs += _group_sum(a_shot * shot_weight * (data - hl[:, shot_image] * ell[shot_band]), shot_band, n_w)
-    ridge = SHAPE_RIDGE * max(float(np.median(np.einsum("nii->n", mat))) / n_w, 1e-300)
-    mat[:, idx, idx] += ridge
+    trace = _system_traces((a**2) @ np.ascontiguousarray(gram[:, idx * (n_w + 1)]) + diagonal)
+    ridge = SHAPE_RIDGE * max(float(np.median(trace)) / n_w, 1e-300)
     rhs += ridge * previous
-    return np.linalg.solve(mat, rhs[..., None])[..., 0]
+    shapes = np.empty_like(rhs)
+    for start in range(0, len(rhs), TEXEL_BLOCK):
+        block = slice(start, start + TEXEL_BLOCK)
+        mat = ((a[block] ** 2) @ gram).reshape(-1, n_w, n_w)
+        mat[:, idx, idx] += diagonal[block]
+        mat[:, idx, idx] += ridge
+        shapes[block] = np.linalg.solve(mat, rhs[block, :, None])[..., 0]
+    return shapes
+
+
+def _system_traces(diagonals: np.ndarray) -> np.ndarray:
+    """``(n,)``: the traces of ``n`` ``W x W`` systems from their diagonals ``(n, W)``, summed
+    as ``einsum("nii->n")`` sums a whole system's (the same order, so the same ridge),
+    :data:`TEXEL_BLOCK` systems at a time."""
+    n, n_w = diagonals.shape
+    idx = np.arange(n_w)
+    traces = np.empty(n)
+    for start in range(0, n, TEXEL_BLOCK):
+        block = diagonals[start : start + TEXEL_BLOCK]
+        square = np.zeros((len(block), n_w * n_w))
+        square[:, idx * (n_w + 1)] = block
+        traces[start : start + TEXEL_BLOCK] = np.einsum("nii->n", square.reshape(-1, n_w, n_w))
+    return traces

@@ -170,3 +170,40 @@ def test_the_rank_1_texel_steps_are_shared_texels():
     top = st._top_shapes(x0, 1, 4)[:, 0]
     top *= np.where(top.sum(axis=1) < 0, -1.0, 1.0)[:, None]
     np.testing.assert_allclose(mp._top_shape(x0, 4), top, rtol=1e-8, atol=1e-12)
+
+
+def test_texel_shapes_in_blocks_are_the_one_block_shapes_in_less_memory(monkeypatch):
+    """The shapes step solves its ``W x W`` systems a block of texels at a time: the shapes
+    of all texels at once (BLAS may round a block's products in another order: to 1e-12),
+    without ever holding every texel's system."""
+    import tracemalloc
+
+    from spectralize.nodes.reconstruction.estimators import material_pooled as mp
+
+    inputs, _, initial, sigma, _ = _two_material_set(6, size=48, n_image=4)
+    n_w, n_m = initial.shape[:2]
+    n = initial.shape[2] * initial.shape[3]
+    rng = np.random.default_rng(7)
+    x0 = np.ascontiguousarray(initial.reshape(n_w, n_m, n).transpose(2, 1, 0))
+    rgb = inputs.rgb.reshape(n_m, n, 3).transpose(1, 0, 2)
+    cams = np.stack([inputs.camera_of(m) for m in range(n_m)])
+    rgb_weight = rng.uniform(1.0, 3.0, size=(n_m, 3))
+    ctc = np.matmul(np.swapaxes(cams, 1, 2) * rgb_weight[:, None, :], cams)
+    data = inputs.band_data.reshape(n_w, n).T.astype(float)
+    shapes = x0.mean(axis=1) * rng.uniform(0.8, 1.2, size=(n, n_w))
+    weights = rng.uniform(0.2, 1.0, size=(n, n_m, 2))
+    ell = LIGHT / np.linalg.norm(LIGHT)
+    rest = (x0, rng.uniform(0.5, 2.0, size=n_m), data, inputs.image, inputs.band, 1.0 / sigma**2)
+    args = (shapes, weights, ell, ctc, (rgb * rgb_weight, cams), *rest)
+    monkeypatch.setattr(mp, "TEXEL_BLOCK", n)
+    whole = mp.texel_shapes(*args)
+    monkeypatch.setattr(mp, "TEXEL_BLOCK", 256)
+    tracemalloc.start()
+    try:
+        blocked = mp.texel_shapes(*args)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_allclose(blocked, whole, rtol=1e-12, atol=1e-15 * np.abs(whole).max())
+    systems = n * n_w * n_w * 8  # every texel's W x W system in float64
+    assert peak < systems / 2, (peak, systems)
