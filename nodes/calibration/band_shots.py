@@ -5,8 +5,8 @@
 - :func:`longest_unsaturated_shots`: from a calibration target's (wavelength, exposure)
   series, one shot per band, the longest exposure without a saturated pixel.
 - :func:`checked_shots`, :func:`dark_for_shots`, :func:`linearise`, :func:`shot_levels`,
-  :func:`saturated_by_band`, :func:`band_batches`: the pieces :mod:`~.white_reference` and
-  :mod:`~.cross_validation` share.
+  :func:`saturated_by_band`, :func:`band_batches`, :func:`series_pieces`: the pieces
+  :mod:`~.white_reference` and :mod:`~.cross_validation` share.
 
 References
 ----------
@@ -16,6 +16,7 @@ Fast Capture of Spectral Image Series, section 4 ("Calibration"), eq. 5 and Fig.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import xarray as xr
@@ -38,6 +39,7 @@ __all__ = [
     "linearise",
     "shot_levels",
     "band_batches",
+    "series_pieces",
     "saturated_by_band",
     "longest_unsaturated",
     "shot_frames",
@@ -223,6 +225,42 @@ def band_batches(counts: xr.DataArray) -> list[slice]:
     step = max(1, exposure_series.FRAME_CHUNK_BYTES // max(per_band, 1))
     n = counts.sizes["wavelength"]
     return [slice(start, min(start + step, n)) for start in range(0, n, step)]
+
+
+def series_pieces(
+    counts: xr.DataArray, exposures: Sequence[int]
+) -> Iterator[tuple[slice, list[int], xr.DataArray]]:
+    """The frames ``exposures`` of a (wavelength, spectral_exposure, y, x) series, in pieces
+    that vectorised reductions take whole.
+
+    Each batch of :func:`band_batches` is read in one computation; its frames are handed out
+    as many exposures at a time as fit in
+    :data:`~spectralize.nodes.calibration.exposure_series.FRAME_CHUNK_BYTES` as float64 over
+    the batch's bands (at least one): a small sensor's whole series at once, a large one's
+    one frame at a time (a band's series and one float64 frame in memory).
+
+    Yields
+    ------
+    tuple
+        ``(bands, positions, shots)``: the batch's band slice, the positions in
+        ``exposures`` of the piece's exposures and their frames (wavelength,
+        spectral_exposure, y, x), in memory, without coords but ``exposure_time`` [s] over
+        ``spectral_exposure``.
+    """
+    times = np.asarray(counts["spectral_exposure_time"].values, dtype=np.float64)
+    picks = [int(e) for e in exposures]
+    frame = 8 * counts.sizes["y"] * counts.sizes["x"]
+    for bands in band_batches(counts):
+        series = counts.isel(wavelength=bands).drop_vars(list(counts.coords)).load()
+        per_piece = exposure_series.FRAME_CHUNK_BYTES // (frame * series.sizes["wavelength"])
+        step = max(1, per_piece)
+        for start in range(0, len(picks), step):
+            positions = list(range(start, min(start + step, len(picks))))
+            chosen = [picks[i] for i in positions]
+            shots = series.isel(spectral_exposure=chosen).assign_coords(
+                exposure_time=("spectral_exposure", times[chosen])
+            )
+            yield bands, positions, shots
 
 
 def saturated_by_band(counts: xr.DataArray, depth: int) -> np.ndarray:

@@ -30,6 +30,7 @@ from spectralize.nodes.calibration.band_shots import (
     linearise,
     longest_unsaturated_shots,
     saturated_by_band,
+    series_pieces,
 )
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import frame_chunks
@@ -283,9 +284,11 @@ def white_level_table(
     linearised level is positive. With ``flat_field`` (per band) each frame is divided by its
     band's map before its mean, as :func:`quantum_efficiency` divides it.
 
-    Read band by band: one band's series (its exposures, stored together) and the dark
-    frames of the series' exposure times (read once) are in memory, and every reduction
-    runs on one frame; never the whole (band, exposure) stack.
+    Read in the pieces of :func:`~.series_pieces`: the bands of a batch (one band of a
+    large sensor: its exposures, stored together) and the dark frames of the series'
+    exposure times (read once) are in memory, and each reduction takes the frames of a piece
+    that fit in the frame-chunk budget (one frame of a large sensor) together; never the
+    whole (band, exposure) stack of a large sensor.
 
     References
     ----------
@@ -304,28 +307,35 @@ def white_level_table(
         except CalibrationError:
             continue
         found.append(e)
-    if found:
-        darks = dark_frames_at(dark, times[found], used_by=group, dim="shot", frame_shape=frame)
-        darks = darks.drop_vars("exposure_time").transpose("shot", "y", "x").load()
+    if not found:
+        return level_table(signal, times, usable, light, np.asarray(counts["wavelength"].values, float))
+    darks = dark_frames_at(dark, times[found], used_by=group, dim="shot", frame_shape=frame)
+    darks = darks.drop_vars("exposure_time").transpose("shot", "y", "x").load()
+    # the dark noise of each exposure (the mean of its std frame), the same in every band
+    noise = (
+        [float(darks["std"].isel(shot=i).mean()) for i in range(len(found))] if "std" in darks else None
+    )
     bands = np.asarray(counts["wavelength"].values, dtype=float)
-    for k in range(n_bands):
-        series = counts.isel(wavelength=k).drop_vars(list(counts.coords)).load()
-        falloff = 1.0  # the band's flat field, one frame
+    for part, positions, shots in series_pieces(counts, found):
+        # a piece's frames at once (wavelength, spectral_exposure, y, x), each reduced on its own
+        mean = darks["mean"].isel(shot=positions).rename(shot="spectral_exposure")
+        falloff: xr.DataArray | float = 1.0  # the bands' flat fields, a frame each
         if flat_field is not None:
-            falloff = xr.DataArray(
-                flat_field.maps(flat_field.rows(bands[k : k + 1], "band"))[0], dims=("y", "x")
-            )
-        for i, e in enumerate(found):
-            shot = series.isel(spectral_exposure=e).assign_coords(exposure_time=times[e])
-            mean = darks["mean"].isel(shot=i)
-            above = shot.astype(np.float64) - mean
-            noise = darks["std"].isel(shot=i).mean() if "std" in darks else above.std()
-            signal[k, e] = float((linearise(shot, mean, response, group) / falloff).mean())
-            usable[k, e] = (
-                top[k, e]
-                and float(above.mean()) >= min_snr * max(float(noise), 1e-12)
-                and signal[k, e] > 0
-            )
+            maps = [
+                flat_field.maps(flat_field.rows(bands[k : k + 1], "band"))[0]
+                for k in range(n_bands)[part]
+            ]
+            falloff = xr.DataArray(np.stack(maps), dims=("wavelength", "y", "x"))
+        above = shots.astype(np.float64) - mean
+        spread = np.asarray(noise)[positions] if noise is not None else above.std(("y", "x")).values
+        level = np.asarray((linearise(shots, mean, response, group) / falloff).mean(("y", "x")).values)
+        cell = np.ix_(range(n_bands)[part], [found[i] for i in positions])
+        signal[cell] = level
+        usable[cell] = (
+            top[cell]
+            & (above.mean(("y", "x")).values >= min_snr * np.maximum(spread, 1e-12))
+            & (level > 0)
+        )
     return level_table(signal, times, usable, light, np.asarray(counts["wavelength"].values, float))
 
 
