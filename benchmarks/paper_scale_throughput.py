@@ -236,6 +236,10 @@ def main() -> None:
         RESULTS.write_text(json.dumps(previous, indent=1) + "\n")
         print(json.dumps(report))
         return
+    previous = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    for key in ("profile", "mixture_tile"):  # kept from their own runs (--profile, --mixture-tile)
+        if key in previous:
+            report[key] = previous[key]
     RESULTS.write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps(report))
 

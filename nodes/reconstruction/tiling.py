@@ -543,9 +543,9 @@ def solve_tile(
     iy, ix = inner
     spread = None
     if confidence:
-        spread = spectra["confidence"].transpose("image", "y", "x").values[keep][:, iy, ix]
-    return (
-        np.ascontiguousarray(cube[keep][:, :, iy, ix], dtype=np.float32),
+        spread = spectra["confidence"].transpose("image", "y", "x").values[:, iy, ix][keep]
+    return (  # the core cut before the kept images are: one copy of the core, not the window
+        np.ascontiguousarray(cube[:, :, iy, ix][keep], dtype=np.float32),
         np.full(int(keep.sum()), iterations, dtype=np.int32),
         spread,
     )
