@@ -19,11 +19,19 @@ from .errors import (
     StoreError,
 )
 from .run import GROUP_SCHEMAS, register_schema, render_table, schema_for
-from .spec import ArraySpec, GroupSchema, check_dataset, validate_dataset, validate_values
+from .spec import (
+    ArraySpec,
+    GroupSchema,
+    Precision,
+    check_dataset,
+    validate_dataset,
+    validate_values,
+)
 
 __all__ = [
     "ArraySpec",
     "GroupSchema",
+    "Precision",
     "GROUP_SCHEMAS",
     "register_schema",
     "render_table",

@@ -7,15 +7,82 @@ checks an :class:`xarray.Dataset` against it and returns *every* problem at once
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import xarray as xr
 
 from .errors import Problem, SchemaError
 
-__all__ = ["ArraySpec", "GroupSchema", "validate_dataset", "validate_values", "check_dataset"]
+__all__ = [
+    "ArraySpec",
+    "GroupSchema",
+    "Precision",
+    "validate_dataset",
+    "validate_values",
+    "check_dataset",
+]
+
+
+@dataclass(frozen=True)
+class Precision:
+    """The precision a float array is stored at: ``keepbits`` mantissa bits (bit rounding).
+
+    The run store rounds every finite value to the nearest float with ``keepbits`` explicit
+    mantissa bits (ties to even, as numcodecs' ``BitRound``) before compressing it: the
+    trailing mantissa bits become zeros, which compress to almost nothing, while the value
+    keeps a relative error of at most half a unit in its last kept bit,
+
+    .. math:: |\\hat x - x| \\le 2^{-(k+1)} |x|,
+
+    :attr:`relative_bound`, for every normal float ``x`` (zeros, NaN and inf are kept as they
+    are). The bound is stated in the stored array's attrs (:attr:`attrs`). An array without
+    those attrs was stored losslessly (before its schema declared a precision): it meets any
+    bound, and is valid.
+
+    Attributes
+    ----------
+    keepbits
+        Explicit mantissa bits kept (float32 has 23, float64 52).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series (the reconstructed radiance is known to a
+       few percent: sec. 5).
+    .. [2] Klöwer, M., Razinger, M., Dominguez, J. J., Düben, P. D. and Palmer, T. N.:
+       Compressing atmospheric data into its real information content. Nature
+       Computational Science 1, 713-724 (2021).
+    """
+
+    keepbits: int
+
+    KEEPBITS_ATTR = "precision_keepbits"
+    """Array attr: the mantissa bits kept."""
+    BOUND_ATTR = "precision_bound_relative"
+    """Array attr: the relative bound ``2 ** -(keepbits + 1)`` of every stored value."""
+
+    @property
+    def relative_bound(self) -> float:
+        """Largest relative error of a stored (normal) value: ``2 ** -(keepbits + 1)``."""
+        return 2.0 ** -(self.keepbits + 1)
+
+    @property
+    def attrs(self) -> dict[str, int | float]:
+        """The attrs the store stamps on an array it rounded."""
+        return {self.KEEPBITS_ATTR: self.keepbits, self.BOUND_ATTR: self.relative_bound}
+
+    def describe(self) -> str:
+        """``"10 mantissa bits (relative error <= 0.049 %)"``."""
+        return f"{self.keepbits} mantissa bits (relative error <= {100 * self.relative_bound:.3g} %)"
+
+    @classmethod
+    def stated(cls, attrs: Mapping[str, Any]) -> Precision | None:
+        """The precision an array's attrs state (``None``: stored losslessly)."""
+        keepbits = attrs.get(cls.KEEPBITS_ATTR)
+        return None if keepbits is None else cls(int(keepbits))
 
 
 @dataclass(frozen=True)
@@ -41,6 +108,9 @@ class ArraySpec:
         always, on lazy (on-disk) ones when asked (``validate_dataset(..., values=True)``).
     finite
         Whether NaN/inf are forbidden (checked where values are checked).
+    precision
+        The precision the run store keeps of a float array (:class:`Precision`): its values
+        rounded to that many mantissa bits before compression; ``None``: stored losslessly.
     """
 
     name: str
@@ -50,6 +120,7 @@ class ArraySpec:
     long_name: str = ""
     valid_range: tuple[float, float] | None = None
     finite: bool = False
+    precision: Precision | None = None
 
     @property
     def attrs(self) -> dict[str, str]:
@@ -244,7 +315,54 @@ def _check_array(
                 "no units attr" if found is None else f"units {found!r}",
             )
         )
-    return problems + _check_values(where, array, spec, lazy_ok=values)
+    return (
+        problems
+        + _check_precision(where, array, spec)
+        + _check_values(where, array, spec, lazy_ok=values)
+    )
+
+
+def _check_precision(where: str, array: xr.DataArray, spec: ArraySpec) -> list[Problem]:
+    """The precision an array's attrs state against its contract (:class:`Precision`).
+
+    No precision attrs: stored losslessly (before the contract declared a precision), valid.
+    Stated: both attrs, a bound that is the one of the bits kept, and at least as many bits
+    as the contract asks (fewer than the dtype has).
+    """
+    if spec.precision is None:
+        return []
+    keys = (Precision.KEEPBITS_ATTR, Precision.BOUND_ATTR)
+    present = [key for key in keys if key in array.attrs]
+    if not present:
+        return []
+    if len(present) == 1:
+        missing = next(key for key in keys if key not in present)
+        return [Problem(f"{where}.attrs", f"attrs {keys[0]!r} and {keys[1]!r}", f"no {missing!r}")]
+    keepbits, bound = array.attrs[keys[0]], array.attrs[keys[1]]
+    mantissa = np.finfo(array.dtype).nmant if array.dtype.kind == "f" else 0
+    if not isinstance(keepbits, int | np.integer) or not (
+        spec.precision.keepbits <= keepbits <= mantissa
+    ):
+        return [
+            Problem(
+                f"{where}.attrs",
+                f"{keys[0]} an integer in [{spec.precision.keepbits}, {mantissa}] "
+                f"({spec.precision.describe()} or finer)",
+                f"{keepbits!r}",
+            )
+        ]
+    stated = Precision(int(keepbits))
+    if not isinstance(bound, float | int | np.floating) or not math.isclose(
+        float(bound), stated.relative_bound, rel_tol=1e-9
+    ):
+        return [
+            Problem(
+                f"{where}.attrs",
+                f"{keys[1]} == {stated.relative_bound!r} (2 ** -({keepbits} + 1))",
+                f"{bound!r}",
+            )
+        ]
+    return []
 
 
 def validate_dataset(

@@ -83,6 +83,7 @@ from .integrity import (
 from .layout import friendly as friendly_view
 from .layout import label_order, region_encoding, regular_chunks, shard_layout, variable_length_strings
 from .lock import StoreLock, work_dir
+from .precision import apply_precision, declared_precisions, precision_encoding, precision_problems
 from .staging import (
     STAGING,
     adopt_abandoned,
@@ -528,7 +529,10 @@ class RunStore:
             those whose size or time changed.
         values
             Check values on disk against the contract (NaN/inf, declared ranges):
-            coordinates and small variables are loaded, large ones reduced with dask.
+            coordinates and small variables are loaded, large ones reduced with dask. Arrays
+            stored at a declared precision (:mod:`.precision`) have their codecs checked
+            always, and their values checked to carry no more mantissa bits than their attrs
+            state: the first and last chunk, or (``deep``) every value.
         required
             Groups that must be there (e.g. the raw groups a flow needs).
 
@@ -546,8 +550,11 @@ class RunStore:
                 continue
             try:
                 ds = self._open(group, checked=True)
-                problems += validate_dataset(
-                    ds, GROUP_SCHEMAS[name], group=group, values=values and not damaged
+                schema = GROUP_SCHEMAS[name]
+                checked = values and not damaged
+                problems += validate_dataset(ds, schema, group=group, values=checked)
+                problems += precision_problems(
+                    self._group_path(group), ds, schema, group, values=checked, deep=deep
                 )
             except ChecksumError as error:
                 problems += cast(list[Problem], error.problems)  # always Problems
@@ -662,10 +669,16 @@ class RunStore:
         if schema is not None:
             attrs[SCHEMA_ATTR] = schema.name
         ds = netcdf_attrs(variable_length_strings(ds.copy(deep=False)))
+        # the precision its schema declares: rounded here, or while a resumable write is
+        # packed (every region alike, whoever staged it)
+        precisions = declared_precisions(ds, schema)
+        ds = apply_precision(ds, precisions, round_values=resumable_along is None)
         if resumable_along is None:
             ds = label_order(ds)  # a resumable write is sorted when it is packed
         ds.attrs = attrs
-        enc = {name: dict(value) for name, value in (encoding or {}).items()}
+        enc = precision_encoding(
+            precisions, {name: dict(value) for name, value in (encoding or {}).items()}
+        )
 
         with self.lock():
             self.check_free_space(int(ds.nbytes), group=group)
@@ -694,7 +707,13 @@ class RunStore:
                         progress,
                         max(1, int(concurrent_regions)),
                     )
-                    pack_staged(staged, keep=chunks or (), dim=resumable_along)
+                    pack_staged(
+                        staged,
+                        keep=chunks or (),
+                        dim=resumable_along,
+                        codecs=enc,
+                        precisions=precisions,
+                    )
                 self._commit(staged, target, group, records or {})
             except BaseException as error:
                 # kept for the next write to resume: the regions of an interrupted resumable

@@ -30,7 +30,7 @@ import os
 import shutil
 import time
 import uuid
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -39,8 +39,11 @@ import numpy as np
 import xarray as xr
 import zarr
 
+from spectralize.schemas import Precision
+
 from .integrity import PARTIAL_SUFFIX
 from .layout import label_permutations, shard_layout
+from .precision import apply_precision, round_mantissa
 
 __all__ = [
     "STAGING",
@@ -66,6 +69,7 @@ __all__ = [
 
 STAGING = ".staging"  # where stores before the work directory staged their writes
 REPLACED = ".replaced-"  # a previous result moved aside while its replacement is renamed in
+_CODEC_KEYS = ("compressors", "filters", "serializer")  # a writer's codecs, kept when packed
 REGION_BYTES = 64 * 2**20  # consecutive regions are joined up to this size ...
 JOIN_REGIONS_ABOVE = 64  # ... when a write has more regions than this
 
@@ -318,7 +322,14 @@ def join_regions(sizes: Iterable[int], most: int) -> list[slice]:
     return regions
 
 
-def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) -> None:
+def pack_staged(
+    staged: Path,
+    keep: Iterable[str] = (),
+    dim: str | None = None,
+    *,
+    codecs: Mapping[str, Mapping[str, Any]] | None = None,
+    precisions: Mapping[str, Precision] | None = None,
+) -> None:
     """Rewrite a staged group complete in its regions in the finished layout, in label order.
 
     The lazily computed variables along ``dim`` are read from the staged regions' files
@@ -326,7 +337,11 @@ def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) 
     then renamed over it) has every dim whose index was not increasing sorted and the chunks
     and shards of :func:`~.layout.shard_layout` (the staged chunks kept along the dims of
     ``keep``, which the writer chunked on request; along the region dim ``dim``, chunks of 1
-    inside the shards). The arrays are copied shard by shard, never all in memory.
+    inside the shards), the codecs the writer asked for per variable (``codecs``: its
+    ``compressors``, ``filters``, ``serializer``), and the variables of ``precisions``
+    rounded to their mantissa bits (:func:`~.precision.round_mantissa`) and stating it in
+    their attrs: every region alike, whichever write staged it. The arrays are copied shard
+    by shard, never all in memory.
     """
     source = xr.open_zarr(str(staged), consolidated=False, chunks={})
     order = label_permutations(source)
@@ -336,13 +351,17 @@ def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) 
             var.encoding.pop(key, None)
     encoding: dict[str, dict[str, Any]] = {}
     for name, var in template.variables.items():
+        asked = {k: v for k, v in (codecs or {}).get(str(name), {}).items() if k in _CODEC_KEYS}
+        if asked and name not in template.indexes:
+            encoding[str(name)] = dict(asked)
         if dim is not None and dim in var.dims and name not in template.indexes and var.chunks:
-            encoding[str(name)] = {
-                "chunks": tuple(
-                    1 if d == dim else max(c) for d, c in zip(var.dims, var.chunks, strict=True)
-                )
-            }
-    template = shard_layout(template, encoding, keep=keep)
+            encoding.setdefault(str(name), {})["chunks"] = tuple(
+                1 if d == dim else max(c) for d, c in zip(var.dims, var.chunks, strict=True)
+            )
+    template = shard_layout(
+        apply_precision(template, precisions or {}, round_values=False), encoding, keep=keep
+    )
+    keepbits = {name: precision.keepbits for name, precision in (precisions or {}).items()}
     packed = packed_path(staged)
     shutil.rmtree(packed, ignore_errors=True)
     template.to_zarr(
@@ -358,15 +377,21 @@ def pack_staged(staged: Path, keep: Iterable[str] = (), dim: str | None = None) 
         else:
             src = _Joined(pieces, var.dims.index(dim))
         if var.ndim == 0:
-            dst[...] = src[...]
+            dst[...] = (
+                src[...]
+                if name not in (keepbits or {})
+                else round_mantissa(src[...], (keepbits or {})[str(name)])
+            )
             continue
+        bits = keepbits.get(str(name))
         step = (dst.shards or dst.chunks)[0]
         first = order.get(str(var.dims[0]))
         rest = tuple(order.get(str(d), slice(None)) for d in var.dims[1:])
         for start in range(0, var.shape[0], step):
             rows = slice(start, min(start + step, var.shape[0]))
             pick = first[rows] if first is not None else rows
-            dst[rows] = src.oindex[(pick, *rest)]
+            block = src.oindex[(pick, *rest)]
+            dst[rows] = block if bits is None else round_mantissa(block, bits)
     shutil.rmtree(staged)
     os.rename(packed, staged)
     shutil.rmtree(regions_path(staged), ignore_errors=True)

@@ -93,3 +93,36 @@ def test_readme_table_is_rendered_from_the_contract():
     assert render_table() in readme.read_text(), (
         "schemas/README.md is out of date: regenerate it with `python -m spectralize.schemas --update-readme`"
     )
+
+
+def spectra_with(attrs):
+    from support.cubes import cube_dataset
+
+    ds = cube_dataset(np.ones((1, 32, 2, 2)))
+    ds["radiance"].attrs.update(attrs)
+    return ds
+
+
+def test_the_precision_a_cube_states_is_checked_against_its_contract():
+    from spectralize.schemas import Precision
+    from spectralize.schemas.run import SPECTRA_PRECISION
+
+    assert SPECTRA.spec("radiance").precision == SPECTRA_PRECISION
+    assert SPECTRA_PRECISION.keepbits >= 10 and SPECTRA_PRECISION.relative_bound <= 5e-4
+    assert Precision(10).attrs == {"precision_keepbits": 10, "precision_bound_relative": 2.0**-11}
+    # nothing stated: stored losslessly (a store written before the precision), valid
+    assert validate_dataset(spectra_with({}), SPECTRA) == []
+    assert validate_dataset(spectra_with(Precision(10).attrs), SPECTRA) == []
+    assert validate_dataset(spectra_with(Precision(16).attrs), SPECTRA) == []  # finer: valid
+    coarse = [str(p) for p in validate_dataset(spectra_with(Precision(8).attrs), SPECTRA)]
+    assert coarse == [
+        "spectra:radiance.attrs: expected precision_keepbits an integer in [10, 23] "
+        "(10 mantissa bits (relative error <= 0.0488 %) or finer), found 8"
+    ]
+    wrong_bound = {"precision_keepbits": 10, "precision_bound_relative": 1e-3}
+    (problem,) = validate_dataset(spectra_with(wrong_bound), SPECTRA)
+    assert "precision_bound_relative == 0.00048828125" in str(problem) and "found 0.001" in str(problem)
+    (problem,) = validate_dataset(spectra_with({"precision_keepbits": 10}), SPECTRA)
+    assert "no 'precision_bound_relative'" in str(problem)
+    # the table says so
+    assert "stored to 10 mantissa bits" in render_table([SPECTRA])
