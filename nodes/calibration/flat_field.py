@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from spectralize.nodes.calibration.band_shots import linearise, saturated_by_band
+from spectralize.nodes.calibration.band_shots import linearise, saturated_by_band, series_pieces
 from spectralize.nodes.calibration.camera_matrices import (
     _camera_names,
     _rgb_series,
@@ -146,8 +146,9 @@ def spectral_flat_field(
     :data:`MIN_SNR` times the dark noise (else the longest unsaturated one) is dark
     subtracted and linearised (:func:`~.linearise`), and the exposures averaged weighted by
     their exposure time (``sum f(I - dark) / sum t``: each exposure's signal per second,
-    weighted by its signal); the average is fitted by :func:`fit_flat_field`. Read band by
-    band: one band's series and the dark frames are in memory at a time.
+    weighted by its signal); the average is fitted by :func:`fit_flat_field`. Read in the
+    pieces of :func:`~.series_pieces`: a batch of bands (one band of a large sensor) and the
+    dark frames are in memory at a time.
 
     Returns
     -------
@@ -172,34 +173,46 @@ def spectral_flat_field(
     frame = (counts.sizes["y"], counts.sizes["x"])
     darks = dark_frames_at(dark, times, used_by=group, dim="shot", frame_shape=frame)
     darks = darks.drop_vars("exposure_time").transpose("shot", "y", "x").load()
+    # the dark noise of each exposure (the mean of its std frame; 1 DN without one)
+    noise = [
+        float(darks["std"].isel(shot=e).mean()) if "std" in darks else 1.0 for e in range(times.size)
+    ]
     coefficients, fits = [], []
-    for k in range(counts.sizes["wavelength"]):
-        if not unsaturated[k].any():
-            raise CalibrationError(
-                f"{group}:spectral_counts: every exposure of band "
-                f"{float(counts['wavelength'][k])} nm has saturated pixels; add shorter exposures"
-            )
-        series = counts.isel(wavelength=k).drop_vars(list(counts.coords)).load()
-        total, weight, fallback = np.zeros(frame), 0.0, int(np.flatnonzero(unsaturated[k])[-1])
-        for e in np.flatnonzero(unsaturated[k]):
-            shot = series.isel(spectral_exposure=int(e)).assign_coords(exposure_time=times[e])
-            mean = darks["mean"].isel(shot=int(e))
-            above = float((shot.astype(np.float64) - mean).mean())
-            noise = float(darks["std"].isel(shot=int(e)).mean()) if "std" in darks else 1.0
-            if e == fallback and weight == 0 and above < max(noise, 1e-12):
+    sums: dict[int, tuple[np.ndarray, float]] = {}  # per band: sum f(I - dark), sum t so far
+    # the frames of a piece of band_shots.series_pieces at once; each band's exposures
+    # summed in their order, and the band fitted after its last one
+    for part, positions, shots in series_pieces(counts, range(times.size)):
+        mean = darks["mean"].isel(shot=positions).rename(shot="spectral_exposure")
+        above = np.asarray((shots.astype(np.float64) - mean).mean(("y", "x")).values)
+        signal = np.asarray(linearise(shots, mean, oecf_spectral, group).values)
+        for b, k in enumerate(range(counts.sizes["wavelength"])[part]):
+            wavelength = float(counts["wavelength"][k])
+            if positions[0] == 0 and not unsaturated[k].any():
                 raise CalibrationError(
-                    f"{group}:spectral_counts: white reference band "
-                    f"{float(counts['wavelength'][k])} nm is darker than the noise: mean signal "
-                    f"{above:.3g} DN above dark vs noise {noise:.3g} DN in its longest "
-                    "unsaturated exposure; use a longer exposure or more light"
+                    f"{group}:spectral_counts: every exposure of band "
+                    f"{wavelength} nm has saturated pixels; add shorter exposures"
                 )
-            if above < MIN_SNR * max(noise, 1e-12) and not (weight == 0 and e == fallback):
-                continue
-            signal = np.asarray(linearise(shot, mean, oecf_spectral, group).values)
-            total, weight = total + signal * times[e], weight + times[e]
-        fit = fit_flat_field(total / weight)
-        coefficients.append(fit.coefficients)
-        fits.append(fit)
+            total, weight = sums.get(k, (np.zeros(frame), 0.0))
+            fallback = int(np.flatnonzero(unsaturated[k])[-1])
+            for i, e in enumerate(positions):
+                if not unsaturated[k, e]:
+                    continue
+                level = float(above[b, i])
+                if e == fallback and weight == 0 and level < max(noise[e], 1e-12):
+                    raise CalibrationError(
+                        f"{group}:spectral_counts: white reference band "
+                        f"{wavelength} nm is darker than the noise: mean signal "
+                        f"{level:.3g} DN above dark vs noise {noise[e]:.3g} DN in its longest "
+                        "unsaturated exposure; use a longer exposure or more light"
+                    )
+                if level < MIN_SNR * max(noise[e], 1e-12) and not (weight == 0 and e == fallback):
+                    continue
+                total, weight = total + signal[b, i] * times[e], weight + times[e]
+            sums[k] = (total, weight)
+            if positions[-1] == times.size - 1:
+                fit = fit_flat_field(total / weight)
+                coefficients.append(fit.coefficients)
+                fits.append(fit)
     wavelengths = np.asarray(counts["wavelength"].values, dtype=float)
     return FlatField(np.stack(coefficients), legendre_powers(), frame, wavelengths), fits
 
