@@ -10,7 +10,11 @@
   wavelength, y, x) and the per-image coordinates; readable by ``xarray.open_dataset``.
 
 Data are streamed chunk by chunk from the store: memory is bounded by one chunk (ENVI: one
-band of one image), not by the run. ENVI files hold pixels without a value as
+band of one image), not by the run. The values are those the store keeps, in the same units:
+a cube stored at a precision (``spectra``: its radiance rounded to a number of mantissa bits)
+is exported as stored, with its relative bound in the radiance's attrs (netCDF
+``precision_keepbits`` and ``precision_bound_relative``) or the header (ENVI
+``spectralize precision bound relative``). ENVI files hold pixels without a value as
 :data:`ENVI_IGNORE` (their ``data ignore value``). Radiance is relative (units ``"1"``: relative to the
 measured illuminant, see the ``calibration/spectral`` group), stated in the files.
 """
@@ -28,7 +32,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from spectralize.schemas import SpectralizeError
+from spectralize.schemas import Precision, SpectralizeError
 from spectralize.store import RunStore
 
 from .signals import sigterm_as_interrupt
@@ -157,6 +161,12 @@ def _write_envi(cube: xr.DataArray, path: Path, header: dict[str, Any]) -> tuple
     return hdr, image
 
 
+def _precision_attrs(radiance: xr.DataArray) -> dict[str, Any]:
+    """The precision the store kept the cube at, as its attrs state it (none: lossless)."""
+    precision = Precision.stated(radiance.attrs)
+    return {} if precision is None else precision.attrs
+
+
 def _netcdf_dataset(ds: xr.Dataset, store: RunStore, group: str) -> xr.Dataset:
     """A CF-1.10 dataset: radiance (and confidence) with plain attributes, no store bookkeeping."""
     keep = [v for v in ("radiance", "confidence") if v in ds.data_vars]
@@ -166,6 +176,7 @@ def _netcdf_dataset(ds: xr.Dataset, store: RunStore, group: str) -> xr.Dataset:
         "long_name": "relative spectral radiance",
         "units": "1",
         "comment": _UNITS_NOTE,
+        **_precision_attrs(ds["radiance"]),
     }
     if "confidence" in out:
         out["confidence"].attrs = {
@@ -313,6 +324,9 @@ def _export(
                 "data ignore value": ENVI_IGNORE,
                 "spectralize image": label,
             }
+            precision = Precision.stated(ds["radiance"].attrs)
+            if precision is not None:
+                header["spectralize precision bound relative"] = precision.relative_bound
             for name in _PER_IMAGE:
                 if name in one.coords:
                     header[f"spectralize {name}"] = one[name].values.item()

@@ -8,7 +8,9 @@ from support.cubes import WAVELENGTH, cube_dataset
 
 from spectralize.flows.cli import main
 from spectralize.flows.export import ENVI_IGNORE, ExportError, export, label_ranges
+from spectralize.schemas.run import SPECTRA_PRECISION
 from spectralize.store import RunStore
+from spectralize.store.precision import round_mantissa
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +22,9 @@ def store(tmp_path_factory):
     cube = cube_dataset(values).assign_coords(image=[2, 0, 1])
     run = RunStore.create(tmp_path_factory.mktemp("export") / "run.zarr")
     run.write("spectra", cube, fingerprint="spectra-fp")
-    return run, cube
+    # what the store keeps (the cube's precision); the exports carry those values unchanged
+    kept = round_mantissa(cube["radiance"].values, SPECTRA_PRECISION.keepbits)
+    return run, cube.assign(radiance=cube["radiance"].copy(data=kept))
 
 
 def test_envi_opens_in_spectral_python_per_image_with_wavelengths(store, tmp_path):
@@ -37,6 +41,8 @@ def test_envi_opens_in_spectral_python_per_image_with_wavelengths(store, tmp_pat
         expected = np.where(np.isnan(expected), ENVI_IGNORE, expected)  # no value: the ignore value
         np.testing.assert_array_equal(np.asarray(image.load()), expected)  # by label, not position
         assert image.metadata["spectralize image"] == str(label)
+        bound = float(image.metadata["spectralize precision bound relative"])
+        assert bound == SPECTRA_PRECISION.relative_bound
         assert float(image.metadata["spectralize phi_o"]) == float(cube["phi_o"].sel(image=label))
 
 
@@ -47,6 +53,8 @@ def test_netcdf_opens_in_xarray_with_cf_attributes(store, tmp_path):
         assert ds.attrs["Conventions"] == "CF-1.10"
         assert ds["wavelength"].attrs["units"] == "nm"
         assert ds["radiance"].attrs["units"] == "1" and ds["theta_o"].attrs["units"] == "degree"
+        assert ds["radiance"].attrs["precision_keepbits"] == SPECTRA_PRECISION.keepbits
+        assert ds["radiance"].attrs["precision_bound_relative"] == SPECTRA_PRECISION.relative_bound
         assert sorted(ds["image"].values.tolist()) == [0, 1, 2]
         for label in (0, 1, 2):  # each image's cube under its own label
             np.testing.assert_array_equal(
