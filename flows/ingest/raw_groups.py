@@ -4,7 +4,8 @@ Each builder turns the rows of one kind (:class:`~spectralize.datasets.capture.C
 a lazy :class:`xarray.Dataset` in the run store's layout (``schemas/README.md``): ``raw/rgb``,
 ``raw/spectral``, ``raw/dark``, ``raw/white_reference``, ``raw/colour_checker``,
 ``raw/registration`` and ``raw/exposure_plan``. Dask reads one file (one RGB exposure series)
-per chunk of about :data:`CHUNK_BYTES`, so memory is bounded by a chunk, not by the run.
+per chunk of about :data:`CHUNK_BYTES`, so memory is bounded by a chunk, not by the run; a
+chunk's frames are decoded on every core and put in order (:mod:`.decode`).
 A frame already in the store (same file, size and modification time) is copied from there
 instead of decoded again (:class:`FrameSources`); a group's :func:`fingerprint` is made from
 its coordinates, small variables, attributes and its files' versions.
@@ -28,15 +29,15 @@ from typing import Any
 import dask.array as da
 import numpy as np
 import xarray as xr
-import zarr
 
-from spectralize.datasets.capture import ANGLES, Capture, CaptureError, Row
+from spectralize.datasets.capture import ANGLES, Capture, Row
 from spectralize.datasets.capture.checks import borrowed_calibration, calibration_cameras, pair
-from spectralize.datasets.capture.images import read_image
 from spectralize.datasets.capture.model import rounded
 from spectralize.store import RunStore
 from spectralize.store.fingerprint import STORE_LAYOUT
-from spectralize.store.integrity import CheckedLocalStore, ChecksumError, read_manifest
+from spectralize.store.integrity import read_manifest
+
+from .decode import FrameDecoder
 
 __all__ = [
     "RAW_GROUPS",
@@ -77,42 +78,20 @@ class RawGroup:
     fingerprint: str = ""
 
 
-def _load(source: tuple, frame: tuple[int, ...]) -> np.ndarray:
-    """One frame, from its file or (already ingested) from the store; shape ``(1,)*k + frame``.
-
-    A file's header is checked against ``frame`` before it is decoded (a file replaced by a
-    larger one since it was probed is refused, not decoded). A frame copied from the store is
-    checked against its chunk's checksum; a damaged chunk is not copied: the frame is read
-    from its file again.
-    """
-    if source[0] == "store":
-        _, store, array, index, checksums, file = source
-        try:
-            checked = CheckedLocalStore(store, read_only=True, checksums=checksums)
-            data = np.asarray(zarr.open_array(checked, path=array, mode="r")[index])
-        except ChecksumError:
-            source = ("file", file)
-    if source[0] == "file":
-        try:
-            data = read_image(source[1], shape=frame)
-        except CaptureError:  # names the file, what was expected and what it declares
-            raise
-        except ValueError as error:  # a decoder's own error
-            raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", str(error)) from None
-    if data.shape != frame:
-        raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", f"shape {data.shape}")
-    return data.astype(np.uint16, copy=False)
-
-
 class FrameSources:
     """Where each frame comes from: the store's previous version of the group, or its file.
 
     A previous version that fails the store's cheap check (or was marked damaged) is not
-    copied from: its frames are read from their files again.
+    copied from: its frames are read from their files again. The frames of a chunk are
+    decoded by ``decoder`` (:class:`~.decode.FrameDecoder`: on every core; None: in the
+    thread that computes the chunk).
     """
 
-    def __init__(self, capture: Capture, store: RunStore, group: str):
+    def __init__(
+        self, capture: Capture, store: RunStore, group: str, decoder: FrameDecoder | None = None
+    ):
         self.capture = capture
+        self.decoder = decoder or FrameDecoder(workers=1)
         self.read = 0
         self.copied = 0
         self.previous: dict[str, dict[tuple, tuple]] = {}
@@ -149,15 +128,17 @@ class FrameSources:
                 self.read += 1
             arrays.append(source)
             files.append(stat)
-        return Frames(arrays, frame), files
+        return Frames(arrays, frame, self.decoder), files
 
 
 @dataclass
 class Frames:
-    """Where each frame of a variable comes from (C order) and the shape of one frame."""
+    """Where each frame of a variable comes from (C order), the shape of one frame, and what
+    decodes them."""
 
     sources: list[tuple]
     frame: tuple[int, ...]
+    decoder: FrameDecoder
 
 
 #: Target size of one dask chunk (and one resumable region): memory is bounded by a few.
@@ -188,15 +169,23 @@ def _grid(frames: Frames, shape: tuple[int, ...]) -> da.Array:
         positions = itertools.product(*ranges)
         picked = [frames.sources[int(np.ravel_multi_index(p, shape))] for p in positions]
         extent = tuple(len(r) for r in ranges)
-        graph[(name, *block, *([0] * len(frame)))] = (_load_block, picked, frame, extent)
+        graph[(name, *block, *([0] * len(frame)))] = (
+            _load_block,
+            picked,
+            frame,
+            extent,
+            frames.decoder,
+        )
     return da.Array(graph, name, chunks, dtype=np.uint16)
 
 
-def _load_block(sources: list[tuple], frame: tuple[int, ...], extent: tuple[int, ...]) -> np.ndarray:
-    """The frames of one chunk, shape ``extent + frame``."""
+def _load_block(
+    sources: list[tuple], frame: tuple[int, ...], extent: tuple[int, ...], decoder: FrameDecoder
+) -> np.ndarray:
+    """The frames of one chunk, shape ``extent + frame``, decoded by ``decoder`` in order."""
     out = np.empty((len(sources), *frame), np.uint16)
-    for k, source in enumerate(sources):
-        out[k] = _load(source, frame).reshape(frame)
+    for k, data in enumerate(decoder.frames(sources, frame)):
+        out[k] = data.reshape(frame)
     return out.reshape(*extent, *frame)
 
 
@@ -656,7 +645,9 @@ def fingerprint(group: RawGroup) -> str:
     return "ingest:" + hashlib.sha256(text.encode()).hexdigest()
 
 
-def build_raw_groups(capture: Capture, store: RunStore) -> list[tuple[RawGroup, FrameSources]]:
+def build_raw_groups(
+    capture: Capture, store: RunStore, decoder: FrameDecoder | None = None
+) -> list[tuple[RawGroup, FrameSources]]:
     """Every raw group of :data:`RAW_GROUPS`, lazy, with its fingerprint and where its frames come from.
 
     Parameters
@@ -666,10 +657,13 @@ def build_raw_groups(capture: Capture, store: RunStore) -> list[tuple[RawGroup, 
     store
         The run store: frames of files it holds already (same size and modification time)
         are copied from it.
+    decoder
+        What decodes a chunk's frames when the groups are computed (:class:`~.decode.FrameDecoder`
+        on every core, open while they are; None: one thread).
     """
     groups: list[tuple[RawGroup, FrameSources]] = []
     for name in RAW_GROUPS:
-        sources = FrameSources(capture, store, name)
+        sources = FrameSources(capture, store, name, decoder)
         if name == "raw/rgb":
             group = _rgb_group(capture, sources)
             rgb = group.dataset

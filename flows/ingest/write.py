@@ -29,7 +29,8 @@ from spectralize.datasets.capture import Capture, read_capture
 from spectralize.store import RunStore
 
 from ..signals import sigterm_as_interrupt
-from .raw_groups import FILES_ATTR, INGEST_VERSION, RAW_GROUPS, build_raw_groups
+from .decode import PARALLEL_ABOVE, FrameDecoder
+from .raw_groups import FILES_ATTR, INGEST_VERSION, RAW_GROUPS, FrameSources, RawGroup, build_raw_groups
 
 __all__ = ["IngestReport", "ingest"]
 
@@ -136,31 +137,49 @@ def _ingest(capture_dir: Path, store_path: Path, progress: Callable[[str], None]
 def _write_groups(
     capture: Capture, store: RunStore, report: IngestReport, say: Callable[[str], None]
 ) -> None:
-    """Write every raw group whose fingerprint changed; each write is atomic and resumable."""
+    """Write every raw group whose fingerprint changed; each write is atomic and resumable.
+
+    The frames of a chunk are decoded on every core (:class:`~.decode.FrameDecoder`) and
+    written in order."""
+    with FrameDecoder() as decoder:
+        groups = build_raw_groups(capture, store, decoder)
+        if sum(sources.read for _, sources in groups) >= PARALLEL_ABOVE:
+            decoder.start()
+        for group, sources in groups:
+            _write_group(capture, store, report, say, group, sources)
+
+
+def _write_group(
+    capture: Capture,
+    store: RunStore,
+    report: IngestReport,
+    say: Callable[[str], None],
+    group: RawGroup,
+    sources: FrameSources,
+) -> None:
+    """Write one raw group unless the store holds it with the same fingerprint."""
     capture_dir = capture.path
-    groups = build_raw_groups(capture, store)
-    for group, sources in groups:
-        if store.fingerprint(group.name) == group.fingerprint and not store.verify(group.name):
-            report.groups[group.name] = "up to date"
-            say(f"{group.name}: up to date")
-            continue
-        dim = group.resumable
-        regions = len(group.dataset.chunksizes.get(dim, ())) if dim else 1
-        note = f"{sources.read} frame(s) read, {sources.copied} kept from the store"
-        say(f"{group.name}: writing ({note})")
-        store.write(
-            group.name,
-            group.dataset,
-            fingerprint=group.fingerprint,
-            provenance={
-                "node": "ingest",
-                "version": INGEST_VERSION,
-                "capture": str(capture_dir.absolute()),
-            },
-            resumable_along=dim,
-            records={FILES_ATTR: group.files},
-            progress=_Eta(say, group.name, regions) if dim else None,
-        )
-        report.groups[group.name] = "written"
-        report.frames_read += sources.read
-        report.frames_copied += sources.copied
+    if store.fingerprint(group.name) == group.fingerprint and not store.verify(group.name):
+        report.groups[group.name] = "up to date"
+        say(f"{group.name}: up to date")
+        return
+    dim = group.resumable
+    regions = len(group.dataset.chunksizes.get(dim, ())) if dim else 1
+    note = f"{sources.read} frame(s) read, {sources.copied} kept from the store"
+    say(f"{group.name}: writing ({note})")
+    store.write(
+        group.name,
+        group.dataset,
+        fingerprint=group.fingerprint,
+        provenance={
+            "node": "ingest",
+            "version": INGEST_VERSION,
+            "capture": str(capture_dir.absolute()),
+        },
+        resumable_along=dim,
+        records={FILES_ATTR: group.files},
+        progress=_Eta(say, group.name, regions) if dim else None,
+    )
+    report.groups[group.name] = "written"
+    report.frames_read += sources.read
+    report.frames_copied += sources.copied

@@ -1,0 +1,180 @@
+"""Frames of a capture folder decoded on every core and handed back in frame order.
+
+Ingest reads a capture folder's frames chunk by chunk (:mod:`.raw_groups`); a chunk of small
+frames holds thousands. Decoding a frame is mostly Python (the PNG reader is pure Python, a
+small TIFF's tags are parsed in Python), so threads wait on each other for the interpreter:
+a :class:`FrameDecoder` decodes a chunk's frames on worker processes instead, a batch of
+:data:`FRAMES_PER_TASK` frames per task, and returns them in the order they were asked for,
+so the chunk is written exactly as if read in one thread. A chunk of fewer than
+:data:`PARALLEL_ABOVE` frames (large frames, small folders) is read in the calling thread:
+starting workers would cost more than it saves.
+
+A frame's problems are raised as before, naming its file (the workers raise the same
+:class:`~spectralize.datasets.capture.CaptureError`, which crosses the process boundary).
+Workers ignore Ctrl-C and SIGTERM (the ingest stops them when it stops). They are forked
+from the ingest's process while it runs one thread (:meth:`FrameDecoder.start`, before the
+writes: nothing to import again), else started by a fork server (never forked from a
+process that runs threads, such as a flow's).
+
+References
+----------
+Fast Capture of Spectral Image Series, sec. 3 (the frames of a measurement run).
+"""
+
+from __future__ import annotations
+
+import itertools
+import multiprocessing
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+from types import TracebackType
+
+import numpy as np
+
+from spectralize.datasets.capture import CaptureError
+from spectralize.datasets.capture.images import read_image
+
+__all__ = ["FRAMES_PER_TASK", "PARALLEL_ABOVE", "FrameDecoder", "available_cores", "load_frame"]
+
+#: Frames one worker task decodes (the cost of handing a task over is paid per batch).
+FRAMES_PER_TASK = 64
+#: A chunk with fewer frames than this is decoded in the calling thread.
+PARALLEL_ABOVE = 256
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system tells it)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def load_frame(source: tuple, frame: tuple[int, ...]) -> np.ndarray:
+    """One frame, from its file or (already ingested) from the store; shape ``(1,)*k + frame``.
+
+    A file's header is checked against ``frame`` before it is decoded (a file replaced by a
+    larger one since it was probed is refused, not decoded). A frame copied from the store is
+    checked against its chunk's checksum; a damaged chunk is not copied: the frame is read
+    from its file again.
+
+    Raises
+    ------
+    CaptureError
+        Naming the file, for a frame that cannot be decoded or has another shape.
+    """
+    if source[0] == "store":
+        import zarr
+
+        from spectralize.store.integrity import CheckedLocalStore, ChecksumError
+
+        _, store, array, index, checksums, file = source
+        try:
+            checked = CheckedLocalStore(store, read_only=True, checksums=checksums)
+            data = np.asarray(zarr.open_array(checked, path=array, mode="r")[index])
+        except ChecksumError:
+            source = ("file", file)
+    if source[0] == "file":
+        try:
+            data = read_image(source[1], shape=frame)
+        except CaptureError:  # names the file, what was expected and what it declares
+            raise
+        except ValueError as error:  # a decoder's own error
+            raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", str(error)) from None
+    if data.shape != frame:
+        raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", f"shape {data.shape}")
+    return data.astype(np.uint16, copy=False)
+
+
+def _load_frames(sources: list[tuple], frame: tuple[int, ...]) -> list[np.ndarray]:
+    """A worker's task: :func:`load_frame` of each source, in order."""
+    return [load_frame(source, frame) for source in sources]
+
+
+def _worker_started() -> None:
+    """Workers leave Ctrl-C and SIGTERM to the ingest, which stops them (no traceback per
+    worker)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+class FrameDecoder:
+    """Decodes the frames of a chunk on ``workers`` processes, in order (see the module).
+
+    Use it as a context manager (the workers are started by :meth:`start`, else on the
+    first large chunk, and stopped at the end of the block); it may be called from several
+    threads at once.
+
+    Parameters
+    ----------
+    workers
+        Worker processes; None: :func:`available_cores`. 1 decodes every frame in the
+        calling thread.
+    """
+
+    def __init__(self, workers: int | None = None) -> None:
+        self.workers = available_cores() if workers is None else max(1, int(workers))
+        self._pool: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
+
+    def __enter__(self) -> FrameDecoder:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the workers (tasks not started are dropped)."""
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    def running(self) -> int:
+        """Worker processes alive now (0 before the first large chunk and after :meth:`close`)."""
+        with self._lock:
+            pool = self._pool
+        processes = getattr(pool, "_processes", None) or {}
+        return sum(process.is_alive() for process in list(processes.values()))
+
+    def start(self) -> None:
+        """Start the workers now (from the thread that will wait for them, before any other
+        thread runs: they are then forked, with every module already imported)."""
+        if self.workers > 1:
+            self._started()
+
+    def _started(self) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                methods = multiprocessing.get_all_start_methods()
+                if "fork" in methods and threading.active_count() == 1:
+                    method = "fork"  # this process runs one thread: safe to fork
+                else:
+                    method = "forkserver" if "forkserver" in methods else "spawn"
+                self._pool = ProcessPoolExecutor(
+                    self.workers,
+                    mp_context=multiprocessing.get_context(method),
+                    initializer=_worker_started,
+                )
+                if method == "fork":  # fork every worker now, while this is the one thread
+                    list(self._pool.map(int, range(self.workers)))
+            return self._pool
+
+    def frames(self, sources: list[tuple], frame: tuple[int, ...]) -> Iterator[np.ndarray]:
+        """The frames of ``sources`` (:func:`load_frame`), in their order.
+
+        Raises
+        ------
+        CaptureError
+            For the first frame (in order) that cannot be read, naming its file.
+        """
+        if self.workers == 1 or len(sources) < PARALLEL_ABOVE:
+            return (load_frame(source, frame) for source in sources)
+        batches = [sources[i : i + FRAMES_PER_TASK] for i in range(0, len(sources), FRAMES_PER_TASK)]
+        done = self._started().map(_load_frames, batches, itertools.repeat(frame))
+        return itertools.chain.from_iterable(done)
