@@ -43,6 +43,7 @@ from spectralize.schemas.run import ENDMEMBER_LIBRARY
 
 from .estimators.endmember_mixture import (
     DEFAULT_ENDMEMBERS,
+    Endmembers,
     chromaticity,
     sample_stride,
     set_endmembers,
@@ -54,6 +55,7 @@ from .set_reconstruction import _prepared
 __all__ = [
     "endmember_library",
     "library_sets",
+    "library_from_sample",
     "spectral_angles",
     "DEFAULT_LIBRARY_SETS",
 ]
@@ -115,6 +117,38 @@ def _sample_inputs(
     size = np.minimum(np.asarray(shots["filter_size"].values, dtype=np.float64) / stride, largest)
     shots = shots.assign_coords(filter_size=("shot", np.maximum(size, 1e-3)))
     return inputs_from_xarray(rgb, shots, camera_matrix)
+
+
+def library_from_sample(
+    rgb: xr.DataArray,
+    shots: xr.DataArray,
+    camera_matrix: xr.DataArray,
+    *,
+    stride: int = 1,
+    n_endmembers: int = DEFAULT_ENDMEMBERS,
+    seed: int = 0,
+) -> tuple[Endmembers, ReconstructionInputs]:
+    """The library learnt from a pooled sample of a run's images, and the sample's inputs.
+
+    Parameters
+    ----------
+    rgb, shots
+        The pooled images' RGB ``(image, y, x, channel)`` and their band shots ``(shot, y,
+        x)`` (coords ``wavelength``, ``image``, ``filter_size``), e.g. several sets of a run
+        concatenated along ``image``, on a grid of ``stride``.
+    camera_matrix
+        ``C`` on the shots' wavelengths, as the set nodes take it.
+    stride
+        The sample's grid stride (the shots' filter sizes are scaled by it).
+    n_endmembers, seed
+        As for :func:`endmember_library`.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, sections 3 to 5.
+    """
+    inputs = _sample_inputs(rgb, shots, camera_matrix, stride)
+    return set_endmembers(inputs, n_endmembers=int(n_endmembers), seed=int(seed)), inputs
 
 
 def _split_angle(
@@ -186,8 +220,9 @@ def endmember_library(
     chosen = library_sets(image_sets.sizes["set"], sets)
     labels = np.unique(np.concatenate([set_members(image_sets, int(i))[0] for i in chosen]))
     rgb, shots, stride = _pooled_sample(hdr, bands, labels)
-    inputs = _sample_inputs(rgb, shots, camera_matrix, stride)
-    learnt = set_endmembers(inputs, n_endmembers=int(n_endmembers), seed=int(seed))
+    learnt, inputs = library_from_sample(
+        rgb, shots, camera_matrix, stride=stride, n_endmembers=int(n_endmembers), seed=int(seed)
+    )
     split = _split_angle(rgb, shots, camera_matrix, stride, learnt.atoms, int(n_endmembers), int(seed))
     c = np.asarray(inputs.camera_matrix, dtype=np.float64)
     light_rgb = learnt.atoms[-1:] @ (c if c.ndim == 2 else c[0]).T

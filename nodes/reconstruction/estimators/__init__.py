@@ -7,6 +7,9 @@ of the default solver; each is also a method of
 ``"endmember-mixture"`` (:mod:`.endmember_mixture`)
     Every pixel a non-negative mixture of a few endmember spectra learnt from all pixels'
     band shots; the abundances from the RGB. The prior of ``"mixture-prior-pcg"``.
+``"sparse-choice"`` (:mod:`.sparse_choice`)
+    Each texel of a set chooses its few endmembers once, with the evidence of all its
+    images; the abundances per image from the RGB.
 
 References
 ----------
@@ -14,5 +17,6 @@ References
 """
 
 from .endmember_mixture import endmember_mixture
+from .sparse_choice import sparse_choice
 
-__all__ = ["endmember_mixture"]
+__all__ = ["endmember_mixture", "sparse_choice"]
