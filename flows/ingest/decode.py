@@ -12,9 +12,9 @@ starting workers would cost more than it saves.
 A frame's problems are raised as before, naming its file (the workers raise the same
 :class:`~spectralize.datasets.capture.CaptureError`, which crosses the process boundary).
 Workers ignore Ctrl-C and SIGTERM (the ingest stops them when it stops). They are forked
-from the ingest's process while it runs one thread (:meth:`FrameDecoder.start`, before the
-writes: nothing to import again), else started by a fork server (never forked from a
-process that runs threads, such as a flow's).
+from a fork server that imported this module once, never from the ingest's process: it
+runs threads (the store's I/O loop, a flow's), which a forked copy would find stopped in
+whatever they held.
 
 References
 ----------
@@ -143,26 +143,25 @@ class FrameDecoder:
         return sum(process.is_alive() for process in list(processes.values()))
 
     def start(self) -> None:
-        """Start the workers now (from the thread that will wait for them, before any other
-        thread runs: they are then forked, with every module already imported)."""
+        """Start the workers now, without waiting for them (they import what they need while
+        the caller goes on)."""
         if self.workers > 1:
-            self._started()
+            pool = self._started()
+            for _ in range(self.workers):
+                pool.submit(int)
 
     def _started(self) -> ProcessPoolExecutor:
         with self._lock:
             if self._pool is None:
-                methods = multiprocessing.get_all_start_methods()
-                if "fork" in methods and threading.active_count() == 1:
-                    method = "fork"  # this process runs one thread: safe to fork
+                if "forkserver" in multiprocessing.get_all_start_methods():
+                    context = multiprocessing.get_context("forkserver")
+                    # the server imports the decoder once; each worker is a fork of it
+                    context.set_forkserver_preload([__name__])
                 else:
-                    method = "forkserver" if "forkserver" in methods else "spawn"
+                    context = multiprocessing.get_context("spawn")
                 self._pool = ProcessPoolExecutor(
-                    self.workers,
-                    mp_context=multiprocessing.get_context(method),
-                    initializer=_worker_started,
+                    self.workers, mp_context=context, initializer=_worker_started
                 )
-                if method == "fork":  # fork every worker now, while this is the one thread
-                    list(self._pool.map(int, range(self.workers)))
             return self._pool
 
     def frames(self, sources: list[tuple], frame: tuple[int, ...]) -> Iterator[np.ndarray]:
