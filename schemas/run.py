@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from .errors import SpectralizeError
-from .spec import ArraySpec, GroupSchema, Precision
+from .spec import ArraySpec, GroupSchema
 
 __all__ = [
     "GROUP_SCHEMAS",
@@ -39,7 +39,6 @@ __all__ = [
     "ENDMEMBER_LIBRARY",
     "SPECTRA",
     "SPECTRA_SEED",
-    "SPECTRA_PRECISION",
     "CAMERA_MATRIX",
     "TRUTH_SPECTRA",
     "CALIBRATION_OECF_RGB",
@@ -198,25 +197,10 @@ _CONFIDENCE = ArraySpec(
     "estimated per-pixel nRMSE of the spectra (higher: trust less)",
 )
 
-SPECTRA_PRECISION = Precision(keepbits=10)
-"""The reconstructed cube's stored precision: 10 mantissa bits, every value within
-``2 ** -11`` relative of the computed one, far finer than the reconstruction knows it
-(sec. 5). Only the final cube: the seed set's spectra, which warm-start the other sets, and
-the ground truth keep every bit."""
-
 SPECTRA = GroupSchema(
     name="spectra",
     description="reconstructed spectral cube (eq. 1), chunked per image and tile",
-    variables=(
-        ArraySpec(
-            "radiance",
-            ("image", "wavelength", "y", "x"),
-            "float32",
-            "1",
-            "relative spectral radiance",
-            precision=SPECTRA_PRECISION,
-        ),
-    ),
+    variables=_SPECTRA_VARIABLES,
     coords=_SPECTRA_COORDS,
     optional_variables=(_CONFIDENCE,),
 )
@@ -922,8 +906,7 @@ def render_table(schemas: Iterable[GroupSchema] | None = None) -> str:
 
     def fmt(spec: ArraySpec) -> str:
         units = f" [{spec.units}]" if spec.units else ""
-        stored = f", stored to {spec.precision.keepbits} mantissa bits" if spec.precision else ""
-        return f"`{spec.name}` ({', '.join(spec.dims)}) {spec.describe_dtype()}{units}{stored}"
+        return f"`{spec.name}` ({', '.join(spec.dims)}) {spec.describe_dtype()}{units}"
 
     for schema in schemas if schemas is not None else GROUP_SCHEMAS.values():
         variables = "<br>".join(fmt(s) for s in schema.variables)
