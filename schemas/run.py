@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from .errors import SpectralizeError
-from .spec import ArraySpec, GroupSchema
+from .spec import ArraySpec, GroupSchema, Precision
 
 __all__ = [
     "GROUP_SCHEMAS",
@@ -39,6 +39,7 @@ __all__ = [
     "ENDMEMBER_LIBRARY",
     "SPECTRA",
     "SPECTRA_SEED",
+    "SPECTRA_PRECISION",
     "CAMERA_MATRIX",
     "TRUTH_SPECTRA",
     "CALIBRATION_OECF_RGB",
@@ -197,10 +198,25 @@ _CONFIDENCE = ArraySpec(
     "estimated per-pixel nRMSE of the spectra (higher: trust less)",
 )
 
+SPECTRA_PRECISION = Precision(keepbits=10)
+"""The reconstructed cube's stored precision: 10 mantissa bits, every value within
+``2 ** -11`` relative of the computed one, far finer than the reconstruction knows it
+(sec. 5). Only the final cube: the seed set's spectra, which warm-start the other sets, and
+the ground truth keep every bit."""
+
 SPECTRA = GroupSchema(
     name="spectra",
     description="reconstructed spectral cube (eq. 1), chunked per image and tile",
-    variables=_SPECTRA_VARIABLES,
+    variables=(
+        ArraySpec(
+            "radiance",
+            ("image", "wavelength", "y", "x"),
+            "float32",
+            "1",
+            "relative spectral radiance",
+            precision=SPECTRA_PRECISION,
+        ),
+    ),
     coords=_SPECTRA_COORDS,
     optional_variables=(_CONFIDENCE,),
 )
@@ -906,7 +922,8 @@ def render_table(schemas: Iterable[GroupSchema] | None = None) -> str:
 
     def fmt(spec: ArraySpec) -> str:
         units = f" [{spec.units}]" if spec.units else ""
-        return f"`{spec.name}` ({', '.join(spec.dims)}) {spec.describe_dtype()}{units}"
+        stored = f", stored to {spec.precision.keepbits} mantissa bits" if spec.precision else ""
+        return f"`{spec.name}` ({', '.join(spec.dims)}) {spec.describe_dtype()}{units}{stored}"
 
     for schema in schemas if schemas is not None else GROUP_SCHEMAS.values():
         variables = "<br>".join(fmt(s) for s in schema.variables)
