@@ -795,9 +795,34 @@ def calibration_oracle(data: Json) -> list[str]:
                 f" The 3 x 3 map of {name} onto the paired camera (true C) on the scene's spectra: "
                 f"{pct(v['median'])} / {pct(v['p95'])} (median / p95)."
                 for name, v in result.get("map_error_on_scene", {}).items()
+            )
+            + _flat_field_line(result.get("flat_field")),
+        ]
+    for lab, ratios in data.get("falloff_against_clean", {}).items():
+        out += [
+            f"**{lab} against its clean twin** (calibrated nRMSE with lens falloff over without; "
+            "target at most 1.1)",
+            table(
+                ["images", "median", "p95"],
+                [[key, num(v["median"]), num(v["p95"])] for key, v in ratios.items()],
             ),
         ]
     return out
+
+
+def _flat_field_line(flat: dict | None) -> str:
+    """The recovered flat fields against the writer's falloff (labs with falloff)."""
+    if not flat:
+        return ""
+    cameras = ", ".join(
+        f"{name} {pct(v['max_inner'])} / {pct(v['p95_inner'])}" for name, v in flat["rgb"].items()
+    )
+    band = flat["spectral"]
+    return (
+        " Flat field against the true falloff, |F / F_true - 1| away from the border (max / p95): "
+        f"{cameras}; spectral camera {pct(band['max_inner'])} / {pct(band['p95_inner'])} (worst "
+        f"band {band['worst_band_nm']:g} nm)."
+    )
 
 
 def full_run(data: Json) -> list[str]:

@@ -24,7 +24,12 @@ What it models (all of it different from spectralize's simulator on purpose):
   ``rgb.models`` and, where the LEDs' powers differ, the lab's measurement of them
   (``calibration/led_power.csv``, 0.3 % repeatability);
 - every file TIFF (some zlib-compressed), in nested folders; manifest columns in another
-  order, with extra columns.
+  order, with extra columns;
+- optionally (``falloff`` in the lab) a lens falloff on every frame the lab writes (scene,
+  targets, white reference, registration): ``cos^4``-type, 1 on the axis (the frame centre),
+  ``rgb`` less light in the corners for the RGB cameras, and for the spectral camera
+  ``spectral`` at the band range's middle, ``spectral_slope`` more at its red end and less at
+  its blue end (the tunable filter's off-axis loss).
 
 What the gantry is made of (illuminant, materials, chart, RGB cameras and their sensor
 models: sensitivity, response, black offset; LED power) is one dictionary, :func:`default_lab`;
@@ -206,9 +211,34 @@ def power_oecf(y: np.ndarray) -> np.ndarray:
     return y**0.82
 
 
+def lens_falloff(corner_loss: float) -> np.ndarray:
+    """(y, x) a ``cos^4``-type falloff ``1 / (1 + a r^2)^2``: 1 on the axis (the frame centre),
+    ``1 - corner_loss`` in the corners."""
+    yy, xx = np.mgrid[0:HEIGHT, 0:WIDTH] + 0.5
+    r2 = ((yy - HEIGHT / 2) ** 2 + (xx - WIDTH / 2) ** 2) / ((HEIGHT / 2) ** 2 + (WIDTH / 2) ** 2)
+    return 1.0 / (1.0 + ((1.0 - corner_loss) ** -0.5 - 1.0) * r2) ** 2
+
+
+def rgb_falloff() -> np.ndarray:
+    """(y, x) the RGB cameras' lens falloff (ones without ``falloff`` in the lab)."""
+    falloff = LAB.get("falloff")
+    return lens_falloff(falloff["rgb"]) if falloff else np.ones((HEIGHT, WIDTH))
+
+
+def mono_falloff(wavelength: float) -> np.ndarray:
+    """(y, x) the spectral camera's falloff at ``wavelength`` (lens and filter)."""
+    falloff = LAB.get("falloff")
+    if not falloff:
+        return np.ones((HEIGHT, WIDTH))
+    middle, half = WAVELENGTHS.mean(), (WAVELENGTHS.max() - WAVELENGTHS.min()) / 2
+    loss = falloff["spectral"] + falloff["spectral_slope"] * (wavelength - middle) / half
+    return lens_falloff(loss)
+
+
 def rgb_counts(rng, rad: np.ndarray, t: float, camera: str = "cam-45") -> np.ndarray:
     model = LAB["models"][LAB["rgb_cameras"][camera][2]]
     signal = np.einsum("cw,wyx->yxc", model["sensitivity"](WAVELENGTHS), rad) / WAVELENGTHS.size
+    signal = signal * rgb_falloff()[..., None]
     y = RGB_SCALE * t * signal
     y = y + rng.normal(0.0, 1.0, y.shape) * np.sqrt(y / 5000.0 + 1e-7)
     black = model["black"]
@@ -233,7 +263,7 @@ def mono_counts(rng, band_radiance: np.ndarray | None, wavelength: float | None,
     electrons = current * t
     if band_radiance is not None:
         q = float(mono_efficiency(np.array([wavelength]))[0])
-        electrons = electrons + MONO_GAIN * t * q * band_radiance
+        electrons = electrons + MONO_GAIN * t * q * band_radiance * mono_falloff(wavelength)
     electrons = electrons + rng.normal(0.0, 1.0, electrons.shape) * np.sqrt(electrons / 4.0)
     response = electrons * (1.0 - 0.06 * np.clip(electrons, 0, None) / MONO_MAX)
     dn = offset + response + rng.normal(0.0, 2.5, electrons.shape)
@@ -544,6 +574,8 @@ def write_capture(root: Path, truth: Path | None = None, lab: dict | None = None
             sensitivity=np.stack([rgb_sensitivity(WAVELENGTHS, c) for c in cameras]),
             camera_model=np.array([cameras[c][2] for c in cameras]),
             led_power=np.array([power.get(led, 1.0) for led in range(100, 106)]),
+            falloff_rgb=rgb_falloff(),
+            falloff_spectral=np.stack([mono_falloff(float(w)) for w in WAVELENGTHS]),
         )
     return root
 

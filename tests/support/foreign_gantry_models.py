@@ -15,7 +15,9 @@ calibration hard, each from published data rather than from this project's simul
 
 Two labs: ``nikon-paired`` (the paired camera and one more are Nikon, one Sigma) and
 ``sigma-paired`` (the paired camera is Sigma, with other samples and another LED), which is
-kept out of every choice of the calibration's settings and reported on its own.
+kept out of every choice of the calibration's settings and reported on its own; and
+``sigma-paired-falloff``, the same capture through lenses that lose light towards the corners
+(:data:`FALLOFF`, ``foreign_gantry.lens_falloff``), held out as well, beside its clean twin.
 
 Usage: ``python foreign_gantry_models.py OUT --lab nikon-paired [--truth truth.npz]``.
 Deterministic. It imports numpy, tifffile and colour-science, never spectralize.
@@ -100,8 +102,18 @@ MODELS = {
 }
 
 
+FALLOFF = {"rgb": 0.2, "spectral": 0.3, "spectral_slope": 0.05}
+"""Lens falloff of ``sigma-paired-falloff``: 20 % less light in the RGB cameras' corners,
+25..35 % (blue to red) in the spectral camera's."""
+
+
 def lab(name: str) -> dict:
     """The gantry of lab ``name`` (see the module docstring)."""
+    if name == "sigma-paired-falloff":  # sigma-paired written again through falloffing lenses
+        return lab("sigma-paired") | {
+            "name": "NIST CQS samples on a bumpy sample, Sigma paired, lens falloff",
+            "falloff": FALLOFF,
+        }
     if name == "nikon-paired":
         return {
             "name": "CIE test colours on a bumpy sample, Nikon paired",
@@ -133,10 +145,10 @@ def lab(name: str) -> dict:
             "models": MODELS,
             "led_power": led_power(11),
         }
-    raise ValueError(f"unknown lab {name!r}: nikon-paired or sigma-paired")
+    raise ValueError(f"unknown lab {name!r}: one of {', '.join(LABS)}")
 
 
-LABS = ("nikon-paired", "sigma-paired")
+LABS = ("nikon-paired", "sigma-paired", "sigma-paired-falloff")
 HELD_OUT = "sigma-paired"  # never used to choose a setting of the calibration
 
 
