@@ -5,7 +5,8 @@
 - :func:`longest_unsaturated_shots`: from a calibration target's (wavelength, exposure)
   series, one shot per band, the longest exposure without a saturated pixel.
 - :func:`checked_shots`, :func:`dark_for_shots`, :func:`linearise`, :func:`shot_levels`,
-  :func:`saturated_by_band`, :func:`band_batches`, :func:`series_pieces`: the pieces
+  :func:`saturated_by_band`, :func:`band_batches`, :func:`series_pieces`,
+  :func:`computed_in_batches`: the pieces
   :mod:`~.white_reference` and :mod:`~.cross_validation` share.
 
 References
@@ -18,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 
+import dask
 import numpy as np
 import xarray as xr
 
@@ -38,6 +40,7 @@ __all__ = [
     "dark_for_shots",
     "linearise",
     "shot_levels",
+    "computed_in_batches",
     "band_batches",
     "series_pieces",
     "saturated_by_band",
@@ -198,6 +201,16 @@ def shot_levels(signal: xr.DataArray) -> np.ndarray:
     return np.asarray((signal * signal["exposure_time"]).mean(("y", "x")).values, dtype=np.float64)
 
 
+def computed_in_batches(arrays: Sequence[xr.DataArray], batches: Sequence[slice]) -> list[xr.DataArray]:
+    """``arrays`` (one per band) computed, those of each batch of ``batches``
+    (:func:`band_batches`) in one computation: a batch's reads and reductions are done before
+    the next batch's are read; each array's numbers are those of its own computation."""
+    out: list[xr.DataArray] = []
+    for part in batches:
+        out.extend(dask.compute(*arrays[part]))
+    return out
+
+
 def shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int, group: str) -> xr.DataArray:
     """One frame per band: ``counts[band, picks[band]]`` as (shot, y, x) band shots."""
     times = counts["spectral_exposure_time"].values[picks]
@@ -212,7 +225,7 @@ def shot_frames(counts: xr.DataArray, picks: np.ndarray, depth: int, group: str)
     ).assign_attrs(bit_depth=depth, source=f"{group}:spectral_counts")
 
 
-def band_batches(counts: xr.DataArray) -> list[slice]:
+def band_batches(counts: xr.DataArray, dim: str = "wavelength") -> list[slice]:
     """The bands of a (wavelength, ...) series that are read and reduced together: as many
     whole bands (every frame of each) as fit in
     :data:`~spectralize.nodes.calibration.exposure_series.FRAME_CHUNK_BYTES` as float64, at
@@ -220,10 +233,11 @@ def band_batches(counts: xr.DataArray) -> list[slice]:
     series would read the stored tiles of every band ahead of their reductions, which split
     each tile into its exposures' frames); the bands of small frames go in one computation
     instead of one each (a computation's scheduling costs more than reducing a small band).
+    ``dim``: the series' band dim (``"shot"`` for band shots, one per band).
     """
-    per_band = 8 * math.prod(size for dim, size in counts.sizes.items() if dim != "wavelength")
+    per_band = 8 * math.prod(size for name, size in counts.sizes.items() if name != dim)
     step = max(1, exposure_series.FRAME_CHUNK_BYTES // max(per_band, 1))
-    n = counts.sizes["wavelength"]
+    n = counts.sizes[dim]
     return [slice(start, min(start + step, n)) for start in range(0, n, step)]
 
 

@@ -18,7 +18,9 @@ import numpy as np
 import xarray as xr
 
 from spectralize.nodes.calibration.band_shots import (
+    band_batches,
     band_signal,
+    computed_in_batches,
     longest_unsaturated_shots,
     shot_levels,
 )
@@ -209,17 +211,20 @@ def checker_patch_spectra(
     if flat_field is not None:  # flat field: each band over its map, as the white's was
         signal = flat_field.divide(signal, flat_field.rows(shots["wavelength"].values, "band"))
     q_shot = quantum_efficiency.sel(wavelength=shots["wavelength"].values).values
-    # Band by band: each computation reads one band's shot, linearises it and reduces it
-    # before the next band's is read (one computation over every band would read the bands'
-    # frames ahead of their reductions). Each band's numbers are those of the one
-    # computation: the same chunks, the same reductions.
+    # Batch by batch (band_batches: one band of a large sensor, every band of small ones):
+    # each computation reads its bands' shots, linearises them and reduces them before the
+    # next batch's are read (one computation over every band of a large sensor would read
+    # the bands' frames ahead of their reductions). Each band's numbers are those of the one
+    # computation: the same chunks, the same reductions. The patch means stay one graph per
+    # band, computed a batch at a time (over several frames at once a patch's pixels would be
+    # summed in another order).
     per_band = [signal.isel(shot=[k]) for k in range(signal.sizes["shot"])]
+    batches = band_batches(shots, "shot")
     if levels is not None:
+        # a batch's levels in one reduction over (y, x): each shot's sum is its own frame's
+        means = [shot_levels(signal.isel(shot=part)) for part in batches]
         q_shot = matched_quantum_efficiency(
-            levels,
-            shots["wavelength"].values,
-            np.concatenate([shot_levels(shot) for shot in per_band]),
-            q_shot,
+            levels, shots["wavelength"].values, np.concatenate(means), q_shot
         )
     labels = eroded_labels(np.asarray(colour_checker["patch_index"].values), patch_margin)
     spectra = []
@@ -228,5 +233,6 @@ def checker_patch_spectra(
         band_radiance = band_radiance.swap_dims(shot="wavelength").drop_vars(
             [c for c in band_radiance.coords if c != "wavelength"]
         )
-        spectra.append(patch_means(band_radiance, labels).compute())
+        spectra.append(patch_means(band_radiance, labels))
+    spectra = computed_in_batches(spectra, batches)
     return xr.concat(spectra, dim="wavelength").assign_coords(patch=patch)
