@@ -988,6 +988,7 @@ def spectra_bytes(data: Json) -> list[str]:
                 "yes" if after["within_bound"] and not after["validate_deep_problems"] else "NO",
                 f"{num(before['write_s'])} / {num(after['write_s'])}",
                 f"{num(before['read_s'])} / {num(after['read_s'])}",
+                pct(row["per_spectrum_peak"]["ratio"]) if "per_spectrum_peak" in row else "-",
             ]
         )
     summary = []
@@ -1015,6 +1016,7 @@ def spectra_bytes(data: Json) -> list[str]:
                 "within bound, validates",
                 "write s before / after",
                 "read s before / after",
+                "per-spectrum quantum (not stored) / before",
             ],
             rows,
         ),
