@@ -7,6 +7,7 @@
 ``integrity``      the manifest of a group's files and their CRC-32, :class:`ChecksumError`
 ``staging``        staged writes: unique temporary names, resumable regions, atomic renames
 ``layout``         how a Dataset is chunked and typed on disk, and the view on reading
+``precision``      float arrays rounded to the precision their schema declares, and its checks
 ``lock``           one writer per store: :class:`StoreLock`, :class:`StoreBusyError`,
                    :func:`work_dir`
 =================  =======================================================================

@@ -3,6 +3,12 @@
 A group carries the fingerprint of the node run that made it, the sha256 of the node's name
 and version, its parameters and the fingerprints of its inputs: a step whose output already
 carries the fingerprint it would write is up to date (this is what resumes flows).
+
+The precision an array is stored at (:class:`~spectralize.schemas.Precision`, see
+:mod:`.precision`) is not part of a fingerprint: it is the store's contract, checked by
+``validate``, not the node's computation. A group stored losslessly before its schema
+declared a precision meets every bound and stays up to date; a resumed write rounds every
+region when it packs them, so one array never mixes precisions.
 """
 
 from __future__ import annotations

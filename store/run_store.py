@@ -30,6 +30,9 @@ the store keeps consolidated metadata, so ``xarray.open_zarr(store, group=...)``
 are; their groups' fingerprints differ from this layout's
 (:data:`~.fingerprint.STORE_LAYOUT`), so a flow or ingest recomputes them in this layout.
 
+Arrays whose schema declares a precision (the reconstructed cube) are rounded to it and
+state it in their attrs (:mod:`.precision`); ``validate`` checks both.
+
 Checks, from cheap to deep: :meth:`RunStore.verify` compares sizes and modification times
 with the manifest and recomputes the checksum of every file whose time changed (an edit in
 place); ``verify(group, deep=True)`` recomputes every checksum; and every chunk that
