@@ -218,8 +218,14 @@ def _summary_header(threshold: float) -> list[str]:
     return header + [f"fraction nRMSE < {threshold:g}"]
 
 
+#: Rows of the per-image table at most: the first images by label (the ``evaluation`` group
+#: holds every image's statistics; the summary table covers all of them).
+MAX_TABLE_IMAGES = 1000
+
+
 def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
-    """One row per image, named by its label, in label order."""
+    """One row per image, named by its label, in label order: the first
+    :data:`MAX_TABLE_IMAGES` images, each column taken as one array (no look-up per image)."""
     coords = [
         c
         for c in ("camera", "rotation", "led", "theta_i", "phi_i", "theta_o", "phi_o")
@@ -231,18 +237,28 @@ def _per_image_table(evaluation: xr.Dataset) -> dict[str, Any]:
     header += [f"nRMSE {s}" for s in STATISTICS]
     header += ["fraction below", "angle median [°]", "ΔE00 median", "ΔE00 p95", "NaN px"]
     labels = _labels(evaluation)
-    rows = []
-    for image in np.argsort(labels, kind="stable"):
-        row = [str(int(labels[image]))] + [_fmt(evaluation.coords[c][image], 5) for c in coords]
-        if "has_band_shots" in evaluation:
-            row.append("yes" if bool(evaluation["has_band_shots"][image]) else "no")
-        row += [_fmt(evaluation["nrmse_statistics"][image].sel(statistic=s)) for s in STATISTICS]
-        row.append(_fmt(evaluation["nrmse_fraction_below"][image]))
-        for name, stat in (("spectral_angle", "median"), ("delta_e", "median"), ("delta_e", "p95")):
-            row.append(_fmt(evaluation[f"{name}_statistics"][image].sel(statistic=stat)))
-        row.append(str(int(evaluation["invalid_count"][image])))
-        rows.append(row)
-    return _table("per-image", "Statistics per image (by image label)", header, rows)
+    order = np.argsort(labels, kind="stable")[:MAX_TABLE_IMAGES]
+
+    def column(values: Any, digits: int = 4) -> list[str]:
+        return [_fmt(v, digits) for v in np.asarray(values, dtype=np.float64)[order]]
+
+    def statistic(name: str, stat: str) -> list[str]:
+        return column(evaluation[f"{name}_statistics"].sel(statistic=stat).values)
+
+    columns = [[str(int(v)) for v in labels[order]]]
+    columns += [column(evaluation.coords[c].values, 5) for c in coords]
+    if "has_band_shots" in evaluation:
+        shots = np.asarray(evaluation["has_band_shots"].values, dtype=bool)[order]
+        columns.append(["yes" if v else "no" for v in shots])
+    columns += [statistic("nrmse", s) for s in STATISTICS]
+    columns.append(column(evaluation["nrmse_fraction_below"].values))
+    columns += [statistic(n, s) for n, s in (("spectral_angle", "median"), ("delta_e", "median"))]
+    columns.append(statistic("delta_e", "p95"))
+    columns.append([str(int(v)) for v in np.asarray(evaluation["invalid_count"].values)[order]])
+    caption = "Statistics per image (by image label)"
+    if len(order) < len(labels):
+        caption += f": the first {len(order):,} of {len(labels):,} images (all in the evaluation group)"
+    return _table("per-image", caption, header, [list(row) for row in zip(*columns, strict=True)])
 
 
 def _provenance(ds: xr.Dataset) -> dict[str, Any]:
@@ -400,7 +416,7 @@ def error_map_figures(
 
 
 #: Images with an error map and representative spectra (two figures each): enough to show
-#: the range; the per-image table has every image.
+#: the range; the per-image table has every image up to :data:`MAX_TABLE_IMAGES`.
 MAX_ERROR_MAPS = 4
 
 
@@ -500,8 +516,8 @@ def _accuracy(
                 "baselines", "Baselines", [_baselines_table(evaluation, table.compute(), threshold)]
             )
         )
-    labels = sorted(int(v) for v in _labels(evaluation))
-    shown = labels[: int(max_images)]
+    labels = np.sort(_labels(evaluation))
+    shown = [int(v) for v in labels[: int(max_images)]]
     blocks: list[dict[str, Any]] = [
         _text(
             "sRGB renders with one exposure for truth and reconstruction; error maps on a common "
@@ -517,7 +533,7 @@ def _accuracy(
             _text(
                 f"Error maps for {len(mapped)} of these {len(shown)} images, chosen to show the "
                 "range of their 95th-percentile nRMSE, from the best to the worst (the table above "
-                "has every image)."
+                "has each of them)."
             )
         )
     for label, error_map, spectra_figure in error_map_figures(
@@ -807,20 +823,60 @@ def _thumbnail_caption(ds: xr.Dataset, position: int) -> str:
     return " · ".join(parts)
 
 
+#: Pixels the headline's statistics of the confidence are computed over at most: a run with
+#: more has them computed over whole stored chunks of images spread evenly over the run (and
+#: every few pixels of an image larger than this), so the report reads a bounded amount
+#: whatever the image count.
+STATISTICS_PIXELS = 2**22
+
+
+def _spread_sample(values: xr.DataArray, limit: int = STATISTICS_PIXELS) -> tuple[xr.DataArray, int]:
+    """``values`` (image, y, x) on at most about ``limit`` pixels, and the images it keeps.
+
+    All of it when it has that few pixels; else the images of whole dask chunks along
+    ``image`` (a chunk is read whole anyway), as many as fit, spread evenly over the run
+    (the first and the last included), and every ``step``-th pixel along ``y`` and ``x``
+    where one chunk alone has more. One selection, read chunk by chunk: no loop over images.
+    """
+    values = values.transpose("image", "y", "x")
+    n, ny, nx = values.shape
+    if n * ny * nx <= limit:
+        return values, n
+    chunks = values.chunks[0] if values.chunks is not None else (1,) * n
+    starts = np.cumsum((0, *chunks))
+    per_chunk = max(chunks) * ny * nx
+    kept = max(1, min(len(chunks), limit // per_chunk))
+    picked = np.unique(np.round(np.linspace(0, len(chunks) - 1, kept)).astype(int))
+    positions = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in picked])
+    step = max(1, int(np.ceil(np.sqrt(len(positions) * ny * nx / limit))))
+    return values.isel(image=positions, y=slice(None, None, step), x=slice(None, None, step)), len(
+        positions
+    )
+
+
 def _confidence_headline(confidence: xr.DataArray) -> list[tuple[str, str]]:
     """Reconstruction quality without ground truth: the estimated nRMSE's median and 95th
-    percentile over all pixels, and the share flagged (above :data:`CONFIDENCE_FLAG`)."""
-    values = np.asarray(confidence.values, dtype=np.float64)
+    percentile over all pixels, and the share flagged (above :data:`CONFIDENCE_FLAG`); in a
+    run of more than :data:`STATISTICS_PIXELS` pixels, over a sample of whole chunks of
+    images spread over the run (:func:`_spread_sample`; the headline says which)."""
+    sample, images = _spread_sample(confidence)
+    values = np.asarray(sample.values, dtype=np.float64).reshape(-1)
     values = values[np.isfinite(values)]
     if not values.size:
         return []
     median, p95 = np.percentile(values, [50, 95])
     flagged = float(np.mean(values > CONFIDENCE_FLAG))
+    total = confidence.sizes["image"]
+    over = (
+        ""
+        if sample.size == confidence.size
+        else f" (over {values.size:,} pixels of {images:,} of the {total:,} images, spread over the run)"
+    )
     return [
         (
             "reconstruction quality (no ground truth)",
             f"estimated nRMSE median {median:.4f}, 95th percentile {p95:.4f}; "
-            f"{100 * flagged:.1f} % of pixels above {CONFIDENCE_FLAG:g}",
+            f"{100 * flagged:.1f} % of pixels above {CONFIDENCE_FLAG:g}{over}",
         ),
         (
             "what that means",
@@ -968,8 +1024,8 @@ def _reconstruction(
     light: xr.DataArray | None = None,
     light_source: str = "none given",
 ) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
-    labels = sorted(int(v) for v in _labels(spectra))
-    shown = labels[: int(max_images)]
+    labels = np.sort(_labels(spectra))
+    shown = [int(v) for v in labels[: int(max_images)]]
     cube = _by_label(spectra, shown).compute()
     height, width = spectra.sizes["y"], spectra.sizes["x"]
     bad = [p for p in pixels or () if not (0 <= p[0] < height and 0 <= p[1] < width)]

@@ -550,3 +550,48 @@ def test_error_maps_show_the_range_of_the_images_not_the_first_ones(run, tmp_pat
     # the best (gain 0: label 1), the median (gain 0.04: label 7) and the worst (label 2)
     assert mapped == ["image 1", "image 2", "image 7"]
     assert "Error maps for 3 of these 9 images" in index.read_text()
+
+
+# -- a report's time does not grow with the image count ---------------------------------------
+
+
+def test_the_confidence_statistics_of_a_large_run_read_whole_chunks_spread_over_it():
+    """1,000 images in chunks of 50, at most 3,200 pixels: four whole chunks, the first and
+    the last among them; one frame larger than the limit is read every few pixels."""
+    labels = np.arange(1000, dtype=float)
+    confidence = xr.DataArray(
+        np.broadcast_to(labels[:, None, None], (1000, 4, 4)).copy(), dims=("image", "y", "x")
+    ).chunk({"image": 50})
+    sample, images = report._spread_sample(confidence, limit=3200)
+    read = np.unique(np.asarray(sample.values))
+    expected = np.concatenate([np.arange(s, s + 50) for s in (0, 300, 650, 950)])
+    assert images == 200 and np.array_equal(read, expected)
+    assert sample.size <= 3200
+    whole, count = report._spread_sample(confidence, limit=16_000)
+    assert count == 1000 and whole.size == confidence.size  # small enough: all of it
+    large = xr.DataArray(np.zeros((2, 64, 64)), dims=("image", "y", "x")).chunk({"image": 1})
+    strided, count = report._spread_sample(large, limit=1024)
+    assert count == 1 and strided.shape == (1, 32, 32)  # every 2nd pixel of one image
+
+
+def test_the_confidence_headline_of_a_run_too_large_to_read_says_what_it_was_computed_over():
+    rng = np.random.default_rng(5)
+    n, side = 300, 128  # 4.9 million pixels: over STATISTICS_PIXELS
+    confidence = xr.DataArray(
+        rng.gamma(1.0, 0.01, (n, side, side)).astype(np.float32), dims=("image", "y", "x")
+    ).chunk({"image": 10})
+    (quality, _) = report._confidence_headline(confidence)
+    pixels = report.STATISTICS_PIXELS // (10 * side * side) * 10 * side * side
+    assert quality[1].endswith(
+        f"(over {pixels:,} pixels of {pixels // side**2} of the 300 images, spread over the run)"
+    )
+    (small, _) = report._confidence_headline(confidence.isel(image=slice(0, 20)))
+    assert "spread" not in small[1]  # a run this small: every pixel
+
+
+def test_the_per_image_table_of_a_large_run_has_its_first_images(run, monkeypatch):
+    _, _, _, evaluation = run
+    monkeypatch.setattr(report, "MAX_TABLE_IMAGES", 2)
+    table = report._per_image_table(evaluation.isel(image=[2, 0, 1]))
+    assert [row[0] for row in table["rows"]] == ["0", "1"]
+    assert table["caption"].endswith("the first 2 of 3 images (all in the evaluation group)")
