@@ -124,20 +124,22 @@ def round_mantissa(values: np.ndarray, keepbits: int) -> np.ndarray:
         return values.copy()
     unsigned = np.dtype(f"u{values.dtype.itemsize}").type
     drop = mantissa - keepbits
-    bits = np.ascontiguousarray(values).view(unsigned)
-    half = unsigned((1 << (drop - 1)) - 1)
-    mask = unsigned(~((1 << drop) - 1) & ((1 << (8 * values.dtype.itemsize)) - 1))
-    rounded = ((bits + half + ((bits >> unsigned(drop)) & unsigned(1))) & mask).view(values.dtype)
-    return _keep_special(values, rounded)
-
-
-def _keep_special(values: np.ndarray, rounded: np.ndarray) -> np.ndarray:
-    """``rounded`` with NaN/inf and the values that rounded past the largest float kept."""
-    finite = np.isfinite(values)
-    keep = ~finite | ~np.isfinite(rounded)
+    # in place on one copy (a shard row at a time when packing: few temporaries)
+    rounded = np.array(values, order="C", copy=True)
+    bits = rounded.view(unsigned)
+    last_kept = bits >> unsigned(drop)
+    last_kept &= unsigned(1)  # ties go to the even neighbour
+    bits += unsigned((1 << (drop - 1)) - 1)
+    bits += last_kept
+    del last_kept
+    bits &= unsigned(~((1 << drop) - 1) & ((1 << (8 * values.dtype.itemsize)) - 1))
+    # NaN/inf, and finite values that rounded past the largest float, keep their bits
+    keep = np.isfinite(rounded)
+    keep &= np.isfinite(values)
+    np.logical_not(keep, out=keep)
     if keep.any():
-        rounded = np.where(keep, values, rounded)
-    return rounded.reshape(values.shape)
+        rounded[keep] = values[keep]
+    return rounded
 
 
 def excess_precision(values: np.ndarray, keepbits: int) -> int:
