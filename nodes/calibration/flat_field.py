@@ -24,10 +24,12 @@ block means extrapolates the smooth falloff into the corners, averages the noise
 whole frame into few coefficients (its noise floor follows from the fit's covariance), stores
 as a handful of numbers per camera whatever the frame size, and what it cannot explain (a
 shadow, a smudge) is left in its residuals, which is what the evenness check measures. Total
-degree :data:`DEGREE` follows a ``cos^4``-type falloff of a third in the corners to well
-under a per cent. The map is normalised to 1 at the frame centre (the optical axis of a
-centred lens), not to its mean: it then reads as the falloff itself (0.8 in a corner: 20 %
-less light there), the radiance at the centre is what it was without a flat field, and the
+degree :data:`DEGREE` follows a strong ``cos^4``-type falloff more closely than a white
+reference's noise allows it to be measured (``docs/benchmarks_notes.md``, calibration_oracle).
+The map is normalised to 1 at the frame centre (the optical axis of a centred lens), not to
+its mean: it then reads as the falloff itself (a corner value is the share of the centre's
+light that reaches the corner), the radiance at the centre is what it was without a flat
+field, and the
 scale divides out anyway (``Q`` and ``C`` are fitted to flat-fielded targets). Per-pixel
 response non-uniformity is left in: the fit is smooth by design, so the white reference's
 own noise is not written into every image.

@@ -58,9 +58,9 @@ GRADIENT_WARNING = 0.03
 even about its axis, a tilted or unevenly lit target is not."""
 
 CORNER_RANGE = (0.6, 1.05)
-"""A flat field's corners outside this range warn: more than 40 % falloff (the corners'
-signal and the fit's extrapolation there are poor) or corners brighter than the centre (not
-a lens: a hot spot or flare on the target)."""
+"""A flat field's corners outside this range warn: below it, corners that get little of the
+centre's light (their signal and the fit's extrapolation there are poor); above it, corners
+brighter than the centre (not a lens: a hot spot or flare on the target)."""
 
 
 def _camera_names(group: xr.Dataset, n: int) -> list[str]:
