@@ -39,7 +39,13 @@ class Precision:
     .. math:: |\\hat x - x| \\le 2^{-(k+1)} |x|,
 
     :attr:`relative_bound`, for every normal float ``x`` (zeros, NaN and inf are kept as they
-    are). The bound is stated in the stored array's attrs (:attr:`attrs`). An array without
+    are). With ``along`` (a dim, ``"wavelength"``) the values of each spectrum share one
+    quantum instead, half a unit in the last kept bit of the spectrum's peak (a scale to
+    integers per spectrum): a band far below its spectrum's peak keeps fewer bits, and
+
+    .. math:: |\\hat x - x| \\le 2^{-(k+1)} \\max_{along} |\\hat x|.
+
+    The bound is stated in the stored array's attrs (:attr:`attrs`). An array without
     those attrs was stored losslessly (before its schema declared a precision): it meets any
     bound, and is valid.
 
@@ -47,6 +53,9 @@ class Precision:
     ----------
     keepbits
         Explicit mantissa bits kept (float32 has 23, float64 52).
+    along
+        ``None``: the bound is relative to each value. A dim name: relative to the peak of
+        the absolute values along that dim (each spectrum's).
 
     References
     ----------
@@ -58,11 +67,14 @@ class Precision:
     """
 
     keepbits: int
+    along: str | None = None
 
     KEEPBITS_ATTR = "precision_keepbits"
     """Array attr: the mantissa bits kept."""
     BOUND_ATTR = "precision_bound_relative"
     """Array attr: the relative bound ``2 ** -(keepbits + 1)`` of every stored value."""
+    ALONG_ATTR = "precision_relative_to_peak_along"
+    """Array attr, with ``along`` only: the dim whose peak the bound is relative to."""
 
     @property
     def relative_bound(self) -> float:
@@ -70,19 +82,32 @@ class Precision:
         return 2.0 ** -(self.keepbits + 1)
 
     @property
-    def attrs(self) -> dict[str, int | float]:
+    def attrs(self) -> dict[str, int | float | str]:
         """The attrs the store stamps on an array it rounded."""
-        return {self.KEEPBITS_ATTR: self.keepbits, self.BOUND_ATTR: self.relative_bound}
+        along = {} if self.along is None else {self.ALONG_ATTR: self.along}
+        return {self.KEEPBITS_ATTR: self.keepbits, self.BOUND_ATTR: self.relative_bound, **along}
 
     def describe(self) -> str:
-        """``"10 mantissa bits (relative error <= 0.049 %)"``."""
-        return f"{self.keepbits} mantissa bits (relative error <= {100 * self.relative_bound:.3g} %)"
+        """``"10 mantissa bits (relative error <= 0.0488 %)"``."""
+        bound = 100 * self.relative_bound
+        if self.along is None:
+            return f"{self.keepbits} mantissa bits (relative error <= {bound:.3g} %)"
+        return (
+            f"{self.keepbits} mantissa bits of each peak along {self.along} "
+            f"(error <= {bound:.3g} % of the peak)"
+        )
+
+    def meets(self, required: Precision) -> bool:
+        """Whether data stored at this precision is stored at ``required`` or finer (a bound
+        relative to each value is finer than one relative to its spectrum's peak)."""
+        return self.keepbits >= required.keepbits and self.along in (None, required.along)
 
     @classmethod
     def stated(cls, attrs: Mapping[str, Any]) -> Precision | None:
         """The precision an array's attrs state (``None``: stored losslessly)."""
         keepbits = attrs.get(cls.KEEPBITS_ATTR)
-        return None if keepbits is None else cls(int(keepbits))
+        along = attrs.get(cls.ALONG_ATTR)
+        return None if keepbits is None else cls(int(keepbits), None if along is None else str(along))
 
 
 @dataclass(frozen=True)
@@ -351,7 +376,16 @@ def _check_precision(where: str, array: xr.DataArray, spec: ArraySpec) -> list[P
                 f"{keepbits!r}",
             )
         ]
-    stated = Precision(int(keepbits))
+    stated = Precision.stated(array.attrs) or Precision(int(keepbits))
+    if not stated.meets(spec.precision) or (stated.along is not None and stated.along not in array.dims):
+        return [
+            Problem(
+                f"{where}.attrs",
+                f"{Precision.ALONG_ATTR} absent (a bound relative to each value)"
+                + ("" if spec.precision.along is None else f" or {spec.precision.along!r}"),
+                f"{stated.along!r}",
+            )
+        ]
     if not isinstance(bound, float | int | np.floating) or not math.isclose(
         float(bound), stated.relative_bound, rel_tol=1e-9
     ):

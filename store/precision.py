@@ -43,6 +43,8 @@ __all__ = [
     "PRECISION_COMPRESSORS",
     "LOSSLESS_CODECS",
     "round_mantissa",
+    "round_to_peak",
+    "round_precision",
     "excess_precision",
     "declared_precisions",
     "apply_precision",
@@ -142,10 +144,46 @@ def round_mantissa(values: np.ndarray, keepbits: int) -> np.ndarray:
     return rounded
 
 
-def excess_precision(values: np.ndarray, keepbits: int) -> int:
-    """How many of ``values`` carry more than ``keepbits`` mantissa bits (rounding changes them)."""
+def round_to_peak(values: np.ndarray, keepbits: int, axis: int) -> np.ndarray:
+    """``values`` rounded to one quantum per spectrum along ``axis``: half a unit in the last
+    of ``keepbits`` mantissa bits of the spectrum's peak (a scale to integers per spectrum).
+
+    The peak ``max |x|`` along ``axis`` (finite values) is rounded to ``keepbits`` bits,
+    :math:`\\hat p`, and every value to the nearest multiple (ties to even) of
+    :math:`q = 2^{e - 1 - k}`, :math:`2^{e-1} \\le \\hat p < 2^e`: the peak is stored as
+    :func:`round_mantissa` stores it, every value within :math:`2^{-(k+1)} \\hat p` of the
+    computed one, and rounding again changes nothing. NaN/inf keep their bits, as do the
+    values of spectra whose quantum underflows.
+    """
     values = np.asarray(values)
-    rounded = round_mantissa(values, keepbits)
+    if values.dtype.kind != "f" or keepbits < 0:
+        raise StoreError.single(
+            "precision", "float values and keepbits >= 0", f"dtype {values.dtype}, keepbits {keepbits}"
+        )
+    finite = np.isfinite(values)
+    if values.size == 0:
+        return values.copy()
+    peak = round_mantissa(np.where(finite, np.abs(values), 0).max(axis=axis, keepdims=True), keepbits)
+    _, exponent = np.frexp(peak)
+    quantum = np.ldexp(np.ones((), values.dtype), exponent - 1 - keepbits).astype(values.dtype)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        rounded = np.rint(values / quantum) * quantum
+    keep = ~finite | (quantum == 0) | ~np.isfinite(rounded)
+    if keep.any():
+        rounded[keep] = values[keep]
+    return rounded.astype(values.dtype, copy=False)
+
+
+def round_precision(values: np.ndarray, keepbits: int, axis: int | None = None) -> np.ndarray:
+    """:func:`round_mantissa` (``axis`` ``None``) or :func:`round_to_peak` along ``axis``."""
+    return round_mantissa(values, keepbits) if axis is None else round_to_peak(values, keepbits, axis)
+
+
+def excess_precision(values: np.ndarray, keepbits: int, axis: int | None = None) -> int:
+    """How many of ``values`` carry more precision than stated (rounding changes them):
+    more than ``keepbits`` mantissa bits, or (``axis``) finer than their spectrum's quantum."""
+    values = np.asarray(values)
+    rounded = round_precision(values, keepbits, axis)
     unsigned = np.dtype(f"u{values.dtype.itemsize}")
     return int(
         np.count_nonzero(
@@ -177,22 +215,30 @@ def apply_precision(
     """``ds`` with its declared precisions stated in the arrays' attrs (and their values
     rounded, lazily, with ``round_values``); precision attrs of other arrays are removed
     (only the store states a precision, where it rounded)."""
-    keys = (Precision.KEEPBITS_ATTR, Precision.BOUND_ATTR)
+    keys = (Precision.KEEPBITS_ATTR, Precision.BOUND_ATTR, Precision.ALONG_ATTR)
     for name, var in ds.variables.items():
         if name not in precisions and any(key in var.attrs for key in keys):
             var.attrs = {k: v for k, v in var.attrs.items() if k not in keys}
     changed: dict[Hashable, xr.DataArray] = {}
     for name, precision in precisions.items():
         array = ds[name]
+        along = [] if precision.along is None else [precision.along]
+        if along and (along[0] not in array.dims or array.dims[0] == along[0]):
+            raise StoreError.single(
+                str(name), f"a dim {along[0]!r} after the first (its spectra)", f"dims {array.dims}"
+            )
         if round_values:
             array = xr.apply_ufunc(
-                round_mantissa,
+                round_precision,
                 array,
-                kwargs={"keepbits": precision.keepbits},
+                input_core_dims=[along],
+                output_core_dims=[along],
+                kwargs={"keepbits": precision.keepbits, "axis": -1 if along else None},
                 dask="parallelized",
+                dask_gufunc_kwargs={"allow_rechunk": True},
                 output_dtypes=[array.dtype],
                 keep_attrs=True,
-            )
+            ).transpose(*array.dims)
         array.attrs = {**array.attrs, **precision.attrs}
         changed[name] = array
     coords = {k: v for k, v in changed.items() if k in ds.coords}
@@ -297,7 +343,8 @@ def precision_problems(
         if not values or stated is None or array.size == 0:
             continue
         pieces = [array] if deep or array.ndim == 0 else _sample(array, meta)
-        excess = sum(_excess(piece, stated.keepbits) for piece in pieces)
+        axis = None if stated.along is None else array.dims.index(stated.along)
+        excess = sum(_excess(piece, stated.keepbits, axis) for piece in pieces)
         if excess:
             checked = "in all" if deep else "in the chunks checked (first and last)"
             problems.append(
@@ -310,13 +357,15 @@ def precision_problems(
     return problems
 
 
-def _excess(array: xr.DataArray, keepbits: int) -> int:
-    """:func:`excess_precision` of a (lazy) array, chunk by chunk."""
+def _excess(array: xr.DataArray, keepbits: int, axis: int | None) -> int:
+    """:func:`excess_precision` of a (lazy) array, chunk by chunk (whole along ``axis``)."""
     data = array.data
     if not hasattr(data, "map_blocks"):
-        return excess_precision(np.asarray(data), keepbits)
+        return excess_precision(np.asarray(data), keepbits, axis)
+    if axis is not None:
+        data = data.rechunk({axis: -1})
     counts = data.map_blocks(
-        lambda block: np.full((1,) * block.ndim, excess_precision(block, keepbits)),
+        lambda block: np.full((1,) * block.ndim, excess_precision(block, keepbits, axis)),
         dtype=np.int64,
         chunks=(1,) * data.ndim,
     )

@@ -43,7 +43,7 @@ from spectralize.schemas import Precision
 
 from .integrity import PARTIAL_SUFFIX
 from .layout import label_permutations, shard_layout
-from .precision import apply_precision, round_mantissa
+from .precision import apply_precision, round_mantissa, round_precision
 
 __all__ = [
     "STAGING",
@@ -361,7 +361,7 @@ def pack_staged(
     template = shard_layout(
         apply_precision(template, precisions or {}, round_values=False), encoding, keep=keep
     )
-    keepbits = {name: precision.keepbits for name, precision in (precisions or {}).items()}
+    precisions = dict(precisions or {})
     packed = packed_path(staged)
     shutil.rmtree(packed, ignore_errors=True)
     template.to_zarr(
@@ -377,13 +377,11 @@ def pack_staged(
         else:
             src = _Joined(pieces, var.dims.index(dim))
         if var.ndim == 0:
-            dst[...] = (
-                src[...]
-                if name not in (keepbits or {})
-                else round_mantissa(src[...], (keepbits or {})[str(name)])
-            )
+            scalar = precisions.get(str(name))
+            dst[...] = src[...] if scalar is None else round_mantissa(src[...], scalar.keepbits)
             continue
-        bits = keepbits.get(str(name))
+        precision = precisions.get(str(name))
+        axis = None if precision is None or precision.along is None else var.dims.index(precision.along)
         step = (dst.shards or dst.chunks)[0]
         first = order.get(str(var.dims[0]))
         rest = tuple(order.get(str(d), slice(None)) for d in var.dims[1:])
@@ -391,7 +389,7 @@ def pack_staged(
             rows = slice(start, min(start + step, var.shape[0]))
             pick = first[rows] if first is not None else rows
             block = src.oindex[(pick, *rest)]
-            dst[rows] = block if bits is None else round_mantissa(block, bits)
+            dst[rows] = block if precision is None else round_precision(block, precision.keepbits, axis)
     shutil.rmtree(staged)
     os.rename(packed, staged)
     shutil.rmtree(regions_path(staged), ignore_errors=True)

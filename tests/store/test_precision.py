@@ -16,7 +16,7 @@ from support.cubes import cube_dataset
 
 from spectralize.schemas import Precision
 from spectralize.schemas.run import SPECTRA, SPECTRA_PRECISION
-from spectralize.store.precision import excess_precision, round_mantissa
+from spectralize.store.precision import excess_precision, round_mantissa, round_to_peak
 
 # the contract before the cube declared a precision: what a store written then followed
 LOSSLESS_SPECTRA = dataclasses.replace(
@@ -235,4 +235,65 @@ def test_an_edited_precision_claim_fails_validation(store):
     assert found[1:] == [
         "spectra:radiance.attrs: expected precision_keepbits an integer in [10, 23] "
         "(10 mantissa bits (relative error <= 0.0488 %) or finer), found 8"
+    ]
+
+
+# the contract with a quantum per spectrum instead (Precision(..., along="wavelength"))
+PEAK_SPECTRA = dataclasses.replace(
+    SPECTRA,
+    variables=tuple(
+        dataclasses.replace(s, precision=Precision(10, along="wavelength")) for s in SPECTRA.variables
+    ),
+)
+
+
+def test_a_quantum_per_spectrum_keeps_every_value_within_the_bound_of_its_peak():
+    values = radiance()
+    rounded = round_to_peak(values, 10, axis=1)
+    finite = np.isfinite(values)
+    assert np.array_equal(finite, np.isfinite(rounded))
+    peak = np.abs(np.where(finite, rounded, 0)).max(axis=1, keepdims=True)  # 0: no value
+    error = np.where(finite, np.abs(rounded.astype(float) - values), 0)
+    assert (error <= 2.0**-11 * peak).all()
+    # the peak is stored as bit rounding stores it; the rest share its quantum
+    computed_peak = np.abs(np.where(finite, values, 0)).max(axis=1)
+    assert np.array_equal(peak[:, 0], round_mantissa(computed_peak, 10))
+    assert np.array_equal(round_to_peak(rounded, 10, axis=1), rounded, equal_nan=True)  # idempotent
+    assert excess_precision(rounded, 10, axis=1) == 0 < excess_precision(values, 10, axis=1)
+    # fewer bits than per value where a band is far below its peak, never more
+    assert excess_precision(round_mantissa(values, 10), 10, axis=1) > 0
+    assert excess_precision(rounded, 10) == 0
+
+
+@pytest.mark.parametrize("resumable", [None, "image"])
+def test_a_cube_stored_with_a_quantum_per_spectrum_states_it_and_validates(store, resumable):
+    from spectralize.schemas import validate_dataset
+    from spectralize.store.precision import precision_problems
+
+    computed = radiance()
+    ds = cube_dataset(computed)
+    store.write(
+        "spectra",
+        ds.chunk({"image": 1}) if resumable else ds,
+        schema=PEAK_SPECTRA,
+        fingerprint="fp",
+        resumable_along=resumable,
+    )
+    stored = store.read("spectra")
+    radiance_ = stored["radiance"]
+    assert radiance_.attrs["precision_relative_to_peak_along"] == "wavelength"
+    assert radiance_.attrs["precision_bound_relative"] == 2.0**-11
+    values = radiance_.values
+    finite = np.isfinite(computed)
+    peak = np.abs(np.where(finite, values, 0)).max(axis=1, keepdims=True)
+    assert (np.where(finite, np.abs(values.astype(float) - computed), 0) <= 2.0**-11 * peak).all()
+    raw = store.read("spectra", friendly=False)
+    root = store.path / "spectra"
+    assert validate_dataset(raw, PEAK_SPECTRA) == []
+    assert precision_problems(root, raw, PEAK_SPECTRA, "spectra", deep=True) == []
+    # coarser than the registered contract (a bound relative to each value): reported
+    found = [str(p) for p in store.validate()]
+    assert found == [
+        "spectra:radiance.attrs: expected precision_relative_to_peak_along absent (a bound "
+        "relative to each value), found 'wavelength'"
     ]
