@@ -202,8 +202,9 @@ RECOVER_RGB_OECF = Node(
     # white level (declared, else found in its longest exposures) and the saturation under it
     # (white_level, saturation over camera), which the fit, the targets' series and the HDR
     # merge use; 6: the white level found in each source's longest exposures apart (the
-    # scene's, each target's), and frames entirely at or above it refused before computing
-    version="6",
+    # scene's, each target's), and frames entirely at or above it refused before computing;
+    # 7: the codes under the low end's anchor from the reverse regression (low_end)
+    version="7",
     function=recover_rgb_oecf,
     inputs={
         "raw_rgb": "raw/rgb",

@@ -1,14 +1,17 @@
 """OECF recovery (paper section 4): one method per module.
 
-==============  ===========================================================================
-module          what
-==============  ===========================================================================
-``weighting``   certainty weights of pixel values: ``WEIGHTING_FUNCTIONS`` + dispatcher
-``robertson``   Robertson et al. 2003 on raw integer codes: :func:`recover_oecf`
-``low_snr``     the paper's low-SNR extension: :func:`recover_oecf_low_snr`
-``response``    response algebra: :func:`apply_response`, :func:`response_at_codes`,
-                :func:`combine_responses`
-==============  ===========================================================================
+======================  ===================================================================
+module                  what
+======================  ===================================================================
+``weighting``           certainty weights of pixel values: ``WEIGHTING_FUNCTIONS`` +
+                        dispatcher
+``robertson``           Robertson et al. 2003 on raw integer codes: :func:`recover_oecf`
+``low_snr``             the paper's low-SNR extension: :func:`recover_oecf_low_snr`
+``reverse_regression``  the mean code per exposure ``E[v | X]``, which both low ends use
+``low_end``             the RGB response's codes just above black (a toe) from it
+``response``            response algebra: :func:`apply_response`,
+                        :func:`response_at_codes`, :func:`combine_responses`
+======================  ===================================================================
 
 References
 ----------

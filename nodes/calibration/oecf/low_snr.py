@@ -40,8 +40,11 @@ from spectralize.nodes.calibration.exposure_series import (
 )
 from spectralize.nodes.calibration.oecf.response import (
     combine_responses,
-    lookup,
     response_dataarray,
+)
+from spectralize.nodes.calibration.oecf.reverse_regression import (
+    exposure_estimates,
+    reverse_regression,
 )
 from spectralize.nodes.calibration.oecf.robertson import (
     Solver,
@@ -79,64 +82,6 @@ def _series_dim(counts: xr.DataArray, where: str) -> str:
             [Problem(where, "dims (exposure or shot, y, x)", f"dims {counts.dims}")],
         )
     return str(others[0])
-
-
-def _exposure_estimates(
-    codes: np.ndarray, times: np.ndarray, weights: np.ndarray, response: np.ndarray
-) -> np.ndarray:
-    """Leave-one-out exposure ``X_ij = t_j x_i^(-j)`` of every sample (NaN where undefined).
-
-    ``x_i^(-j)`` is Robertson's irradiance step (weights ``w``, response ``f``) from the other
-    samples of pixel ``i``, so that ``X_ij`` is independent of the noise of sample ``j``.
-    ``codes`` (E, P) integers, ``times`` (E,), ``weights`` and ``response`` per code.
-    """
-    t = times[:, None]
-    w = weights[codes] * t
-    wf = w * response[codes]
-    w *= t
-    num = wf.sum(axis=0) - wf
-    den = w.sum(axis=0) - w
-    ok = den > 1e-12 * max(float(den.max()), 1e-300)
-    return np.where(ok, t * num / np.where(ok, den, 1.0), np.nan)
-
-
-def _reverse_regression(
-    exposure: np.ndarray, values: np.ndarray, levels: np.ndarray, grid: np.ndarray
-) -> np.ndarray:
-    """Response on ``grid`` from the mean pixel value per exposure bin, ``E[v | X]``.
-
-    Samples are binned by exposure ``X`` at the midpoints of ``levels`` (a non-decreasing
-    response on ``grid``); per bin the mean ``X`` and mean ``v`` are one point of the curve
-    ``v = f^-1(X)``. The points are made monotone (pool adjacent violators, weighted by the
-    samples per bin) and interpolated at ``grid`` (linear); beyond the outermost points the
-    shape of ``levels`` is kept, scaled to join continuously.
-    """
-    from scipy.optimize import isotonic_regression
-
-    keep = np.isfinite(exposure)
-    x, v = exposure[keep], values[keep]
-    edges = 0.5 * (levels[1:] + levels[:-1])
-    b = np.searchsorted(edges, x)
-    n = np.bincount(b, minlength=grid.size)
-    seen = n > 0
-    if seen.sum() < 2:
-        return levels.copy()
-    n = n[seen].astype(np.float64)
-    x_mean = np.bincount(b, x, minlength=grid.size)[seen] / n
-    v_mean = isotonic_regression(np.bincount(b, v, minlength=grid.size)[seen] / n, weights=n).x
-    v_points, which = np.unique(v_mean, return_inverse=True)
-    if v_points.size < 2:
-        return levels.copy()
-    x_points = np.bincount(which, x_mean * n) / np.bincount(which, n)
-    out = lookup(grid, x_points, v_points)
-    # beyond the outermost bin means the reverse regression has no data: there the table
-    # keeps the shape of ``levels``, scaled to join continuously (no extrapolated slope)
-    for end, outside in ((0, grid < v_points[0]), (-1, grid > v_points[-1])):
-        if outside.any():
-            ref = float(np.interp(v_points[end], grid, levels))
-            if ref > 0:
-                out[outside] = levels[outside] * (x_points[end] / ref)
-    return out
 
 
 def _quadratic_through_zero(
@@ -306,8 +251,8 @@ def _debiased(
     quadratic was fitted."""
     from scipy.optimize import isotonic_regression
 
-    exposure = _exposure_estimates(codes, times, weights, table)
-    table = _reverse_regression(exposure, values, table, grid)
+    exposure = exposure_estimates(codes, times, weights, table)
+    table = reverse_regression(exposure, values, table, grid)
     fit = None
     if fit_top > 0:
         fit = _quadratic_through_zero(exposure, values, float(np.interp(fit_top, grid, table)))

@@ -42,6 +42,7 @@ from spectralize.nodes.calibration.exposure_series import (
     refused,
     warn_if_geometric,
 )
+from spectralize.nodes.calibration.oecf.low_end import low_end_response
 from spectralize.nodes.calibration.oecf.response import response_dataarray
 from spectralize.nodes.calibration.oecf.weighting import (
     WEIGHTING_FUNCTIONS,
@@ -471,6 +472,7 @@ def robertson_response(
     solver: Solver = "lanczos",
     operator: Operator = "auto",
     smooth: int | None = None,
+    low_end: bool = False,
 ) -> RobertsonResult:
     """Robertson et al. (2003) response recovery for one channel (numpy core).
 
@@ -532,6 +534,11 @@ def robertson_response(
         uniform targets) with noise in the codes, and few exposure ratios (Grossberg & Nayar
         2003), leave the per-code response with ripples of a few percent; the spline
         removes them. Used when more than ``K + 2`` codes (bins) have weighted samples.
+    low_end
+        Take the codes under the low end's anchor, where the weights are all but zero,
+        from the reverse regression of the samples (:func:`~.low_end.low_end_response`:
+        the spectral camera's dark-level model), so that the response follows a toe
+        there; the rest of the response is kept.
 
     Returns
     -------
@@ -614,6 +621,9 @@ def robertson_response(
         smooth=smooth,
     )
     full = _response_at_codes(f, last_update, obs, bins, mid, monotone)
+    if low_end:
+        full = low_end_response(full, codes, times, weights)
+        full = full / np.interp(mid, np.arange(n_codes), full)
     return RobertsonResult(full, tally.samples, iterations, converged, change)
 
 
@@ -862,6 +872,7 @@ def recover_oecf(
     solver: Solver = "lanczos",
     operator: Operator = "auto",
     smooth: int | None = None,
+    low_end: bool = False,
     frames_checked: bool = False,
 ) -> xr.Dataset:
     """Recover the camera response per camera and channel from exposure series (Robertson).
@@ -883,7 +894,7 @@ def recover_oecf(
         Codes ``>= saturation`` are saturated and get weight 0; default ``2**bit_depth - 1``.
     weighting
         Weighting function, see :func:`~.weighting_function`.
-    tolerance, max_iterations, monotone, max_bins, solver, operator, smooth
+    tolerance, max_iterations, monotone, max_bins, solver, operator, smooth, low_end
         See :func:`robertson_response`.
     max_pixels
         Use at most this many pixel positions (a reproducible random subset, the same for
@@ -989,6 +1000,7 @@ def recover_oecf(
                 solver=solver,
                 operator=operator,
                 smooth=smooth,
+                low_end=low_end,
             )
 
     n_channels = counts.sizes["channel"]
@@ -1139,6 +1151,14 @@ def recover_rgb_oecf(
             "maximum-likelihood solution over that space (None: one unknown per code bin)",
         ),
     ] = SMOOTH_RGB,
+    low_end: Annotated[
+        bool,
+        Field(
+            description="the codes just above the black level, where the weights are all but "
+            "zero, from the reverse regression of the samples (a toe the smooth response cannot "
+            "follow)"
+        ),
+    ] = True,
 ) -> xr.Dataset:
     """RGB camera response per channel (Robertson 2003) from the raw/rgb exposure series.
 
@@ -1171,6 +1191,10 @@ def recover_rgb_oecf(
     smooth
         Coefficients of the response's cubic spline (:data:`SMOOTH_RGB`), see
         :func:`robertson_response`; ``None``: one unknown per code bin.
+    low_end
+        The codes just above the black level from the reverse regression
+        (:func:`~.low_end.low_end_response`), see :func:`robertson_response`: a camera whose
+        response has a strong toe keeps it.
     tolerance, max_pixels
         See :func:`recover_oecf`; ``max_pixels`` is lowered for a camera with so many
         images that images x positions exceed :data:`MAX_SAMPLES`.
@@ -1230,6 +1254,7 @@ def recover_rgb_oecf(
         "tolerance": tolerance,
         "max_pixels": max_pixels,
         "smooth": smooth,
+        "low_end": low_end,
         "frames_checked": True,
     }
     targets = given if calibration_targets else []

@@ -19,6 +19,7 @@ DEFAULTS = {
         "tolerance": 1e-6,
         "max_pixels": 200_000,
         "smooth": 16,
+        "low_end": True,
     },
     "RECOVER_SPECTRAL_OECF": {
         "band": None,

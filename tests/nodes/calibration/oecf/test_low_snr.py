@@ -7,7 +7,7 @@ import pytest
 import xarray as xr
 
 from spectralize.nodes.calibration import oecf
-from spectralize.nodes.calibration.oecf import low_snr
+from spectralize.nodes.calibration.oecf import low_snr, reverse_regression
 from spectralize.schemas import CalibrationError
 
 
@@ -78,7 +78,7 @@ def test_reverse_regression_is_unbiased_where_the_forward_mean_is_not() -> None:
     forward = np.bincount(k, exposure, grid.size) / np.maximum(np.bincount(k, None, grid.size), 1)
     levels = grid / 100.0 * (1.0 + 0.02 * np.sin(grid / 7.0))  # any monotone start
     levels = np.maximum.accumulate(levels)
-    reverse = low_snr._reverse_regression(exposure, values, levels, grid)
+    reverse = reverse_regression.reverse_regression(exposure, values, levels, grid)
     check = (grid >= 4.0) & (grid <= 95.0)
     truth = grid[check] / 100.0
     assert np.max(np.abs(reverse[check] / truth - 1)) < 0.01
