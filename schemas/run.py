@@ -922,7 +922,10 @@ def render_table(schemas: Iterable[GroupSchema] | None = None) -> str:
 
     def fmt(spec: ArraySpec) -> str:
         units = f" [{spec.units}]" if spec.units else ""
-        stored = f", stored to {spec.precision.keepbits} mantissa bits" if spec.precision else ""
+        precision = spec.precision
+        stored = "" if precision is None else f", stored to {precision.keepbits} mantissa bits"
+        if precision is not None and precision.along is not None:
+            stored += f" of each peak along {precision.along}"
         return f"`{spec.name}` ({', '.join(spec.dims)}) {spec.describe_dtype()}{units}{stored}"
 
     for schema in schemas if schemas is not None else GROUP_SCHEMAS.values():
