@@ -3,7 +3,8 @@
 An array whose :class:`~spectralize.schemas.ArraySpec` declares a
 :class:`~spectralize.schemas.Precision` (the reconstructed cube's ``radiance``) is written with
 every finite value rounded to that many mantissa bits (:func:`round_mantissa`, bit rounding
-as numcodecs' ``BitRound``, ties to even) and compressed by :data:`PRECISION_COMPRESSORS`
+as numcodecs' ``BitRound``, ties to even), or with ``along`` to one quantum per spectrum
+(:func:`round_to_peak`), and compressed by :data:`PRECISION_COMPRESSORS`
 (Blosc: zstd on the bit planes, which stores the zeroed trailing bits for almost nothing).
 The rounding happens before zarr sees the values, so the array's codec chain has only codecs
 of the zarr 3 specification and any zarr 3 reader decodes it; the array's attrs state the
@@ -14,7 +15,8 @@ packs the regions of a resumable one (:func:`~.staging.pack_staged`), so regions
 an interrupted write, by whatever version staged them, are rounded alike: one array never
 mixes precisions. :func:`precision_problems` checks a finished group: the codec chain of each
 array is lossless (or bit rounding no coarser than stated), and its values carry no more
-mantissa bits than its attrs state (a sample of chunks, or every value when deep). An array
+precision than its attrs state (rounding them again changes nothing: a sample of chunks, or
+every value when deep). An array
 stored without the attrs (a store written before its schema declared a precision) was stored
 losslessly: it meets every bound and is valid.
 
