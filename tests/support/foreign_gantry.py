@@ -32,7 +32,8 @@ What it models (all of it different from spectralize's simulator on purpose):
   its blue end (the tunable filter's off-axis loss).
 
 What the gantry is made of (illuminant, materials, chart, RGB cameras and their sensor
-models: sensitivity, response, black offset; LED power) is one dictionary, :func:`default_lab`;
+models: sensitivity, response, black offset and optionally a white level, the code its values
+clip at, below the top code; LED power) is one dictionary, :func:`default_lab`;
 ``foreign_gantry_models.py`` writes harder labs through the same code.
 
 Usage: ``python foreign_gantry.py OUT [--truth truth.npz]``. Deterministic (fixed seed).
@@ -244,7 +245,8 @@ def rgb_counts(rng, rad: np.ndarray, t: float, camera: str = "cam-45") -> np.nda
     black = model["black"]
     response = model["oecf"](np.clip(y, 0.0, None))  # 1 at full scale, above it saturated
     dn = black + (RGB_MAX - black) * response + rng.normal(0.0, 1.2, y.shape)
-    return np.clip(np.round(dn), 0, RGB_MAX).astype(np.uint16)
+    white = model.get("white", RGB_MAX)  # a white level under the top code clips there
+    return np.clip(np.round(dn), 0, white).astype(np.uint16)
 
 
 def dark_pattern() -> tuple[np.ndarray, np.ndarray]:

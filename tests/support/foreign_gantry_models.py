@@ -17,7 +17,11 @@ Two labs: ``nikon-paired`` (the paired camera and one more are Nikon, one Sigma)
 ``sigma-paired`` (the paired camera is Sigma, with other samples and another LED), which is
 kept out of every choice of the calibration's settings and reported on its own; and
 ``sigma-paired-falloff``, the same capture through lenses that lose light towards the corners
-(:data:`FALLOFF`, ``foreign_gantry.lens_falloff``), held out as well, beside its clean twin.
+(:data:`FALLOFF`, ``foreign_gantry.lens_falloff``), held out as well, beside its clean twin;
+``sigma-paired-white``, the same capture again with every RGB camera clipping at a white level
+under the top code (:data:`WHITE_LEVEL`) that capture.toml does not declare, held out as well;
+and ``toe-camera``, ``nikon-paired`` with its Sigma camera replaced by a consumer camera of the
+same sensitivity whose response has a strong toe (:func:`toe_curve`).
 
 Usage: ``python foreign_gantry_models.py OUT --lab nikon-paired [--truth truth.npz]``.
 Deterministic. It imports numpy, tifffile and colour-science, never spectralize.
@@ -66,6 +70,18 @@ def s_curve(exponent: float, knee: float):
     return response
 
 
+def toe_curve(toe: float, knee: float):
+    """A consumer camera's response with a strong toe: ``h(y) = sqrt(y^2 + toe^2) - toe``
+    rises as ``y^2 / (2 toe)`` just above black, then steeper, almost linearly (``y - toe``),
+    through a shoulder ``p / (p + knee) (1 + knee)``; 1 at full scale."""
+
+    def response(y: np.ndarray) -> np.ndarray:
+        p = (np.sqrt(y * y + toe * toe) - toe) / (np.sqrt(1.0 + toe * toe) - toe)
+        return p / (p + knee) * (1.0 + knee)
+
+    return response
+
+
 def sharp_led(wl: np.ndarray) -> np.ndarray:
     """Phosphor white with a sharp 450 nm peak: the 410 nm band below 1 % of the maximum."""
     return 0.95 * base.gauss(wl, 450.0, 8.0) + 0.6 * base.gauss(wl, 570.0, 50.0) + 0.004
@@ -99,7 +115,17 @@ def led_power(seed: int) -> dict[int, float]:
 MODELS = {
     "nikon": {"sensitivity": measured_sensitivity(NIKON), "black": 60.0, "oecf": s_curve(1.3, 0.5)},
     "sigma": {"sensitivity": measured_sensitivity(SIGMA), "black": 48.0, "oecf": s_curve(1.15, 0.35)},
+    # a consumer camera: the Sigma's sensitivity, a strong toe over its lowest ~150 DN
+    "consumer": {
+        "sensitivity": measured_sensitivity(SIGMA),
+        "black": 64.0,
+        "oecf": toe_curve(0.03, 0.5),
+    },
 }
+
+WHITE_LEVEL = 3900
+"""The white level of ``sigma-paired-white``'s cameras [DN]: 12-bit raw values clip there, under
+the top code 4095, and capture.toml says nothing of it."""
 
 
 FALLOFF = {"rgb": 0.2, "spectral": 0.3, "spectral_slope": 0.05}
@@ -113,6 +139,20 @@ def lab(name: str) -> dict:
         return lab("sigma-paired") | {
             "name": "NIST CQS samples on a bumpy sample, Sigma paired, lens falloff",
             "falloff": FALLOFF,
+        }
+    if name == "sigma-paired-white":  # sigma-paired, every RGB camera clipping at WHITE_LEVEL
+        return lab("sigma-paired") | {
+            "name": "NIST CQS samples on a bumpy sample, Sigma paired, white level 3900",
+            "models": {k: v | {"white": WHITE_LEVEL} for k, v in MODELS.items()},
+        }
+    if name == "toe-camera":  # nikon-paired with its third camera a consumer camera with a toe
+        return lab("nikon-paired") | {
+            "name": "CIE test colours on a bumpy sample, Nikon paired, a consumer camera's toe",
+            "rgb_cameras": {
+                "cam-top": (10.0, 0.0, "nikon"),
+                "cam-45": (45.0, 0.0, "nikon"),
+                "cam-side": (30.0, 90.0, "consumer"),
+            },
         }
     if name == "nikon-paired":
         return {
@@ -148,7 +188,7 @@ def lab(name: str) -> dict:
     raise ValueError(f"unknown lab {name!r}: one of {', '.join(LABS)}")
 
 
-LABS = ("nikon-paired", "sigma-paired", "sigma-paired-falloff")
+LABS = ("nikon-paired", "sigma-paired", "sigma-paired-falloff", "sigma-paired-white", "toe-camera")
 HELD_OUT = "sigma-paired"  # never used to choose a setting of the calibration
 
 
