@@ -18,13 +18,14 @@ hard suite's set is solved with it (``reconstruct(..., endmembers=...)``), besid
 set solved with its own library (the hard suite's default row). Both with the scene's true
 illuminant. The same with ``"sparse-choice"`` (each texel's materials chosen over its set),
 with the set's own and the run's library, and a blend of :data:`BLEND` x the choice and the
-rest the default, both with the run's library. Per row: the per-pixel nRMSE (median, p95,
-fraction < 0.03; images with and without band shots), relit CIEDE2000 under A, FL11 and D65
-(median / p95), wall seconds; per library: the spectral angle of each true endmember to the
-nearest learnt one (median over all materials, area-weighted median, median over the
-dominant materials: at least 20 texels of fraction >= 0.9), as the ``material choice``
-research reports it. The oracles ``present`` and ``nearest-3`` of the set (true endmembers,
-RGB alone; see ``reconstruction_oracle.py``) are given for seed 0.
+rest the default, both with the run's library, and a blend weighted per texel by which of
+the two fits the texel's band shots better (:data:`BAND_WEIGHTS`). Per row: the per-pixel
+nRMSE (median, p95, fraction < 0.03; images with and without band shots), relit CIEDE2000
+under A, FL11 and D65 (median / p95), wall seconds; per library: the spectral angle of each
+true endmember to the nearest learnt one (median over all materials, area-weighted median,
+median over the dominant materials: at least 20 texels of fraction >= 0.9), as the
+``material choice`` research reports it. The oracles ``present`` and ``nearest-3`` of the
+set (true endmembers, RGB alone; see ``reconstruction_oracle.py``) are given for seed 0.
 
 The LAST line is one JSON object, also written to
 ``benchmarks/results/reconstruction_run_library.json`` (``--output`` to choose).
@@ -71,7 +72,17 @@ BLEND = 0.25
 """Weight of ``"sparse-choice"``'s spectra in the blend row (the rest the default's, both with
 the run library): chosen on woven, halftone and glossy (the largest weight of 0.25, 0.5,
 0.75 that lowered neither median nor p95 there), dark-still-life held out."""
-ROWS = ("default", "default+run-library", CHOICE, f"{CHOICE}+run-library", "blend+run-library")
+BAND_WEIGHTS = (0.5, 0.1)
+"""Weights of the choice in the band-weighted blend where its spectra fit the texel's band
+shots better than the default's, and elsewhere (chosen as :data:`BLEND`)."""
+ROWS = (
+    "default",
+    "default+run-library",
+    CHOICE,
+    f"{CHOICE}+run-library",
+    "blend+run-library",
+    "band-weighted-blend+run-library",
+)
 """The rows of each case: the default and ``"sparse-choice"``, each with the set's own
 library and with the run's, and their blend with the run's."""
 TURN_DEG = 37.0
@@ -189,6 +200,24 @@ def scores(spectra: xr.DataArray, capture, wall: float) -> dict:
     }
 
 
+def band_weights(capture, chosen: np.ndarray, default: np.ndarray) -> xr.DataArray:
+    """Per texel the weight of the choice in the band-weighted blend: ``BAND_WEIGHTS[0]``
+    where the choice's spectra fit the texel's band shots (all of the set's, chi^2 with each
+    shot's noise) better than the default's, ``BAND_WEIGHTS[1]`` elsewhere; ``(y, x)``."""
+    from spectralize.nodes.reconstruction import inputs_from_xarray
+    from spectralize.nodes.reconstruction.estimators.endmember_mixture import band_noise_sigma
+
+    inputs = inputs_from_xarray(capture.rgb, capture.bands, capture.camera_matrix)
+    sigma = band_noise_sigma(inputs)
+    misfit = np.zeros((2, inputs.height, inputs.width))
+    for i, (b, m) in enumerate(zip(inputs.band, inputs.image, strict=True)):
+        shot = inputs.band_data[i].astype(np.float64)
+        for k, cube in enumerate((chosen, default)):
+            misfit[k] += (cube[m, b] - shot) ** 2 / sigma[i] ** 2
+    weight = np.where(misfit[0] < misfit[1], *BAND_WEIGHTS)
+    return xr.DataArray(weight, dims=("y", "x"))
+
+
 def oracles(capture) -> dict:
     """``present`` and ``nearest-3`` of the set: mixtures of the true endmembers and the LED
     weighted by each image's RGB alone (exact NNLS), projected onto ``C S = R``."""
@@ -244,6 +273,9 @@ def run_case(name: str, seed: int, size: int, others: int, with_oracles: bool) -
     blend = BLEND * chosen + (1.0 - BLEND) * run_spectra
     wall = rows["default+run-library"]["wall_s"] + rows[f"{CHOICE}+run-library"]["wall_s"]
     rows["blend+run-library"] = scores(blend, capture, wall)
+    weight = band_weights(capture, chosen.values, run_spectra.values)
+    mixed = (weight * chosen + (1.0 - weight) * run_spectra).transpose(*chosen.dims)
+    rows["band-weighted-blend+run-library"] = scores(mixed, capture, wall)
     case = {
         "scene": name,
         "seed": seed,
