@@ -11,10 +11,17 @@ starting workers would cost more than it saves.
 
 A frame's problems are raised as before, naming its file (the workers raise the same
 :class:`~spectralize.datasets.capture.CaptureError`, which crosses the process boundary).
-Workers ignore Ctrl-C and SIGTERM (the ingest stops them when it stops). They are forked
-from a fork server that imported this module once, never from the ingest's process: it
-runs threads (the store's I/O loop, a flow's), which a forked copy would find stopped in
-whatever they held.
+Workers ignore Ctrl-C and SIGTERM (the ingest stops them when it stops) and end when the
+ingest's process is gone (killed, it cannot stop them).
+
+On Linux the workers are forked from the ingest's process: they start at once with every
+module imported, and nothing of the caller's script runs again in them (a fork server or
+spawn would run a script's top level again in every worker unless it is guarded by
+``if __name__ == "__main__":``). The ingest runs other threads (the store's I/O loop, dask's),
+which a fork leaves stopped in whatever they held, so a worker only decodes files: frames
+copied from the store (through zarr and its I/O loop) are read in the calling thread.
+Elsewhere the workers are spawned (the guard is then needed, as for any use of
+:mod:`multiprocessing` there).
 
 References
 ----------
@@ -27,7 +34,10 @@ import itertools
 import multiprocessing
 import os
 import signal
+import sys
 import threading
+import time
+import warnings
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from types import TracebackType
@@ -90,15 +100,27 @@ def load_frame(source: tuple, frame: tuple[int, ...]) -> np.ndarray:
 
 
 def _load_frames(sources: list[tuple], frame: tuple[int, ...]) -> list[np.ndarray]:
-    """A worker's task: :func:`load_frame` of each source, in order."""
+    """A worker's task: :func:`load_frame` of each source (files), in order."""
     return [load_frame(source, frame) for source in sources]
 
 
-def _worker_started() -> None:
+#: Seconds between a worker's looks at whether the ingest that started it still runs.
+PARENT_CHECK_SECONDS = 0.5
+
+
+def _worker_started(parent: int) -> None:
     """Workers leave Ctrl-C and SIGTERM to the ingest, which stops them (no traceback per
-    worker)."""
+    worker), and end on their own when the ingest ``parent`` is gone (killed: it could not
+    stop them), so none is left holding its pipes or files."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_CHECK_SECONDS)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="ingest-parent-watch", daemon=True).start()
 
 
 class FrameDecoder:
@@ -143,25 +165,27 @@ class FrameDecoder:
         return sum(process.is_alive() for process in list(processes.values()))
 
     def start(self) -> None:
-        """Start the workers now, without waiting for them (they import what they need while
+        """Start the workers now (forked: at once; spawned: they import what they need while
         the caller goes on)."""
         if self.workers > 1:
-            pool = self._started()
-            for _ in range(self.workers):
-                pool.submit(int)
+            self._started()
 
     def _started(self) -> ProcessPoolExecutor:
         with self._lock:
             if self._pool is None:
-                if "forkserver" in multiprocessing.get_all_start_methods():
-                    context = multiprocessing.get_context("forkserver")
-                    # the server imports the decoder once; each worker is a fork of it
-                    context.set_forkserver_preload([__name__])
-                else:
-                    context = multiprocessing.get_context("spawn")
+                fork = sys.platform.startswith("linux")
+                context = multiprocessing.get_context("fork" if fork else "spawn")
                 self._pool = ProcessPoolExecutor(
-                    self.workers, mp_context=context, initializer=_worker_started
+                    self.workers,
+                    mp_context=context,
+                    initializer=_worker_started,
+                    initargs=(os.getpid(),),
                 )
+                with warnings.catch_warnings():
+                    # the fork is safe here: a worker runs no thread's work (see the module)
+                    warnings.filterwarnings("ignore", "This process .* is multi-threaded")
+                    for _ in range(self.workers):  # forked now, all of them
+                        self._pool.submit(int)
             return self._pool
 
     def frames(self, sources: list[tuple], frame: tuple[int, ...]) -> Iterator[np.ndarray]:
@@ -172,8 +196,17 @@ class FrameDecoder:
         CaptureError
             For the first frame (in order) that cannot be read, naming its file.
         """
-        if self.workers == 1 or len(sources) < PARALLEL_ABOVE:
+        files = sum(source[0] == "file" for source in sources)
+        if self.workers == 1 or files < PARALLEL_ABOVE:
             return (load_frame(source, frame) for source in sources)
         batches = [sources[i : i + FRAMES_PER_TASK] for i in range(0, len(sources), FRAMES_PER_TASK)]
-        done = self._started().map(_load_frames, batches, itertools.repeat(frame))
-        return itertools.chain.from_iterable(done)
+        pool = self._started()
+        # a batch with a frame copied from the store is read here, when its turn comes
+        futures = [
+            pool.submit(_load_frames, batch, frame) if all(s[0] == "file" for s in batch) else None
+            for batch in batches
+        ]
+        return itertools.chain.from_iterable(
+            _load_frames(batch, frame) if future is None else future.result()
+            for batch, future in zip(batches, futures, strict=True)
+        )

@@ -43,3 +43,25 @@ def test_a_frame_a_worker_cannot_read_is_named(frames):
         list(decoder.frames(sources, (6, 5)))
     assert decoder.running() == 0
     assert str(broken) in str(raised.value)
+
+
+def test_the_workers_end_when_the_ingest_is_killed(frames):
+    """A killed ingest cannot stop its workers: they end on their own (none is left holding
+    the pipes of whoever started the ingest)."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        f"""
+        import os
+        from spectralize.flows.ingest.decode import FrameDecoder
+        decoder = FrameDecoder(workers=2)
+        decoder.start()
+        list(decoder.frames([("file", p) for p in {[str(p) for p in frames]!r}], (6, 5)))
+        print(decoder.running(), flush=True)
+        os._exit(9)
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 9 and done.stdout.strip() == "2", done.stderr
