@@ -827,16 +827,16 @@ def _thumbnail_caption(ds: xr.Dataset, position: int) -> str:
 #: more has them computed over whole stored chunks of images spread evenly over the run (and
 #: every few pixels of an image larger than this), so the report reads a bounded amount
 #: whatever the image count.
-STATISTICS_PIXELS = 2**22
+STATISTICS_PIXELS = 2**20
 
 
 def _spread_sample(values: xr.DataArray, limit: int = STATISTICS_PIXELS) -> tuple[xr.DataArray, int]:
     """``values`` (image, y, x) on at most about ``limit`` pixels, and the images it keeps.
 
     All of it when it has that few pixels; else the images of whole dask chunks along
-    ``image`` (a chunk is read whole anyway), as many as fit, spread evenly over the run
-    (the first and the last included), and every ``step``-th pixel along ``y`` and ``x``
-    where one chunk alone has more. One selection, read chunk by chunk: no loop over images.
+    ``image`` (a chunk is read whole anyway), as many as fit and at least two, spread evenly
+    over the run (the first and the last included), and every ``step``-th pixel along ``y``
+    and ``x`` where they have more. One selection, read chunk by chunk: no loop over images.
     """
     values = values.transpose("image", "y", "x")
     n, ny, nx = values.shape
@@ -845,7 +845,7 @@ def _spread_sample(values: xr.DataArray, limit: int = STATISTICS_PIXELS) -> tupl
     chunks = values.chunks[0] if values.chunks is not None else (1,) * n
     starts = np.cumsum((0, *chunks))
     per_chunk = max(chunks) * ny * nx
-    kept = max(1, min(len(chunks), limit // per_chunk))
+    kept = max(min(2, len(chunks)), min(len(chunks), limit // per_chunk))
     picked = np.unique(np.round(np.linspace(0, len(chunks) - 1, kept)).astype(int))
     positions = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in picked])
     step = max(1, int(np.ceil(np.sqrt(len(positions) * ny * nx / limit))))
@@ -870,7 +870,8 @@ def _confidence_headline(confidence: xr.DataArray) -> list[tuple[str, str]]:
     over = (
         ""
         if sample.size == confidence.size
-        else f" (over {values.size:,} pixels of {images:,} of the {total:,} images, spread over the run)"
+        else f" (over {values.size:,} of the {confidence.size:,} pixels: {images:,} of the "
+        f"{total:,} images, spread over the run)"
     )
     return [
         (
@@ -1023,7 +1024,11 @@ def _reconstruction(
     exposure_percentile: float,
     light: xr.DataArray | None = None,
     light_source: str = "none given",
+    confidence: xr.DataArray | None = None,
 ) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
+    """The reconstruction section: the first ``max_images`` images by label, and the
+    headline's statistics of the confidence (read as ``confidence`` where given: the
+    store's, chunked by shard; else ``spectra``'s)."""
     labels = np.sort(_labels(spectra))
     shown = [int(v) for v in labels[: int(max_images)]]
     cube = _by_label(spectra, shown).compute()
@@ -1035,7 +1040,7 @@ def _reconstruction(
     captions = [_thumbnail_caption(cube, k) for k in range(len(shown))]
     headline = [("images reconstructed", str(len(labels)))]
     if "confidence" in spectra:
-        headline += _confidence_headline(spectra["confidence"])
+        headline += _confidence_headline(spectra["confidence"] if confidence is None else confidence)
     blocks: list[dict[str, Any]] = []
     if len(shown) < len(labels):
         blocks.append(_text(f"Figures for the first {len(shown)} of {len(labels)} images."))
@@ -1315,6 +1320,8 @@ def write_run_report(
             exposure_percentile=exposure_percentile,
             light=light,
             light_source=light_source,
+            # read a shard per task, not a stored chunk (an image of small frames) per task
+            confidence=run.read("spectra", friendly=False, chunks="shards").get("confidence"),
         )
         headline = found + headline
         sections += recon

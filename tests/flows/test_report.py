@@ -557,7 +557,7 @@ def test_error_maps_show_the_range_of_the_images_not_the_first_ones(run, tmp_pat
 
 def test_the_confidence_statistics_of_a_large_run_read_whole_chunks_spread_over_it():
     """1,000 images in chunks of 50, at most 3,200 pixels: four whole chunks, the first and
-    the last among them; one frame larger than the limit is read every few pixels."""
+    the last among them; frames larger than the limit: two chunks, every few pixels."""
     labels = np.arange(1000, dtype=float)
     confidence = xr.DataArray(
         np.broadcast_to(labels[:, None, None], (1000, 4, 4)).copy(), dims=("image", "y", "x")
@@ -569,21 +569,22 @@ def test_the_confidence_statistics_of_a_large_run_read_whole_chunks_spread_over_
     assert sample.size <= 3200
     whole, count = report._spread_sample(confidence, limit=16_000)
     assert count == 1000 and whole.size == confidence.size  # small enough: all of it
-    large = xr.DataArray(np.zeros((2, 64, 64)), dims=("image", "y", "x")).chunk({"image": 1})
-    strided, count = report._spread_sample(large, limit=1024)
-    assert count == 1 and strided.shape == (1, 32, 32)  # every 2nd pixel of one image
+    large = xr.DataArray(np.zeros((3, 64, 64)), dims=("image", "y", "x")).chunk({"image": 1})
+    strided, count = report._spread_sample(large, limit=2048)
+    assert count == 2 and strided.shape == (2, 32, 32)  # every 2nd pixel of the first and last
 
 
 def test_the_confidence_headline_of_a_run_too_large_to_read_says_what_it_was_computed_over():
     rng = np.random.default_rng(5)
-    n, side = 300, 128  # 4.9 million pixels: over STATISTICS_PIXELS
+    n, side = 300, 128  # 4.9 million pixels: more than STATISTICS_PIXELS
     confidence = xr.DataArray(
         rng.gamma(1.0, 0.01, (n, side, side)).astype(np.float32), dims=("image", "y", "x")
     ).chunk({"image": 10})
     (quality, _) = report._confidence_headline(confidence)
     pixels = report.STATISTICS_PIXELS // (10 * side * side) * 10 * side * side
     assert quality[1].endswith(
-        f"(over {pixels:,} pixels of {pixels // side**2} of the 300 images, spread over the run)"
+        f"(over {pixels:,} of the {n * side * side:,} pixels: {pixels // side**2} of the 300 "
+        "images, spread over the run)"
     )
     (small, _) = report._confidence_headline(confidence.isel(image=slice(0, 20)))
     assert "spread" not in small[1]  # a run this small: every pixel
