@@ -12,6 +12,12 @@ then both solve a 128^2 capture with truth whole (nRMSE: the speed-up must not c
 result). The LAST line is one JSON object, also written to
 ``benchmarks/results/paper_scale_throughput.json``.
 
+``--profile`` instead profiles one interior 256 px tile of the 512^2 capture mirrored to
+768^2 (``solve_tile`` as the flow calls it: the set's endmembers, the confidence, the run's
+illuminant), before and after, each in a fresh process under cProfile: the cumulative seconds
+of the tile's stages (:data:`TILE_SECTIONS`), its resident peak, and both sides' 128^2
+accuracy; stored under the key ``profile_256`` of the same file (the other rows are kept).
+
 ``--mixture-tile`` instead times the mixture prior's centre (the endmember mixture) and the
 whole tile (``solve_tile``, with the set's endmembers and the confidence) on one 256^2 x
 20-image tile, before and after, each in a fresh process, with a cProfile of the mixture's
@@ -49,6 +55,134 @@ MIXTURE_SECTIONS = {
     "rgb_abundances": "  abundance solves (2)",
     "_project": "  projection onto C S = R, S >= 0 (2)",
 }
+
+
+TILE_SECTIONS = {
+    ("tiling", "solve_tile"): "tile (solve_tile)",
+    ("operators", "build_problem"): "eq. 1 set-up (neighbours, Laplacian, filters)",
+    ("neighbourhoods", "appearance_neighbours"): "  neighbour search (k-d tree)",
+    ("prior_pcg", "_spectral_prior"): "spectral prior's centre",
+    ("endmember_mixture", "endmember_mixture"): "  endmember mixture",
+    ("natural_prior", "natural_prior"): "  natural-spectra (Wiener) prior",
+    ("preconditioner", "__init__"): "block-Jacobi set-up",
+    ("common", "pixel_pcg"): "PCG",
+    ("projected_refinement", "projected_refinement"): "refinement (S >= 0)",
+    ("kernels", "prior_normal_pixels"): "operator's compiled pass (every call)",
+    ("operators", "add_normal"): "operator's filter term (every call)",
+    ("material_pooled", "material_pooled_refine"): "set model (material-pooled)",
+    ("material_pooled", "texel_shapes"): "  its shapes steps",
+    ("material_pooled", "texel_weights"): "  its weights steps",
+    ("confidence", "neighbourhood_spread"): "confidence",
+    ("operators", "to_pixels"): "pixel-major copies (to_pixels)",
+}
+"""The stages of a tile in ``--profile``: (module, function) -> the row's name."""
+
+
+def profile_tile_case(folder: str, package: str | None) -> dict:
+    """In this process: one interior 256 px tile of the set in ``folder`` under cProfile."""
+    import cProfile
+    import pstats
+
+    sys.path.insert(0, str(HERE))
+    if package:
+        from paper_scale import use_package
+
+        use_package(package)
+    from paper_scale import (
+        _as_a_run,
+        _set_endmembers,
+        _warm_training,
+        flow_settings,
+        load_inputs,
+        resident_gb,
+        tile_method,
+    )
+
+    from spectralize.nodes.reconstruction.tiling import default_halo, solve_tile, tile_windows
+
+    rgb, shots, camera, _ = load_inputs(Path(folder))
+    size = rgb.sizes["y"]
+    windows = tile_windows(size, size, 256, default_halo(shots["filter_size"].values))
+    window = windows[len(windows) // 2]  # the centre tile: a full halo on every side
+    endmembers, _ = _set_endmembers(rgb, shots, camera)
+    _warm_training()
+    oy, ox = window.outer
+    profile = cProfile.Profile()
+    started = time.perf_counter()
+    with _as_a_run():
+        profile.enable()
+        _, iterations, _ = solve_tile(
+            rgb.isel(y=oy, x=ox),
+            shots.isel(y=oy, x=ox),
+            camera,
+            window.inner,
+            **tile_method(solve_tile, flow_settings(Path(folder))),
+            confidence=True,
+            endmembers=endmembers,
+        )
+        profile.disable()
+    wall = time.perf_counter() - started
+    sections: dict[str, float] = {}
+    for (filename, _, name), (_, _, _, cumulative, _) in pstats.Stats(profile).stats.items():
+        module = Path(filename).stem
+        if (module, name) in TILE_SECTIONS and "reconstruction" in filename:
+            label = TILE_SECTIONS[(module, name)]
+            sections[label] = round(sections.get(label, 0.0) + cumulative, 2)
+    return {
+        "window": list(window.outer_shape),
+        "wall_s": round(wall, 2),
+        "iterations": int(iterations.max()),
+        "peak_rss_gb": round(resident_gb(), 3),
+        "load_average_1min": round(os.getloadavg()[0], 1),
+        "sections_s": sections,
+    }
+
+
+def profile_tile(args: argparse.Namespace, report: dict) -> None:
+    """``--profile``: a 256 px tile profiled before and after, each in a fresh process."""
+    from paper_scale import baseline_package, capture_inputs, run_case
+
+    previous = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        package = baseline_package(args.baseline_commit, work)
+        log(f"capturing {args.scene} at 512^2 and 128^2 (20 images)")
+        capture_inputs(args.scene, 512, 0, work / "set512.npz", truth=False)
+        capture_inputs(args.scene, 128, 0, work / "set128.npz", truth=True)
+        run_case("mirror", work / "set512.npz", 768, work / "mirrored768")
+        for key, where in (("before", package), ("after", None)):
+            accuracy = run_case("accuracy", work / "set128.npz", package=where)  # compiles too
+            command = [sys.executable, str(Path(__file__).resolve()), "--profile-case"]
+            command += [str(work / "mirrored768")] + (["--package", str(where)] if where else [])
+            out = subprocess.run(command, capture_output=True, text=True, check=False)
+            if out.returncode != 0:
+                raise RuntimeError(f"profile case ({key}) failed:\n{out.stderr[-4000:]}")
+            rows[key] = {**json.loads(out.stdout.strip().splitlines()[-1]), "accuracy_128": accuracy}
+            log(f"{key}: {rows[key]}")
+        subprocess.run(["git", "worktree", "remove", "--force", str(work / "baseline")], check=False)
+    before, after = rows["before"], rows["after"]
+    previous["profile_256"] = {
+        "note": f"cProfile of one interior 256 px tile ({before['window'][0]}^2 window x 20 images, "
+        f"{args.scene} 512^2 mirrored to 768^2) solved by solve_tile with the set's endmembers, "
+        f"the illuminant and the confidence; before `{args.baseline_commit}`, after "
+        f"`{report['commit']}`, each in a fresh process in one run (load {before['load_average_1min']}"
+        f" / {after['load_average_1min']}); cumulative seconds, every call of a stage summed. "
+        + args.note,
+        "command": report["command"],
+        "before": before,
+        "after": after,
+        "sections": [
+            {
+                "section": label,
+                "before_s": before["sections_s"].get(label),
+                "after_s": after["sections_s"].get(label),
+            }
+            for label in dict.fromkeys(TILE_SECTIONS.values())
+        ],
+    }
+    RESULTS.write_text(json.dumps(previous, indent=1) + "\n")
+    print(json.dumps(previous["profile_256"]))
 
 
 def mixture_tile_case(path: str, package: str | None) -> dict:
@@ -161,6 +295,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--baseline-commit")
     parser.add_argument("--mixture-tile", action="store_true", help="the 256^2 tile case")
+    parser.add_argument("--profile", action="store_true", help="profile a 256 px tile")
+    parser.add_argument("--profile-case", help=argparse.SUPPRESS)
     parser.add_argument("--tile-case", help=argparse.SUPPRESS)
     parser.add_argument("--package", help=argparse.SUPPRESS)
     parser.add_argument(
@@ -172,6 +308,9 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=2048)
     parser.add_argument("--note", default="")
     args = parser.parse_args()
+    if args.profile_case:
+        print(json.dumps(profile_tile_case(args.profile_case, args.package)))
+        return
     if args.tile_case:
         print(json.dumps(mixture_tile_case(args.tile_case, args.package)))
         return
@@ -196,6 +335,9 @@ def main() -> None:
     }
     if args.mixture_tile:
         mixture_tile(args, report)
+        return
+    if args.profile:
+        profile_tile(args, report)
         return
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -237,7 +379,7 @@ def main() -> None:
         print(json.dumps(report))
         return
     previous = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    for key in ("profile", "mixture_tile"):  # kept from their own runs (--profile, --mixture-tile)
+    for key in ("profile_256", "mixture_tile"):  # kept from their own runs (a profile, --mixture-tile)
         if key in previous:
             report[key] = previous[key]
     RESULTS.write_text(json.dumps(report, indent=1) + "\n")
