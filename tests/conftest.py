@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 
@@ -50,6 +51,23 @@ def prefect_server_stopped_while_captured():
         APILogWorker.drain_all(timeout=30)
         EventsWorker.drain_all(timeout=30)
     server.stop()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def survivors_frozen():
+    """Every object alive when a test module starts (the imported libraries, session fixtures)
+    kept out of the garbage collector's full collections, after one collection (``gc.freeze``).
+
+    A flow collects garbage before each node (``flows.memory.release_free_memory``): in a
+    pytest worker that has imported Prefect, dask, xarray, numba, SciPy and the notebook stack,
+    a full collection walks several hundred thousand objects, a second or more per node run
+    in the worker's own process. Frozen, it walks only what the module's tests made.
+    Objects are still freed when their last reference goes; only cycles formed among frozen
+    ones wait for the end of the session.
+    """
+    gc.collect()
+    gc.freeze()
+    yield
 
 
 @pytest.fixture(scope="session", autouse=True)
