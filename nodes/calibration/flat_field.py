@@ -89,12 +89,15 @@ spectral camera's flat field."""
 
 
 def rgb_flat_field(white_reference: xr.Dataset, oecf_rgb: xr.Dataset) -> tuple[FlatField, list]:
-    """Each RGB camera's flat field per channel from its HDR of the white reference.
+    """Each RGB camera's flat field from its HDR of the white reference.
 
     Each camera's exposure series of the white reference is merged to HDR through its own
     response (codes at or above its saturation left out,
     :func:`~spectralize.nodes.calibration.hdr.merge_hdr`: Robertson's time-weighted average
-    over the series) and each channel fitted by :func:`fit_flat_field`.
+    over the series) and each channel fitted by :func:`fit_flat_field`; the camera's map is
+    the mean of its channels' (stored for every channel): a lens's falloff is geometric, the
+    same in every channel, while a map per channel would carry each channel's own response
+    error into the colour of every image's corners (and into ``C``, fitted through it).
 
     Returns
     -------
@@ -121,7 +124,8 @@ def rgb_flat_field(white_reference: xr.Dataset, oecf_rgb: xr.Dataset) -> tuple[F
         )
         radiance = np.asarray(hdr["radiance"].isel(image=0).transpose("y", "x", "channel").values)
         per_channel = [fit_flat_field(radiance[..., c]) for c in range(radiance.shape[-1])]
-        coefficients.append(np.stack([f.coefficients for f in per_channel]))
+        mean = np.mean([f.coefficients for f in per_channel], axis=0)  # one map: achromatic
+        coefficients.append(np.stack([mean] * len(per_channel)))
         fits.append(per_channel)
     frame = (white_reference.sizes["y"], white_reference.sizes["x"])
     flat = FlatField(np.stack(coefficients), legendre_powers(), frame, np.asarray(cameras))

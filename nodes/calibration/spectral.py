@@ -129,7 +129,7 @@ def calibrate_spectral(
 ) -> xr.Dataset:
     """Quantum efficiency, camera matrix C and the cross-validation of paper Fig. 4.
 
-    - Flat fields: each RGB camera's per channel from its HDR of the white reference
+    - Flat fields: each RGB camera's (one map for its channels) from its HDR of the white reference
       (:func:`~.rgb_flat_field`), the spectral camera's per band from the white reference's
       band series (:func:`~.spectral_flat_field`); every target below is divided by its
       camera's map before ``Q`` and ``C`` are fitted, as the scene's images and band shots
