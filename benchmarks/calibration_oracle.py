@@ -63,6 +63,8 @@ LABS = {  # lab: (script, arguments); sigma-paired was kept out of every choice
     "sigma-paired (held out)": ("foreign_gantry_models.py", ["--lab", "sigma-paired"]),
     # the held-out capture written again through lenses with falloff (its clean twin above)
     "sigma-paired-falloff (held out)": ("foreign_gantry_models.py", ["--lab", "sigma-paired-falloff"]),
+    # foreign-gaussian through the same lenses (its clean twin above)
+    "gaussian-falloff (held out)": ("foreign_gantry_models.py", ["--lab", "gaussian-falloff"]),
     # the held-out capture again, every RGB camera clipping at an undeclared white level
     "sigma-paired-white (held out)": ("foreign_gantry_models.py", ["--lab", "sigma-paired-white"]),
     # nikon-paired with a consumer camera whose response has a strong toe as its third camera
@@ -72,7 +74,10 @@ WHITE_TWINS = {"sigma-paired-white (held out)": "sigma-paired (held out)"}
 LOW_LEVELS = ((0.0, 0.01), (0.01, 0.05), (0.05, 0.25))
 """Quantile ranges of the oracle's HDR radiance (per camera and channel) whose calibrated
 radiance error :func:`low_level_error` reports: the lowest levels, where a toe shows."""
-FALLOFF_TWINS = {"sigma-paired-falloff (held out)": "sigma-paired (held out)"}
+FALLOFF_TWINS = {
+    "sigma-paired-falloff (held out)": "sigma-paired (held out)",
+    "gaussian-falloff (held out)": "foreign-gaussian",
+}
 BORDER = 3  # px left out at the frame's edge (registration resampling)
 
 

@@ -17,7 +17,8 @@ Two labs: ``nikon-paired`` (the paired camera and one more are Nikon, one Sigma)
 ``sigma-paired`` (the paired camera is Sigma, with other samples and another LED), which is
 kept out of every choice of the calibration's settings and reported on its own; and
 ``sigma-paired-falloff``, the same capture through lenses that lose light towards the corners
-(:data:`FALLOFF`, ``foreign_gantry.lens_falloff``), held out as well, beside its clean twin;
+(:data:`FALLOFF`, ``foreign_gantry.lens_falloff``), held out as well, beside its clean twin,
+and ``gaussian-falloff``, ``foreign_gantry``'s own lab through the same lenses;
 ``sigma-paired-white``, the same capture again with every RGB camera clipping at a white level
 under the top code (:data:`WHITE_LEVEL`) that capture.toml does not declare, held out as well;
 and ``toe-camera``, ``nikon-paired`` with its Sigma camera replaced by a consumer camera of the
@@ -135,6 +136,11 @@ FALLOFF = {"rgb": 0.2, "spectral": 0.3, "spectral_slope": 0.05}
 
 def lab(name: str) -> dict:
     """The gantry of lab ``name`` (see the module docstring)."""
+    if name == "gaussian-falloff":  # foreign_gantry's own lab through falloffing lenses
+        return base.default_lab() | {
+            "name": "bumpy stripes, night of 2026-11-20, lens falloff",
+            "falloff": FALLOFF,
+        }
     if name == "sigma-paired-falloff":  # sigma-paired written again through falloffing lenses
         return lab("sigma-paired") | {
             "name": "NIST CQS samples on a bumpy sample, Sigma paired, lens falloff",
@@ -188,7 +194,14 @@ def lab(name: str) -> dict:
     raise ValueError(f"unknown lab {name!r}: one of {', '.join(LABS)}")
 
 
-LABS = ("nikon-paired", "sigma-paired", "sigma-paired-falloff", "sigma-paired-white", "toe-camera")
+LABS = (
+    "nikon-paired",
+    "sigma-paired",
+    "sigma-paired-falloff",
+    "gaussian-falloff",
+    "sigma-paired-white",
+    "toe-camera",
+)
 HELD_OUT = "sigma-paired"  # never used to choose a setting of the calibration
 
 
