@@ -138,12 +138,30 @@ def profile_tile_case(folder: str, package: str | None) -> dict:
     }
 
 
+def _before_and_after(work: Path, package: Path, case: str, inputs: Path) -> dict[str, dict]:
+    """One ``case`` (``--profile-case``, ``--tile-case``) on ``inputs`` with the baseline
+    ``package`` and with this checkout, each in a fresh process, with the 128^2 accuracy
+    row of the same code (its first run compiles too)."""
+    from paper_scale import run_case
+
+    rows = {}
+    for key, where in (("before", package), ("after", None)):
+        accuracy = run_case("accuracy", work / "set128.npz", package=where)
+        command = [sys.executable, str(Path(__file__).resolve()), case, str(inputs)]
+        command += ["--package", str(where)] if where is not None else []
+        out = subprocess.run(command, capture_output=True, text=True, check=False)
+        if out.returncode != 0:
+            raise RuntimeError(f"{case} ({key}) failed:\n{out.stderr[-4000:]}")
+        rows[key] = {**json.loads(out.stdout.strip().splitlines()[-1]), "accuracy_128": accuracy}
+        log(f"{key}: {rows[key]}")
+    return rows
+
+
 def profile_tile(args: argparse.Namespace, report: dict) -> None:
     """``--profile``: a 256 px tile profiled before and after, each in a fresh process."""
     from paper_scale import baseline_package, capture_inputs, run_case
 
     previous = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    rows = {}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         package = baseline_package(args.baseline_commit, work)
@@ -151,15 +169,7 @@ def profile_tile(args: argparse.Namespace, report: dict) -> None:
         capture_inputs(args.scene, 512, 0, work / "set512.npz", truth=False)
         capture_inputs(args.scene, 128, 0, work / "set128.npz", truth=True)
         run_case("mirror", work / "set512.npz", 768, work / "mirrored768")
-        for key, where in (("before", package), ("after", None)):
-            accuracy = run_case("accuracy", work / "set128.npz", package=where)  # compiles too
-            command = [sys.executable, str(Path(__file__).resolve()), "--profile-case"]
-            command += [str(work / "mirrored768")] + (["--package", str(where)] if where else [])
-            out = subprocess.run(command, capture_output=True, text=True, check=False)
-            if out.returncode != 0:
-                raise RuntimeError(f"profile case ({key}) failed:\n{out.stderr[-4000:]}")
-            rows[key] = {**json.loads(out.stdout.strip().splitlines()[-1]), "accuracy_128": accuracy}
-            log(f"{key}: {rows[key]}")
+        rows = _before_and_after(work, package, "--profile-case", work / "mirrored768")
         subprocess.run(["git", "worktree", "remove", "--force", str(work / "baseline")], check=False)
     before, after = rows["before"], rows["after"]
     previous["profile_256"] = {
@@ -246,33 +256,16 @@ def mixture_tile_case(path: str, package: str | None) -> dict:
 
 def mixture_tile(args: argparse.Namespace, report: dict) -> None:
     """``--mixture-tile``: before and after on one 256^2 tile, each in a fresh process."""
-    from paper_scale import baseline_package, capture_inputs, run_case
+    from paper_scale import baseline_package, capture_inputs
 
     previous = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-    rows = {}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         package = baseline_package(args.baseline_commit, work)
         log(f"capturing {args.scene} at 256^2 and 128^2 (20 images)")
         capture_inputs(args.scene, 256, 0, work / "set256.npz", truth=False)
         capture_inputs(args.scene, 128, 0, work / "set128.npz", truth=True)
-        for key, where in (("before", package), ("after", None)):
-            accuracy = run_case("accuracy", work / "set128.npz", package=where)
-            command = [
-                sys.executable,
-                str(Path(__file__).resolve()),
-                "--tile-case",
-                str(work / "set256.npz"),
-            ]
-            if where is not None:
-                command += ["--package", str(where)]
-            out = subprocess.run(command, capture_output=True, text=True, check=False)
-            if out.returncode != 0:
-                raise RuntimeError(f"tile case ({key}) failed:\n{out.stderr[-4000:]}")
-            row = json.loads(out.stdout.strip().splitlines()[-1])
-            row["accuracy_128"] = accuracy
-            log(f"{key}: {row}")
-            rows[key] = row
+        rows = _before_and_after(work, package, "--tile-case", work / "set256.npz")
         subprocess.run(["git", "worktree", "remove", "--force", str(work / "baseline")], check=False)
     before, after = rows["before"], rows["after"]
     previous["mixture_tile"] = {
