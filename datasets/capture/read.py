@@ -3,9 +3,10 @@
 :func:`read_capture` reads ``capture.toml`` and ``manifest.csv`` (:mod:`.config`,
 :mod:`.manifest`), checks the rows (:mod:`.checks`), probes every image file it has not seen
 before (:mod:`.images`, in a thread pool: the decoders release the GIL; every header first,
-then the pixels of the frames whose header passed) and reads the
-calibration tables (:mod:`.calibration`). It raises one :class:`~.model.CaptureError` that lists
-every problem with its file and manifest line, or returns a :class:`~.model.Capture`.
+then the pixels of the frames whose header passed, but for the kinds of frame whose values the
+caller checks as it decodes them: ingest decodes each frame once) and reads the calibration
+tables (:mod:`.calibration`). It raises one :class:`~.model.CaptureError` that lists every
+problem with its file and manifest line, or returns a :class:`~.model.Capture`.
 
 References
 ----------
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import os
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -45,6 +46,7 @@ def read_capture(
     known: dict[str, tuple[int, int]] | None = None,
     known_shape: tuple[int, int] | None = None,
     progress: Callable[[str], None] | None = None,
+    values_checked_later: Collection[str] = (),
 ) -> Capture:
     """Read and check a capture folder; every problem is collected before raising.
 
@@ -59,6 +61,11 @@ def read_capture(
         The frame shape of the files in ``known`` (from the store).
     progress
         Called with a short message now and then.
+    values_checked_later
+        Kinds of frame (``"rgb"``, ``"spectral"``, ``"dark"``) whose pixel values the caller
+        checks as it decodes them for writing (ingest, whose workers decode each frame once):
+        their headers are checked here, their values only when the folder has another
+        problem (so that the error still lists every problem).
 
     Raises
     ------
@@ -86,40 +93,24 @@ def read_capture(
     problems += check_structure(rows, config)
     todo = _new_files(root, rows, config, known or {})
     say(f"checking {len(todo)} new or changed file(s) of {len(rows)}")
-    # headers first (nothing decoded): the run's frame shape, then only frames of that shape
-    # and of a bounded size are decoded to check their values
-    with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
-        headers = list(pool.map(lambda item: probe(*item[1:], decode=False), todo))
-        shapes = Counter(shape for shape, expected, _ in headers if expected is None)
-        frame_shape = shapes.most_common(1)[0][0] if shapes else None
-        frame_shape = tuple(known_shape) if known_shape is not None else frame_shape
-        good = [item for item, (_, expected, _) in zip(todo, headers, strict=True) if expected is None]
-        results = dict(
-            zip(
-                (item[0].line for item in good),
-                pool.map(lambda item: probe(*item[1:], frame_shape=frame_shape), good),
-                strict=True,
-            )
-        )
-    probed = []
-    for (row, *_), header in zip(todo, headers, strict=True):
-        shape, expected, found = results.get(row.line, header)
-        if expected is not None:
-            problems.append(Problem(row.where, expected, found))
-        else:
-            probed.append((row, shape))
-    say(f"checked {len(todo)} file(s)")
-    problems += check_frame_shapes(probed, frame_shape)
+    headers, frame_shape = _probe_headers(todo, known_shape)
     bands = calibration_bands(rows)
     leds: dict[int, str] = {}
     for row in rows:
         if row.kind in ("rgb", "spectral") and row.led is not None:
             leds.setdefault(row.led, row.where)
-    calibration, found = read_calibration(
+    calibration, calibration_problems = read_calibration(
         root, config, bands, frame_shape, calibration_cameras(rows, config), leds
     )
-    problems += found
-    problems += check_bands(rows, bands)
+    band_problems = check_bands(rows, bands)
+    checked = _probe_values(todo, headers, frame_shape, skip_kinds=set(values_checked_later))
+    file_problems = _file_problems(todo, headers, checked, frame_shape)
+    if problems or file_problems or calibration_problems or band_problems:
+        # a folder with problems: the values of every frame too, so that the error lists all
+        checked |= _probe_values(todo, headers, frame_shape, skip_lines=set(checked))
+        file_problems = _file_problems(todo, headers, checked, frame_shape)
+    say(f"checked {len(todo)} file(s)")
+    problems = problems + file_problems + calibration_problems + band_problems
     if problems:
         raise CaptureError(
             f"cannot ingest {root}: {len(problems)} problem(s), nothing was written", problems
@@ -138,6 +129,62 @@ def read_capture(
         rgb_patch_index=calibration["rgb_patch_index"],
         led_power=calibration.get("led_power"),
     )
+
+
+_Todo = tuple[Row, Path, bool, int]  # (row, file, rgb, bit_depth) of a file to check
+_Probed = tuple[tuple[int, int] | None, str | None, str | None]  # what :func:`probe` returns
+
+
+def _probe_headers(
+    todo: list[_Todo], known_shape: tuple[int, int] | None
+) -> tuple[list[_Probed], tuple[int, int] | None]:
+    """Every file's header (nothing decoded), and the run's frame shape: that of the files
+    already ingested, else the most common one declared."""
+    with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
+        headers = list(pool.map(lambda item: probe(*item[1:], decode=False), todo))
+    shapes = Counter(shape for shape, expected, _ in headers if expected is None)
+    frame_shape = shapes.most_common(1)[0][0] if shapes else None
+    return headers, tuple(known_shape) if known_shape is not None else frame_shape
+
+
+def _probe_values(
+    todo: list[_Todo],
+    headers: list[_Probed],
+    frame_shape: tuple[int, int] | None,
+    *,
+    skip_kinds: Collection[str] = (),
+    skip_lines: Collection[int] = (),
+) -> dict[int, _Probed]:
+    """``{manifest line: probe}`` of the files whose header passed, decoded to check their
+    values (in a thread pool), but for those of ``skip_kinds`` and ``skip_lines``."""
+    good = [
+        item
+        for item, (_, expected, _) in zip(todo, headers, strict=True)
+        if expected is None and item[0].kind not in skip_kinds and item[0].line not in skip_lines
+    ]
+    if not good:
+        return {}
+    with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
+        found = pool.map(lambda item: probe(*item[1:], frame_shape=frame_shape), good)
+        return dict(zip((item[0].line for item in good), found, strict=True))
+
+
+def _file_problems(
+    todo: list[_Todo],
+    headers: list[_Probed],
+    checked: dict[int, _Probed],
+    frame_shape: tuple[int, int] | None,
+) -> list[Problem]:
+    """A problem for each file whose header or values failed (its value check in ``checked``,
+    else its header's), then the frames of another shape than the run's."""
+    problems, probed = [], []
+    for (row, *_), header in zip(todo, headers, strict=True):
+        shape, expected, found = checked.get(row.line, header)
+        if expected is not None:
+            problems.append(Problem(row.where, expected, found))
+        else:
+            probed.append((row, shape))
+    return problems + check_frame_shapes(probed, frame_shape)
 
 
 def _contained(root: Path, rows: list[Row], config: Config) -> tuple[list[Row], list[Problem]]:
@@ -194,7 +241,7 @@ def _read_manifest(root: Path, config: Config | None, problems: list[Problem]) -
 
 def _new_files(
     root: Path, rows: list[Row], config: Config, known: dict[str, tuple[int, int]]
-) -> list[tuple[Row, Path, bool, int]]:
+) -> list[_Todo]:
     """``(row, file, rgb, bit_depth)`` of every file not in ``known`` (or changed since)."""
     todo = []
     for row in rows:

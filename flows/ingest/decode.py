@@ -66,15 +66,19 @@ def available_cores() -> int:
 def load_frame(source: tuple, frame: tuple[int, ...]) -> np.ndarray:
     """One frame, from its file or (already ingested) from the store; shape ``(1,)*k + frame``.
 
+    ``source`` is ``("file", path)``, ``("file", path, bit_depth)`` or a place in the store.
     A file's header is checked against ``frame`` before it is decoded (a file replaced by a
-    larger one since it was probed is refused, not decoded). A frame copied from the store is
-    checked against its chunk's checksum; a damaged chunk is not copied: the frame is read
-    from its file again.
+    larger one since it was probed is refused, not decoded); given its camera's
+    ``bit_depth``, its values are checked as they are decoded (at most ``2**bit_depth - 1``,
+    right-aligned), so that each frame is decoded once (the capture folder's check leaves
+    them to ingest). A frame copied from the store is checked against its chunk's checksum; a
+    damaged chunk is not copied: the frame is read from its file again.
 
     Raises
     ------
     CaptureError
-        Naming the file, for a frame that cannot be decoded or has another shape.
+        Naming the file, for a frame that cannot be decoded, has another shape or a value
+        above its camera's bit depth.
     """
     if source[0] == "store":
         import zarr
@@ -96,6 +100,13 @@ def load_frame(source: tuple, frame: tuple[int, ...]) -> np.ndarray:
             raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", str(error)) from None
     if data.shape != frame:
         raise CaptureError.single(str(source[1]), f"a frame of shape {frame}", f"shape {data.shape}")
+    if source[0] == "file" and len(source) > 2 and data.size and int(data.max()) >= 2 ** source[2]:
+        bits = source[2]
+        raise CaptureError.single(
+            str(source[1]),
+            f"values up to {2**bits - 1} (a {bits}-bit camera, right-aligned)",
+            f"a value of {int(data.max())}",
+        )
     return data.astype(np.uint16, copy=False)
 
 

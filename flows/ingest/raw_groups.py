@@ -123,8 +123,10 @@ class FrameSources:
             if old is not None:
                 source = ("store", old[0], old[1], tuple(int(i) for i in old[2]), old[3], file)
                 self.copied += 1
-            else:
-                source = ("file", file)
+            else:  # its values are checked as it is decoded (its camera's bit depth)
+                config = self.capture.config
+                rgb = row.camera in config.rgb_cameras
+                source = ("file", file, config.rgb_bit_depth if rgb else config.spectral_bit_depth)
                 self.read += 1
             arrays.append(source)
             files.append(stat)

@@ -6,6 +6,14 @@ every problem is listed before anything is written), builds the raw groups
 (:mod:`.raw_groups`) and writes those whose fingerprint changed. Writes are atomic per group
 and resumable per image, shot or dark exposure time (:meth:`RunStore.write`).
 
+Each frame is decoded once, on every core (:mod:`.decode`). The folder's check reads the
+headers of the RGB, band and dark frames, not their pixels: their values are checked as they
+are decoded for writing. So that still nothing is written from a folder with a problem, the
+groups of those frames are first staged, region by region, and committed only once every
+one of them is staged (:func:`_stage_checked`); a frame whose values fail stops the ingest
+before any group is committed, and the folder is then checked whole, so that the error lists
+every problem as before (a store this ingest created is removed again).
+
 Re-ingesting is incremental. Each group's fingerprint is made from its manifest rows, the
 size and modification time of its files and the calibration tables: unchanged groups are
 skipped (and so are the flow steps that depend only on them); a group with new frames is
@@ -20,19 +28,29 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from spectralize.datasets.capture import Capture, read_capture
+from spectralize.datasets.capture import Capture, CaptureError, read_capture
+from spectralize.schemas import StoreError
 from spectralize.store import RunStore
+from spectralize.store.lock import work_dir
+from spectralize.store.staging import remove_abandoned, staged_path
 
 from ..signals import sigterm_as_interrupt
 from .decode import PARALLEL_ABOVE, FrameDecoder
 from .raw_groups import FILES_ATTR, INGEST_VERSION, RAW_GROUPS, FrameSources, RawGroup, build_raw_groups
 
-__all__ = ["IngestReport", "ingest"]
+__all__ = ["IngestReport", "ingest", "VALUES_CHECKED_WHILE_STAGED"]
+
+VALUES_CHECKED_WHILE_STAGED: tuple[str, ...] = ("rgb", "spectral", "dark")
+"""Kinds of frame whose values ingest checks as it decodes them (their groups are resumable:
+staged region by region before any group is committed); the others' are checked with the
+folder (:func:`~spectralize.datasets.capture.read_capture`)."""
 
 
 @dataclass
@@ -122,16 +140,61 @@ def _ingest(capture_dir: Path, store_path: Path, progress: Callable[[str], None]
     say = progress or (lambda message: None)
     existing = RunStore.open(store_path) if store_path.exists() else None
     known, shape = _known_files(existing) if existing is not None else ({}, None)
-    capture = read_capture(capture_dir, known=known, known_shape=shape, progress=say)
+    capture = read_capture(
+        capture_dir,
+        known=known,
+        known_shape=shape,
+        progress=say,
+        values_checked_later=VALUES_CHECKED_WHILE_STAGED,
+    )
     store = existing or RunStore.create(
         store_path,
         attrs={"capture": {"folder": str(capture_dir.absolute()), "name": capture.config.name}},
     )
     report = IngestReport(capture_dir, store.path)
-    with store.lock(f"spectralize ingest {capture_dir}"):
-        _write_groups(capture, store, report, say)
+    try:
+        with store.lock(f"spectralize ingest {capture_dir}"):
+            _write_groups(capture, store, report, say)
+    except _FrameProblem as problem:  # nothing was committed
+        if existing is None:  # the store this ingest created, empty: removed again
+            shutil.rmtree(work_dir(store_path), ignore_errors=True)
+            shutil.rmtree(store_path, ignore_errors=True)
+        # the folder checked whole (every frame's values): the error lists every problem
+        read_capture(capture_dir, known=known, known_shape=shape, progress=say)
+        raise problem.error from None
     report.seconds = time.perf_counter() - start
     return report
+
+
+class _FrameProblem(Exception):
+    """A frame whose values failed while its group was staged (``error``): nothing committed."""
+
+    def __init__(self, error: CaptureError) -> None:
+        super().__init__(str(error))
+        self.error = error
+
+
+class _Staged(Exception):
+    """Raised by a staging write's progress once every region is written: the write stops
+    before it is packed and committed, its regions kept (flagged) for the write that commits."""
+
+
+_REGIONS_DONE = re.compile(r"\((\d+)/(\d+) done|^(\d+)/(\d+) region")
+
+
+def _stopped_when_staged(progress: Callable[[str], None]) -> Callable[[str], None]:
+    """``progress`` that raises :class:`_Staged` when the write's message says every region
+    is written (each region's message, or that of a write resuming with all of them done)."""
+
+    def staged(message: str) -> None:
+        progress(message)
+        found = _REGIONS_DONE.search(message)
+        if found is not None:
+            done, total = (n for n in found.groups() if n is not None)
+            if done == total:
+                raise _Staged
+
+    return staged
 
 
 def _write_groups(
@@ -140,13 +203,85 @@ def _write_groups(
     """Write every raw group whose fingerprint changed; each write is atomic and resumable.
 
     The frames of a chunk are decoded on every core (:class:`~.decode.FrameDecoder`) and
-    written in order."""
+    written in order; the groups whose frames' values are checked as they are decoded are
+    staged first, every one of them, then committed (see the module)."""
     with FrameDecoder() as decoder:
         groups = build_raw_groups(capture, store, decoder)
         if sum(sources.read for _, sources in groups) >= PARALLEL_ABOVE:
             decoder.start()
-        for group, sources in groups:
-            _write_group(capture, store, report, say, group, sources)
+        staged = _stage_checked(capture, store, report, say, groups)
+        try:
+            for group, sources in groups:
+                _write_group(capture, store, report, say, group, sources)
+                staged.discard(group.name)
+        except StoreError:  # a failed write (disk full ...) leaves nothing staged behind
+            _discard_staged(store, [g for g, _ in groups if g.name in staged])
+            raise
+
+
+def _needs_writing(store: RunStore, group: RawGroup) -> bool:
+    return store.fingerprint(group.name) != group.fingerprint or bool(store.verify(group.name))
+
+
+def _stage_checked(
+    capture: Capture,
+    store: RunStore,
+    report: IngestReport,
+    say: Callable[[str], None],
+    groups: list[tuple[RawGroup, FrameSources]],
+) -> set[str]:
+    """Stage (not commit) every group to write that decodes frames whose values are checked
+    as they are decoded (:data:`VALUES_CHECKED_WHILE_STAGED`); the names of those staged
+    (a write that did not stop when staged is committed: ``report`` says so).
+
+    Raises
+    ------
+    _FrameProblem
+        For the first frame whose values fail (nothing committed, nothing left staged).
+    """
+    staged: set[str] = set()
+    for group, sources in groups:
+        if group.resumable is None or not sources.read or not _needs_writing(store, group):
+            continue
+        regions = len(group.dataset.chunksizes.get(group.resumable, ()))
+        say(f"{group.name}: decoding and checking {sources.read} frame(s)")
+        try:
+            _write(store, group, capture, _stopped_when_staged(_Eta(say, group.name, regions)))
+        except _Staged:
+            staged.add(group.name)
+        except CaptureError as error:  # a refused folder leaves nothing staged
+            _discard_staged(store, [g for g, _ in groups if g.name in staged or g is group])
+            raise _FrameProblem(error) from error
+        else:
+            _written(report, group, sources)
+    return staged
+
+
+def _discard_staged(store: RunStore, groups: list[RawGroup]) -> None:
+    """Remove what this ingest staged of ``groups`` (it holds the store's lock)."""
+    dirs = [d for d in (store.staging_dir,) if d.is_dir()]
+    for group in groups:
+        prefix, _ = staged_path(store.staging_dir, group.name, group.fingerprint)
+        remove_abandoned(dirs, prefix, store.staging_dir / prefix)
+
+
+def _write(
+    store: RunStore, group: RawGroup, capture: Capture, progress: Callable[[str], None] | None
+) -> None:
+    """:meth:`RunStore.write` of a raw group, with its fingerprint, provenance and files."""
+    store.write(
+        group.name,
+        group.dataset,
+        fingerprint=group.fingerprint,
+        provenance={
+            "node": "ingest",
+            "version": INGEST_VERSION,
+            "capture": str(capture.path.absolute()),
+        },
+        resumable_along=group.resumable,
+        records={FILES_ATTR: group.files},
+        progress=progress,
+    )
 
 
 def _write_group(
@@ -158,8 +293,9 @@ def _write_group(
     sources: FrameSources,
 ) -> None:
     """Write one raw group unless the store holds it with the same fingerprint."""
-    capture_dir = capture.path
-    if store.fingerprint(group.name) == group.fingerprint and not store.verify(group.name):
+    if group.name in report.groups:  # written already
+        return
+    if not _needs_writing(store, group):
         report.groups[group.name] = "up to date"
         say(f"{group.name}: up to date")
         return
@@ -167,19 +303,11 @@ def _write_group(
     regions = len(group.dataset.chunksizes.get(dim, ())) if dim else 1
     note = f"{sources.read} frame(s) read, {sources.copied} kept from the store"
     say(f"{group.name}: writing ({note})")
-    store.write(
-        group.name,
-        group.dataset,
-        fingerprint=group.fingerprint,
-        provenance={
-            "node": "ingest",
-            "version": INGEST_VERSION,
-            "capture": str(capture_dir.absolute()),
-        },
-        resumable_along=dim,
-        records={FILES_ATTR: group.files},
-        progress=_Eta(say, group.name, regions) if dim else None,
-    )
+    _write(store, group, capture, _Eta(say, group.name, regions) if dim else None)
+    _written(report, group, sources)
+
+
+def _written(report: IngestReport, group: RawGroup, sources: FrameSources) -> None:
     report.groups[group.name] = "written"
     report.frames_read += sources.read
     report.frames_copied += sources.copied

@@ -134,3 +134,52 @@ def test_bad_input_never_touches_an_existing_store(capture, tmp_path):
         ingest(capture, tmp_path / "run.zarr")
     assert "nothing was written" in str(error.value)
     assert {g: store.fingerprint(g) for g in store.groups()} == before
+
+
+def test_every_rgb_band_and_dark_frame_is_decoded_once(capture, tmp_path, monkeypatch):
+    """The folder's check reads their headers; their pixels are decoded (and their values
+    checked) only where they are written. Frames of the small groups are checked first."""
+    from spectralize.datasets.capture import images
+    from spectralize.flows.ingest import decode
+
+    decoded: dict[str, int] = {}
+
+    def counted(read):
+        def read_image(path, **kwargs):
+            decoded[str(path)] = decoded.get(str(path), 0) + 1
+            return read(path, **kwargs)
+
+        return read_image
+
+    monkeypatch.setattr(images, "read_image", counted(images.read_image))
+    monkeypatch.setattr(decode, "read_image", counted(decode.read_image))
+    ingest(capture, tmp_path / "run.zarr")
+    kinds = {str(capture / r["file"]): r["kind"] for r in rows(capture)}
+    once = {k for k, kind in kinds.items() if kind in ("rgb", "spectral", "dark")}
+    assert once and {decoded.get(k) for k in once} == {1}
+    assert set(decoded) == set(kinds)  # every frame decoded (the others checked, then written)
+
+
+def test_a_frame_whose_values_fail_as_it_is_decoded_leaves_nothing_written(capture, tmp_path):
+    """A band shot above its camera's bit depth, its header fine: found while the groups are
+    staged, before any is committed; the error names it; nothing is written or left staged."""
+    band = next(r for r in rows(capture) if r["kind"] == "spectral")["file"]
+    good = tifffile.imread(capture / band)
+    tifffile.imwrite(capture / band, np.full_like(good, 1500))  # a 10-bit camera
+    with pytest.raises(CaptureError, match="a value of 1500") as error:
+        ingest(capture, tmp_path / "new.zarr")
+    assert band in str(error.value) and "nothing was written" in str(error.value)
+    assert not (tmp_path / "new.zarr").exists()
+    assert not (tmp_path / ".new.zarr.spectralize").exists()
+    # an existing store: the groups before the band shots' are staged, never committed
+    tifffile.imwrite(capture / band, good)
+    ingest(capture, tmp_path / "run.zarr")
+    store = RunStore.open(tmp_path / "run.zarr")
+    before = {g: store.fingerprint(g) for g in store.groups()}
+    rgb = next(r for r in rows(capture) if r["kind"] == "rgb")["file"]
+    tifffile.imwrite(capture / band, np.full_like(good, 1500))
+    write_png(capture / rgb, store.read("raw/rgb")["counts"].values[0, 0] // 2)  # a new frame
+    with pytest.raises(CaptureError, match="a value of 1500"):
+        ingest(capture, tmp_path / "run.zarr")
+    assert {g: store.fingerprint(g) for g in store.groups()} == before
+    assert [p for p in store.staging_dir.iterdir() if p.name != "zarr.json"] == []
