@@ -55,7 +55,9 @@ RECONSTRUCT_SEED_SET = Node(
     # 8: the mixture prior's compiled passes (box windows, 3 x 3 inverses: float noise)
     # 9: the default's set model 'material-pooled' where the calibration has the illuminant
     # 10: the run's endmember library (input endmember_library) mixed instead of the set's own
-    version="10",
+    # 11: 'material-pooled' trusts the RGB as far as the set shows (its noise per image, the
+    # sandwich variance in the gain, the fit moved towards the RGB by that noise)
+    version="11",
     function=reconstruct_seed_set,
     inputs={
         "hdr": "hdr",
@@ -74,8 +76,8 @@ RECONSTRUCT_IMAGE_SETS = Node(
     # 2: tiled (parameter ``tile``), warm start from a strided seed sample; 3: as the seed
     # set's version 4; 4: as the seed set's version 5; 5: as the seed set's version 6;
     # 6: as the seed set's version 7; 7: as the seed set's version 8; 8: as its version 9;
-    # 9: as its version 10
-    version="9",
+    # 9: as its version 10; 10: as its version 11
+    version="10",
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",

@@ -36,8 +36,31 @@ bands say ``S^0`` is off, beyond their noise),
 so a cluster follows its pooled bands where they disagree with ``S^0`` by more than their
 noise (woven, halftone: the default's shapes are biased) and keeps ``S^0`` where they do
 not (glossy, dark: ``S^0`` is already good and the pooled bands are noisy). Weights and
-cluster shapes alternate :data:`DEFAULT_ROUNDS` times; the result is projected onto
-``C_m S_m = R_m`` and ``S >= 0`` per texel.
+cluster shapes alternate :data:`DEFAULT_ROUNDS` times.
+
+The RGB is trusted only as far as the set supports it. Three steps use what the data say
+about their own noise instead of a fixed trust:
+
+- ``sigma_R,m``, per image and channel (:func:`rgb_noise_sigma`): the RGB of every texel and
+  image is fitted by its cluster's colours, ``R_m(p) ~ a C_m E_k + h C_m L`` (two weights,
+  three channels: one degree of freedom left per texel and image), and the scale of what is
+  left, robustly over the image's texels (median of the squared residual over the median of
+  ``chi^2_1``), is the image's RGB noise relative to its mean RGB per channel, never below
+  :data:`~.shared_texel.RGB_RELATIVE_SIGMA` (the HDR merge's). An HDR merge through another
+  response, or a second camera model mapped onto the paired one (whose 3 x 3 map amplifies
+  the noise), shows up here, and its images weigh less in the pooled fit.
+- ``v_kb`` counts the model's own error, not only the band noise: the larger of the normal
+  matrix's inverse and its sandwich (robust) form ``H^-1 (sum_p g_p g_p^T) H^-1`` over the
+  cluster's texels ``p`` (``g_p``: texel ``p``'s gradient of the RGB and band terms at
+  ``E_k^D``), which grows where the texels disagree with the pooled shape more than the
+  stated noise allows (weights off, RGB of one camera inconsistent with another's). The
+  gain then keeps ``E_k^0`` where the pooled bands are not to be trusted.
+- The fit ``F = a_m E + h_m L`` is moved towards its image's RGB by the linear-Gaussian
+  (Kalman) update ``S_m = F_m + K_m (R_m - C_m F_m)``, ``K_m = C_m^T (C_m C_m^T +
+  Sigma_R,m / sigma_0,m^2)^-1``, ``F`` trusted to ``sigma_0,m`` per element
+  (:data:`~.shared_texel.PRIOR_RELATIVE_SIGMA`, the prior's) and the RGB to ``sigma_R,m``,
+  then ``S >= 0``: where the RGB is exact to its floor this is the projection onto ``C_m S_m =
+  R_m``; where it is noisy the fit is not bent onto its noise.
 
 Why it helps: the errors a solver's spectra share over a material are the ones per-texel
 fits cannot see through the band noise, and pooling a material's shots averages that noise
@@ -56,6 +79,12 @@ References
    (shrinkage with the prior variance estimated from the data).
 .. [4] Arthur, D., Vassilvitskii, S. (2007). k-means++: the advantages of careful seeding.
    Proceedings of SODA (k-means initialisation).
+.. [5] Huber, P. J. (1967). The behavior of maximum likelihood estimates under nonstandard
+   conditions. Proceedings of the Fifth Berkeley Symposium 1; White, H. (1980). A
+   heteroskedasticity-consistent covariance matrix estimator and a direct test for
+   heteroskedasticity. Econometrica 48(4) (the sandwich variance under a wrong noise model).
+.. [6] Tarantola, A. (2005). Inverse Problem Theory and Methods for Model Parameter
+   Estimation. SIAM, chapter 3 (the posterior mean of a linear Gaussian problem).
 """
 
 from __future__ import annotations
@@ -65,12 +94,19 @@ import numpy as np
 from spectralize.schemas import ReconstructionError
 
 from ..inputs import ReconstructionInputs
-from .endmember_mixture import _project
-from .shared_texel import SHAPE_RIDGE, fit_terms, refit_input_problems
+from .shared_texel import (
+    PRIOR_RELATIVE_SIGMA,
+    RGB_RELATIVE_SIGMA,
+    SHAPE_RIDGE,
+    FitTerms,
+    fit_terms,
+    refit_input_problems,
+)
 
 __all__ = [
     "material_pooled_refine",
     "material_clusters",
+    "rgb_noise_sigma",
     "DEFAULT_CLUSTERS",
     "DEFAULT_FEATURES",
     "DEFAULT_ROUNDS",
@@ -108,6 +144,10 @@ KMEANS_ITERATIONS = 10
 
 POOLED_RIDGE = 1e-9
 """Ridge of a cluster's normal matrix, relative to its mean diagonal."""
+
+CHI2_1_MEDIAN = 0.454936423119572
+"""The median of the chi-squared distribution with one degree of freedom: the median squared
+residual of a Gaussian over its variance (:func:`rgb_noise_sigma`)."""
 
 
 def _check(
@@ -186,6 +226,7 @@ def material_pooled_refine(
     texel_rounds: int = DEFAULT_TEXEL_ROUNDS,
     prior: float = 1.0,
     band_sigma: np.ndarray | None = None,
+    rgb_sigma: np.ndarray | None = None,
     labels: np.ndarray | None = None,
     seed: int = 0,
 ) -> np.ndarray:
@@ -215,6 +256,9 @@ def material_pooled_refine(
     band_sigma
         Per shot, the band noise's standard deviation (default:
         :func:`~.endmember_mixture.band_noise_sigma`).
+    rgb_sigma
+        ``(n_image, 3)``: per image and channel, the RGB noise's standard deviation ``sigma_R,m``
+        in the RGB's units (default: :func:`rgb_noise_sigma`, estimated from the set).
     labels
         ``(height, width)`` int material per texel to use instead of the clustering (``>= 0``;
         for studies with known materials).
@@ -230,7 +274,8 @@ def material_pooled_refine(
     ------
     ReconstructionError
         For an ``initial`` or ``highlight`` of the wrong shape or not finite, ``clusters < 1``,
-        or ``labels`` of the wrong shape or negative.
+        ``labels`` of the wrong shape or negative, or an ``rgb_sigma`` of the wrong shape or
+        not positive.
     """
     initial = np.asarray(initial, dtype=np.float64)
     highlight = np.asarray(highlight, dtype=np.float64)
@@ -263,9 +308,17 @@ def material_pooled_refine(
         label = label.ravel().astype(np.int64)
     k = int(label.max()) + 1
 
-    # 3. pooled shapes (empirical Bayes between S^0 and the pooled bands), then weights
+    # 3. the RGB trusted as far as the material model explains it (module docstring)
+    sigma = rgb_noise_sigma(shapes, label, t) if rgb_sigma is None else _checked(rgb_sigma, n_m)
+    t = _with_rgb_sigma(t, sigma)
+    ell, x0, rgb, cams, rgb_weight, prior_weight, shot_image, shot_band, data, shot_weight, ctc = t
+    rgb_terms = (rgb * rgb_weight, cams)
+    terms = (cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight)
+    shape_terms = (ell, ctc, rgb_terms, x0, prior_weight, data, shot_image, shot_band, shot_weight)
+
+    # 4. pooled shapes (empirical Bayes between S^0 and the pooled bands), then weights
     for _ in range(int(rounds)):
-        pooled = _pooled_shapes(weights, label, k, *shape_terms)
+        pooled = _pooled_shapes(weights, label, k, *shape_terms, rgb_weight=rgb_weight)
         shapes = pooled[label]
         weights = texel_weights(shapes, ell, *terms)
     # a_m E + h_m L, written wavelength by wavelength into the (w, m, y, x) cube (one cube
@@ -273,13 +326,107 @@ def material_pooled_refine(
     fit = np.empty((n_w, n_m, h * w))
     for band in range(n_w):
         fit[band] = (weights[:, :, 0] * shapes[:, band, None] + weights[:, :, 1] * ell[band]).T
-    return _project(fit.reshape(n_w, n_m, h, w), inputs)
+    prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(x0.mean(axis=(0, 2)), 1e-12)
+    return _rgb_update(fit, inputs, sigma, prior_sigma).reshape(n_w, n_m, h, w)
+
+
+def _checked(rgb_sigma: np.ndarray, n_image: int) -> np.ndarray:
+    sigma = np.asarray(rgb_sigma, dtype=np.float64)
+    if sigma.shape != (n_image, 3) or not np.all(sigma > 0):
+        raise ReconstructionError(
+            f"rgb_sigma: expected ({n_image}, 3) finite values > 0, found shape {sigma.shape}"
+            + (f", min {sigma.min()}" if sigma.size else "")
+        )
+    return sigma
+
+
+def rgb_noise_sigma(shapes: np.ndarray, label: np.ndarray, terms: FitTerms) -> np.ndarray:
+    """``sigma_R,m``: per image and channel, the RGB noise the material model leaves
+    (module docstring), ``(n_image, 3)`` in the RGB's units.
+
+    Every texel's RGB in image ``m``, divided by the image's mean RGB per channel, is fitted by
+    least squares with its cluster's two colours ``C_m E_k`` and ``C_m L`` (``E_k``: the mean
+    of the cluster's unit-norm texel shapes). One degree of freedom is left per texel and
+    image, so under Gaussian noise of relative standard deviation ``s_m`` per channel the
+    squared residual is ``s_m^2 chi^2_1``: ``s_m^2`` is its median over the texels divided by
+    :data:`CHI2_1_MEDIAN` (a median: highlights and texels mixing materials are outliers, not
+    noise). The result is ``max(s_m, RGB_RELATIVE_SIGMA)`` times the image's mean RGB.
+
+    Parameters
+    ----------
+    shapes
+        ``(n_texel, n_wavelength)`` per-texel shapes (any scale).
+    label
+        ``(n_texel,)`` cluster per texel.
+    terms
+        The fit's fixed terms (:func:`~.shared_texel.fit_terms`): ``ell``, ``rgb``, ``cams``.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3 (eq. 1's RGB term).
+    .. [2] Huber, P. J., Ronchetti, E. M. (2009). Robust Statistics, 2nd ed. Wiley, chapter 5
+       (scale from the median of the residuals).
+    """
+    ell, rgb, cams = terms.ell, terms.rgb, terms.cams
+    mean = np.maximum(np.abs(rgb.mean(axis=0)), 1e-12)  # (m, 3)
+    unit = shapes / np.maximum(np.linalg.norm(shapes, axis=1, keepdims=True), 1e-300)
+    centre = np.zeros((int(label.max()) + 1, unit.shape[1]))
+    np.add.at(centre, label, unit)
+    u = (centre @ cams.reshape(-1, cams.shape[2]).T).reshape(-1, *mean.shape)[label] / mean  # (n, m, 3)
+    v = (cams @ ell) / mean  # (m, 3)
+    y = rgb / mean
+    uu, uv, vv = (u * u).sum(axis=2), (u * v).sum(axis=2), (v * v).sum(axis=1)
+    uy, vy = (u * y).sum(axis=2), (v * y).sum(axis=2)
+    det = uu * vv - uv**2
+    det = np.where(det > 1e-12 * uu * vv, det, np.inf)  # a colour along L: no fit, no residual
+    a = (vv * uy - uv * vy) / det
+    b = (uu * vy - uv * uy) / det
+    residual = ((y - a[..., None] * u - b[..., None] * v) ** 2).sum(axis=2)  # (n, m)
+    residual = np.where(np.isfinite(det), residual, np.nan)
+    scale = np.sqrt(np.nanmedian(residual, axis=0) / CHI2_1_MEDIAN)
+    scale = np.where(np.isfinite(scale), scale, 0.0)
+    return np.maximum(scale, RGB_RELATIVE_SIGMA)[:, None] * mean
+
+
+def _with_rgb_sigma(t: FitTerms, sigma: np.ndarray) -> FitTerms:
+    """The fit's terms with the RGB weighted by ``1 / sigma_R,m^2``."""
+    weight = 1.0 / sigma**2
+    ctc = np.matmul(np.swapaxes(t.cams, 1, 2) * weight[:, None, :], t.cams)
+    return t._replace(rgb_weight=weight, ctc=ctc)
+
+
+def _rgb_update(
+    fit: np.ndarray, inputs: ReconstructionInputs, rgb_sigma: np.ndarray, prior_sigma: np.ndarray
+) -> np.ndarray:
+    """``(w, m, n)``: per image ``max(F_m + K_m (R_m - C_m F_m), 0)`` with ``K_m = C_m^T (C_m
+    C_m^T + Sigma_R,m / sigma_0,m^2)^-1`` (module docstring), in place on ``fit`` ``(w, m,
+    n)``."""
+    for m in range(fit.shape[1]):
+        c = np.asarray(inputs.camera_of(m), dtype=np.float64)
+        rgb = inputs.rgb[m].reshape(-1, 3).T.astype(np.float64)  # (3, n)
+        gain = c.T @ np.linalg.inv(c @ c.T + np.diag((rgb_sigma[m] / prior_sigma[m]) ** 2))
+        fit[:, m] += gain @ (rgb - c @ fit[:, m])
+    return np.maximum(fit, 0.0, out=fit)
 
 
 def _pooled_shapes(
-    weights, label, k, ell, ctc, rgb_terms, x0, prior_weight, data, shot_image, shot_band, shot_weight
+    weights,
+    label,
+    k,
+    ell,
+    ctc,
+    rgb_terms,
+    x0,
+    prior_weight,
+    data,
+    shot_image,
+    shot_band,
+    shot_weight,
+    *,
+    rgb_weight,
 ):
-    """``(k, w)``: per cluster ``E_k^0 + tau_k^2 / (tau_k^2 + v_k) (E_k^D - E_k^0)``."""
+    """``(k, w)``: per cluster ``E_k^0 + tau_k^2 / (tau_k^2 + v_k) (E_k^D - E_k^0)``, ``v_k``
+    the larger of the model's and the sandwich variance (:func:`_sandwich_variance`)."""
     from scipy import sparse
 
     n_w = ell.size
@@ -315,10 +462,51 @@ def _pooled_shapes(
     inverse = np.linalg.inv(ridge(band_mat))
     bands = np.matmul(inverse, (rgb_rhs + band_rhs)[..., None])[..., 0]
     variance = np.maximum(np.einsum("kii->ki", inverse), 0.0)
+    gradient = _texel_gradients(
+        bands[label], weights, ell, rgb_terms, rgb_weight, data, shot_image, shot_band, shot_weight
+    )
+    variance = np.maximum(variance, _sandwich_variance(inverse, gradient, label))
     d = bands - held
     tau2 = np.maximum((d**2 - variance).mean(axis=1, keepdims=True), 0.0)
     gain = tau2 / np.maximum(tau2 + variance, 1e-300)
     return held + gain * d
+
+
+def _texel_gradients(
+    shapes, weights, ell, rgb_terms, rgb_weight, data, shot_image, shot_band, shot_weight
+):
+    """``(n, w)``: per texel ``g_p``, the half gradient of its RGB and band terms with respect
+    to its shape ``E`` ``(n, w)``: ``sum_m a_m C_m^T W_m (R_m - C_m (a_m E + h_m L)) + sum_i
+    a_{m_i} (D_i - a_{m_i} E_{b_i} - h_{m_i} L_{b_i}) / sigma_i^2 e_{b_i}``."""
+    weighted_rgb, cams = rgb_terms  # W_m R_m, C_m
+    a, hl = weights[:, :, 0], weights[:, :, 1]
+    n, n_m = a.shape
+    n_w = ell.size
+    seen = (shapes @ cams.reshape(-1, n_w).T).reshape(n, n_m, 3)  # C_m E
+    residual = weighted_rgb - rgb_weight * (a[:, :, None] * seen + hl[:, :, None] * (cams @ ell))
+    gradient = (a[:, :, None] * residual).reshape(n, n_m * 3) @ cams.reshape(n_m * 3, n_w)
+    a_shot = a[:, shot_image]
+    band_residual = data - a_shot * shapes[:, shot_band] - hl[:, shot_image] * ell[shot_band]
+    return gradient + _group_sum(a_shot * shot_weight * band_residual, shot_band, n_w)
+
+
+def _sandwich_variance(inverse: np.ndarray, gradient: np.ndarray, label: np.ndarray) -> np.ndarray:
+    """``(k, w)``: the diagonal of ``n_k / (n_k - W) H_k^-1 (sum_{p in k} g_p g_p^T) H_k^-1``
+    as ``sum_{p in k} (H_k^-1 g_p)^2`` times the small-sample factor (MacKinnon and White's
+    HC1), cluster by cluster (no ``n x w x w`` array); ``inf`` for a cluster of ``n_k <= W``
+    texels."""
+    out = np.zeros(inverse.shape[:2])
+    order = np.argsort(label, kind="stable")
+    ordered = label[order]
+    starts = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]])
+    for start, stop in zip(starts, [*starts[1:], len(order)], strict=True):
+        cluster = ordered[start]
+        u = gradient[order[start:stop]] @ inverse[cluster].T
+        texels, unknowns = stop - start, inverse.shape[1]
+        # n / (n - W): the sandwich's residuals lost W degrees of freedom to E_k^D; with no
+        # more texels than unknowns it says nothing, and the pooled bands are not trusted
+        out[cluster] = (u**2).sum(axis=0) * texels / (texels - unknowns) if texels > unknowns else np.inf
+    return out
 
 
 def _top_shape(x0: np.ndarray, iterations: int) -> np.ndarray:

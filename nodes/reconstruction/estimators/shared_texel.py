@@ -90,7 +90,8 @@ SHAPE_RIDGE = 1e-6
 """Ridge of the shapes' systems towards the previous shapes, relative to the median diagonal."""
 
 RGB_RELATIVE_SIGMA = 0.005
-"""``sigma_R,m``: RGB noise relative to image ``m``'s mean RGB per channel (HDR merge)."""
+"""``sigma_R,m``: RGB noise relative to image ``m``'s mean RGB per channel (HDR merge); the
+floor of :func:`~.material_pooled.rgb_noise_sigma`, which estimates it from the set."""
 
 
 def refit_input_problems(
