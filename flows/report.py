@@ -43,6 +43,7 @@ import io
 import json
 import os
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from functools import lru_cache
 from pathlib import Path
@@ -102,6 +103,7 @@ from spectralize.nodes.evaluation.statistics import DEFAULT_THRESHOLD, STATISTIC
 from spectralize.schemas import ParameterError, Problem, SchemaError, SpectralizeError
 from spectralize.schemas.run import EVALUATION
 from spectralize.store import RunStore
+from spectralize.store.integrity import CheckedLocalStore, read_manifest
 
 __all__ = [
     "TEMPLATE",
@@ -824,41 +826,61 @@ def _thumbnail_caption(ds: xr.Dataset, position: int) -> str:
 
 
 #: Pixels the headline's statistics of the confidence are computed over at most: a run with
-#: more has them computed over whole stored chunks of images spread evenly over the run (and
-#: every few pixels of an image larger than this), so the report reads a bounded amount
-#: whatever the image count.
+#: more has them computed over images spread evenly over the run (and every few pixels of an
+#: image larger than this), so the report reads a bounded amount whatever the image count.
 STATISTICS_PIXELS = 2**20
+#: Images those statistics are computed over at most (each is a stored chunk read on its own).
+STATISTICS_IMAGES = 512
 
 
-def _spread_sample(values: xr.DataArray, limit: int = STATISTICS_PIXELS) -> tuple[xr.DataArray, int]:
+def _spread_sample(
+    values: xr.DataArray, limit: int = STATISTICS_PIXELS, images: int = STATISTICS_IMAGES
+) -> tuple[xr.DataArray, int]:
     """``values`` (image, y, x) on at most about ``limit`` pixels, and the images it keeps.
 
-    All of it when it has that few pixels; else the images of whole dask chunks along
-    ``image`` (a chunk is read whole anyway), as many as fit and at least two, spread evenly
-    over the run (the first and the last included), and every ``step``-th pixel along ``y``
-    and ``x`` where they have more. One selection, read chunk by chunk: no loop over images.
+    All of it when it has that few pixels; else as many images as fit, at most ``images``
+    and at least two, spread evenly over the run (the first and the last included), and
+    every ``step``-th pixel along ``y`` and ``x`` where they have more. One selection: read
+    from a variable as stored (:func:`_stored_variable`), it reads those images' chunks only.
     """
     values = values.transpose("image", "y", "x")
     n, ny, nx = values.shape
     if n * ny * nx <= limit:
         return values, n
-    chunks = values.chunks[0] if values.chunks is not None else (1,) * n
-    starts = np.cumsum((0, *chunks))
-    per_chunk = max(chunks) * ny * nx
-    kept = max(min(2, len(chunks)), min(len(chunks), limit // per_chunk))
-    picked = np.unique(np.round(np.linspace(0, len(chunks) - 1, kept)).astype(int))
-    positions = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in picked])
+    kept = min(n, max(2, min(int(images), limit // (ny * nx))))
+    positions = np.unique(np.round(np.linspace(0, n - 1, kept)).astype(int))
     step = max(1, int(np.ceil(np.sqrt(len(positions) * ny * nx / limit))))
     return values.isel(image=positions, y=slice(None, None, step), x=slice(None, None, step)), len(
         positions
     )
 
 
+def _stored_variable(run: RunStore, group: str, name: str) -> xr.DataArray | None:
+    """Variable ``name`` of ``group`` as stored, indexed lazily without dask (None if absent).
+
+    A selection of it reads only the stored chunks it touches, each checked against its
+    checksum (the group's files were checked by :meth:`RunStore.read` already): a sample of
+    a run's images reads those images, not a dask task per image or a whole shard per task.
+    """
+    manifest = read_manifest(run.manifest(group)) or {}
+    prefix = group.strip("/")
+    checksums = {f"{prefix}/{rel}": crc for rel, (_, _, crc) in manifest.items() if crc is not None}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # metadata not consolidated (older stores): read as is
+        ds = xr.open_zarr(
+            CheckedLocalStore(run.path, read_only=True, checksums=checksums),
+            group=prefix,
+            chunks=None,
+            consolidated=None,
+        )
+    return ds[name] if name in ds else None
+
+
 def _confidence_headline(confidence: xr.DataArray) -> list[tuple[str, str]]:
     """Reconstruction quality without ground truth: the estimated nRMSE's median and 95th
     percentile over all pixels, and the share flagged (above :data:`CONFIDENCE_FLAG`); in a
-    run of more than :data:`STATISTICS_PIXELS` pixels, over a sample of whole chunks of
-    images spread over the run (:func:`_spread_sample`; the headline says which)."""
+    run of more than :data:`STATISTICS_PIXELS` pixels, over a sample of images spread over
+    the run (:func:`_spread_sample`; the headline says which)."""
     sample, images = _spread_sample(confidence)
     values = np.asarray(sample.values, dtype=np.float64).reshape(-1)
     values = values[np.isfinite(values)]
@@ -1028,7 +1050,7 @@ def _reconstruction(
 ) -> tuple[list[tuple[str, str]], list[dict[str, Any]]]:
     """The reconstruction section: the first ``max_images`` images by label, and the
     headline's statistics of the confidence (read as ``confidence`` where given: the
-    store's, chunked by shard; else ``spectra``'s)."""
+    store's as stored, :func:`_stored_variable`; else ``spectra``'s)."""
     labels = np.sort(_labels(spectra))
     shown = [int(v) for v in labels[: int(max_images)]]
     cube = _by_label(spectra, shown).compute()
@@ -1320,8 +1342,8 @@ def write_run_report(
             exposure_percentile=exposure_percentile,
             light=light,
             light_source=light_source,
-            # read a shard per task, not a stored chunk (an image of small frames) per task
-            confidence=run.read("spectra", friendly=False, chunks="shards").get("confidence"),
+            # as stored: the headline's sample reads the chunks of its images only
+            confidence=_stored_variable(run, "spectra", "confidence"),
         )
         headline = found + headline
         sections += recon

@@ -556,23 +556,53 @@ def test_error_maps_show_the_range_of_the_images_not_the_first_ones(run, tmp_pat
 # -- a report's time does not grow with the image count ---------------------------------------
 
 
-def test_the_confidence_statistics_of_a_large_run_read_whole_chunks_spread_over_it():
-    """1,000 images in chunks of 50, at most 3,200 pixels: four whole chunks, the first and
-    the last among them; frames larger than the limit: two chunks, every few pixels."""
+def test_the_confidence_statistics_of_a_large_run_read_images_spread_over_it():
+    """1,000 images, at most 3,200 pixels: 200 images spread evenly, the first and the last
+    among them; at most STATISTICS_IMAGES images however small the frames; frames larger
+    than the limit: two images, every few pixels."""
     labels = np.arange(1000, dtype=float)
     confidence = xr.DataArray(
         np.broadcast_to(labels[:, None, None], (1000, 4, 4)).copy(), dims=("image", "y", "x")
     ).chunk({"image": 50})
     sample, images = report._spread_sample(confidence, limit=3200)
     read = np.unique(np.asarray(sample.values))
-    expected = np.concatenate([np.arange(s, s + 50) for s in (0, 300, 650, 950)])
-    assert images == 200 and np.array_equal(read, expected)
-    assert sample.size <= 3200
+    assert images == 200 and np.array_equal(read, np.round(np.linspace(0, 999, 200)))
+    assert read[0] == 0 and read[-1] == 999 and sample.size <= 3200
+    capped, count = report._spread_sample(confidence, limit=3200, images=20)
+    assert count == 20 and np.array_equal(np.unique(capped.values), np.round(np.linspace(0, 999, 20)))
     whole, count = report._spread_sample(confidence, limit=16_000)
     assert count == 1000 and whole.size == confidence.size  # small enough: all of it
     large = xr.DataArray(np.zeros((3, 64, 64)), dims=("image", "y", "x")).chunk({"image": 1})
     strided, count = report._spread_sample(large, limit=2048)
     assert count == 2 and strided.shape == (2, 32, 32)  # every 2nd pixel of the first and last
+
+
+def test_the_confidence_as_stored_reads_only_the_chunks_of_the_images_sampled(tmp_path, monkeypatch):
+    """A run of one-image chunks: the headline's sample reads its images' chunks, not every
+    image's (a dask task or whole shard per image would grow with the run)."""
+    from spectralize.store.integrity import CheckedLocalStore
+
+    n = 2000
+    store = RunStore.create(tmp_path / "run.zarr")
+    data = xr.Dataset(
+        {"confidence": (("image", "y", "x"), np.ones((n, 4, 4), np.float32))},
+        coords={"image": np.arange(n)},
+    )
+    store.write("spectra_like", data.chunk({"image": 1}), schema=None)
+    read: list[str] = []
+    real_get = CheckedLocalStore.get
+
+    async def counted(self, key, *args, **kwargs):
+        read.append(key)
+        return await real_get(self, key, *args, **kwargs)
+
+    stored = report._stored_variable(store, "spectra_like", "confidence")
+    monkeypatch.setattr(CheckedLocalStore, "get", counted)
+    sample, images = report._spread_sample(stored, limit=400 * 16)
+    values = np.asarray(sample.values)
+    assert images == 400 and values.shape == (400, 4, 4)
+    chunks = [key for key in read if "/confidence/c" in key]
+    assert 0 < len(chunks) <= 2 * images  # its images' chunks (a shard's index besides)
 
 
 def test_the_confidence_headline_of_a_run_too_large_to_read_says_what_it_was_computed_over():
@@ -582,9 +612,9 @@ def test_the_confidence_headline_of_a_run_too_large_to_read_says_what_it_was_com
         rng.gamma(1.0, 0.01, (n, side, side)).astype(np.float32), dims=("image", "y", "x")
     ).chunk({"image": 10})
     (quality, _) = report._confidence_headline(confidence)
-    pixels = report.STATISTICS_PIXELS // (10 * side * side) * 10 * side * side
+    images = report.STATISTICS_PIXELS // side**2  # as many whole images as fit
     assert quality[1].endswith(
-        f"(over {pixels:,} of the {n * side * side:,} pixels: {pixels // side**2} of the 300 "
+        f"(over {images * side**2:,} of the {n * side * side:,} pixels: {images} of the 300 "
         "images, spread over the run)"
     )
     (small, _) = report._confidence_headline(confidence.isel(image=slice(0, 20)))
