@@ -327,17 +327,21 @@ def _solve(
 
 
 def _confidence(
-    solved: _Solved, inputs: ReconstructionInputs, used: dict[str, Any], spectra: xr.DataArray
+    solved: _Solved,
+    inputs: ReconstructionInputs,
+    used: dict[str, Any],
+    spectra: xr.DataArray,
+    region: tuple[slice, slice] | None = None,
 ) -> xr.DataArray:
     """The per-pixel confidence (image, y, x) of a result
     (:func:`~.confidence.neighbourhood_spread`), from the solver's own neighbours where they
-    are the confidence's (same space and k)."""
+    are the confidence's (same space and k); inside ``region`` only where given."""
     graph = None
     if solved.problem is not None and used.get("appearance") == "chromaticity-spatial":
         graph = solved.problem.neighbours.neighbours
         graph = graph if graph.shape[1] == CONFIDENCE_NEIGHBOURS else None
     return xr.DataArray(
-        neighbourhood_spread(np.asarray(solved.cube), inputs.rgb, neighbours=graph),
+        neighbourhood_spread(np.asarray(solved.cube), inputs.rgb, neighbours=graph, region=region),
         dims=("image", "y", "x"),
         coords={name: c for name, c in spectra.coords.items() if set(c.dims) <= {"image"}},
         attrs={"units": "1", "long_name": "estimated per-pixel nRMSE (higher: trust less)"},
@@ -354,7 +358,7 @@ def reconstruct(
     filter_size: float | Sequence[float] | None = None,
     illuminant: xr.DataArray | np.ndarray | None = None,
     full_output: bool = False,
-    confidence: bool = True,
+    confidence: bool | tuple[slice, slice] = True,
     **method_options: Any,
 ) -> xr.DataArray | ReconstructionResult:
     """Reconstruct spectral images from HDR RGB and noisy band shots (eq. 1), or a baseline.
@@ -410,7 +414,9 @@ def reconstruct(
         timings, the problem, the confidence) instead of the spectra alone.
     confidence
         With ``full_output``: compute the per-pixel confidence (False: leave it ``None``;
-        it costs a neighbour search and a pass over the spectra).
+        it costs a neighbour search and a pass over the spectra). A ``(y, x)`` pair of
+        slices: only for the pixels inside them (a tile's core), NaN elsewhere
+        (:func:`~.confidence.neighbourhood_spread`, ``region``).
     **method_options
         Options that replace the method's settings
         (``RECONSTRUCTION_METHODS[method].settings``, which hold every one). Every solver
@@ -542,7 +548,8 @@ def reconstruct(
         return spectra
     spread = None
     if confidence:
-        spread = _confidence(solved, inputs, used, spectra)
+        region = confidence if isinstance(confidence, tuple) else None
+        spread = _confidence(solved, inputs, used, spectra, region)
         if single:
             spread = spread.isel(image=0)
     return ReconstructionResult(

@@ -287,21 +287,22 @@ def block_jacobi_setup(
 
 
 @_jit
-def neighbour_spread(flat, neighbours, ratios, squared):  # pragma: no cover - compiled
-    """``squared[p] += sum_j mean_w (r_pj S_w(n_j) - S_w(p))^2`` in float64, band by band
-    (``flat`` ``(n_wavelength, n_pixels)`` band-major: each band's row is gathered, no
-    strided columns); ``neighbours``, ``ratios`` ``(n_pixels, k)``."""
-    n_wavelength, n_pixels = flat.shape
+def neighbour_spread(flat, pixels, neighbours, ratios, squared):  # pragma: no cover - compiled
+    """``squared[i] += sum_j mean_w (r_ij S_w(n_ij) - S_w(p_i))^2`` in float64 for the
+    pixels ``p_i`` = ``pixels[i]``, band by band (``flat`` ``(n_wavelength, n_pixels)``
+    band-major: each band's row is gathered, no strided columns); ``neighbours``,
+    ``ratios`` ``(n_chosen, k)``: row ``i`` those of ``p_i``."""
+    n_wavelength = flat.shape[0]
     k = neighbours.shape[1]
     for w in range(n_wavelength):
         band = flat[w]
-        for p in range(n_pixels):
-            value = np.float64(band[p])
+        for i in range(pixels.size):
+            value = np.float64(band[pixels[i]])
             total = 0.0
             for j in range(k):
-                gap = ratios[p, j] * np.float64(band[neighbours[p, j]]) - value
+                gap = ratios[i, j] * np.float64(band[neighbours[i, j]]) - value
                 total += gap * gap
-            squared[p] += total / n_wavelength
+            squared[i] += total / n_wavelength
 
 
 @_jit

@@ -36,7 +36,9 @@ APPEARANCE_SPACES = ("rgb", "chromaticity-spatial")
 spatial proximity (the paper's own fix for metamers, section 6)."""
 
 
-def appearance_neighbours(appearance: np.ndarray, *, k: int = 3) -> np.ndarray:
+def appearance_neighbours(
+    appearance: np.ndarray, *, k: int = 3, queries: np.ndarray | None = None
+) -> np.ndarray:
     """The ``k`` nearest neighbours of every pixel in appearance (RGB) space.
 
     Parameters
@@ -45,12 +47,16 @@ def appearance_neighbours(appearance: np.ndarray, *, k: int = 3) -> np.ndarray:
         ``(n_pixels, n_features)``: one row per pixel of all images of the set (RGB: 3).
     k
         Neighbours per pixel (paper: 3). Clipped to ``n_pixels - 1``.
+    queries
+        Indices of the pixels whose neighbours are wanted (searched among all pixels; the
+        answer for a pixel does not depend on which others are asked); None: all.
 
     Returns
     -------
     numpy.ndarray
-        ``(n_pixels, k)`` int indices; row ``p`` never contains ``p`` itself. Pixels with
-        identical appearance are neighbours of each other (ties are broken by the tree).
+        ``(n_pixels, k)`` (``(len(queries), k)``) int indices; row ``p`` never contains
+        ``p`` itself. Pixels with identical appearance are neighbours of each other (ties
+        are broken by the tree).
 
     Notes
     -----
@@ -64,22 +70,29 @@ def appearance_neighbours(appearance: np.ndarray, *, k: int = 3) -> np.ndarray:
     """
     appearance = np.ascontiguousarray(appearance, dtype=np.float32)
     n_pixels = appearance.shape[0]
+    asked = np.arange(n_pixels) if queries is None else np.asarray(queries, dtype=np.intp)
     k = int(min(k, n_pixels - 1))
     if k <= 0:
-        return np.zeros((n_pixels, 0), dtype=np.intp)
+        return np.zeros((asked.size, 0), dtype=np.intp)
     tree = KDTree(appearance, leafsize=32)
-    # queried along a Morton curve through appearance (:func:`appearance_order`):
+    points = appearance if queries is None else appearance[asked]
+    # queried along a Morton curve through every feature (:func:`appearance_order`):
     # consecutive queries walk the same branches of the tree, so its nodes stay in cache
     # (each query's answer does not depend on the order they are asked in)
-    order = appearance_order(appearance)
-    _, answers = tree.query(np.ascontiguousarray(appearance[order]), k=k + 1)
-    found = np.empty((n_pixels, k + 1), dtype=np.intp)
-    found[order] = np.asarray(answers, dtype=np.intp).reshape(n_pixels, k + 1)
+    order = appearance_order(points, features=points.shape[1])
+    _, answers = tree.query(np.ascontiguousarray(points[order]), k=k + 1)
+    del points
+    found = np.empty((asked.size, k + 1), dtype=np.intp)
+    found[order] = np.asarray(answers, dtype=np.intp).reshape(asked.size, k + 1)
     del answers
-    is_other = found != np.arange(n_pixels)[:, None]
-    # stable sort puts the other pixels first, in distance order; keep the first k
-    order = np.argsort(~is_other, axis=1, kind="stable")
-    return np.take_along_axis(found, order, axis=1)[:, :k]
+    # the pixel itself is nearly always its own first answer: the next k are its neighbours
+    mixed = np.flatnonzero(found[:, 0] != asked)
+    neighbours = np.ascontiguousarray(found[:, 1 : k + 1])
+    if mixed.size:  # ties among duplicates: the others first, in distance order, keep k
+        rows = found[mixed]
+        order = np.argsort(rows == asked[mixed][:, None], axis=1, kind="stable")
+        neighbours[mixed] = np.take_along_axis(rows, order, axis=1)[:, :k]
+    return neighbours
 
 
 def appearance_features(
@@ -125,16 +138,20 @@ def appearance_features(
     return np.hstack([chroma, brightness_scale * np.log(safe)[:, None], position])
 
 
-def brightness_ratios(rgb: np.ndarray, neighbours: np.ndarray, *, limit: float = 20.0) -> np.ndarray:
+def brightness_ratios(
+    rgb: np.ndarray, neighbours: np.ndarray, *, limit: float = 20.0, pixels: np.ndarray | None = None
+) -> np.ndarray:
     """``b_p / b_n`` for every pair (``b = R + G + B``), clipped to ``[1 / limit, limit]``:
-    the scale-invariant coupling ``S(p) - (b_p / b_n) S(n)``."""
+    the scale-invariant coupling ``S(p) - (b_p / b_n) S(n)``. With ``pixels``, ``neighbours``
+    holds the rows of those pixels only (the brightness floor is still the whole set's)."""
     total = np.asarray(rgb, dtype=np.float64).sum(axis=0)
     floor = 1e-3 * max(float(np.median(np.abs(total))), 1e-30)
     total = np.maximum(total, floor)
-    return np.clip(total[:, None] / total[neighbours], 1 / limit, limit)
+    here = total if pixels is None else total[pixels]
+    return np.clip(here[:, None] / total[neighbours], 1 / limit, limit)
 
 
-def appearance_order(appearance: np.ndarray, *, bits: int = 10) -> np.ndarray:
+def appearance_order(appearance: np.ndarray, *, bits: int = 10, features: int = 3) -> np.ndarray:
     """Pixels sorted along a Morton (Z-order) curve through appearance space.
 
     Appearance neighbours are far apart in image order, so a pass over the neighbour term
@@ -144,9 +161,14 @@ def appearance_order(appearance: np.ndarray, *, bits: int = 10) -> np.ndarray:
     Parameters
     ----------
     appearance
-        ``(n_pixels, n_features)``, the first three features are used (e.g. RGB).
+        ``(n_pixels, n_features)``.
     bits
-        Quantisation per feature (the curve's resolution).
+        Quantisation per feature (the curve's resolution); at most ``64 // features``
+        are used (the code is 64 bits wide).
+    features
+        How many of the leading features the curve runs through (the storage order of the
+        solvers: the first three, e.g. RGB; the neighbour search's queries: all of them, so
+        that consecutive queries are near in every feature the tree splits on).
 
     Returns
     -------
@@ -158,17 +180,25 @@ def appearance_order(appearance: np.ndarray, *, bits: int = 10) -> np.ndarray:
     .. [1] Morton, G. M. (1966). A computer oriented geodetic data base and a new technique
        in file sequencing. IBM Technical Report.
     """
-    features = np.asarray(appearance, dtype=np.float64)[:, :3]
-    low = np.nanmin(features, axis=0) if features.size else 0.0
-    span = (np.nanmax(features, axis=0) - low) if features.size else 1.0
+    appearance = np.asarray(appearance)
+    n_axes = min(int(features), appearance.shape[1])
+    bits = min(int(bits), 64 // max(n_axes, 1))
+    features_used = np.asarray(appearance[:, :n_axes], dtype=np.float64)
+    low = np.nanmin(features_used, axis=0) if features_used.size else 0.0
+    span = (np.nanmax(features_used, axis=0) - low) if features_used.size else 1.0
     levels = (1 << bits) - 1
-    scaled = np.nan_to_num((features - low) / np.where(span > 0, span, 1.0) * levels)
+    scaled = np.nan_to_num((features_used - low) / np.where(span > 0, span, 1.0) * levels)
     quantised = np.clip(scaled, 0, levels).astype(np.uint64)
-    code = np.zeros(features.shape[0], dtype=np.uint64)
+    del scaled
+    # bit ``b`` of a quantised value goes to bit ``b * n_axes`` of the code: spread once for
+    # every value a feature can take, then one table look-up per feature and pixel
+    values = np.arange(levels + 1, dtype=np.uint64)
+    spread = np.zeros(values.size, dtype=np.uint64)
     for bit in range(bits):
-        for axis in range(quantised.shape[1]):
-            digit = (quantised[:, axis] >> np.uint64(bit)) & np.uint64(1)
-            code |= digit << np.uint64(bit * quantised.shape[1] + axis)
+        spread |= ((values >> np.uint64(bit)) & np.uint64(1)) << np.uint64(bit * n_axes)
+    code = np.zeros(features_used.shape[0], dtype=np.uint64)
+    for axis in range(n_axes):
+        code |= spread[quantised[:, axis]] << np.uint64(axis)
     return np.argsort(code, kind="stable")
 
 
@@ -196,6 +226,7 @@ class NeighbourGraph:
     ratios: np.ndarray | None = None
     _difference: sp.csr_array | None = field(init=False, repr=False, default=None)
     _laplacian: sp.csr_array | None = field(init=False, repr=False, default=None)
+    _degree: np.ndarray | None = field(init=False, repr=False, default=None)
     _scaled: dict = field(init=False, repr=False, default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -259,10 +290,15 @@ class NeighbourGraph:
     @property
     def degree(self) -> np.ndarray:
         """Diagonal of ``L``: per pixel ``k`` (its own pairs) plus ``r^2`` of every pair that
-        ends at it (with ``r = 1``: out-degree plus in-degree), without building ``L``."""
-        n_pixels, k = self.neighbours.shape
-        r = self._ratios()
-        return k + np.bincount(self.neighbours.ravel(), weights=r * r, minlength=n_pixels)
+        ends at it (with ``r = 1``: out-degree plus in-degree), without building ``L``;
+        computed once (the Laplacian, the preconditioner and the unit of the priors all read
+        it; a graph in another dtype shares it: its pairs and ratios are the same)."""
+        if self._degree is None:
+            n_pixels, k = self.neighbours.shape
+            r = self._ratios()
+            self._degree = k + np.bincount(self.neighbours.ravel(), weights=r * r, minlength=n_pixels)
+            self._degree.flags.writeable = False
+        return self._degree
 
     @property
     def laplacian(self) -> sp.csr_array:

@@ -368,6 +368,14 @@ class FilterConstraints:
         )
 
 
+_BANDS_PER_GATHER = 4
+"""Bands :meth:`PixelOrder.to_pixels` gathers at once (a few band rows of gathered pixels
+beside the result, not a second cube)."""
+
+_PIXELS_PER_SCATTER = 65536
+"""Positions :meth:`PixelOrder.to_cube` scatters at once."""
+
+
 @dataclass
 class PixelOrder:
     """A pixel-major storage order of a set's cube for the compiled solvers.
@@ -420,13 +428,27 @@ class PixelOrder:
 
     def to_pixels(self, cube: np.ndarray) -> np.ndarray:
         """``(n_wavelength, n_image, height, width)`` -> C-contiguous ``(n_pixels, n_wavelength)``
-        in this order."""
-        return np.ascontiguousarray(cube.reshape(self.shape[0], -1).T[self.order])
+        in this order.
+
+        A few bands at a time: each band's pixels are gathered along its own contiguous row
+        (a pixel's values taken straight from the cube lie a whole band apart), then written
+        into their columns of the result."""
+        flat = cube.reshape(self.shape[0], -1)
+        out = np.empty((flat.shape[1], flat.shape[0]), dtype=flat.dtype)
+        for first in range(0, flat.shape[0], _BANDS_PER_GATHER):
+            bands = slice(first, first + _BANDS_PER_GATHER)
+            out[:, bands] = np.take(flat[bands], self.order, axis=1).T
+        return out
 
     def to_cube(self, pixels: np.ndarray) -> np.ndarray:
-        """The inverse of :meth:`to_pixels`."""
-        flat = pixels.reshape(-1, self.shape[0])[self.positions.ravel()]
-        return np.ascontiguousarray(flat.T).reshape(self.shape)
+        """The inverse of :meth:`to_pixels`: a run of positions at a time, each scattered to
+        its pixels in every band (the transpose of a run is small enough to stay in cache)."""
+        pixels = pixels.reshape(-1, self.shape[0])
+        out = np.empty((self.shape[0], pixels.shape[0]), dtype=pixels.dtype)
+        for start in range(0, pixels.shape[0], _PIXELS_PER_SCATTER):
+            run = slice(start, start + _PIXELS_PER_SCATTER)
+            out[:, self.order[run]] = pixels[run].T
+        return out.reshape(self.shape)
 
 
 def rgb_forward(cube: np.ndarray, camera_matrix: np.ndarray) -> np.ndarray:

@@ -564,7 +564,7 @@ def _tile_confidence(cube: np.ndarray, rgb: np.ndarray, inner: tuple[slice, slic
     y, x) and RGB (image, y, x, channel)."""
     cube = np.moveaxis(np.asarray(cube, dtype=np.float64), 1, 0)
     iy, ix = inner
-    return neighbourhood_spread(cube, np.asarray(rgb))[:, iy, ix]
+    return neighbourhood_spread(cube, np.asarray(rgb), region=inner)[:, iy, ix]
 
 
 def _warm_sample(

@@ -360,7 +360,7 @@ def solve_set(
     initial: xr.DataArray | None = None,
     where: str | None = None,
     endmembers: Endmembers | None = None,
-    confidence: bool = False,
+    confidence: bool | tuple[slice, slice] = False,
     illuminant: xr.DataArray | None = None,
     images: float | None = None,
     **options: Any,
@@ -391,7 +391,8 @@ def solve_set(
     confidence
         Also compute the per-pixel confidence (:func:`~.confidence.neighbourhood_spread`,
         from the solver's own neighbourhoods where it has them), as the coordinate
-        ``confidence`` ``(image, y, x)`` of ``spectra``.
+        ``confidence`` ``(image, y, x)`` of ``spectra``; a ``(y, x)`` pair of slices: only
+        inside them (a tile's core), NaN elsewhere.
     illuminant
         ``L`` ``(wavelength,)`` for a set model (:data:`~.methods.SET_MODELS`; None: none).
     images
@@ -535,7 +536,7 @@ def solve_tile(
         initial=initial,
         where=where,
         endmembers=endmembers,
-        confidence=confidence,
+        confidence=inner if confidence else False,  # the core's: the rest is cut off
         illuminant=illuminant,
         images=images,
     )

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from spectralize.nodes.reconstruction import appearance_neighbours, build_problem, inputs_from_xarray
+from spectralize.nodes.reconstruction.neighbourhoods import appearance_order
 
 
 def test_neighbours_are_the_k_nearest_other_pixels():
@@ -88,3 +89,19 @@ def test_the_laplacian_is_d_transpose_d(scale_invariant):
     np.testing.assert_allclose(graph.laplacian.toarray(), d.T @ d, atol=1e-12)
     assert graph.laplacian.has_canonical_format
     np.testing.assert_allclose(graph.degree, np.diag(d.T @ d))
+
+
+def test_neighbours_of_some_pixels_are_their_rows_of_all_pixels():
+    rng = np.random.default_rng(3)
+    points = np.round(rng.normal(size=(300, 3)), 1)  # coarse: many ties among duplicates
+    queries = np.array([5, 0, 299, 17, 5, 120])
+    every = appearance_neighbours(points, k=4)
+    np.testing.assert_array_equal(appearance_neighbours(points, k=4, queries=queries), every[queries])
+
+
+def test_the_query_order_runs_through_every_feature():
+    # pixels alike in their first three features, apart in the fifth (a position)
+    points = np.zeros((6, 5))
+    points[:, 4] = [5.0, 1.0, 4.0, 0.0, 3.0, 2.0]
+    assert appearance_order(points).tolist() == list(range(6))  # the storage order: 3 features
+    assert appearance_order(points, features=5).tolist() == [3, 1, 5, 4, 2, 0]
