@@ -52,9 +52,11 @@ about their own noise instead of a fixed trust:
 - ``v_kb`` counts the model's own error, not only the band noise: the larger of the normal
   matrix's inverse and its sandwich (robust) form ``H^-1 (sum_p g_p g_p^T) H^-1`` over the
   cluster's texels ``p`` (``g_p``: texel ``p``'s gradient of the RGB and band terms at
-  ``E_k^D``), which grows where the texels disagree with the pooled shape more than the
-  stated noise allows (weights off, RGB of one camera inconsistent with another's). The
-  gain then keeps ``E_k^0`` where the pooled bands are not to be trusted.
+  ``E_k^D``; times ``n_k / (n_k - W)`` for the ``W`` unknowns the residuals were fitted with,
+  MacKinnon and White's HC1), which grows where the texels disagree with the pooled shape
+  more than the stated noise allows (weights off, RGB of one camera inconsistent with
+  another's). The gain then keeps ``E_k^0`` where the pooled bands are not to be trusted; a
+  cluster of no more texels than wavelengths keeps it always.
 - The fit ``F = a_m E + h_m L`` is moved towards its image's RGB by the linear-Gaussian
   (Kalman) update ``S_m = F_m + K_m (R_m - C_m F_m)``, ``K_m = C_m^T (C_m C_m^T +
   Sigma_R,m / sigma_0,m^2)^-1``, ``F`` trusted to ``sigma_0,m`` per element
@@ -83,7 +85,10 @@ References
    conditions. Proceedings of the Fifth Berkeley Symposium 1; White, H. (1980). A
    heteroskedasticity-consistent covariance matrix estimator and a direct test for
    heteroskedasticity. Econometrica 48(4) (the sandwich variance under a wrong noise model).
-.. [6] Tarantola, A. (2005). Inverse Problem Theory and Methods for Model Parameter
+.. [6] MacKinnon, J. G., White, H. (1985). Some heteroskedasticity-consistent covariance
+   matrix estimators with improved finite sample properties. Journal of Econometrics 29(3)
+   (HC1).
+.. [7] Tarantola, A. (2005). Inverse Problem Theory and Methods for Model Parameter
    Estimation. SIAM, chapter 3 (the posterior mean of a linear Gaussian problem).
 """
 
