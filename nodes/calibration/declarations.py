@@ -228,13 +228,14 @@ RECOVER_SPECTRAL_OECF = Node(
 
 CALIBRATE_SPECTRAL = Node(
     name="calibrate_spectral",
-    version="8",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
+    version="9",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
     # 4: C held to zero where the targets had little light (weak_light); 5: the measured
     # illuminant L on the band wavelengths (illuminant), which set_model 'shared-texel' reads;
     # 6: the targets' RGB series saturated at each camera's saturation (calibration/oecf_rgb);
     # 7: every camera's flat field from the white reference (flat_field_rgb, flat_field), the
     # targets divided by it before Q and C are fitted; 8: one RGB flat field per camera (the
-    # mean of its channels' maps)
+    # mean of its channels' maps); 9: the RGB flat field through the white reference's own
+    # smooth response, fitted jointly with it (flat_field_response)
     function=calibrate_spectral,
     inputs={
         "white_reference": "raw/white_reference",
@@ -253,8 +254,9 @@ HDR_MERGE = Node(
     # 2: each image's codes weighted with its own camera's black level (calibration/oecf_rgb's
     # black_level over camera), not the lowest camera's for all; 3: each image divided by its
     # camera's flat field from the white reference (raw/white_reference); 4: one flat field per
-    # camera (the mean of its channels' maps)
-    version="4",
+    # camera (the mean of its channels' maps); 5: the flat field through the white
+    # reference's own smooth response (flat_field_response)
+    version="5",
     function=merge_hdr_node,
     inputs={
         "raw_rgb": "raw/rgb",

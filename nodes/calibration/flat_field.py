@@ -4,7 +4,11 @@ A lens darkens towards the corners of its image and a tunable filter adds an off
 that depends on the wavelength, so the sensitivity in eq. 5 is a map, ``Q_lambda F(p)``, not a
 number. The capture contract has every camera photograph the white reference, an even diffuse
 target; its frames, linearised through the camera's response and averaged over the exposure
-series, are ``F`` up to a scale and the noise.
+series, are ``F`` up to a scale and the noise. An RGB camera's recovered response ripples where
+the scene gave it few samples, and a ripple over the codes between the frame's centre and its
+corners reads as falloff; its white reference is linearised through a smooth response fitted
+jointly with the flat field on the white reference's own series
+(:mod:`~spectralize.nodes.calibration.flat_field_response`).
 
 - :func:`fit_flat_field`, :class:`FlatField`, :func:`from_calibration` (from
   :mod:`~spectralize.nodes.calibration.flat_field_maps`, which the HDR merge, the band
@@ -12,7 +16,8 @@ series, are ``F`` up to a scale and the noise.
   ``F`` (a low-order Legendre polynomial in the frame coordinates, 1 at the frame centre),
   its noise floor and the measures of an uneven target; the maps of several cameras or
   bands, divided out of images or band shots block by block.
-- :func:`rgb_flat_field`: the RGB cameras' maps from their HDR of the white reference.
+- :func:`rgb_flat_field`: the RGB cameras' maps from their white reference's series through
+  its own smooth response.
 - :func:`spectral_flat_field`: the spectral camera's map per band from the white
   reference's band series (dark subtracted, linearised, time-weighted over the exposures).
 - :func:`flat_field_variables`: the maps' variables of ``calibration/spectral``.
@@ -64,6 +69,10 @@ from spectralize.nodes.calibration.flat_field_maps import (
     from_calibration,
     legendre_powers,
 )
+from spectralize.nodes.calibration.flat_field_response import (
+    white_reference_frames,
+    white_reference_response,
+)
 from spectralize.nodes.calibration.hdr import merge_hdr
 from spectralize.schemas import CalibrationError
 
@@ -88,13 +97,20 @@ MIN_SNR = 10.0
 spectral camera's flat field."""
 
 
-def rgb_flat_field(white_reference: xr.Dataset, oecf_rgb: xr.Dataset) -> tuple[FlatField, list]:
+def rgb_flat_field(
+    white_reference: xr.Dataset, oecf_rgb: xr.Dataset, *, own_response: bool = True
+) -> tuple[FlatField, list]:
     """Each RGB camera's flat field from its HDR of the white reference.
 
-    Each camera's exposure series of the white reference is merged to HDR through its own
-    response (codes at or above its saturation left out,
-    :func:`~spectralize.nodes.calibration.hdr.merge_hdr`: Robertson's time-weighted average
-    over the series) and each channel fitted by :func:`fit_flat_field`; the camera's map is
+    Each camera's exposure series of the white reference is merged to HDR (codes at or
+    above its saturation left out, :func:`~spectralize.nodes.calibration.hdr.merge_hdr`:
+    Robertson's time-weighted average over the series) through the smooth response fitted
+    jointly with the flat field on that series
+    (:func:`~spectralize.nodes.calibration.flat_field_response.white_reference_response`:
+    the camera's recovered response ripples, and a ripple over the codes between the
+    frame's centre and its corners reads as falloff), with ``own_response`` false (or where
+    that fit has too few block means) through the camera's recovered response, and each
+    channel fitted by :func:`fit_flat_field`; the camera's map is
     the mean of its channels' (stored for every channel): a lens's falloff is geometric, the
     same in every channel, while a map per channel would carry each channel's own response
     error into the colour of every image's corners (and into ``C``, fitted through it).
@@ -119,10 +135,12 @@ def rgb_flat_field(white_reference: xr.Dataset, oecf_rgb: xr.Dataset) -> tuple[F
             known = response["camera"].values.tolist()
             response = response.sel(camera=camera if camera in known else known[0])
         raw = _rgb_series(white_reference, group, camera, saturation).drop_vars("camera")
-        hdr = merge_hdr(
-            raw, response.assign_attrs(oecf_rgb.attrs | response.attrs), saturation=saturation
-        )
-        radiance = np.asarray(hdr["radiance"].isel(image=0).transpose("y", "x", "channel").values)
+        radiance = _white_reference_frames(raw, response, oecf_rgb, camera, saturation)
+        if radiance is None or not own_response:
+            hdr = merge_hdr(
+                raw, response.assign_attrs(oecf_rgb.attrs | response.attrs), saturation=saturation
+            )
+            radiance = np.asarray(hdr["radiance"].isel(image=0).transpose("y", "x", "channel").values)
         per_channel = [fit_flat_field(radiance[..., c]) for c in range(radiance.shape[-1])]
         mean = np.mean([f.coefficients for f in per_channel], axis=0)  # one map: achromatic
         coefficients.append(np.stack([mean] * len(per_channel)))
@@ -130,6 +148,37 @@ def rgb_flat_field(white_reference: xr.Dataset, oecf_rgb: xr.Dataset) -> tuple[F
     frame = (white_reference.sizes["y"], white_reference.sizes["x"])
     flat = FlatField(np.stack(coefficients), legendre_powers(), frame, np.asarray(cameras))
     return flat, fits
+
+
+def _white_reference_frames(
+    raw: xr.Dataset, response: xr.DataArray, oecf_rgb: xr.Dataset, camera: int, saturation: int | None
+) -> np.ndarray | None:
+    """(y, x, channel) camera ``camera``'s white-reference series ``raw`` through its own smooth
+    response (:func:`white_reference_response`, :func:`white_reference_frames`); None where
+    that fit declines (too few block means, a pixel without a weighted code) or the
+    response has no channel dimension."""
+    if "channel" not in response.dims:
+        return None
+    black = camera_black_level(oecf_rgb, camera)
+    n_codes = response.sizes["code"]
+    top = n_codes - 1 if saturation is None else int(saturation)
+    weighting = oecf_rgb.attrs.get("weighting", response.attrs.get("weighting", "gaussian"))
+    counts = np.asarray(raw["counts"].isel(image=0).transpose("exposure", "y", "x", "channel").values)
+    times = np.asarray(raw["exposure_time"].isel(image=0).values, dtype=np.float64)
+    table = white_reference_response(counts, times, black, top, n_codes, weighting=weighting)
+    if table is None:
+        return None
+    return white_reference_frames(counts, times, table, black, top, weighting=weighting)
+
+
+def camera_black_level(oecf_rgb: xr.Dataset, camera: int) -> int:
+    """Camera ``camera``'s black level in ``calibration/oecf_rgb`` (its ``black_level`` over
+    ``camera``, else the group's attr, else 0) [DN]."""
+    per_camera = oecf_rgb.get("black_level")
+    if per_camera is not None and "camera" in per_camera.dims:
+        known = per_camera["camera"].values.tolist()
+        return int(per_camera.sel(camera=camera if camera in known else known[0]))
+    return int(oecf_rgb.attrs.get("black_level", 0))
 
 
 def camera_flat_fields(

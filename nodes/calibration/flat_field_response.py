@@ -1,0 +1,212 @@
+"""The white reference's own response: a smooth response fitted jointly with its flat field.
+
+The white reference's frames of one RGB camera are an exposure series of one smooth scene:
+each pixel's codes follow ``c = f(g F(p) t)``, ``F`` the flat field, ``t`` the exposure time.
+Merged through the camera's recovered response, whose slope ripples from code to code where
+the scene gave few samples, the frame's darker corners sit at other codes than its centre
+and the ripple reads as falloff (each exposure's frame measures ``F`` to the power of the
+response's local slope error over its codes). The series separates the two when the
+response is smooth: a pixel's ratio between exposures depends on the response alone, its
+level at one exposure on ``F``. So
+
+``s(ln(c - b)) = a + ln F(p) + ln t``
+
+is fitted by weighted least squares to the series' block means, ``s`` a cubic spline of
+:data:`KNOTS` coefficients in the log code above the black level ``b`` per channel (the
+exposure times fix its slope; a response too smooth to follow a ripple), ``ln F`` a
+Legendre polynomial in the frame coordinates shared by the channels (a lens's falloff is
+geometric). :func:`white_reference_response` returns ``exp(s)`` as a response table, through
+which :func:`~spectralize.nodes.calibration.flat_field.rgb_flat_field` merges the white
+reference for its flat field; the scene's images keep the camera's recovered response (the
+white reference reaches only a few clusters of codes).
+
+References
+----------
+.. [1] Fast Capture of Spectral Image Series, section 4 ("taking images of a white diffuse
+   reference surface") and eq. 5 (``I = f^-1(x t Q_lambda)``, here with ``Q_lambda F(p)``).
+.. [2] M. A. Robertson, S. Borman, R. L. Stevenson, "Estimation-theoretic approach to dynamic
+   range enhancement using multiple exposures", Journal of Electronic Imaging 12(2), 2003.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import BSpline
+
+from spectralize.nodes.calibration.flat_field_maps import (
+    BLOCKS,
+    DEGREE,
+    flat_field_basis,
+    legendre_powers,
+)
+from spectralize.nodes.calibration.oecf.weighting import Weighting, weighting_function
+
+__all__ = ["KNOTS", "white_reference_response", "white_reference_frames"]
+
+KNOTS = 5
+"""Cubic B-spline coefficients of the white reference's response per channel, over the log
+codes above the black level its series reaches."""
+
+
+def _spline_design(u: np.ndarray, lo: float, hi: float, n: int) -> np.ndarray:
+    """(len(u), n) the ``n`` cubic B-splines with uniform knots on ``[lo, hi]`` at ``u``
+    (clipped into it: constant beyond)."""
+    inner = np.linspace(lo, hi, n - 2)
+    step = inner[1] - inner[0]
+    knots = np.concatenate(
+        [inner[0] - step * np.arange(3, 0, -1), inner, inner[-1] + step * np.arange(1, 4)]
+    )
+    return BSpline.design_matrix(np.clip(u, lo, hi), knots, 3).toarray()
+
+
+def _block_sums(values: np.ndarray, edges_y: np.ndarray, edges_x: np.ndarray) -> np.ndarray:
+    """Sums of ``values`` (y, x, ...) over the blocks between ``edges_y`` and ``edges_x``."""
+    return np.add.reduceat(np.add.reduceat(values, edges_y[:-1], axis=0), edges_x[:-1], axis=1)
+
+
+def _log_codes(
+    codes: np.ndarray, black_level: float, saturation: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``ln(c - b)`` of the codes strictly between the levels (0 elsewhere) and where they are."""
+    valid = (codes > black_level) & (codes < saturation)
+    return np.log(np.where(valid, codes - black_level, 1.0)), valid
+
+
+def white_reference_response(
+    counts: np.ndarray,
+    times: np.ndarray,
+    black_level: float,
+    saturation: float,
+    n_codes: int,
+    *,
+    weighting: Weighting = "gaussian",
+    knots: int = KNOTS,
+    degree: int = DEGREE,
+    blocks: int = BLOCKS,
+) -> np.ndarray | None:
+    """A smooth response per channel fitted jointly with the flat field on one camera's
+    white-reference exposure series.
+
+    Parameters
+    ----------
+    counts
+        (exposure, y, x, channel) the white reference's raw codes [DN], integers.
+    times
+        (exposure,) exposure times [s].
+    black_level, saturation
+        Codes at or below ``black_level`` or at or above ``saturation`` are left out [DN].
+    n_codes
+        Codes of the returned table (``2**bit_depth``).
+    weighting
+        The certainty weight of a code, averaged over a block, weights its block mean
+        (:func:`~spectralize.nodes.calibration.oecf.weighting.weighting_function`).
+    knots
+        Spline coefficients of the response per channel (at least 4).
+    degree
+        Total degree of ``ln F``'s Legendre polynomial.
+    blocks
+        Block means per frame side (fewer on a smaller frame); a block enters an exposure's
+        rows only where all its codes are between the levels.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        (channel, code) ``exp(s)`` for every code ``0 .. n_codes - 1`` (0 at or below the
+        black level, constant beyond the series' lowest and highest codes), relative
+        exposure per code; None where the series has fewer usable block means than
+        unknowns, or reaches fewer than two exposures in a channel.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and eq. 5.
+    """
+    n_exp, ny, nx, n_ch = counts.shape
+    edges_y = np.linspace(0, ny, min(blocks, ny) + 1).round().astype(int)
+    edges_x = np.linspace(0, nx, min(blocks, nx) + 1).round().astype(int)
+    sizes = np.outer(np.diff(edges_y), np.diff(edges_x))
+    powers = legendre_powers(degree)[1:]  # ln F without its constant (in each channel's s)
+    spatial = _block_sums(np.moveaxis(flat_field_basis(powers, (ny, nx)), 0, -1), edges_y, edges_x)
+    spatial = (spatial / sizes[..., None]).reshape(-1, len(powers))
+    n_terms = len(powers)
+    rows, targets, weights, spans = [], [], [], []
+    for ch in range(n_ch):
+        codes = np.asarray(counts[..., ch], dtype=np.float64)
+        u, valid = _log_codes(codes, black_level, saturation)
+        w = weighting_function(codes, black_level=black_level, saturation=saturation, kind=weighting)
+        if not valid.any():
+            return None
+        lo, hi = float(u[valid].min()), float(u[valid].max())
+        spans.append((lo, hi))
+        used = 0
+        for e in range(n_exp):
+            whole = (_block_sums(valid[e].astype(float), edges_y, edges_x) == sizes).ravel()
+            if not whole.any() or hi <= lo:
+                continue
+            used += 1
+            basis = _spline_design(u[e].ravel(), lo, hi, knots).reshape(ny, nx, knots)
+            mean_basis = (_block_sums(basis, edges_y, edges_x) / sizes[..., None]).reshape(-1, knots)
+            design = np.zeros((int(whole.sum()), n_terms + n_ch * knots))
+            design[:, :n_terms] = -spatial[whole]
+            design[:, n_terms + ch * knots : n_terms + (ch + 1) * knots] = mean_basis[whole]
+            rows.append(design)
+            targets.append(np.full(int(whole.sum()), np.log(float(times[e]))))
+            weights.append((_block_sums(w[e], edges_y, edges_x) / sizes).ravel()[whole])
+        if used < 2:
+            return None
+    design = np.concatenate(rows)
+    if design.shape[0] < 2 * design.shape[1]:
+        return None
+    root_w = np.sqrt(np.concatenate(weights))
+    coefficients = np.linalg.lstsq(
+        design * root_w[:, None], np.concatenate(targets) * root_w, rcond=None
+    )[0]
+    table = np.zeros((n_ch, n_codes))
+    u, valid = _log_codes(np.arange(n_codes, dtype=np.float64), black_level, np.inf)
+    for ch, (lo, hi) in enumerate(spans):
+        s = coefficients[n_terms + ch * knots : n_terms + (ch + 1) * knots]
+        table[ch] = np.where(valid, np.exp(_spline_design(u, lo, hi, knots) @ s), 0.0)
+    return table
+
+
+def white_reference_frames(
+    counts: np.ndarray,
+    times: np.ndarray,
+    table: np.ndarray,
+    black_level: float,
+    saturation: float,
+    *,
+    weighting: Weighting = "gaussian",
+) -> np.ndarray | None:
+    """(y, x, channel) the white reference's exposure per second through ``table`` (from
+    :func:`white_reference_response`), the exposures averaged in the log with the weights of
+    the joint fit, ``exp(sum_e w ln(f^-1(c) / t) / sum_e w)``: each exposure as the fit
+    weighted it (not as Robertson's merge does, by ``t^2``, which leaves the frame to the
+    longest exposures and to the spline's misfit over their codes). None where a pixel has
+    no weighted code in some channel.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and eq. 5.
+    """
+    codes = np.asarray(counts)
+    n_ch = codes.shape[-1]
+    weights = np.stack(
+        [
+            weighting_function(
+                codes[..., ch], black_level=black_level, saturation=saturation, kind=weighting
+            )
+            for ch in range(n_ch)
+        ],
+        axis=-1,
+    )
+    level = np.stack(
+        [table[ch][np.clip(codes[..., ch], 0, table.shape[1] - 1)] for ch in range(n_ch)], axis=-1
+    )
+    weights = np.where(level > 0, weights, 0.0)
+    total = weights.sum(axis=0)
+    if not np.all(total > 0):
+        return None
+    log_rate = (
+        np.log(np.where(level > 0, level, 1.0)) - np.log(np.asarray(times, float))[:, None, None, None]
+    )
+    return np.exp((weights * log_rate).sum(axis=0) / total)
