@@ -85,15 +85,19 @@ def test_wheel_installs_into_a_clean_environment_and_runs_a_flow(wheel, tmp_path
     """pip install of the wheel alone (no checkout on the path): every node loads and the demo
     flow runs on the tiny recipe."""
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    # without pip of its own: this pip installs into it (``--python``), as the installer only;
+    # the new environment sees none of this one's packages
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=300)
     python = venv / "bin" / "python"
     # --no-compile: pip would byte-compile every file of every dependency (about half the
     # install's time); the modules the commands below import are compiled as they load
     install = subprocess.run(
         [
-            str(python),
+            sys.executable,
             "-m",
             "pip",
+            "--python",
+            str(python),
             "install",
             "--quiet",
             "--no-compile",
