@@ -831,24 +831,45 @@ def _thumbnail_caption(ds: xr.Dataset, position: int) -> str:
 STATISTICS_PIXELS = 2**20
 #: Images those statistics are computed over at most (each is a stored chunk read on its own).
 STATISTICS_IMAGES = 512
+#: Stored shards those images come from at most (a shard is read whole once, to check it
+#: against its checksum), spread over the run like the images.
+STATISTICS_SHARDS = 3
+
+
+def _spread(n: int, kept: int) -> np.ndarray:
+    """``kept`` of ``range(n)`` spread evenly, the first and the last included."""
+    return np.unique(np.round(np.linspace(0, n - 1, min(n, kept))).astype(int))
 
 
 def _spread_sample(
-    values: xr.DataArray, limit: int = STATISTICS_PIXELS, images: int = STATISTICS_IMAGES
+    values: xr.DataArray,
+    limit: int = STATISTICS_PIXELS,
+    images: int = STATISTICS_IMAGES,
+    shards: int = STATISTICS_SHARDS,
 ) -> tuple[xr.DataArray, int]:
     """``values`` (image, y, x) on at most about ``limit`` pixels, and the images it keeps.
 
     All of it when it has that few pixels; else as many images as fit, at most ``images``
     and at least two, spread evenly over the run (the first and the last included), and
-    every ``step``-th pixel along ``y`` and ``x`` where they have more. One selection: read
-    from a variable as stored (:func:`_stored_variable`), it reads those images' chunks only.
+    every ``step``-th pixel along ``y`` and ``x`` where they have more. Of a variable stored
+    in more than ``shards`` shards along ``image`` (its ``encoding``), the images come from
+    ``shards`` of them spread over the run. One selection: read from a variable as stored
+    (:func:`_stored_variable`), it reads those images' chunks only, whatever the run's size.
     """
+    stored = dict(zip(values.dims, values.encoding.get("shards") or (), strict=False))
     values = values.transpose("image", "y", "x")
     n, ny, nx = values.shape
     if n * ny * nx <= limit:
         return values, n
-    kept = min(n, max(2, min(int(images), limit // (ny * nx))))
-    positions = np.unique(np.round(np.linspace(0, n - 1, kept)).astype(int))
+    candidates = np.arange(n)
+    per_shard = int(stored.get("image", n))
+    if -(-n // per_shard) > shards:
+        picked = _spread(-(-n // per_shard), shards)
+        candidates = np.concatenate(
+            [np.arange(k * per_shard, min(n, (k + 1) * per_shard)) for k in picked]
+        )
+    kept = max(2, min(int(images), limit // (ny * nx)))
+    positions = candidates[_spread(len(candidates), kept)]
     step = max(1, int(np.ceil(np.sqrt(len(positions) * ny * nx / limit))))
     return values.isel(image=positions, y=slice(None, None, step), x=slice(None, None, step)), len(
         positions

@@ -578,31 +578,44 @@ def test_the_confidence_statistics_of_a_large_run_read_images_spread_over_it():
 
 
 def test_the_confidence_as_stored_reads_only_the_chunks_of_the_images_sampled(tmp_path, monkeypatch):
-    """A run of one-image chunks: the headline's sample reads its images' chunks, not every
-    image's (a dask task or whole shard per image would grow with the run)."""
+    """2,000 one-image chunks in 20 shards: the headline's sample reads its images' chunks in
+    3 shards spread over the run (first, middle, last), not a chunk per image or every shard."""
     from spectralize.store.integrity import CheckedLocalStore
 
     n = 2000
     store = RunStore.create(tmp_path / "run.zarr")
     data = xr.Dataset(
-        {"confidence": (("image", "y", "x"), np.ones((n, 4, 4), np.float32))},
+        {
+            "confidence": (
+                ("image", "y", "x"),
+                np.repeat(np.arange(n, dtype=np.float32), 16).reshape(n, 4, 4),
+            )
+        },
         coords={"image": np.arange(n)},
     )
-    store.write("spectra_like", data.chunk({"image": 1}), schema=None)
-    read: list[str] = []
+    store.write(
+        "spectra_like",
+        data.chunk({"image": 100}),
+        schema=None,
+        encoding={"confidence": {"chunks": (1, 4, 4), "shards": (100, 4, 4)}},
+    )
+    read: list[tuple[str, bool]] = []
     real_get = CheckedLocalStore.get
 
-    async def counted(self, key, *args, **kwargs):
-        read.append(key)
-        return await real_get(self, key, *args, **kwargs)
+    async def counted(self, key, prototype=None, byte_range=None):
+        read.append((key, byte_range is not None))
+        return await real_get(self, key, prototype, byte_range)
 
     stored = report._stored_variable(store, "spectra_like", "confidence")
     monkeypatch.setattr(CheckedLocalStore, "get", counted)
     sample, images = report._spread_sample(stored, limit=400 * 16)
-    values = np.asarray(sample.values)
-    assert images == 400 and values.shape == (400, 4, 4)
-    chunks = [key for key in read if "/confidence/c" in key]
-    assert 0 < len(chunks) <= 2 * images  # its images' chunks (a shard's index besides)
+    values = np.unique(np.asarray(sample.values))
+    shards = {int(v) // 100 for v in values}
+    assert images == 300 and shards == {0, 10, 19}  # the 3 shards' 300 images: fewer than 400
+    assert values[0] == 0 and values[-1] == n - 1
+    touched = {key for key, _ in read if "/confidence/c/" in key}
+    assert len(touched) == 3  # shard files
+    assert sum(ranged for key, ranged in read if key in touched) <= 2 * images + 3
 
 
 def test_the_confidence_headline_of_a_run_too_large_to_read_says_what_it_was_computed_over():
