@@ -72,6 +72,21 @@ def _log_codes(
     return np.log(np.where(valid, codes - black_level, 1.0)), valid
 
 
+def _log_span(
+    counts: np.ndarray, channel: int, black_level: float, saturation: float
+) -> tuple[float, float] | None:
+    """The lowest and highest ``ln(c - b)`` of ``channel``'s codes between the levels over
+    every exposure; None where it has none."""
+    lo, hi = np.inf, -np.inf
+    for e in range(counts.shape[0]):
+        u, valid = _log_codes(
+            np.asarray(counts[e, ..., channel], dtype=np.float64), black_level, saturation
+        )
+        if valid.any():
+            lo, hi = min(lo, float(u[valid].min())), max(hi, float(u[valid].max()))
+    return (lo, hi) if np.isfinite(lo) else None
+
+
 def white_reference_response(
     counts: np.ndarray,
     times: np.ndarray,
@@ -129,28 +144,29 @@ def white_reference_response(
     spatial = (spatial / sizes[..., None]).reshape(-1, len(powers))
     n_terms = len(powers)
     rows, targets, weights, spans = [], [], [], []
-    for ch in range(n_ch):
-        codes = np.asarray(counts[..., ch], dtype=np.float64)
-        u, valid = _log_codes(codes, black_level, saturation)
-        w = weighting_function(codes, black_level=black_level, saturation=saturation, kind=weighting)
-        if not valid.any():
+    for ch in range(n_ch):  # an exposure of a channel in memory at a time (large frames)
+        span = _log_span(counts, ch, black_level, saturation)
+        if span is None:
             return None
-        lo, hi = float(u[valid].min()), float(u[valid].max())
-        spans.append((lo, hi))
+        lo, hi = span
+        spans.append(span)
         used = 0
         for e in range(n_exp):
-            whole = (_block_sums(valid[e].astype(float), edges_y, edges_x) == sizes).ravel()
+            codes = np.asarray(counts[e, ..., ch], dtype=np.float64)
+            u, valid = _log_codes(codes, black_level, saturation)
+            whole = (_block_sums(valid.astype(float), edges_y, edges_x) == sizes).ravel()
             if not whole.any() or hi <= lo:
                 continue
             used += 1
-            basis = _spline_design(u[e].ravel(), lo, hi, knots).reshape(ny, nx, knots)
+            basis = _spline_design(u.ravel(), lo, hi, knots).reshape(ny, nx, knots)
             mean_basis = (_block_sums(basis, edges_y, edges_x) / sizes[..., None]).reshape(-1, knots)
             design = np.zeros((int(whole.sum()), n_terms + n_ch * knots))
             design[:, :n_terms] = -spatial[whole]
             design[:, n_terms + ch * knots : n_terms + (ch + 1) * knots] = mean_basis[whole]
             rows.append(design)
             targets.append(np.full(int(whole.sum()), np.log(float(times[e]))))
-            weights.append((_block_sums(w[e], edges_y, edges_x) / sizes).ravel()[whole])
+            w = weighting_function(codes, black_level=black_level, saturation=saturation, kind=weighting)
+            weights.append((_block_sums(w, edges_y, edges_x) / sizes).ravel()[whole])
         if used < 2:
             return None
     design = np.concatenate(rows)
@@ -188,25 +204,19 @@ def white_reference_frames(
     ----------
     .. [1] Fast Capture of Spectral Image Series, section 4 and eq. 5.
     """
-    codes = np.asarray(counts)
-    n_ch = codes.shape[-1]
-    weights = np.stack(
-        [
-            weighting_function(
-                codes[..., ch], black_level=black_level, saturation=saturation, kind=weighting
-            )
-            for ch in range(n_ch)
-        ],
-        axis=-1,
-    )
-    level = np.stack(
-        [table[ch][np.clip(codes[..., ch], 0, table.shape[1] - 1)] for ch in range(n_ch)], axis=-1
-    )
-    weights = np.where(level > 0, weights, 0.0)
-    total = weights.sum(axis=0)
-    if not np.all(total > 0):
-        return None
-    log_rate = (
-        np.log(np.where(level > 0, level, 1.0)) - np.log(np.asarray(times, float))[:, None, None, None]
-    )
-    return np.exp((weights * log_rate).sum(axis=0) / total)
+    n_exp, ny, nx, n_ch = counts.shape
+    log_times = np.log(np.asarray(times, dtype=np.float64))
+    out = np.empty((ny, nx, n_ch))
+    for ch in range(n_ch):  # an exposure of a channel in memory at a time (large frames)
+        total, weighted = np.zeros((ny, nx)), np.zeros((ny, nx))
+        for e in range(n_exp):
+            codes = np.asarray(counts[e, ..., ch])
+            level = table[ch][np.clip(codes, 0, table.shape[1] - 1)]
+            w = weighting_function(codes, black_level=black_level, saturation=saturation, kind=weighting)
+            w = np.where(level > 0, w, 0.0)
+            weighted += w * (np.log(np.where(level > 0, level, 1.0)) - log_times[e])
+            total += w
+        if not np.all(total > 0):
+            return None
+        out[..., ch] = np.exp(weighted / total)
+    return out
