@@ -14,9 +14,13 @@ result). The LAST line is one JSON object, also written to
 
 ``--profile`` instead profiles one interior 256 px tile of the 512^2 capture mirrored to
 768^2 (``solve_tile`` as the flow calls it: the set's endmembers, the confidence, the run's
-illuminant), before and after, each in a fresh process under cProfile: the cumulative seconds
-of the tile's stages (:data:`TILE_SECTIONS`), its resident peak, and both sides' 128^2
-accuracy; stored under the key ``profile_256`` of the same file (the other rows are kept).
+illuminant), before and after, each in a fresh process under cProfile timed in CPU seconds
+(the process's, not the wall clock's: other work on a shared machine shows less in it): the
+cumulative seconds of the tile's stages (:data:`TILE_SECTIONS`), its resident peak, whether
+both sides' spectra and confidence are bit-identical, and both sides' 128^2 accuracy;
+stored under the key ``profile_256`` of the same file (the other rows are kept).
+``--after-commit REV`` takes the "after" side from a worktree of ``REV`` too, instead of
+this checkout (a comparison of two commits while the checkout holds other work).
 
 ``--mixture-tile`` instead times the mixture prior's centre (the endmember mixture) and the
 whole tile (``solve_tile``, with the set's endmembers and the confidence) on one 256^2 x
@@ -78,10 +82,13 @@ TILE_SECTIONS = {
 """The stages of a tile in ``--profile``: (module, function) -> the row's name."""
 
 
-def profile_tile_case(folder: str, package: str | None) -> dict:
-    """In this process: one interior 256 px tile of the set in ``folder`` under cProfile."""
+def profile_tile_case(folder: str, package: str | None, keep: str | None = None) -> dict:
+    """In this process: one interior 256 px tile of the set in ``folder`` under cProfile (CPU
+    seconds); its spectra and confidence saved to ``keep`` (``.npz``) where given."""
     import cProfile
     import pstats
+
+    import numpy as np
 
     sys.path.insert(0, str(HERE))
     if package:
@@ -107,11 +114,11 @@ def profile_tile_case(folder: str, package: str | None) -> dict:
     endmembers, _ = _set_endmembers(rgb, shots, camera)
     _warm_training()
     oy, ox = window.outer
-    profile = cProfile.Profile()
-    started = time.perf_counter()
+    profile = cProfile.Profile(time.process_time)
+    started, cpu_started = time.perf_counter(), time.process_time()
     with _as_a_run():
         profile.enable()
-        _, iterations, _ = solve_tile(
+        spectra, iterations, spread = solve_tile(
             rgb.isel(y=oy, x=ox),
             shots.isel(y=oy, x=ox),
             camera,
@@ -121,7 +128,9 @@ def profile_tile_case(folder: str, package: str | None) -> dict:
             endmembers=endmembers,
         )
         profile.disable()
-    wall = time.perf_counter() - started
+    wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
+    if keep:  # the tile's results, for the other side to compare with
+        np.savez(keep, spectra=spectra, confidence=spread)
     sections: dict[str, float] = {}
     for (filename, _, name), (_, _, _, cumulative, _) in pstats.Stats(profile).stats.items():
         module = Path(filename).stem
@@ -131,6 +140,7 @@ def profile_tile_case(folder: str, package: str | None) -> dict:
     return {
         "window": list(window.outer_shape),
         "wall_s": round(wall, 2),
+        "cpu_s": round(cpu, 2),
         "iterations": int(iterations.max()),
         "peak_rss_gb": round(resident_gb(), 3),
         "load_average_1min": round(os.getloadavg()[0], 1),
@@ -138,23 +148,51 @@ def profile_tile_case(folder: str, package: str | None) -> dict:
     }
 
 
-def _before_and_after(work: Path, package: Path, case: str, inputs: Path) -> dict[str, dict]:
+def _before_and_after(
+    work: Path, package: Path, case: str, inputs: Path, after: Path | None = None
+) -> dict[str, dict]:
     """One ``case`` (``--profile-case``, ``--tile-case``) on ``inputs`` with the baseline
-    ``package`` and with this checkout, each in a fresh process, with the 128^2 accuracy
-    row of the same code (its first run compiles too)."""
+    ``package`` and with this checkout (or the ``after`` package), each in a fresh process,
+    with the 128^2 accuracy row of the same code (its first run compiles too)."""
     from paper_scale import run_case
 
     rows = {}
-    for key, where in (("before", package), ("after", None)):
+    for key, where in (("before", package), ("after", after)):
         accuracy = run_case("accuracy", work / "set128.npz", package=where)
         command = [sys.executable, str(Path(__file__).resolve()), case, str(inputs)]
         command += ["--package", str(where)] if where is not None else []
+        command += ["--keep", str(work / f"{key}.npz")] if case == "--profile-case" else []
         out = subprocess.run(command, capture_output=True, text=True, check=False)
         if out.returncode != 0:
             raise RuntimeError(f"{case} ({key}) failed:\n{out.stderr[-4000:]}")
         rows[key] = {**json.loads(out.stdout.strip().splitlines()[-1]), "accuracy_128": accuracy}
         log(f"{key}: {rows[key]}")
     return rows
+
+
+def _after_package(commit: str | None, work: Path) -> Path | None:
+    """A worktree of ``commit`` importable as ``spectralize`` (as the baseline's, beside it),
+    or None for this checkout."""
+    if not commit:
+        return None
+    tree, shim = work / "after", work / "after-shim"
+    subprocess.run(
+        ["git", "worktree", "add", "--detach", "-f", str(tree), commit],
+        cwd=HERE.parent,
+        check=True,
+        capture_output=True,
+    )
+    shim.mkdir()
+    (shim / "spectralize").symlink_to(tree)
+    return shim
+
+
+def _identical(before: Path, after: Path) -> dict[str, bool]:
+    """Whether the two sides' tile results are equal bit for bit, per array."""
+    import numpy as np
+
+    with np.load(before) as old, np.load(after) as new:
+        return {name: bool(np.array_equal(old[name], new[name])) for name in old.files}
 
 
 def profile_tile(args: argparse.Namespace, report: dict) -> None:
@@ -165,21 +203,26 @@ def profile_tile(args: argparse.Namespace, report: dict) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         package = baseline_package(args.baseline_commit, work)
+        after_package = _after_package(args.after_commit, work)
         log(f"capturing {args.scene} at 512^2 and 128^2 (20 images)")
         capture_inputs(args.scene, 512, 0, work / "set512.npz", truth=False)
         capture_inputs(args.scene, 128, 0, work / "set128.npz", truth=True)
         run_case("mirror", work / "set512.npz", 768, work / "mirrored768")
-        rows = _before_and_after(work, package, "--profile-case", work / "mirrored768")
-        subprocess.run(["git", "worktree", "remove", "--force", str(work / "baseline")], check=False)
+        rows = _before_and_after(work, package, "--profile-case", work / "mirrored768", after_package)
+        identical = _identical(work / "before.npz", work / "after.npz")
+        for tree in ("baseline", "after"):
+            subprocess.run(["git", "worktree", "remove", "--force", str(work / tree)], check=False)
     before, after = rows["before"], rows["after"]
     previous["profile_256"] = {
         "note": f"cProfile of one interior 256 px tile ({before['window'][0]}^2 window x 20 images, "
         f"{args.scene} 512^2 mirrored to 768^2) solved by solve_tile with the set's endmembers, "
         f"the illuminant and the confidence; before `{args.baseline_commit}`, after "
-        f"`{report['commit']}`, each in a fresh process in one run (load {before['load_average_1min']}"
-        f" / {after['load_average_1min']}); cumulative seconds, every call of a stage summed. "
-        + args.note,
+        f"`{args.after_commit or report['commit']}`, each in a fresh process in one run (load "
+        f"{before['load_average_1min']} / {after['load_average_1min']}); cumulative CPU "
+        "seconds, every call of a stage summed. " + args.note,
         "command": report["command"],
+        "bit_identical": identical,
+        "cpu_ratio": round(before["cpu_s"] / after["cpu_s"], 3),
         "before": before,
         "after": after,
         "sections": [
@@ -292,6 +335,8 @@ def main() -> None:
     parser.add_argument("--profile-case", help=argparse.SUPPRESS)
     parser.add_argument("--tile-case", help=argparse.SUPPRESS)
     parser.add_argument("--package", help=argparse.SUPPRESS)
+    parser.add_argument("--keep", help=argparse.SUPPRESS)
+    parser.add_argument("--after-commit", help="--profile: the 'after' side from this commit")
     parser.add_argument(
         "--into-mixture-tile",
         action="store_true",
@@ -302,7 +347,7 @@ def main() -> None:
     parser.add_argument("--note", default="")
     args = parser.parse_args()
     if args.profile_case:
-        print(json.dumps(profile_tile_case(args.profile_case, args.package)))
+        print(json.dumps(profile_tile_case(args.profile_case, args.package, args.keep)))
         return
     if args.tile_case:
         print(json.dumps(mixture_tile_case(args.tile_case, args.package)))
