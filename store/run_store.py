@@ -601,6 +601,7 @@ class RunStore:
         concurrent_regions: int = 1,
         progress: Callable[[str], None] | None = None,
         records: Mapping[str, Any] | None = None,
+        commit: bool = True,
     ) -> str:
         """Write ``ds`` as ``group``, atomically, and return its fingerprint.
 
@@ -634,6 +635,12 @@ class RunStore:
         records
             Name -> JSON value kept beside the group as ``<name>.json`` (in its manifest, not
             its attrs): bookkeeping that grows with the data (:meth:`record` reads it).
+        commit
+            ``False``: stage the write only (a resumable one), every region written and
+            flagged but nothing packed or committed, the group not visible. The next write
+            of the same data (same group and fingerprint) adopts the staged regions and
+            commits them without computing any again; :meth:`discard_staged` removes them.
+            So a writer can stage several groups and commit them only once each is staged.
 
         Raises
         ------
@@ -644,8 +651,13 @@ class RunStore:
         StoreError
             If the store is read-only, the disk has too little free space for the data
             (uncompressed), or fills up while writing: nothing is committed and this write's
-            staged copy is removed.
+            staged copy is removed. Also if ``commit=False`` without ``resumable_along``.
         """
+        if not commit and resumable_along is None:
+            raise StoreError(
+                f"commit=False for group {group!r} needs resumable_along (a dim of the data): "
+                "only a write staged region by region is kept staged, found resumable_along=None"
+            )
         target = self._group_path(group)
         if isinstance(schema, str):
             schema = schema_for(schema)
@@ -709,7 +721,10 @@ class RunStore:
                         enc,
                         progress,
                         max(1, int(concurrent_regions)),
+                        keep_flags=not commit,
                     )
+                    if not commit:  # staged and flagged, for the next write of this data
+                        return fingerprint
                     pack_staged(
                         staged,
                         keep=chunks or (),
@@ -831,6 +846,28 @@ class RunStore:
     def discard_staging(self) -> None:
         """Remove every unfinished write (they would otherwise be resumed)."""
         self.clean()
+
+    def discard_staged(self, group: str, fingerprint: str) -> None:
+        """Remove every staged copy of ``group`` with ``fingerprint`` (holding the lock).
+
+        What a write with ``commit=False`` left staged, and anything an interrupted write of
+        the same data left; other groups' and other data's unfinished writes are kept.
+
+        Parameters
+        ----------
+        group
+            The group path the data was staged for.
+        fingerprint
+            The fingerprint it was staged with (see :meth:`write`).
+
+        Raises
+        ------
+        StoreBusyError
+            If another process is writing to the store.
+        """
+        with self.lock():
+            prefix, _ = staged_path(self.staging_dir, group, fingerprint)
+            remove_abandoned(self._staging_dirs(), prefix, None)
 
 
 def _netcdf_value(value: Any) -> Any:

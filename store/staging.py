@@ -13,7 +13,10 @@ with the same fingerprint adopts an abandoned staged group (:func:`adopt_abandon
 it to its own name, under the lock) and writes only the regions that were not finished.
 Whatever else an earlier writer of the same data left (a copy it was packing, a staged group
 no longer resumable) is removed then (:func:`remove_abandoned`): a failed or killed write
-leaves nothing that outlives the next write of its group.
+leaves nothing that outlives the next write of its group. A write can also stop once every
+region is staged, its flags kept (``write_regions(keep_flags=True)``): the next write of the
+same data adopts the regions and only packs and commits them, so that a caller can stage
+several groups and commit them only when each is staged.
 Of a write with more than :data:`JOIN_REGIONS_ABOVE` regions, small consecutive ones (image
 sets of tiny frames) are written together, up to :data:`REGION_BYTES`, so that the cost per
 region does not dominate a run of thousands of sets. A staged group complete in its regions
@@ -179,12 +182,13 @@ def adopt_abandoned(staging_dirs: Iterable[Path], prefix: str, staged: Path) -> 
     remove_abandoned(staging_dirs, prefix, staged)
 
 
-def remove_abandoned(staging_dirs: Iterable[Path], prefix: str, staged: Path) -> None:
+def remove_abandoned(staging_dirs: Iterable[Path], prefix: str, staged: Path | None) -> None:
     """Remove what earlier writers of the same data left in staging (under the lock, so they
     are gone): every entry named after ``prefix`` but this write's own (``staged`` and the
-    flags and regions beside it), such as a copy a killed writer was packing, or a staged
-    group whose regions were all written (its flags removed) and so is never resumed."""
-    own = {staged, flags_path(staged), regions_path(staged)}
+    flags and regions beside it; with ``staged=None`` every one), such as a copy a killed
+    writer was packing, or a staged group whose regions were all written (its flags removed)
+    and so is never resumed."""
+    own = set() if staged is None else {staged, flags_path(staged), regions_path(staged)}
     for directory in staging_dirs:
         for entry in [directory / prefix, *directory.glob(f"{prefix}.*")]:
             if entry in own or not os.path.lexists(entry):
@@ -202,13 +206,17 @@ def write_regions(
     encoding: dict[str, dict[str, Any]],
     progress: Callable[[str], None] | None,
     concurrent: int,
+    *,
+    keep_flags: bool = False,
 ) -> None:
     """Write ``ds`` to ``staged`` region by region along ``dim``, skipping flagged regions.
 
     The regions are the dask chunks of ``ds`` along ``dim`` (when there are more than
     :data:`JOIN_REGIONS_ABOVE`, consecutive ones joined up to :data:`REGION_BYTES`);
     ``concurrent`` of them are computed and written at a time. The flag array is removed
-    when every region is written.
+    when every region is written, unless ``keep_flags``: a write that only stages its
+    regions leaves them flagged, so that the next write of the same data adopts them
+    (:func:`adopt_abandoned`) and commits them without writing any again.
     """
     regions = plan_regions(ds, dim)
     flags_at = flags_path(staged)
@@ -283,7 +291,8 @@ def write_regions(
     finally:
         if concurrent != 1:
             pool.shutdown(wait=True, cancel_futures=True)
-    shutil.rmtree(flags_at)
+    if not keep_flags:
+        shutil.rmtree(flags_at)
 
 
 def _dim_chunks(ds: xr.Dataset, dim: str) -> tuple[int, ...]:

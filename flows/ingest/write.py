@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import time
 from collections.abc import Callable
@@ -39,7 +38,6 @@ from spectralize.datasets.capture import Capture, CaptureError, read_capture
 from spectralize.schemas import StoreError
 from spectralize.store import RunStore
 from spectralize.store.lock import work_dir
-from spectralize.store.staging import remove_abandoned, staged_path
 
 from ..signals import sigterm_as_interrupt
 from .decode import PARALLEL_ABOVE, FrameDecoder
@@ -174,29 +172,6 @@ class _FrameProblem(Exception):
         self.error = error
 
 
-class _Staged(Exception):
-    """Raised by a staging write's progress once every region is written: the write stops
-    before it is packed and committed, its regions kept (flagged) for the write that commits."""
-
-
-_REGIONS_DONE = re.compile(r"\((\d+)/(\d+) done|^(\d+)/(\d+) region")
-
-
-def _stopped_when_staged(progress: Callable[[str], None]) -> Callable[[str], None]:
-    """``progress`` that raises :class:`_Staged` when the write's message says every region
-    is written (each region's message, or that of a write resuming with all of them done)."""
-
-    def staged(message: str) -> None:
-        progress(message)
-        found = _REGIONS_DONE.search(message)
-        if found is not None:
-            done, total = (n for n in found.groups() if n is not None)
-            if done == total:
-                raise _Staged
-
-    return staged
-
-
 def _write_groups(
     capture: Capture, store: RunStore, report: IngestReport, say: Callable[[str], None]
 ) -> None:
@@ -209,7 +184,7 @@ def _write_groups(
         groups = build_raw_groups(capture, store, decoder)
         if sum(sources.read for _, sources in groups) >= PARALLEL_ABOVE:
             decoder.start()
-        staged = _stage_checked(capture, store, report, say, groups)
+        staged = _stage_checked(capture, store, say, groups)
         try:
             for group, sources in groups:
                 _write_group(capture, store, report, say, group, sources)
@@ -226,13 +201,14 @@ def _needs_writing(store: RunStore, group: RawGroup) -> bool:
 def _stage_checked(
     capture: Capture,
     store: RunStore,
-    report: IngestReport,
     say: Callable[[str], None],
     groups: list[tuple[RawGroup, FrameSources]],
 ) -> set[str]:
     """Stage (not commit) every group to write that decodes frames whose values are checked
-    as they are decoded (:data:`VALUES_CHECKED_WHILE_STAGED`); the names of those staged
-    (a write that did not stop when staged is committed: ``report`` says so).
+    as they are decoded (:data:`VALUES_CHECKED_WHILE_STAGED`); the names of those staged.
+
+    Each is written with ``commit=False`` (:meth:`RunStore.write`): its regions stay staged
+    and flagged, and its write in :func:`_write_group` adopts and commits them.
 
     Raises
     ------
@@ -246,29 +222,30 @@ def _stage_checked(
         regions = len(group.dataset.chunksizes.get(group.resumable, ()))
         say(f"{group.name}: decoding and checking {sources.read} frame(s)")
         try:
-            _write(store, group, capture, _stopped_when_staged(_Eta(say, group.name, regions)))
-        except _Staged:
-            staged.add(group.name)
+            _write(store, group, capture, _Eta(say, group.name, regions), commit=False)
         except CaptureError as error:  # a refused folder leaves nothing staged
             _discard_staged(store, [g for g, _ in groups if g.name in staged or g is group])
             raise _FrameProblem(error) from error
-        else:
-            _written(report, group, sources)
+        staged.add(group.name)
     return staged
 
 
 def _discard_staged(store: RunStore, groups: list[RawGroup]) -> None:
-    """Remove what this ingest staged of ``groups`` (it holds the store's lock)."""
-    dirs = [d for d in (store.staging_dir,) if d.is_dir()]
+    """Remove what this ingest staged of ``groups`` (:meth:`RunStore.discard_staged`)."""
     for group in groups:
-        prefix, _ = staged_path(store.staging_dir, group.name, group.fingerprint)
-        remove_abandoned(dirs, prefix, store.staging_dir / prefix)
+        store.discard_staged(group.name, group.fingerprint)
 
 
 def _write(
-    store: RunStore, group: RawGroup, capture: Capture, progress: Callable[[str], None] | None
+    store: RunStore,
+    group: RawGroup,
+    capture: Capture,
+    progress: Callable[[str], None] | None,
+    *,
+    commit: bool = True,
 ) -> None:
-    """:meth:`RunStore.write` of a raw group, with its fingerprint, provenance and files."""
+    """:meth:`RunStore.write` of a raw group, with its fingerprint, provenance and files
+    (``commit=False``: staged only, see :func:`_stage_checked`)."""
     store.write(
         group.name,
         group.dataset,
@@ -281,6 +258,7 @@ def _write(
         resumable_along=group.resumable,
         records={FILES_ATTR: group.files},
         progress=progress,
+        commit=commit,
     )
 
 

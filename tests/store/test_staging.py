@@ -15,6 +15,7 @@ import pytest
 import xarray as xr
 
 from spectralize.datasets.dark_stack import make_raw_dark
+from spectralize.schemas import StoreError
 from spectralize.store import RunStore, layout
 
 
@@ -120,6 +121,59 @@ def test_resumable_write_resumes_only_unfinished_regions(store):
     values = store.read("cube").v.values
     assert [float(values[i, 0, 0]) for i in range(4)] == [0, 1, 2, 3]
     assert list(store.staging_dir.iterdir()) == []
+
+
+def _counted_cube(calls, value=0.0):
+    """A lazy cube of 3 images, one region each, that notes which region it computes."""
+
+    def block(i):
+        calls.append(i)
+        return np.full((1, 4, 4), value + i, np.float32)
+
+    pieces = [da.from_delayed(dask.delayed(block)(i), (1, 4, 4), np.float32) for i in range(3)]
+    return xr.Dataset({"v": (("image", "y", "x"), da.concatenate(pieces), {"units": "1"})})
+
+
+def test_a_write_staged_only_is_invisible_until_a_write_of_the_same_data_commits_it(store):
+    calls = []
+    messages = []
+    fingerprint = store.write(
+        "cube", _counted_cube(calls), fingerprint="fp", resumable_along="image", commit=False
+    )
+    assert fingerprint == "fp" and sorted(calls) == [0, 1, 2]
+    assert not store.has("cube") and store.groups() == [] and store.fingerprint("cube") is None
+    tree = xr.open_datatree(str(store.path), engine="zarr", consolidated=False)
+    assert [node.path for node in tree.subtree] == ["/"]
+    assert store.staging_leftovers() != []  # staged, flagged
+    calls.clear()
+    store.write(
+        "cube", _counted_cube(calls), fingerprint="fp", resumable_along="image", progress=messages.append
+    )
+    assert calls == []  # committed from the staged regions, none computed again
+    assert messages == ["3/3 region(s) of image already written (3/3 along image), resuming"]
+    assert store.read("cube").v.values[:, 0, 0].tolist() == [0, 1, 2]
+    assert list(store.staging_dir.iterdir()) == [] and store.validate() == []
+
+
+def test_discarding_a_staged_write_leaves_nothing_of_it_and_keeps_the_others(store):
+    calls = []
+    store.write("cube", _counted_cube(calls), fingerprint="a", resumable_along="image", commit=False)
+    store.write("cube", _counted_cube(calls, 10), fingerprint="b", resumable_along="image", commit=False)
+    kept = sorted(p.name for p in store.staging_dir.iterdir())
+    store.discard_staged("cube", "a")
+    left = sorted(p.name for p in store.staging_dir.iterdir())
+    assert left and set(left) < set(kept) and not store.has("cube")
+    store.discard_staged("cube", "b")
+    assert list(store.staging_dir.iterdir()) == [] and store.staging_leftovers() == []
+    calls.clear()
+    store.write("cube", _counted_cube(calls), fingerprint="a", resumable_along="image")
+    assert sorted(calls) == [0, 1, 2]  # nothing was left to adopt: every region computed
+
+
+def test_a_write_staged_only_must_be_resumable(store):
+    with pytest.raises(StoreError, match="commit=False .* needs resumable_along"):
+        store.write("cube", _counted_cube([]), fingerprint="fp", commit=False)
+    assert not store.staging_dir.exists() or list(store.staging_dir.iterdir()) == []
 
 
 def test_chunks_half_written_by_a_killed_writer_are_dropped_on_resume(store):

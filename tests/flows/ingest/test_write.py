@@ -183,3 +183,36 @@ def test_a_frame_whose_values_fail_as_it_is_decoded_leaves_nothing_written(captu
         ingest(capture, tmp_path / "run.zarr")
     assert {g: store.fingerprint(g) for g in store.groups()} == before
     assert [p for p in store.staging_dir.iterdir() if p.name != "zarr.json"] == []
+
+
+def test_an_ingest_stopped_once_its_groups_are_staged_commits_them_without_decoding_again(
+    capture, tmp_path, monkeypatch
+):
+    """Stopped (Ctrl-C) after the RGB, band and dark groups are staged and before any group is
+    written: nothing is committed; the next ingest adopts the staged regions and commits them,
+    decoding none of those frames again; their pixels are the frames'."""
+    from spectralize.flows.ingest import decode
+
+    def stopped_at_the_first_write(message):
+        if ": writing (" in message:
+            raise KeyboardInterrupt
+
+    path = tmp_path / "run.zarr"
+    with pytest.raises(KeyboardInterrupt):
+        ingest(capture, path, progress=stopped_at_the_first_write)
+    store = RunStore.open(path)
+    assert store.groups() == [] and store.staging_leftovers() != []
+    decoded: list[str] = []
+    real = decode.read_image
+    monkeypatch.setattr(decode, "read_image", lambda p, **kw: decoded.append(str(p)) or real(p, **kw))
+    report = ingest(capture, path)
+    assert set(report.groups) == set(RAW) | {"raw/exposure_plan"}
+    kinds = {str(capture / r["file"]): r["kind"] for r in rows(capture)}
+    assert decoded and {kinds[p] for p in decoded}.isdisjoint({"rgb", "spectral", "dark"})
+    assert [p for p in store.staging_dir.iterdir() if p.name != "zarr.json"] == []
+    assert store.validate() == []
+    simulated = simulate_run(get_recipe("tiny"))
+    for group in ("raw/rgb", "raw/spectral"):  # the staged pixels, bit for bit
+        np.testing.assert_array_equal(
+            store.read(group)["counts"].values, simulated[group]["counts"].values
+        )
