@@ -15,7 +15,7 @@ from spectralize.store import RunStore
 
 __all__ = ["CHECKED_NODES", "step_warnings", "report_warnings"]
 
-CHECKED_NODES = frozenset({"recover_rgb_oecf", "calibrate_spectral"})
+CHECKED_NODES = frozenset({"recover_rgb_oecf", "calibrate_spectral", "estimate_registration"})
 """The nodes whose results are checked."""
 
 

@@ -288,7 +288,7 @@ CALIBRATE_BANDS = Node(
 
 ESTIMATE_REGISTRATION = Node(
     name="estimate_registration",
-    version="1",
+    version="2",  # 2: against the RGB channel mix that best explains the band (not the sum)
     function=estimate_registration,
     inputs={"registration": "raw/registration"},
     outputs=("registration",),

@@ -4,7 +4,10 @@ The spectral camera sits at 45 degrees, 15 degrees in azimuth from the RGB camer
 same elevation, and the sample rotates in 15 degree steps: after rotation ``r + 1`` the
 spectral camera sees what the RGB camera saw at rotation ``r``. What is left is a small,
 fixed misregistration, estimated once per run from long-exposure registration shots (many
-LEDs on, good SNR) by sub-pixel phase correlation, and applied to every band shot.
+LEDs on, good SNR), and applied to every band shot: an integer search for the shift at which
+a mix of the RGB channels best explains the band shot, then sub-pixel phase correlation
+against that mix. The result is checked (:func:`registration_warnings`): a wrong correlation
+peak, a periodic target's ambiguity, rotation pairs that disagree.
 
 Convention: ``spectral(p) = rgb(p - shift)``; registering a spectral frame means resampling
 it at ``p + shift``.
@@ -23,10 +26,25 @@ from spectralize.schemas.errors import Problem
 
 __all__ = [
     "estimate_shift",
+    "channel_mix_search",
+    "estimate_pair_shift",
     "pair_rotations",
     "estimate_registration",
+    "registration_warnings",
     "register_frames",
 ]
+
+PEAK_DISTANCE_WARNING = 1.5
+"""A pair's sub-pixel shift more than this many pixels [px] from the integer shift of its
+channel mix search (farther than a neighbouring integer shift) lies on another correlation
+peak than the best channel mix's: warned."""
+
+ALIAS_DISTANCE_WARNING = 1.5
+"""A pair whose lowest unexplained share over the whole search lies more than this many
+pixels [px] from the (nearest) minimum taken is ambiguous, a periodic target: warned."""
+
+PAIR_SPREAD_WARNING = 1.0
+"""A pair's shift more than this many pixels [px] from the run's shift: the pairs disagree."""
 
 
 def estimate_shift(
@@ -37,9 +55,8 @@ def estimate_shift(
     Both images are made zero-mean and Hann-windowed, so their different brightness and the
     image borders do not disturb the peak, and the cross-power spectrum is phase-normalised
     (classic phase correlation), which weighs edges over the materials' different contrast in
-    one band and in RGB. On simulated gantry shots of 64-128 px this lands within 0.05-0.3 px
-    of the true misregistration: the two shots differ in band and in lighting (the LEDs do
-    not rotate with the sample), which limits any intensity-based method. The paper's
+    one band and in RGB. The two shots differ in band and in lighting (the LEDs do not rotate
+    with the sample), which limits any intensity-based method. The paper's
     Gaussian filters make the reconstruction robust to such sub-pixel residuals. The window
     pulls the estimate towards zero for larger shifts, so the estimate is refined: ``moving``
     is shifted back by what was found and the (now small) remainder estimated again,
@@ -97,6 +114,150 @@ def estimate_shift(
     return total, float(error)
 
 
+def _interior_basis(reference: np.ndarray, margin: int) -> np.ndarray:
+    """Orthonormal basis (k, h, w) of the reference channels and a constant over the interior
+    ``margin`` px in from each border (rank-revealing: collinear channels count once)."""
+    inner = reference[margin : reference.shape[0] - margin, margin : reference.shape[1] - margin]
+    design = np.column_stack(
+        [inner.reshape(-1, inner.shape[-1]), np.ones(inner.shape[0] * inner.shape[1])]
+    )
+    u, s, _ = np.linalg.svd(design, full_matrices=False)
+    keep = s > s[0] * 1e-9
+    return u[:, keep].T.reshape(-1, *inner.shape[:2])
+
+
+def _nearest_minimum(unexplained: np.ndarray) -> tuple[int, int]:
+    """Index of the lowest value of the smallest window about the centre (zero shift) whose
+    lowest value is not on its edge (the whole map's lowest if no window has one inside)."""
+    centre = (unexplained.shape[0] - 1) // 2
+    for radius in range(1, centre + 1):
+        window = unexplained[
+            centre - radius : centre + radius + 1, centre - radius : centre + radius + 1
+        ]
+        wy, wx = np.unravel_index(int(np.argmin(window)), window.shape)
+        if 0 < wy < 2 * radius and 0 < wx < 2 * radius:
+            return centre - radius + int(wy), centre - radius + int(wx)
+    iy, ix = np.unravel_index(int(np.argmin(unexplained)), unexplained.shape)
+    return int(iy), int(ix)
+
+
+def channel_mix_search(
+    reference: np.ndarray, moving: np.ndarray, *, max_shift: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Integer shift whose best linear mix of the reference channels explains ``moving`` best.
+
+    A band shot is not the sum of the RGB channels: materials that are alike in RGB differ in
+    one band, and on a periodic target (stripes, checks) such a change of contrast moves the
+    phase-correlation peak by a period's fraction or onto a neighbouring period. For every
+    integer shift ``s`` within ``max_shift`` the least-squares fit
+    ``moving(p + s) = sum_c a_c rgb_c(p) + b`` over the reference's interior is solved (its
+    residual from cross-correlations of ``moving`` with an orthonormal basis of the channels,
+    one FFT pass for all shifts); the shift with the smallest unexplained share of the
+    variance and its mix are returned. A periodic target explains the band about as well one period away;
+    the misregistration is small, so the shift taken is the minimum nearest to zero: that of
+    the smallest window around zero whose lowest value lies inside it, not on its edge
+    (:func:`_nearest_minimum`).
+
+    Parameters
+    ----------
+    reference
+        (y, x, channel) image.
+    moving
+        (y, x) image of the same height and width.
+    max_shift
+        Largest shift searched [px] per axis (reduced where the image is too small).
+
+    Returns
+    -------
+    shift : ndarray, shape (2,)
+        Integer (dy, dx) with ``moving(p) = reference(p - shift)``.
+    mix : ndarray, shape (channel,)
+        The channel weights at that shift.
+    unexplained : ndarray, shape (2 m + 1, 2 m + 1)
+        Residual variance over the variance of ``moving`` per searched shift (m the margin).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, sections 3 and 4 (registration shots).
+    """
+    from scipy.signal import correlate
+
+    height, width = moving.shape
+    margin = int(min(np.ceil(max_shift), (min(height, width) - 8) // 4))
+    margin = max(margin, 0)
+    basis = _interior_basis(np.asarray(reference, dtype=np.float64), margin)
+    values = np.asarray(moving, dtype=np.float64)
+    values = values - values.mean()
+    ones = np.ones(basis.shape[1:])
+    count = ones.size
+    total = correlate(values, ones, mode="valid")
+    squares = correlate(values**2, ones, mode="valid")
+    explained = sum(correlate(values, q, mode="valid") ** 2 for q in basis)
+    variance = np.maximum(squares - total**2 / count, np.finfo(float).tiny)
+    unexplained = np.clip((squares - explained) / variance, 0.0, None)
+    iy, ix = _nearest_minimum(unexplained)
+    shift = np.array([iy - margin, ix - margin], dtype=float)
+    inner = reference[margin : height - margin, margin : width - margin]
+    seen = values[iy : iy + inner.shape[0], ix : ix + inner.shape[1]]
+    design = np.column_stack([inner.reshape(-1, inner.shape[-1]), np.ones(count)])
+    coefficients, *_ = np.linalg.lstsq(design, seen.ravel(), rcond=None)
+    return shift, coefficients[:-1], unexplained
+
+
+def estimate_pair_shift(
+    reference: np.ndarray, moving: np.ndarray, *, upsample_factor: int, max_shift: float
+) -> tuple[np.ndarray, float, float, float]:
+    """Shift of a spectral shot against its RGB shot: channel mix search, then phase correlation.
+
+    :func:`channel_mix_search` finds the integer shift and the mix of the RGB channels that
+    best explain the band; :func:`estimate_shift` of the band against that mix, started from
+    the integer shift, gives the sub-pixel remainder.
+
+    Parameters
+    ----------
+    reference
+        (y, x, channel) RGB shot.
+    moving
+        (y, x) spectral shot.
+    upsample_factor
+        Sub-pixel precision 1/upsample_factor px.
+    max_shift
+        Largest shift searched [px].
+
+    Returns
+    -------
+    shift : ndarray, shape (2,)
+        (dy, dx) in px with ``moving(p) = reference(p - shift)``.
+    unexplained : float
+        Share of the band's variance the best channel mix leaves unexplained at the integer
+        shift (0: a perfect fit).
+    peak_distance : float
+        Distance [px] of the sub-pixel shift from the integer shift: above
+        :data:`PEAK_DISTANCE_WARNING` the correlation found another peak.
+    alias_distance : float
+        Distance [px] of the search's lowest value from the integer shift taken (0 when they
+        are one): above :data:`ALIAS_DISTANCE_WARNING` the shift is ambiguous.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, sections 3 and 4.
+    """
+    from scipy import ndimage
+
+    coarse, mix, unexplained = channel_mix_search(reference, moving, max_shift=max_shift)
+    mixed = np.asarray(reference, dtype=np.float64) @ mix
+    started = ndimage.shift(np.asarray(moving, dtype=float), -coarse, order=0, mode="nearest")
+    remainder, _ = estimate_shift(mixed, started, upsample_factor=upsample_factor)
+    margin = (unexplained.shape[0] - 1) // 2
+    lowest = np.asarray(np.unravel_index(int(np.argmin(unexplained)), unexplained.shape)) - margin
+    return (
+        coarse + remainder,
+        float(unexplained[int(coarse[0]) + margin, int(coarse[1]) + margin]),
+        float(np.linalg.norm(remainder)),
+        float(np.linalg.norm(lowest - coarse)),
+    )
+
+
 def pair_rotations(
     rotation_angle: np.ndarray, *, azimuth_offset: float = 15.0, tolerance: float = 1e-3
 ) -> list[tuple[int, int]]:
@@ -148,8 +309,10 @@ def estimate_registration(
     """Estimate the fixed misregistration of the spectral camera from registration shots.
 
     Every pair of a spectral shot at rotation ``r + 1`` and the RGB shot at rotation ``r``
-    (:func:`pair_rotations`) gives one estimate; the run's shift is their median and the
-    residual is each pair's distance from it.
+    (:func:`pair_rotations`) gives one estimate (:func:`estimate_pair_shift`: against the mix
+    of the RGB channels that best explains the band, not their sum); the run's shift is their
+    median and the residual is each pair's distance from it. :func:`registration_warnings`
+    checks the result.
 
     Parameters
     ----------
@@ -161,14 +324,16 @@ def estimate_registration(
     upsample_factor
         Sub-pixel precision 1/upsample_factor px.
     max_shift
-        Pairs whose estimate exceeds this many pixels are reported as failed.
+        Largest shift searched; pairs whose estimate exceeds this many pixels are reported
+        as failed.
 
     Returns
     -------
     xarray.Dataset
         Group ``registration``: ``shift`` (axis) [px], ``pair_shift`` (pair, axis) [px],
-        ``residual`` (pair) [px], ``error`` (pair), ``rgb_rotation`` / ``spectral_rotation``
-        (pair).
+        ``residual`` (pair) [px], ``unexplained`` (pair), ``peak_distance`` (pair) [px],
+        ``alias_distance`` (pair) [px], ``plausible`` (pair), ``rgb_rotation`` /
+        ``spectral_rotation`` (pair).
 
     Raises
     ------
@@ -194,13 +359,17 @@ def estimate_registration(
         )
     rgb = registration["rgb_counts"]
     spectral = registration["spectral_counts"]
-    shifts, errors = [], []
+    shifts, unexplained, peak_distance, alias_distance = [], [], [], []
     for i, j in pairs:
-        reference = rgb.isel(rotation=i).astype(np.float64).sum("channel").values
+        reference = rgb.isel(rotation=i).transpose("y", "x", "channel").astype(np.float64).values
         moving = spectral.isel(rotation=j).astype(np.float64).values
-        shift, error = estimate_shift(reference, moving, upsample_factor=upsample_factor)
+        shift, share, distance, alias = estimate_pair_shift(
+            reference, moving, upsample_factor=upsample_factor, max_shift=max_shift
+        )
         shifts.append(shift)
-        errors.append(error)
+        unexplained.append(share)
+        peak_distance.append(distance)
+        alias_distance.append(alias)
     shifts_arr = np.asarray(shifts)
     plausible = np.all(np.abs(shifts_arr) <= max_shift, axis=1)
     if not plausible.any():
@@ -230,10 +399,20 @@ def estimate_registration(
                 residual,
                 {**px, "long_name": "distance of a pair's shift from the run's shift"},
             ),
-            "error": (
+            "unexplained": (
                 "pair",
-                np.asarray(errors),
-                {"units": "1", "long_name": "phase-correlation error"},
+                np.asarray(unexplained),
+                {"units": "1", "long_name": "band variance the best RGB channel mix leaves"},
+            ),
+            "peak_distance": (
+                "pair",
+                np.asarray(peak_distance),
+                {**px, "long_name": "sub-pixel shift's distance from the channel mix search's"},
+            ),
+            "alias_distance": (
+                "pair",
+                np.asarray(alias_distance),
+                {**px, "long_name": "distance of the search's lowest value from the shift taken"},
             ),
             "plausible": ("pair", plausible, {"long_name": f"shift within {max_shift:g} px"}),
         },
@@ -246,12 +425,82 @@ def estimate_registration(
             ),
         },
         attrs={
-            "method": "phase correlation (scikit-image), Hann window, refined, median over pairs",
+            "method": "channel mix search, then phase correlation (scikit-image) against the "
+            "mix, Hann window, refined, median over pairs",
             "upsample_factor": upsample_factor,
             "azimuth_offset": azimuth_offset,
             "residual_rms": float(np.sqrt(np.mean(residual[plausible] ** 2))),
         },
     )
+
+
+def registration_warnings(registration: xr.Dataset) -> list[str]:
+    """The warnings on a ``registration`` group: what makes its shift untrustworthy.
+
+    A pair whose sub-pixel shift left its channel mix search's integer shift by more than
+    :data:`PEAK_DISTANCE_WARNING` found another correlation peak (a periodic target, a band
+    whose contrast no channel mix gives); a pair whose search has its lowest value farther
+    than :data:`ALIAS_DISTANCE_WARNING` from the shift taken is ambiguous; pairs that
+    disagree with the run's shift by more than :data:`PAIR_SPREAD_WARNING`, or give no
+    plausible shift, see different content.
+
+    Parameters
+    ----------
+    registration
+        Group ``registration`` (:func:`estimate_registration`).
+
+    Returns
+    -------
+    list of str
+        One message per kind of problem, with the pairs and the numbers.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, sections 3 and 4.
+    """
+    labels = [
+        f"{a}->{b}"
+        for a, b in zip(
+            registration["rgb_rotation"].values.tolist(),
+            registration["spectral_rotation"].values.tolist(),
+            strict=True,
+        )
+    ]
+    out = []
+    if "peak_distance" in registration:
+        far = np.asarray(registration["peak_distance"].values, dtype=float)
+        bad = [f"{labels[k]} {far[k]:.2f} px" for k in np.flatnonzero(far > PEAK_DISTANCE_WARNING)]
+        if bad:
+            out.append(
+                f"registration: the phase-correlation peak lies more than "
+                f"{PEAK_DISTANCE_WARNING:g} px from the best channel mix's shift in pair(s) "
+                f"{', '.join(bad)} (a periodic target or a band no RGB mix resembles): the "
+                "shift may be a wrong peak"
+            )
+    if "alias_distance" in registration:
+        alias = np.asarray(registration["alias_distance"].values, dtype=float)
+        bad = [f"{labels[k]} {alias[k]:.2f} px" for k in np.flatnonzero(alias > ALIAS_DISTANCE_WARNING)]
+        if bad:
+            out.append(
+                "registration: another shift explains the band as well or better, in pair(s) "
+                f"{', '.join(bad)} away from the one taken (a periodic target): the nearest "
+                "to zero was taken, the shift may be off by a period"
+            )
+    plausible = np.asarray(registration["plausible"].values, dtype=bool)
+    residual = np.asarray(registration["residual"].values, dtype=float)
+    spread = [
+        f"{labels[k]} {residual[k]:.2f} px"
+        for k in np.flatnonzero(plausible & (residual > PAIR_SPREAD_WARNING))
+    ]
+    if spread:
+        out.append(
+            f"registration: pair(s) {', '.join(spread)} from the run's shift (more than "
+            f"{PAIR_SPREAD_WARNING:g} px): the rotation pairs disagree"
+        )
+    if not plausible.all():
+        failed = [labels[k] for k in np.flatnonzero(~plausible)]
+        out.append(f"registration: no plausible shift in pair(s) {', '.join(failed)}")
+    return out
 
 
 def _shift_frames(frames: np.ndarray, shift: tuple[float, float], order: int) -> np.ndarray:

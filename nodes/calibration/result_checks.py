@@ -303,6 +303,10 @@ def result_warnings(
         cameras = [int(c) for c in oecf["camera"].values]
         labels = [names[c] if c < len(names) else str(c) for c in cameras]
         return oecf_rgb_warnings(oecf, labels)
+    if node == "estimate_registration" and "registration" in outputs:
+        from spectralize.nodes.calibration.registration import registration_warnings
+
+        return registration_warnings(outputs["registration"])
     if node == "calibrate_spectral" and "calibration/spectral" in outputs:
         return spectral_warnings(
             outputs["calibration/spectral"],

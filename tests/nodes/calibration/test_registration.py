@@ -4,11 +4,16 @@ import xarray as xr
 from scipy import ndimage
 
 from spectralize.nodes.calibration.registration import (
+    ALIAS_DISTANCE_WARNING,
+    PAIR_SPREAD_WARNING,
+    PEAK_DISTANCE_WARNING,
     estimate_registration,
     estimate_shift,
     pair_rotations,
     register_frames,
+    registration_warnings,
 )
+from spectralize.nodes.calibration.result_checks import result_warnings
 from spectralize.schemas import SchemaError, validate_dataset
 from spectralize.schemas.run import RAW_REGISTRATION
 
@@ -99,3 +104,69 @@ def test_register_frames_undoes_the_shift_lazily():
     before = np.abs(frames.values[inner] - expected).mean()
     assert after < before / 10
     assert np.median(np.abs(out.values[inner] - expected) / expected) < 5e-3
+
+
+def striped_scene(shift, shape=(48, 60), factor=4):
+    """(y, x) material index of a periodic target, pixel-integrated: stripes of three
+    materials 3 px wide over the top half, 4 px checks of two more below, content shifted by
+    ``shift`` (dy, dx) [px]; returns (y, x, factor, factor) sub-pixel samples."""
+    offsets = (np.arange(factor) + 0.5) / factor - 0.5
+    yy = np.arange(shape[0])[:, None, None, None] + offsets[None, None, :, None] - shift[0]
+    xx = np.arange(shape[1])[None, :, None, None] + offsets[None, None, None, :] - shift[1]
+    yy, xx = np.broadcast_arrays(yy, xx)
+    stripes = np.floor(xx / 3.0).astype(int) % 3
+    checks = 3 + (np.floor(yy / 4.0) + np.floor(xx / 4.0)).astype(int) % 2
+    return np.where(yy < shape[0] / 2, stripes, checks)
+
+
+# RGB of the five materials, and two bands: one a mix of the RGB channels whose stripe
+# contrast differs from the channels' sum, one no mix of the channels gives
+STRIPED_RGB = np.array([[0.9, 0.6, 0.3], [0.25, 0.7, 0.9], [0.05, 0.1, 0.1], [0.7, 0.6, 0.2], [0.3] * 3])
+BAND_OF_A_MIX = np.array([1.0, 0.05, 0.5, 0.8, 0.3])
+BAND_OF_NO_MIX = np.array([1.0, 0.2, 0.05, 0.3, 0.8])
+
+
+def striped_group(band_of, shift):
+    rng = np.random.default_rng(0)
+    rgb = STRIPED_RGB[striped_scene((0.0, 0.0))].mean(axis=(2, 3)) * 1000
+    band = band_of[striped_scene(shift)].mean(axis=(2, 3)) * 500 + 40
+    rgb = rgb + rng.normal(0, 2, rgb.shape)
+    band = band + rng.normal(0, 2, band.shape)
+    return xr.Dataset(
+        {
+            "rgb_counts": (("rotation", "y", "x", "channel"), np.stack([rgb, rgb]).astype(np.uint16)),
+            "spectral_counts": (("rotation", "y", "x"), np.stack([band, band]).astype(np.uint16)),
+        },
+        coords={"rotation": [0, 1], "rotation_angle": ("rotation", [0.0, 15.0])},
+    )
+
+
+def test_a_periodic_target_is_registered_against_the_band_like_channel_mix():
+    # the channels' sum has another stripe contrast than the band: its correlation peak lies
+    # a stripe away; the mix of the channels that explains the band does not
+    out = estimate_registration(striped_group(BAND_OF_A_MIX, (0.4, -0.7)))
+    np.testing.assert_allclose(out["shift"].values, [0.4, -0.7], atol=0.25)
+    assert float(out["unexplained"][0]) < 0.25
+    assert registration_warnings(out) == []
+    assert result_warnings("estimate_registration", {}, {"registration": out}) == []
+
+
+def test_a_band_no_channel_mix_gives_on_a_periodic_target_warns():
+    out = estimate_registration(striped_group(BAND_OF_NO_MIX, (0.4, -0.7)))
+    assert float(out["alias_distance"][0]) > ALIAS_DISTANCE_WARNING
+    messages = result_warnings("estimate_registration", {}, {"registration": out})
+    assert messages == registration_warnings(out)
+    assert len(messages) == 1 and "periodic target" in messages[0] and "0->1" in messages[0]
+
+
+def test_registration_warns_when_pairs_disagree_or_find_another_peak():
+    out = estimate_registration(registration_group((0.35, -0.6)))
+    assert registration_warnings(out) == []
+    far = out.assign(
+        residual=out["residual"].copy(data=[0.1, PAIR_SPREAD_WARNING + 0.5, 0.1]),
+        peak_distance=out["peak_distance"].copy(data=[0.2, 0.3, PEAK_DISTANCE_WARNING + 1.0]),
+    )
+    messages = registration_warnings(far)
+    assert len(messages) == 2
+    assert "2->3" in messages[0] and "another peak" not in messages[1]
+    assert "1->2" in messages[1] and "disagree" in messages[1]
