@@ -114,16 +114,27 @@ def estimate_shift(
     return total, float(error)
 
 
-def _interior_basis(reference: np.ndarray, margin: int) -> np.ndarray:
-    """Orthonormal basis (k, h, w) of the reference channels and a constant over the interior
-    ``margin`` px in from each border (rank-revealing: collinear channels count once)."""
-    inner = reference[margin : reference.shape[0] - margin, margin : reference.shape[1] - margin]
-    design = np.column_stack(
-        [inner.reshape(-1, inner.shape[-1]), np.ones(inner.shape[0] * inner.shape[1])]
-    )
-    u, s, _ = np.linalg.svd(design, full_matrices=False)
-    keep = s > s[0] * 1e-9
-    return u[:, keep].T.reshape(-1, *inner.shape[:2])
+def _window_sums(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Sum of ``image`` over the window of ``shape`` at every offset that fits (summed-area
+    table)."""
+    table = np.zeros((image.shape[0] + 1, image.shape[1] + 1))
+    table[1:, 1:] = image.cumsum(axis=0).cumsum(axis=1)
+    h, w = shape
+    return table[h:, w:] - table[:-h, w:] - table[h:, :-w] + table[:-h, :-w]
+
+
+def _window_correlations(values: np.ndarray, channels: np.ndarray) -> np.ndarray:
+    """(channel, offset y, offset x): ``sum_p channels_k(p) values(p + offset)`` for every
+    offset at which the (k, h, w) ``channels`` fit inside ``values`` (one FFT of ``values``;
+    the circular correlation does not wrap at these offsets)."""
+    from scipy import fft
+
+    height, width = values.shape
+    h, w = channels.shape[1:]
+    spectrum = fft.rfft2(values)
+    kernels = fft.rfft2(channels, s=(height, width), axes=(1, 2))
+    full = fft.irfft2(spectrum * kernels.conj(), s=(height, width), axes=(1, 2))
+    return full[:, : height - h + 1, : width - w + 1]
 
 
 def _nearest_minimum(unexplained: np.ndarray) -> tuple[int, int]:
@@ -151,12 +162,12 @@ def channel_mix_search(
     phase-correlation peak by a period's fraction or onto a neighbouring period. For every
     integer shift ``s`` within ``max_shift`` the least-squares fit
     ``moving(p + s) = sum_c a_c rgb_c(p) + b`` over the reference's interior is solved (its
-    residual from cross-correlations of ``moving`` with an orthonormal basis of the channels,
-    one FFT pass for all shifts); the shift with the smallest unexplained share of the
-    variance and its mix are returned. A periodic target explains the band about as well one period away;
-    the misregistration is small, so the shift taken is the minimum nearest to zero: that of
-    the smallest window around zero whose lowest value lies inside it, not on its edge
-    (:func:`_nearest_minimum`).
+    residual from cross-correlations of ``moving`` with the centred channels, one FFT per
+    channel for all shifts); the shift with the smallest unexplained share of the variance
+    and its mix are returned. A periodic target explains the band about as well one period
+    away; the misregistration is small, so the shift taken is the minimum nearest to zero:
+    that of the smallest window around zero whose lowest value lies inside it, not on its
+    edge (:func:`_nearest_minimum`).
 
     Parameters
     ----------
@@ -180,28 +191,27 @@ def channel_mix_search(
     ----------
     .. [1] Fast Capture of Spectral Image Series, sections 3 and 4 (registration shots).
     """
-    from scipy.signal import correlate
-
     height, width = moving.shape
-    margin = int(min(np.ceil(max_shift), (min(height, width) - 8) // 4))
-    margin = max(margin, 0)
-    basis = _interior_basis(np.asarray(reference, dtype=np.float64), margin)
+    margin = max(int(min(np.ceil(max_shift), (min(height, width) - 8) // 4)), 0)
+    inner = np.asarray(reference, dtype=np.float64)[margin : height - margin, margin : width - margin]
+    channels = np.moveaxis(inner - inner.mean(axis=(0, 1)), -1, 0)  # centred: the constant apart
+    gram = np.einsum("kyx,lyx->kl", channels, channels)
+    eigenvalues, vectors = np.linalg.eigh(gram)
+    keep = eigenvalues > eigenvalues.max() * 1e-12  # collinear channels count once
+    whiten = vectors[:, keep] / np.sqrt(eigenvalues[keep])
     values = np.asarray(moving, dtype=np.float64)
     values = values - values.mean()
-    ones = np.ones(basis.shape[1:])
-    count = ones.size
-    total = correlate(values, ones, mode="valid")
-    squares = correlate(values**2, ones, mode="valid")
-    explained = sum(correlate(values, q, mode="valid") ** 2 for q in basis)
-    variance = np.maximum(squares - total**2 / count, np.finfo(float).tiny)
-    unexplained = np.clip((squares - explained) / variance, 0.0, None)
+    count = inner.shape[0] * inner.shape[1]
+    total = _window_sums(values, inner.shape[:2])
+    variance = _window_sums(values**2, inner.shape[:2]) - total**2 / count
+    variance = np.maximum(variance, np.finfo(float).tiny)
+    correlations = _window_correlations(values, channels)
+    explained = (np.einsum("kj,kyx->jyx", whiten, correlations) ** 2).sum(axis=0)
+    unexplained = np.clip(1.0 - explained / variance, 0.0, None)
     iy, ix = _nearest_minimum(unexplained)
     shift = np.array([iy - margin, ix - margin], dtype=float)
-    inner = reference[margin : height - margin, margin : width - margin]
-    seen = values[iy : iy + inner.shape[0], ix : ix + inner.shape[1]]
-    design = np.column_stack([inner.reshape(-1, inner.shape[-1]), np.ones(count)])
-    coefficients, *_ = np.linalg.lstsq(design, seen.ravel(), rcond=None)
-    return shift, coefficients[:-1], unexplained
+    mix = whiten @ (whiten.T @ correlations[:, iy, ix])
+    return shift, mix, unexplained
 
 
 def estimate_pair_shift(
