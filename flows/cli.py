@@ -384,7 +384,8 @@ def _add_run(commands: _Commands) -> None:
         action="store_true",
         help="stop (exit 2) before the reconstruction when a calibration node's check of its "
         "result warns (a chart cross-check far above a sane gantry's, a response that does not "
-        "rise, C not of RGB shape, Q rippling); by default the warnings are printed",
+        "rise, C not of RGB shape, Q rippling, a registration a period of the target away or "
+        "pairs that disagree); by default the warnings are printed",
     )
     run.set_defaults(handler=_cmd_run)
 
