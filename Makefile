@@ -22,19 +22,20 @@ demo: $(STAMP)
 	$(BIN)/spectralize demo --capture demo/capture
 
 # Lint, types and the whole suite, as CI runs it (.ci/run): one pytest worker per core (a test
-# module stays on one worker, so its fixtures are built once), then the tests marked `timing`
+# module stays on one worker, so its fixtures are built once; the longest modules are handed out
+# first, in the order tests/conftest.py gives them, not xdist's), then the tests marked `timing`
 # (they assert on wall time or an ETA) alone, so that no other test's load skews them. Each
 # pass ends with its slowest tests (setup, call and teardown apart): where the time goes.
 PYTEST_WORKERS ?= auto
 PYTEST_DURATIONS ?= 40
 test: lint typecheck browser
-	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile -m "not timing" --durations=$(PYTEST_DURATIONS)
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not timing" --durations=$(PYTEST_DURATIONS)
 	$(BIN)/python -m pytest -m timing --durations=$(PYTEST_DURATIONS)
 
 # The inner loop: the suite without the tests marked `slow` (real flows, killed processes,
 # the wheel install); about a third of the time.
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile -m "not slow and not timing"
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not slow and not timing"
 	$(BIN)/python -m pytest -m "timing and not slow"
 
 # A real headless browser for the report's test (tests/flows/test_report.py takes a screenshot):

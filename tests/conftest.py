@@ -17,6 +17,45 @@ settings.register_profile("deterministic", derandomize=True, database=None)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
+#: The modules that take longest (real flows in subprocesses, installs, killed processes),
+#: longest first, from the per-module sums of ``pytest --durations=0``. ``make test`` runs
+#: them first: with ``--dist loadfile`` a module stays on one worker, so a long module handed
+#: out last keeps one worker busy after the other has finished. The modules not listed
+#: follow in collection order; a stale list only costs balance, never a test.
+LONG_MODULES = (
+    "flows/test_safety_corpus.py",
+    "test_packaging.py",
+    "notebooks/test_notebook.py",
+    "flows/test_cli.py",
+    "flows/test_foreign_capture.py",
+    "flows/test_store_safety.py",
+    "flows/test_resume_after_kill.py",
+    "flows/ingest/test_readiness.py",
+    "flows/test_white_level_capture.py",
+    "flows/test_shared_texel_flow.py",
+    "datasets/capture/test_calibration_cameras.py",
+    "nodes/reconstruction/test_tiling.py",
+    "flows/test_report.py",
+    "flows/test_dask_cluster.py",
+    "flows/test_node_listing.py",
+    "flows/test_dask_worker_loss.py",
+    "flows/test_cli_fast.py",
+    "flows/ingest/test_write.py",
+    "nodes/reconstruction/test_endmember_library.py",
+    "store/test_staging.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """The tests of :data:`LONG_MODULES` first, in that order; the others after them, as
+    collected. Each module's tests keep their order. (``make test`` passes xdist's
+    ``--no-loadscope-reorder``, which would otherwise hand out the modules with the most tests
+    first, and so the long modules of a few tests last.)"""
+    tests = os.path.dirname(__file__)
+    rank = {os.path.join(tests, *module.split("/")): i for i, module in enumerate(LONG_MODULES)}
+    first = len(LONG_MODULES)
+    items[:] = sorted(items, key=lambda item: rank.get(str(item.path), first))
+
 
 @pytest.fixture(scope="session")
 def prefect_api():
