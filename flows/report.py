@@ -43,7 +43,6 @@ import io
 import json
 import os
 import time
-import warnings
 from collections.abc import Mapping, Sequence
 from functools import lru_cache
 from pathlib import Path
@@ -103,7 +102,6 @@ from spectralize.nodes.evaluation.statistics import DEFAULT_THRESHOLD, STATISTIC
 from spectralize.schemas import ParameterError, Problem, SchemaError, SpectralizeError
 from spectralize.schemas.run import EVALUATION
 from spectralize.store import RunStore
-from spectralize.store.integrity import CheckedLocalStore, read_manifest
 
 __all__ = [
     "TEMPLATE",
@@ -880,20 +878,10 @@ def _stored_variable(run: RunStore, group: str, name: str) -> xr.DataArray | Non
     """Variable ``name`` of ``group`` as stored, indexed lazily without dask (None if absent).
 
     A selection of it reads only the stored chunks it touches, each checked against its
-    checksum (the group's files were checked by :meth:`RunStore.read` already): a sample of
-    a run's images reads those images, not a dask task per image or a whole shard per task.
+    checksum: a sample of a run's images reads those images, not a dask task per image or a
+    whole shard per task.
     """
-    manifest = read_manifest(run.manifest(group)) or {}
-    prefix = group.strip("/")
-    checksums = {f"{prefix}/{rel}": crc for rel, (_, _, crc) in manifest.items() if crc is not None}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # metadata not consolidated (older stores): read as is
-        ds = xr.open_zarr(
-            CheckedLocalStore(run.path, read_only=True, checksums=checksums),
-            group=prefix,
-            chunks=None,
-            consolidated=None,
-        )
+    ds = run.read(group, friendly=False, dask=False)
     return ds[name] if name in ds else None
 
 

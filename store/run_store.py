@@ -375,6 +375,7 @@ class RunStore:
         chunks: Mapping[str, int] | str | None = None,
         verify: bool = True,
         friendly: bool = True,
+        dask: bool = True,
     ) -> xr.Dataset:
         """Open ``group`` lazily as an :class:`xarray.Dataset` (dask-backed).
 
@@ -397,6 +398,10 @@ class RunStore:
             (``image`` of ``spectra`` and ``evaluation``, written image set by image set)
             sorted, per-image and other small coordinates loaded, ``y``/``x`` given pixel
             index coordinates. Nodes read with ``friendly=False``: the data as stored.
+        dask
+            ``False``: lazily indexed arrays without dask (``chunks`` is then ignored); a
+            selection reads only the stored chunks it touches, each still checked. For a
+            reader of a few images of a large run: no task per chunk to build.
 
         The bookkeeping attrs ``spectralize_provenance`` and ``spectralize_manifest`` are
         JSON text (so the dataset writes with ``to_netcdf``); :meth:`provenance` gives the
@@ -413,7 +418,7 @@ class RunStore:
                     f"group {group!r} of {self.path.name} is damaged and was not read:\n"
                     + "\n".join(f"  - {p}" for p in problems)
                 )
-        ds = self._open(group, checked=verify, chunks=chunks)
+        ds = self._open(group, checked=verify, chunks=chunks, dask=dask)
         for attr in _JSON_ATTRS:  # JSON text, as stored: netCDF attrs cannot hold dicts
             if attr in ds.attrs and not isinstance(ds.attrs[attr], str):
                 ds.attrs[attr] = canonical_json(ds.attrs[attr])
@@ -437,7 +442,12 @@ class RunStore:
         return found
 
     def _open(
-        self, group: str, *, checked: bool = True, chunks: Mapping[str, int] | str | None = None
+        self,
+        group: str,
+        *,
+        checked: bool = True,
+        chunks: Mapping[str, int] | str | None = None,
+        dask: bool = True,
     ) -> xr.Dataset:
         checksums: dict[str, int] = {}
         if checked:
@@ -458,7 +468,7 @@ class RunStore:
                 CheckedLocalStore(self.path, read_only=True, checksums=checksums),
                 group=group.strip("/"),
                 consolidated=bool(meta.get("consolidated_metadata")),
-                chunks=dict(chunks) if chunks is not None else {},
+                chunks=(dict(chunks) if chunks is not None else {}) if dask else None,
             )
 
     def verify(self, group: str, *, deep: bool = False) -> list[Problem]:

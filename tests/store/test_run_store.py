@@ -71,6 +71,24 @@ def test_write_read_round_trip_with_explicit_chunks_and_fingerprint(store):
     assert store.validate() == []
 
 
+def test_a_read_without_dask_reads_the_same_values_and_still_checks_each_chunk(store):
+    raw = small_raw_dark()
+    store.write("raw/dark", raw, fingerprint="f", chunks={"exposure_time": 1, "frame": 4})
+    back = store.read("raw/dark", friendly=False, dask=False)
+    assert back.frames.chunks is None  # no dask
+    np.testing.assert_array_equal(back.frames.isel(frame=slice(0, 4)).values, raw.frames.values[:, :4])
+    chunk = next(
+        p
+        for p in (store.path / "raw" / "dark" / "frames").rglob("*")
+        if p.is_file() and p.stat().st_size > 64
+    )
+    data = bytearray(chunk.read_bytes())
+    data[-5] ^= 0xFF
+    chunk.write_bytes(bytes(data))
+    with pytest.raises(Exception, match="checksum|damaged"):
+        np.asarray(store.read("raw/dark", friendly=False, dask=False).frames)
+
+
 def test_schema_violation_writes_nothing(store):
     bad = small_raw_dark().drop_attrs()
     with pytest.raises(SchemaError, match="refusing to write group 'raw/dark'"):
