@@ -91,6 +91,7 @@ from .staging import (
     STAGING,
     adopt_abandoned,
     flags_path,
+    open_flags,
     pack_staged,
     packed_path,
     regions_path,
@@ -748,7 +749,7 @@ class RunStore:
                 # write (its flags say which are done); never a copy being packed
                 keep = (
                     resumable_along is not None
-                    and flags_path(staged).is_dir()
+                    and open_flags(staged) is not None
                     and not (isinstance(error, OSError) and error.errno in _NO_SPACE)
                 )
                 remove_tree(packed_path(staged))

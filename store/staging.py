@@ -54,6 +54,7 @@ __all__ = [
     "group_stem",
     "staged_path",
     "flags_path",
+    "open_flags",
     "regions_path",
     "packed_path",
     "remove_partial_chunks",
@@ -91,6 +92,27 @@ def staged_path(staging: Path, group: str, fingerprint: str) -> tuple[str, Path]
 def flags_path(staged: Path) -> Path:
     """The flag array of a resumable write: one bool per region, set when it is written."""
     return staged.with_name(f"{staged.name}.done")
+
+
+def open_flags(staged: Path, regions: int | None = None) -> zarr.Array | None:
+    """The flag array of a resumable write, or ``None`` if there is none to resume from.
+
+    A writer killed while it created the flags can leave their directory without its
+    metadata (zarr makes the directory before it renames the metadata into place), and a
+    staged group without its own directory is not resumable either: both are ``None``, so
+    the write starts over rather than failing. With ``regions``, flags of another number of
+    regions are ``None`` too.
+    """
+    at = flags_path(staged)
+    if not staged.is_dir() or not (at / "zarr.json").is_file():
+        return None
+    try:
+        flags = zarr.open_array(str(at), mode="r+")
+    except (OSError, ValueError, KeyError, zarr.errors.BaseZarrError):
+        return None  # metadata a killed writer left unreadable: nothing to resume
+    if regions is not None and flags.shape != (regions,):
+        return None
+    return flags
 
 
 def regions_path(staged: Path) -> Path:
@@ -172,7 +194,7 @@ def adopt_abandoned(staging_dirs: Iterable[Path], prefix: str, staged: Path) -> 
         for p in d.glob(f"{prefix}.*")
         if not p.name.endswith((".done", ".regions", ".packed"))
     ]
-    resumable = [p for p in candidates if p.is_dir() and flags_path(p).is_dir() and p != staged]
+    resumable = [p for p in candidates if p != staged and open_flags(p) is not None]
     if resumable:
         latest = max(resumable, key=lambda p: flags_path(p).stat().st_mtime_ns)
         os.rename(flags_path(latest), flags_path(staged))
@@ -220,11 +242,7 @@ def write_regions(
     """
     regions = plan_regions(ds, dim)
     flags_at = flags_path(staged)
-    flags = None
-    if staged.exists() and flags_at.exists():
-        flags = zarr.open_array(str(flags_at), mode="r+")
-        if flags.shape != (len(regions),):
-            flags = None
+    flags = open_flags(staged, len(regions))
     if flags is None:
         for leftover in (staged, flags_at, regions_path(staged)):
             if leftover.exists():

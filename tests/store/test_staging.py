@@ -170,6 +170,18 @@ def test_discarding_a_staged_write_leaves_nothing_of_it_and_keeps_the_others(sto
     assert sorted(calls) == [0, 1, 2]  # nothing was left to adopt: every region computed
 
 
+def test_flags_a_killed_writer_left_without_metadata_start_the_write_over(store):
+    # killed between zarr making the flags' directory and renaming their metadata into it
+    store.write("cube", _counted_cube([]), fingerprint="fp", resumable_along="image", commit=False)
+    (flags,) = [p for p in store.staging_dir.iterdir() if p.name.endswith(".done")]
+    (flags / "zarr.json").unlink()
+    calls = []
+    store.write("cube", _counted_cube(calls), fingerprint="fp", resumable_along="image")
+    assert sorted(calls) == [0, 1, 2]  # nothing adopted: every region computed again
+    assert store.read("cube").v.values[:, 0, 0].tolist() == [0, 1, 2]
+    assert list(store.staging_dir.iterdir()) == [] and store.validate() == []
+
+
 def test_a_write_staged_only_must_be_resumable(store):
     with pytest.raises(StoreError, match="commit=False .* needs resumable_along"):
         store.write("cube", _counted_cube([]), fingerprint="fp", commit=False)
