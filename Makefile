@@ -26,17 +26,21 @@ demo: $(STAMP)
 # first, in the order tests/conftest.py gives them, not xdist's), then the tests marked `timing`
 # (they assert on wall time or an ETA) alone, so that no other test's load skews them. Each
 # pass ends with its slowest tests (setup, call and teardown apart): where the time goes.
+# The second pass collects only the modules that mark tests `timing` (collecting the whole
+# suite to select a few would cost as much as running them; tests/test_markers.py checks
+# that no timing test lives elsewhere).
 PYTEST_WORKERS ?= auto
 PYTEST_DURATIONS ?= 40
+TIMING_MODULES = $(shell grep -rl --include='test_*.py' 'mark\.timing' tests)
 test: lint typecheck browser
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not timing" --durations=$(PYTEST_DURATIONS)
-	$(BIN)/python -m pytest -m timing --durations=$(PYTEST_DURATIONS)
+	$(BIN)/python -m pytest -m timing --durations=$(PYTEST_DURATIONS) $(TIMING_MODULES)
 
 # The inner loop: the suite without the tests marked `slow` (real flows, killed processes,
 # the wheel install); about a third of the time.
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not slow and not timing"
-	$(BIN)/python -m pytest -m "timing and not slow"
+	$(BIN)/python -m pytest -m "timing and not slow" $(TIMING_MODULES)
 
 # A real headless browser for the report's test (tests/flows/test_report.py takes a screenshot):
 # Debian's chromium-headless-shell, installed only when no Chromium is there (PyPI has no

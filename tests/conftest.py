@@ -55,6 +55,29 @@ def pytest_collection_modifyitems(config, items):
     rank = {os.path.join(tests, *module.split("/")): i for i, module in enumerate(LONG_MODULES)}
     first = len(LONG_MODULES)
     items[:] = sorted(items, key=lambda item: rank.get(str(item.path), first))
+    check_timing_modules(items)
+
+
+#: What a module's text holds when it marks tests ``timing``: ``make test``'s second pass
+#: collects only the modules that hold it (the Makefile's ``TIMING_MODULES``).
+TIMING_MARK = "mark.timing"
+
+
+def check_timing_modules(items) -> None:
+    """Stop the collection if a test is marked ``timing`` in a module whose text lacks
+    :data:`TIMING_MARK` (marked some other way): ``make test`` would run it in neither pass."""
+    hidden = sorted(
+        {
+            str(item.path)
+            for item in items
+            if item.get_closest_marker("timing") is not None and TIMING_MARK not in item.path.read_text()
+        }
+    )
+    if hidden:
+        raise pytest.UsageError(
+            f"tests marked timing in modules without the text {TIMING_MARK!r}, which the "
+            f"Makefile's timing pass looks for: {', '.join(hidden)}"
+        )
 
 
 @pytest.fixture(scope="session")
