@@ -19,6 +19,10 @@ choice is made per texel over all images of the set:
    (e_b (A w)_{b_i})^2)``; ``sigma_R`` is the RGB noise with a relative model error
    ``rgb_model_error`` (the endmembers are learnt, not exact), ``sigma_i`` the shot's noise
    (:func:`~.endmember_mixture.band_noise_sigma`), ``e_b`` = ``band_model_error``.
+   With ``context`` the costs of each texel's supports are pooled with the same supports'
+   costs on its RGB-similar neighbours (non-local means over the set's images: a texel's
+   neighbours of like RGB in every image usually hold the same materials, and an RGB edge
+   cuts the pooling; :func:`rgb_similar_neighbours`).
 3. **Choice**: ``argmin_T rgb_cost + band_cost + penalty |T|``. Four atoms fit three RGB
    equations in many ways; the size penalty keeps the sparsest support that the evidence
    allows (the Bayesian information criterion's form).
@@ -44,15 +48,19 @@ References
    6(2) (a penalty per parameter).
 .. [5] Lawson, C. L., Hanson, R. J. (1974). Solving Least Squares Problems (NNLS: the
    active set of the solution is one of the subsets enumerated here).
+.. [6] Buades, A., Coll, B., Morel, J.-M. (2005). A non-local algorithm for image
+   denoising. CVPR (weights from the similarity of whole patches; here, of a texel's RGB in
+   all images of the set).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from itertools import combinations
 
 import numpy as np
 
-from spectralize.schemas import ReconstructionError
+from spectralize.schemas import ParameterError, ReconstructionError
 
 from ..inputs import ReconstructionInputs
 from .endmember_mixture import (
@@ -68,6 +76,7 @@ __all__ = [
     "sparse_choice",
     "dichromatic_candidates",
     "support_costs",
+    "rgb_similar_neighbours",
     "DEFAULT_CHOICE_CANDIDATES",
     "DEFAULT_MAX_SUPPORT",
     "DEFAULT_SUPPORT_PENALTY",
@@ -81,6 +90,15 @@ DEFAULT_MAX_SUPPORT = 3
 
 DEFAULT_SUPPORT_PENALTY = 30.0
 """Cost per atom of a support, in units of chi^2."""
+
+DEFAULT_CONTEXT_RADIUS = 2
+"""Half-width of the window a texel's RGB-similar neighbours come from."""
+
+DEFAULT_CONTEXT_BANDWIDTH = 1.0
+"""Non-local means' bandwidth of the neighbours' weights, in units of the RGB distance."""
+
+CONTEXT_TERMS = ("band", "rgb+band", "band-sum")
+"""What a texel's support costs pool from its neighbours."""
 
 RGB_NOISE = 0.004
 """Relative noise of an HDR-merged RGB value."""
@@ -197,31 +215,155 @@ def support_costs(
     """Step 2: ``rgb_cost + band_cost`` of every support of each texel's ``candidates``,
     summed over the set's images, ``(n_subset, n_texel)``, and the supports (tuples of
     positions in ``candidates``)."""
-    cameras = _cameras(inputs)
-    rgb = inputs.rgb.reshape(inputs.n_image, -1, 3).astype(np.float64)
-    variance = _rgb_variance(rgb, rgb_model_error)
-    sigma = band_noise_sigma(inputs)
+    evidence = _Evidence.of(inputs, rgb_model_error)
     subsets, children = _subsets(candidates.shape[1], int(max_support))
-    total = np.zeros((len(subsets), rgb.shape[1]))
-    spectra = atoms[candidates]  # (texel, n_candidates, w)
-    for m in range(inputs.n_image):
-        mine = np.flatnonzero(np.asarray(inputs.image) == m)
-        shots = inputs.band_data[mine].reshape(len(mine), rgb.shape[1]).T.astype(np.float64)
-        g = (atoms @ cameras[m].T)[candidates]
-        rgb_cost, band_cost = _image_costs(
-            g,
-            spectra,
-            rgb[m],
-            variance[m],
-            shots,
-            sigma[mine] ** 2,
-            np.asarray(inputs.band)[mine],
-            float(band_model_error),
-            subsets,
-            children,
-        )
+    total = np.zeros((len(subsets), candidates.shape[0]))
+    for rgb_cost, band_cost in evidence.image_costs(
+        inputs, atoms, candidates, subsets, children, float(band_model_error)
+    ):
         total += rgb_cost + band_cost
     return total, subsets
+
+
+class _Evidence:
+    """A set's RGB ``(n_image, n_texel, 3)`` with its variance ``(n_image, n_texel)``, and its
+    band shots ``(n_shot, n_texel)`` with their noise variance ``(n_shot,)``: what a texel's
+    supports are scored on (its own, or a neighbour's: :meth:`at`)."""
+
+    def __init__(
+        self, rgb: np.ndarray, variance: np.ndarray, shots: np.ndarray, shot_variance: np.ndarray
+    ):
+        self.rgb, self.variance, self.shots, self.shot_variance = rgb, variance, shots, shot_variance
+
+    @classmethod
+    def of(cls, inputs: ReconstructionInputs, rgb_model_error: float) -> _Evidence:
+        rgb = inputs.rgb.reshape(inputs.n_image, -1, 3).astype(np.float64)
+        shots = inputs.band_data.reshape(inputs.band_data.shape[0], -1).astype(np.float64)
+        sigma = band_noise_sigma(inputs)
+        return cls(rgb, _rgb_variance(rgb, rgb_model_error), shots, sigma**2)
+
+    def at(self, texels: np.ndarray) -> _Evidence:
+        """The evidence of ``texels`` (one per texel): each texel's supports scored on them."""
+        return _Evidence(
+            self.rgb[:, texels], self.variance[:, texels], self.shots[:, texels], self.shot_variance
+        )
+
+    def image_costs(
+        self,
+        inputs: ReconstructionInputs,
+        atoms: np.ndarray,
+        candidates: np.ndarray,
+        subsets: list[tuple[int, ...]],
+        children: list[list[int]],
+        band_model_error: float,
+    ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Per image its rgb and band cost of every support, ``(n_subset, n_texel)`` each."""
+        cameras = _cameras(inputs)
+        spectra = atoms[candidates]  # (texel, n_candidates, w)
+        images, bands = np.asarray(inputs.image), np.asarray(inputs.band)
+        for m in range(inputs.n_image):
+            mine = np.flatnonzero(images == m)
+            yield _image_costs(
+                (atoms @ cameras[m].T)[candidates],
+                spectra,
+                self.rgb[m],
+                self.variance[m],
+                self.shots[mine].T,
+                self.shot_variance[mine],
+                bands[mine],
+                band_model_error,
+                subsets,
+                children,
+            )
+
+
+def rgb_similar_neighbours(
+    rgb: np.ndarray, variance: np.ndarray, height: int, width: int, count: int, radius: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per texel the ``count`` texels of its ``(2 radius + 1)^2`` window whose RGB over all
+    the set's images is nearest, ``(n_texel, count)`` indices, and their distances
+    ``d_pq = mean_(m, c) (R_pmc - R_qmc)^2 / (var_pm + var_qm)`` (the RGB misfit per value in
+    units of its noise and model error; ``inf`` where the window has fewer texels).
+
+    ``rgb`` ``(n_image, n_texel, 3)`` and ``variance`` ``(n_image, n_texel)``, texels in
+    row-major ``(height, width)`` order. The distance over the stacked images is the
+    non-local means' patch distance with the set's images as the patch: two texels of the same
+    materials in the same fractions agree in every image, whatever each image's light, while
+    an RGB edge between them shows in the images that light it.
+    """
+    r = rgb.reshape(rgb.shape[0], height, width, 3)
+    v = variance.reshape(variance.shape[0], height, width)
+    offsets = [
+        (dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1) if dy or dx
+    ]
+    distance = np.full((len(offsets), height, width), np.inf)
+    for o, (dy, dx) in enumerate(offsets):
+        here = (slice(max(-dy, 0), height - max(dy, 0)), slice(max(-dx, 0), width - max(dx, 0)))
+        there = (slice(max(dy, 0), height + min(dy, 0)), slice(max(dx, 0), width + min(dx, 0)))
+        misfit = ((r[:, here[0], here[1]] - r[:, there[0], there[1]]) ** 2).mean(-1)
+        distance[o][here] = (misfit / (v[:, here[0], here[1]] + v[:, there[0], there[1]])).mean(0)
+    distance = distance.reshape(len(offsets), -1)
+    count = min(int(count), len(offsets))
+    nearest = np.argsort(distance, axis=0, kind="stable")[:count].T  # (texel, count)
+    step = np.array([dy * width + dx for dy, dx in offsets])
+    texel = np.arange(height * width)[:, None]
+    found = np.take_along_axis(distance.T, nearest, axis=1)
+    index = np.where(np.isfinite(found), texel + step[nearest], texel)
+    return index, found
+
+
+def _context_costs(
+    evidence: _Evidence,
+    inputs: ReconstructionInputs,
+    atoms: np.ndarray,
+    candidates: np.ndarray,
+    max_support: int,
+    band_model_error: float,
+    context: int,
+    radius: int,
+    bandwidth: float,
+    terms: str,
+) -> tuple[np.ndarray, list[tuple[int, ...]]]:
+    """Step 2 with context: each texel's support costs pooled with the same supports' costs
+    on its RGB-similar neighbours (:func:`rgb_similar_neighbours`), each neighbour weighted
+    ``w_pq = exp(-d_pq / bandwidth)`` (non-local means), ``(n_subset, n_texel)``.
+
+    A neighbour's cost of ``T`` is its own images' fit on ``T`` (its own abundances per
+    image): the hypothesis that it holds the same materials, in any fractions. The pooled
+    cost is the weighted mean ``(c_p + sum_q w_pq c_q) / (1 + sum_q w_pq)`` of the band chi^2
+    (``terms="band"``; the texel's own RGB cost is added unpooled) or of both chi^2
+    (``"rgb+band"``), so the penalty per atom keeps its scale; ``"band-sum"`` adds the
+    neighbours' band chi^2 to the texel's own cost unnormalised (the neighbours' shots as
+    more evidence of the texel's materials, weighing the bands more against the RGB).
+    """
+    subsets, children = _subsets(candidates.shape[1], int(max_support))
+    index, distance = rgb_similar_neighbours(
+        evidence.rgb, evidence.variance, inputs.height, inputs.width, context, radius
+    )
+    weight = np.exp(-distance / float(bandwidth))
+
+    def summed(where: _Evidence) -> tuple[np.ndarray, np.ndarray]:
+        rgb_total = np.zeros((len(subsets), candidates.shape[0]))
+        band_total = np.zeros_like(rgb_total)
+        for rgb_cost, band_cost in where.image_costs(
+            inputs, atoms, candidates, subsets, children, band_model_error
+        ):
+            rgb_total += rgb_cost
+            band_total += band_cost
+        return rgb_total, band_total
+
+    own_rgb, own_band = summed(evidence)
+    pooled_rgb, pooled_band, total_weight = own_rgb.copy(), own_band.copy(), np.ones(candidates.shape[0])
+    for k in range(index.shape[1]):
+        rgb_cost, band_cost = summed(evidence.at(index[:, k]))
+        pooled_rgb += weight[:, k] * rgb_cost
+        pooled_band += weight[:, k] * band_cost
+        total_weight += weight[:, k]
+    if terms == "band":
+        return own_rgb + pooled_band / total_weight, subsets
+    if terms == "band-sum":
+        return own_rgb + pooled_band, subsets
+    return (pooled_rgb + pooled_band) / total_weight, subsets
 
 
 def _chosen_support(
@@ -265,6 +407,10 @@ def sparse_choice(
     penalty: float = DEFAULT_SUPPORT_PENALTY,
     rgb_model_error: float = 0.03,
     band_model_error: float = 0.1,
+    context: int = 0,
+    context_radius: int = DEFAULT_CONTEXT_RADIUS,
+    context_bandwidth: float = DEFAULT_CONTEXT_BANDWIDTH,
+    context_terms: str = "band",
     seed: int = 0,
 ) -> np.ndarray:
     """Spectra of a set whose texels choose their materials over all images (module docstring).
@@ -287,6 +433,19 @@ def sparse_choice(
         Cost per atom of a support (step 3), in chi^2 units.
     rgb_model_error, band_model_error
         Relative errors of the library's spectra added to the RGB and band noise.
+    context
+        RGB-similar neighbours whose evidence each texel's support costs pool (0: none, the
+        texel's own evidence only): the ``context`` texels of its window nearest in RGB over
+        all images (:func:`rgb_similar_neighbours`, :func:`_context_costs`).
+    context_radius
+        Half-width of the window the neighbours come from.
+    context_bandwidth
+        Non-local means' bandwidth: a neighbour at RGB distance ``d`` weighs ``exp(-d /
+        context_bandwidth)``.
+    context_terms
+        What the neighbours' costs add: ``"band"`` (their band chi^2, averaged with the
+        texel's), ``"rgb+band"`` (both chi^2, averaged) or ``"band-sum"`` (their band chi^2,
+        summed onto the texel's cost).
     seed
         Seed of a library learnt here.
 
@@ -304,25 +463,48 @@ def sparse_choice(
     ----------
     .. [1] Fast Capture of Spectral Image Series, section 3 (eq. 1's RGB term).
     .. [2] Iordache, Bioucas-Dias and Plaza (2011), Sparse unmixing of hyperspectral data.
+    .. [3] Buades, Coll and Morel (2005), A non-local algorithm for image denoising
+       (``context``).
     """
     if int(candidates) < 1 or not 1 <= int(max_support) <= int(candidates) + 1 or penalty < 0:
         raise ReconstructionError(
             "sparse-choice: expected candidates >= 1, 1 <= max_support <= candidates + 1 and "
             f"penalty >= 0, found {candidates}, {max_support}, {penalty}"
         )
+    if int(context) < 0 or int(context_radius) < 1 or context_bandwidth <= 0:
+        raise ReconstructionError(
+            "sparse-choice: expected context >= 0, context_radius >= 1 and context_bandwidth > 0, "
+            f"found {context}, {context_radius}, {context_bandwidth}"
+        )
+    if context_terms not in CONTEXT_TERMS:
+        raise ParameterError.single("context_terms", f"one of {CONTEXT_TERMS}", repr(context_terms))
     atoms = _library(inputs, endmembers, n_endmembers=int(n_endmembers), seed=int(seed))
     cameras = _cameras(inputs)
     rgb = inputs.rgb.reshape(inputs.n_image, -1, 3).astype(np.float64)
     atoms_rgb = np.einsum("aw,mcw->mac", atoms, cameras)
     near = dichromatic_candidates(atoms_rgb, rgb, _rgb_variance(rgb, rgb_model_error), candidates)
-    cost, subsets = support_costs(
-        inputs,
-        atoms,
-        near,
-        max_support=int(max_support),
-        rgb_model_error=rgb_model_error,
-        band_model_error=band_model_error,
-    )
+    if int(context) > 0:
+        cost, subsets = _context_costs(
+            _Evidence.of(inputs, rgb_model_error),
+            inputs,
+            atoms,
+            near,
+            int(max_support),
+            float(band_model_error),
+            int(context),
+            int(context_radius),
+            float(context_bandwidth),
+            context_terms,
+        )
+    else:
+        cost, subsets = support_costs(
+            inputs,
+            atoms,
+            near,
+            max_support=int(max_support),
+            rgb_model_error=rgb_model_error,
+            band_model_error=band_model_error,
+        )
     size = np.array([len(s) for s in subsets], dtype=np.float64)
     choice = np.argmin(cost + float(penalty) * size[:, None], axis=0)
     support = _chosen_support(near, subsets, choice, int(max_support))

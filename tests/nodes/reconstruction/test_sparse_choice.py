@@ -11,7 +11,11 @@ from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
     chromaticity,
     endmember_mixture,
 )
-from spectralize.nodes.reconstruction.estimators.sparse_choice import sparse_choice
+from spectralize.nodes.reconstruction.estimators.sparse_choice import (
+    rgb_similar_neighbours,
+    sparse_choice,
+)
+from spectralize.nodes.reconstruction.inputs import ReconstructionInputs
 from spectralize.nodes.simulation.scenes import get_scene
 from spectralize.nodes.simulation.scenes.materials import sharp_led
 from spectralize.schemas import ReconstructionError
@@ -70,3 +74,76 @@ def test_sparse_choice_refuses_a_library_on_other_wavelengths_and_bad_settings(w
         sparse_choice(inputs, endmembers=short)
     with pytest.raises(ReconstructionError, match="max_support"):
         sparse_choice(inputs, endmembers=library, candidates=2, max_support=4)
+
+
+def _metamer_set(rng: np.random.Generator) -> tuple[ReconstructionInputs, Endmembers, np.ndarray]:
+    """A 7 x 7 set of 4 images: every texel holds material ``A``; the centre texel's band
+    shots are those of ``B``, a metamer of ``A`` (the same RGB through ``C``), as noisy shots
+    can make them. The library holds ``A``, ``B``, a third colour and the light."""
+    n_wl, size, n_image = 8, 7, 4
+    wavelength = np.linspace(450.0, 650.0, n_wl)
+    camera = rng.uniform(0.1, 1.0, (3, n_wl))
+    a = rng.uniform(0.4, 0.8, n_wl)
+    null = np.linalg.svd(camera)[2][-1]
+    b = a + 0.3 * null / np.abs(null).max()
+    other = np.linspace(0.9, 0.1, n_wl)
+    light = np.ones(n_wl)
+    shade = np.array([1.0, 0.8, 0.6, 0.9])
+    rgb = np.empty((n_image, size, size, 3))
+    rgb[:] = (shade[:, None] * (camera @ a)[None])[:, None, None, :]
+    rgb *= 1.0 + 1e-4 * rng.standard_normal(rgb.shape)
+    band = np.tile(np.arange(n_wl), n_image)
+    image = np.repeat(np.arange(n_image), n_wl)
+    shots = shade[image][:, None, None] * a[band][:, None, None] * np.ones((1, size, size))
+    shots[:, size // 2, size // 2] = shade[image] * b[band]
+    shots *= 1.0 + 0.01 * rng.standard_normal(shots.shape)
+    inputs = ReconstructionInputs(
+        rgb=rgb,
+        band_data=shots,
+        band=band,
+        image=image,
+        filter_size=np.ones(band.size),
+        camera_matrix=camera,
+        wavelength=wavelength,
+        illuminant=light,
+    )
+    atoms = np.vstack([a, b, other, light])
+    library = Endmembers(atoms, np.zeros((3, 2)), np.ones(3))
+    return inputs, library, atoms
+
+
+def _nearer_to(cube: np.ndarray, y: int, x: int, atoms: np.ndarray) -> int:
+    """The library atom whose shape is nearest the texel's spectrum in image 0."""
+    s = cube[:, 0, y, x] / np.linalg.norm(cube[:, 0, y, x])
+    shapes = atoms[:2] / np.linalg.norm(atoms[:2], axis=1, keepdims=True)
+    return int(np.argmin(np.linalg.norm(shapes - s, axis=1)))
+
+
+def test_rgb_similar_neighbours_overrule_a_texels_misleading_band_shots():
+    inputs, library, atoms = _metamer_set(np.random.default_rng(3))
+    alone = sparse_choice(inputs, endmembers=library)
+    pooled = sparse_choice(inputs, endmembers=library, context=8, context_radius=1)
+    # alone, the centre follows its own shots to the metamer B; its RGB-similar neighbours,
+    # whose shots show A, take it back to A; the neighbours themselves keep A
+    assert _nearer_to(alone, 3, 3, atoms) == 1
+    assert _nearer_to(pooled, 3, 3, atoms) == 0
+    assert all(_nearer_to(pooled, y, x, atoms) == 0 for y, x in [(2, 3), (3, 2), (0, 0), (6, 6)])
+    # without context the option changes nothing
+    np.testing.assert_array_equal(sparse_choice(inputs, endmembers=library, context=0), alone)
+
+
+def test_rgb_similar_neighbours_come_from_the_window_and_stop_at_rgb_edges():
+    rgb = np.ones((2, 4, 4, 3))
+    rgb[:, :, 2:] = 2.0  # an RGB edge between columns 1 and 2
+    variance = np.full((2, 16), 1e-2)
+    flat = rgb.reshape(2, 16, 3)
+    index, distance = rgb_similar_neighbours(flat, variance, 4, 4, count=3, radius=1)
+    # texel (1, 1) finds three of its same-side neighbours, none across the edge
+    assert set(index[5]) <= {0, 1, 4, 8, 9} and np.all(distance[5] == 0)
+    index, distance = rgb_similar_neighbours(flat, variance, 4, 4, count=5, radius=1)
+    # texel (0, 1) at the edge: its three same-side neighbours first, then the two across
+    assert set(index[1, :3]) == {0, 4, 5} and np.all(distance[1, :3] == 0)
+    assert set(index[1, 3:]) == {2, 6} and np.all(distance[1, 3:] > 0)
+    # the corner (0, 0) has three neighbours in its window; the missing two are itself at inf
+    assert set(index[0, :3]) == {1, 4, 5} and np.all(np.isinf(distance[0, 3:]))
+    assert np.all(index[0, 3:] == 0)
