@@ -8,7 +8,8 @@ series, are ``F`` up to a scale and the noise. An RGB camera's recovered respons
 the scene gave it few samples, and a ripple over the codes between the frame's centre and its
 corners reads as falloff; its white reference is linearised through a smooth response fitted
 jointly with the flat field on the white reference's own series
-(:mod:`~spectralize.nodes.calibration.flat_field_response`).
+(:mod:`~spectralize.nodes.calibration.flat_field_response`), the spectral camera's band
+series through one smooth response fitted on the ratios between its exposures.
 
 - :func:`fit_flat_field`, :class:`FlatField`, :func:`from_calibration` (from
   :mod:`~spectralize.nodes.calibration.flat_field_maps`, which the HDR merge, the band
@@ -19,7 +20,8 @@ jointly with the flat field on the white reference's own series
 - :func:`rgb_flat_field`: the RGB cameras' maps from their white reference's series through
   its own smooth response.
 - :func:`spectral_flat_field`: the spectral camera's map per band from the white
-  reference's band series (dark subtracted, linearised, time-weighted over the exposures).
+  reference's band series (dark subtracted, linearised through one smooth response fitted
+  on the series itself, time-weighted over the exposures).
 - :func:`flat_field_variables`: the maps' variables of ``calibration/spectral``.
 
 Why a polynomial, not a Gaussian filter: falloff is smooth across the whole frame and
@@ -70,6 +72,8 @@ from spectralize.nodes.calibration.flat_field_maps import (
     legendre_powers,
 )
 from spectralize.nodes.calibration.flat_field_response import (
+    band_block_statistics,
+    band_series_response,
     white_reference_frames,
     white_reference_response,
 )
@@ -193,17 +197,28 @@ def camera_flat_fields(
 
 
 def spectral_flat_field(
-    white_reference: xr.Dataset, dark: xr.Dataset, oecf_spectral: xr.Dataset | None
+    white_reference: xr.Dataset,
+    dark: xr.Dataset,
+    oecf_spectral: xr.Dataset | None,
+    *,
+    own_response: bool = True,
 ) -> tuple[FlatField, list[FlatFieldFit]]:
     """The spectral camera's flat field per band from the white reference's band series.
 
     Per band, every exposure without a saturated pixel whose mean signal is at least
     :data:`MIN_SNR` times the dark noise (else the longest unsaturated one) is dark
     subtracted and linearised (:func:`~.linearise`), and the exposures averaged weighted by
-    their exposure time (``sum f(I - dark) / sum t``: each exposure's signal per second,
-    weighted by its signal); the average is fitted by :func:`fit_flat_field`. Read in the
-    pieces of :func:`~.series_pieces`: a batch of bands (one band of a large sensor) and the
-    dark frames are in memory at a time.
+    their exposure time (``sum f(I - dark) / sum t`` per pixel: each exposure's signal per
+    second, weighted by its signal); an exposure whose saturated pixels are all hot ones
+    enters without them (:func:`_entering_pixels`). The average is fitted by
+    :func:`fit_flat_field`. The response
+    ``f`` is the one smooth response fitted on the band series itself
+    (:func:`~spectralize.nodes.calibration.flat_field_response.band_series_response`: the
+    camera's recovered OECF ripples where its samples are few, and a ripple over the codes
+    between a band's centre and its corners reads as falloff), with ``own_response`` false
+    (or where that fit has too few blocks) ``oecf_spectral``. Read in the pieces of
+    :func:`~.series_pieces`: a batch of bands (one band of a large sensor) and the dark
+    frames are in memory at a time (the series read twice with ``own_response``).
 
     Returns
     -------
@@ -232,14 +247,20 @@ def spectral_flat_field(
     noise = [
         float(darks["std"].isel(shot=e).mean()) if "std" in darks else 1.0 for e in range(times.size)
     ]
+    response = oecf_spectral
+    if own_response:
+        table = _band_series_table(counts, darks, times, unsaturated, np.asarray(noise), depth)
+        response = oecf_spectral if table is None else table
     coefficients, fits = [], []
-    sums: dict[int, tuple[np.ndarray, float]] = {}  # per band: sum f(I - dark), sum t so far
+    # per band: sum f(I - dark) and sum t per pixel, and the exposure time summed so far
+    sums: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
     # the frames of a piece of band_shots.series_pieces at once; each band's exposures
     # summed in their order, and the band fitted after its last one
     for part, positions, shots in series_pieces(counts, range(times.size)):
         mean = darks["mean"].isel(shot=positions).rename(shot="spectral_exposure")
         above = np.asarray((shots.astype(np.float64) - mean).mean(("y", "x")).values)
-        signal = np.asarray(linearise(shots, mean, oecf_spectral, group).values)
+        signal = np.asarray(linearise(shots, mean, response, group).values)
+        codes, dark_means = np.asarray(shots.values), np.asarray(mean.values)
         for b, k in enumerate(range(counts.sizes["wavelength"])[part]):
             wavelength = float(counts["wavelength"][k])
             if positions[0] == 0 and not unsaturated[k].any():
@@ -247,29 +268,98 @@ def spectral_flat_field(
                     f"{group}:spectral_counts: every exposure of band "
                     f"{wavelength} nm has saturated pixels; add shorter exposures"
                 )
-            total, weight = sums.get(k, (np.zeros(frame), 0.0))
+            total, weight, used = sums.get(k, (np.zeros(frame), np.zeros(frame), 0.0))
             fallback = int(np.flatnonzero(unsaturated[k])[-1])
             for i, e in enumerate(positions):
-                if not unsaturated[k, e]:
+                enter = _entering_pixels(codes[b, i], dark_means[i], 2**depth - 1)
+                if enter is None:
                     continue
                 level = float(above[b, i])
-                if e == fallback and weight == 0 and level < max(noise[e], 1e-12):
+                if e == fallback and used == 0 and level < max(noise[e], 1e-12):
                     raise CalibrationError(
                         f"{group}:spectral_counts: white reference band "
                         f"{wavelength} nm is darker than the noise: mean signal "
                         f"{level:.3g} DN above dark vs noise {noise[e]:.3g} DN in its longest "
                         "unsaturated exposure; use a longer exposure or more light"
                     )
-                if level < MIN_SNR * max(noise[e], 1e-12) and not (weight == 0 and e == fallback):
+                if level < MIN_SNR * max(noise[e], 1e-12) and not (used == 0 and e == fallback):
                     continue
-                total, weight = total + signal[b, i] * times[e], weight + times[e]
-            sums[k] = (total, weight)
+                total = total + np.where(enter, signal[b, i] * times[e], 0.0)
+                weight, used = weight + enter * times[e], used + times[e]
+            sums[k] = (total, weight, used)
             if positions[-1] == times.size - 1:
                 fit = fit_flat_field(total / weight)
                 coefficients.append(fit.coefficients)
                 fits.append(fit)
     wavelengths = np.asarray(counts["wavelength"].values, dtype=float)
     return FlatField(np.stack(coefficients), legendre_powers(), frame, wavelengths), fits
+
+
+def _entering_pixels(codes: np.ndarray, dark_mean: np.ndarray, top: int) -> np.ndarray | None:
+    """(y, x) the pixels of one white-reference band frame ``codes`` that enter its band's
+    average: every pixel of a frame without a saturated one; of a frame whose saturated
+    pixels are all hot (their dark level ``dark_mean`` plus the frame's signal, that of its
+    brightest percent of pixels, reaches the ``top`` code, the frame's median dark level plus
+    it does not: dark current, not light, saturated them) the others; None where light
+    saturates a pixel. A weak band's longest exposure, its best measure of the falloff, is
+    then not lost to a few hot pixels."""
+    saturated = codes >= top
+    if not saturated.any():
+        return np.ones(codes.shape, dtype=bool)
+    light = float(np.percentile(codes - dark_mean, 99.0))
+    hot = dark_mean + light >= top
+    if float(np.median(dark_mean)) + light >= top or (saturated & ~hot).any():
+        return None
+    return ~saturated
+
+
+def _band_series_table(
+    counts: xr.DataArray,
+    darks: xr.Dataset,
+    times: np.ndarray,
+    unsaturated: np.ndarray,
+    noise: np.ndarray,
+    depth: int,
+) -> xr.Dataset | None:
+    """The spectral camera's smooth response (:func:`band_series_response`) from the white
+    reference's band series ``counts`` (wavelength, spectral_exposure, y, x) and its dark
+    frames ``darks`` (shot per exposure), as a response over dark-subtracted codes for
+    :func:`~.linearise`; the frames that enter are those :func:`spectral_flat_field` averages
+    (unsaturated, mean signal at least :data:`MIN_SNR` times the dark ``noise``). None where
+    that fit declines."""
+    n_bands = counts.sizes["wavelength"]
+    means = variances = sizes = None
+    for part, positions, shots in series_pieces(counts, range(times.size)):
+        mean = darks["mean"].isel(shot=positions).rename(shot="spectral_exposure")
+        above = (shots.astype(np.float64) - mean).transpose("wavelength", "spectral_exposure", "y", "x")
+        block_means, block_variances, sizes = band_block_statistics(np.asarray(above.values))
+        if means is None:
+            means = np.zeros((n_bands, times.size, sizes.size))
+            variances = np.zeros_like(means)
+        cell = np.ix_(range(n_bands)[part], positions)
+        means[cell], variances[cell] = block_means, block_variances
+    if means is None or variances is None or sizes is None:
+        return None
+    level = (means * sizes).sum(axis=-1) / sizes.sum()
+    usable = unsaturated & (level >= MIN_SNR * np.maximum(noise, 1e-12)[None, :])
+    table = band_series_response(means, variances, sizes, times, usable, 2**depth)
+    if table is None:
+        return None
+    return xr.Dataset(
+        {
+            "response": (
+                "code",
+                table,
+                {
+                    "units": "1",
+                    "long_name": "the spectral camera's smooth response fitted on the white "
+                    "reference's band series (relative exposure per dark-subtracted code)",
+                    "dark_subtracted": True,
+                },
+            )
+        },
+        coords={"code": np.arange(2**depth, dtype=np.float64)},
+    )
 
 
 def _measures(prefix: str, dims: tuple, values: dict[str, np.ndarray], what: str) -> dict:

@@ -20,6 +20,13 @@ which :func:`~spectralize.nodes.calibration.flat_field.rgb_flat_field` merges th
 reference for its flat field; the scene's images keep the camera's recovered response (the
 white reference reaches only a few clusters of codes).
 
+The spectral camera's white reference is a band series: each band's exposures of one block
+see the same light, so ``s(ln d) = c + ln t``, with one unknown ``c`` per band and block
+(``d`` the block's mean dark-subtracted code), holds whatever the falloff, and
+:func:`band_series_response` fits one smooth ``s`` shared by the bands from the ratios
+between exposures alone (:func:`band_block_statistics` gives the blocks); the bands'
+different brightnesses spread the blocks' codes over the range the series reaches.
+
 References
 ----------
 .. [1] Fast Capture of Spectral Image Series, section 4 ("taking images of a white diffuse
@@ -41,11 +48,23 @@ from spectralize.nodes.calibration.flat_field_maps import (
 )
 from spectralize.nodes.calibration.oecf.weighting import Weighting, weighting_function
 
-__all__ = ["KNOTS", "white_reference_response", "white_reference_frames"]
+__all__ = [
+    "KNOTS",
+    "RESPONSE_BLOCKS",
+    "white_reference_response",
+    "white_reference_frames",
+    "band_block_statistics",
+    "band_series_response",
+]
 
 KNOTS = 5
 """Cubic B-spline coefficients of the white reference's response per channel, over the log
 codes above the black level its series reaches."""
+
+RESPONSE_BLOCKS = 8
+"""Blocks per frame side whose mean codes the spectral camera's smooth response is fitted to
+(:func:`band_series_response`): enough pixels per block that the log of its mean is not
+biased by the pixels' noise."""
 
 
 def _spline_design(u: np.ndarray, lo: float, hi: float, n: int) -> np.ndarray:
@@ -220,3 +239,130 @@ def white_reference_frames(
             return None
         out[..., ch] = np.exp(weighted / total)
     return out
+
+
+def band_block_statistics(
+    signal: np.ndarray, blocks: int = RESPONSE_BLOCKS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means and variances of dark-subtracted frames over blocks.
+
+    Parameters
+    ----------
+    signal
+        (..., y, x) dark-subtracted codes ``I - dark`` [DN].
+    blocks
+        Blocks per frame side (fewer on a smaller frame).
+
+    Returns
+    -------
+    tuple
+        (..., block) the block means and the variances of the pixels about them [DN, DN^2],
+        and (block,) the pixels of each block.
+    """
+    ny, nx = signal.shape[-2:]
+    edges_y = np.linspace(0, ny, min(blocks, ny) + 1).round().astype(int)
+    edges_x = np.linspace(0, nx, min(blocks, nx) + 1).round().astype(int)
+    sizes = np.outer(np.diff(edges_y), np.diff(edges_x))
+
+    def sums(values: np.ndarray) -> np.ndarray:
+        out = np.add.reduceat(np.add.reduceat(values, edges_y[:-1], axis=-2), edges_x[:-1], axis=-1)
+        return out.reshape(*values.shape[:-2], -1)
+
+    means = sums(signal) / sizes.ravel()
+    variances = np.maximum(sums(signal * signal) / sizes.ravel() - means**2, 0.0)
+    return means, variances, sizes.ravel()
+
+
+def band_series_response(
+    means: np.ndarray,
+    variances: np.ndarray,
+    sizes: np.ndarray,
+    times: np.ndarray,
+    usable: np.ndarray,
+    n_codes: int,
+    *,
+    knots: int = KNOTS,
+) -> np.ndarray | None:
+    """One smooth response of the spectral camera from its white reference's band series.
+
+    Each band's exposures of one block of the white reference see the same light ``g``
+    (the band's illuminant, ``Q_lambda`` and the block's flat field), so over the block's
+    exposures ``s(ln d) = c + ln t`` (``d`` the block's mean dark-subtracted code, ``t``
+    the exposure time, ``c = ln g`` one unknown per band and block): the ratio between two
+    exposures of a block depends on the response alone, whatever the falloff. With ``c``
+    eliminated (each band's and block's rows centred over its exposures) ``s``, a cubic
+    spline of ``knots`` coefficients in the log code shared by the bands, is fitted by
+    weighted least squares (weights: the inverse variance of ``ln d``, from the scatter of
+    the block's pixels); the bands' different brightnesses and the falloff spread the
+    blocks' codes over the range the series reaches. A response too smooth to follow a
+    ripple: the camera's recovered OECF, whose slope ripples where its samples are few,
+    reads as falloff when a band's frame is linearised through it.
+
+    Parameters
+    ----------
+    means, variances
+        (band, exposure, block) :func:`band_block_statistics` of the dark-subtracted frames.
+    sizes
+        (block,) pixels per block.
+    times
+        (exposure,) exposure times [s].
+    usable
+        (band, exposure) frames that enter (unsaturated, above the noise); a block of a
+        frame enters where its mean is positive.
+    n_codes
+        Dark-subtracted codes of the returned table (``2**bit_depth``).
+    knots
+        Spline coefficients of the response (at least 4).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        (code,) ``f(d)`` for ``d = 0 .. n_codes - 1``, relative exposure up to a scale:
+        ``exp(s(ln d))`` over the codes the blocks reach, linear through 0 below them (a
+        camera is linear at its lowest signal), continued with the spline's end slope in
+        the log above them. None where fewer than two exposures of some band and block
+        enter, or fewer rows than twice the unknowns.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and eq. 5.
+    .. [2] M. A. Robertson, S. Borman, R. L. Stevenson, "Estimation-theoretic approach to dynamic
+       range enhancement using multiple exposures", Journal of Electronic Imaging 12(2), 2003.
+    """
+    enter = usable[..., None] & (means > 0)
+    u = np.log(np.where(enter, means, 1.0))
+    weights = np.where(enter, sizes * means**2 / np.maximum(variances, 1e-12 * means**2 + 1e-300), 0.0)
+    weights = np.where(enter.sum(axis=1, keepdims=True) >= 2, weights, 0.0)
+    rows = weights > 0
+    if rows.sum() < 2 * knots or not enter.any():
+        return None
+    lo, hi = float(u[rows].min()), float(u[rows].max())
+    if not hi > lo:
+        return None
+    design = _spline_design(u.ravel(), lo, hi, knots).reshape(*u.shape, knots)
+    target = np.broadcast_to(np.log(np.asarray(times, dtype=np.float64))[None, :, None], u.shape)
+    total = np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
+    design = design - (weights[..., None] * design).sum(axis=1, keepdims=True) / total[..., None]
+    target = target - (weights * target).sum(axis=1, keepdims=True) / total
+    root_w = np.sqrt(weights[rows])
+    coefficients = np.linalg.lstsq(design[rows] * root_w[:, None], target[rows] * root_w, rcond=None)[0]
+    return _band_table(coefficients, lo, hi, knots, n_codes)
+
+
+def _band_table(coefficients: np.ndarray, lo: float, hi: float, knots: int, n_codes: int) -> np.ndarray:
+    """(code,) ``exp(s(ln d))`` of the spline ``coefficients`` on ``[lo, hi]`` for ``d = 0 ..
+    n_codes - 1``: linear through 0 below ``exp(lo)``, the spline's end slope in the log above
+    ``exp(hi)``."""
+    inner = np.linspace(lo, hi, knots - 2)
+    step = inner[1] - inner[0]
+    knot_vector = np.concatenate(
+        [inner[0] - step * np.arange(3, 0, -1), inner, inner[-1] + step * np.arange(1, 4)]
+    )
+    spline = BSpline(knot_vector, coefficients, 3)
+    codes = np.arange(n_codes, dtype=np.float64)
+    u = np.log(np.maximum(codes, np.exp(lo)))
+    s = np.where(u > hi, spline(hi) + spline.derivative()(hi) * (u - hi), spline(np.clip(u, lo, hi)))
+    table = np.exp(s)
+    below = codes < np.exp(lo)
+    table[below] = codes[below] * np.exp(spline(lo) - lo)
+    return table
