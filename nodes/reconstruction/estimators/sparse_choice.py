@@ -77,6 +77,7 @@ __all__ = [
     "dichromatic_candidates",
     "support_costs",
     "rgb_similar_neighbours",
+    "neighbour_candidates",
     "DEFAULT_CHOICE_CANDIDATES",
     "DEFAULT_MAX_SUPPORT",
     "DEFAULT_SUPPORT_PENALTY",
@@ -319,14 +320,14 @@ def _context_costs(
     candidates: np.ndarray,
     max_support: int,
     band_model_error: float,
-    context: int,
-    radius: int,
-    bandwidth: float,
+    index: np.ndarray,
+    weight: np.ndarray,
     terms: str,
 ) -> tuple[np.ndarray, list[tuple[int, ...]]]:
     """Step 2 with context: each texel's support costs pooled with the same supports' costs
-    on its RGB-similar neighbours (:func:`rgb_similar_neighbours`), each neighbour weighted
-    ``w_pq = exp(-d_pq / bandwidth)`` (non-local means), ``(n_subset, n_texel)``.
+    on its RGB-similar neighbours ``index`` ``(n_texel, n_neighbour)``
+    (:func:`rgb_similar_neighbours`), each weighted ``w_pq`` (``weight``, non-local means'
+    ``exp(-d_pq / bandwidth)``), ``(n_subset, n_texel)``.
 
     A neighbour's cost of ``T`` is its own images' fit on ``T`` (its own abundances per
     image): the hypothesis that it holds the same materials, in any fractions. The pooled
@@ -337,10 +338,6 @@ def _context_costs(
     more evidence of the texel's materials, weighing the bands more against the RGB).
     """
     subsets, children = _subsets(candidates.shape[1], int(max_support))
-    index, distance = rgb_similar_neighbours(
-        evidence.rgb, evidence.variance, inputs.height, inputs.width, context, radius
-    )
-    weight = np.exp(-distance / float(bandwidth))
 
     def summed(where: _Evidence) -> tuple[np.ndarray, np.ndarray]:
         rgb_total = np.zeros((len(subsets), candidates.shape[0]))
@@ -364,6 +361,54 @@ def _context_costs(
     if terms == "band-sum":
         return own_rgb + pooled_band, subsets
     return (pooled_rgb + pooled_band) / total_weight, subsets
+
+
+def neighbour_candidates(
+    ranked: np.ndarray,
+    count: int,
+    support: np.ndarray,
+    index: np.ndarray,
+    weight: np.ndarray,
+    extra: int,
+) -> np.ndarray:
+    """Each texel's ``count`` own candidates, then ``extra`` endmembers its RGB-similar
+    neighbours chose, then the highlight atom, ``(n_texel, count + extra + 1)``.
+
+    ``ranked`` ``(n_texel, count + extra + 1)``: the dichromatic ranking
+    (:func:`dichromatic_candidates` of ``count + extra``); ``support`` the choice of a first
+    pass; ``index``, ``weight`` the neighbours and their weights. The endmembers the
+    neighbours chose, weighted, rank the extra candidates (an atom a texel misses by its own
+    RGB, such as a thin material whose colour its neighbours show better); where the
+    neighbours offer fewer, the texel's own next-ranked endmembers fill the places.
+    """
+    n_texel, light = ranked.shape[0], int(ranked[0, -1])
+    rows = np.arange(n_texel)[:, None]
+    score = np.zeros((n_texel, light + 1))
+    for k in range(index.shape[1]):
+        theirs = support[index[:, k]]
+        for s in range(theirs.shape[1]):
+            new = (theirs[:, s : s + 1] != theirs[:, :s]).all(axis=1)
+            score[rows[:, 0], theirs[:, s]] += np.where(new, weight[:, k], 0.0)
+    fill = ranked[:, count:-1]
+    tiny = 1e-200 * (fill.shape[1] - np.arange(fill.shape[1]))
+    score[rows, fill] = np.maximum(score[rows, fill], tiny)
+    score[rows, ranked[:, :count]] = -np.inf
+    score[:, light] = -np.inf
+    picked = np.argsort(-score, axis=1, kind="stable")[:, :extra]
+    return np.hstack([ranked[:, :count], picked, ranked[:, -1:]])
+
+
+def _choose(
+    candidates: np.ndarray,
+    costs: tuple[np.ndarray, list[tuple[int, ...]]],
+    penalty: float,
+    max_support: int,
+) -> np.ndarray:
+    """Step 3: each texel's support of least cost plus penalty (:func:`_chosen_support`)."""
+    cost, subsets = costs
+    size = np.array([len(s) for s in subsets], dtype=np.float64)
+    choice = np.argmin(cost + float(penalty) * size[:, None], axis=0)
+    return _chosen_support(candidates, subsets, choice, max_support)
 
 
 def _chosen_support(
@@ -411,6 +456,7 @@ def sparse_choice(
     context_radius: int = DEFAULT_CONTEXT_RADIUS,
     context_bandwidth: float = DEFAULT_CONTEXT_BANDWIDTH,
     context_terms: str = "band",
+    context_candidates: int = 0,
     seed: int = 0,
 ) -> np.ndarray:
     """Spectra of a set whose texels choose their materials over all images (module docstring).
@@ -446,6 +492,10 @@ def sparse_choice(
         What the neighbours' costs add: ``"band"`` (their band chi^2, averaged with the
         texel's), ``"rgb+band"`` (both chi^2, averaged) or ``"band-sum"`` (their band chi^2,
         summed onto the texel's cost).
+    context_candidates
+        Endmembers added to each texel's candidates from the supports its RGB-similar
+        neighbours chose in a first pass (:func:`neighbour_candidates`), then chosen again;
+        needs ``context``.
     seed
         Seed of a library learnt here.
 
@@ -471,10 +521,17 @@ def sparse_choice(
             "sparse-choice: expected candidates >= 1, 1 <= max_support <= candidates + 1 and "
             f"penalty >= 0, found {candidates}, {max_support}, {penalty}"
         )
-    if int(context) < 0 or int(context_radius) < 1 or context_bandwidth <= 0:
+    if (
+        int(context) < 0
+        or int(context_radius) < 1
+        or context_bandwidth <= 0
+        or int(context_candidates) < 0
+        or (int(context_candidates) > 0 and int(context) == 0)
+    ):
         raise ReconstructionError(
-            "sparse-choice: expected context >= 0, context_radius >= 1 and context_bandwidth > 0, "
-            f"found {context}, {context_radius}, {context_bandwidth}"
+            "sparse-choice: expected context >= 0, context_radius >= 1, context_bandwidth > 0 "
+            "and context_candidates >= 0 (> 0 only with context), found "
+            f"{context}, {context_radius}, {context_bandwidth}, {context_candidates}"
         )
     if context_terms not in CONTEXT_TERMS:
         raise ParameterError.single("context_terms", f"one of {CONTEXT_TERMS}", repr(context_terms))
@@ -482,22 +539,29 @@ def sparse_choice(
     cameras = _cameras(inputs)
     rgb = inputs.rgb.reshape(inputs.n_image, -1, 3).astype(np.float64)
     atoms_rgb = np.einsum("aw,mcw->mac", atoms, cameras)
-    near = dichromatic_candidates(atoms_rgb, rgb, _rgb_variance(rgb, rgb_model_error), candidates)
+    variance = _rgb_variance(rgb, rgb_model_error)
     if int(context) > 0:
-        cost, subsets = _context_costs(
-            _Evidence.of(inputs, rgb_model_error),
-            inputs,
-            atoms,
-            near,
-            int(max_support),
-            float(band_model_error),
-            int(context),
-            int(context_radius),
-            float(context_bandwidth),
-            context_terms,
+        evidence = _Evidence.of(inputs, rgb_model_error)
+        index, distance = rgb_similar_neighbours(
+            evidence.rgb, evidence.variance, inputs.height, inputs.width, context, context_radius
         )
+        weight = np.exp(-distance / float(context_bandwidth))
+        own = min(int(candidates), atoms.shape[0] - 1)
+        extra = min(int(context_candidates), atoms.shape[0] - 1 - own)
+        ranked = dichromatic_candidates(atoms_rgb, rgb, variance, own + extra)
+        near = np.hstack([ranked[:, :own], ranked[:, -1:]])
+        setting = (int(max_support), float(band_model_error))
+        pooled = _context_costs(evidence, inputs, atoms, near, *setting, index, weight, context_terms)
+        support = _choose(near, pooled, penalty, int(max_support))
+        if extra:
+            near = neighbour_candidates(ranked, own, support, index, weight, extra)
+            pooled = _context_costs(
+                evidence, inputs, atoms, near, *setting, index, weight, context_terms
+            )
+            support = _choose(near, pooled, penalty, int(max_support))
     else:
-        cost, subsets = support_costs(
+        near = dichromatic_candidates(atoms_rgb, rgb, variance, candidates)
+        costs = support_costs(
             inputs,
             atoms,
             near,
@@ -505,9 +569,7 @@ def sparse_choice(
             rgb_model_error=rgb_model_error,
             band_model_error=band_model_error,
         )
-    size = np.array([len(s) for s in subsets], dtype=np.float64)
-    choice = np.argmin(cost + float(penalty) * size[:, None], axis=0)
-    support = _chosen_support(near, subsets, choice, int(max_support))
+        support = _choose(near, costs, penalty, int(max_support))
     library = Endmembers(atoms, np.zeros((atoms.shape[0] - 1, 2)), np.ones(3))
     per_image = np.tile(support, (inputs.n_image, 1))
     weights = rgb_abundances(library, per_image, inputs.camera_matrix, rgb.reshape(-1, 3))

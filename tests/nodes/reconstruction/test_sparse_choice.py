@@ -12,6 +12,7 @@ from spectralize.nodes.reconstruction.estimators.endmember_mixture import (
     endmember_mixture,
 )
 from spectralize.nodes.reconstruction.estimators.sparse_choice import (
+    neighbour_candidates,
     rgb_similar_neighbours,
     sparse_choice,
 )
@@ -147,3 +148,21 @@ def test_rgb_similar_neighbours_come_from_the_window_and_stop_at_rgb_edges():
     # the corner (0, 0) has three neighbours in its window; the missing two are itself at inf
     assert set(index[0, :3]) == {1, 4, 5} and np.all(np.isinf(distance[0, 3:]))
     assert np.all(index[0, 3:] == 0)
+
+
+def test_neighbour_candidates_add_the_atoms_the_neighbours_chose():
+    # 3 texels, atoms 0..5 and the light 6; each texel's own ranking (2 own + 2 spare) then light
+    ranked = np.array([[0, 1, 2, 3, 6], [2, 3, 0, 1, 6], [0, 1, 3, 4, 6]])
+    support = np.array([[0, 0], [4, 5], [0, 1]])  # the first pass: texel 1 chose 4 and 5
+    index = np.array([[1, 2], [0, 2], [1, 0]])
+    weight = np.array([[0.9, 0.1], [0.5, 0.5], [0.8, 0.2]])
+    near = neighbour_candidates(ranked, 2, support, index, weight, 2)
+    # texel 0: its neighbour 1's atoms 4 and 5 join (atom 1 of texel 2 is its own already)
+    assert near[0].tolist() == [0, 1, 4, 5, 6]
+    # texel 1: neighbours chose 0 and 1 (0 twice over); no duplicates of its own 2, 3
+    assert near[1].tolist() == [2, 3, 0, 1, 6]
+    # texel 2: neighbour 1 offers 4 and 5 (0 and 1 are its own)
+    assert near[2].tolist() == [0, 1, 4, 5, 6]
+    # where the neighbours offer fewer than asked, the texel's own next ranks fill the places
+    few = neighbour_candidates(ranked, 2, np.zeros((3, 2), dtype=int), index, weight, 2)
+    assert few[0].tolist() == [0, 1, 2, 3, 6] and few[1].tolist() == [2, 3, 0, 1, 6]
