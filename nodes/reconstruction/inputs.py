@@ -11,7 +11,7 @@ References
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Iterable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass
 
 import dask.array as da
@@ -113,6 +113,21 @@ class ReconstructionInputs:
     def camera_of(self, image: int) -> np.ndarray:
         """``C`` of image ``image``, ``(3, n_wavelength)``."""
         return self.camera_matrix[image] if self.per_image_camera else self.camera_matrix
+
+    def cached(self, name: str, compute: Callable[[ReconstructionInputs], np.ndarray]) -> np.ndarray:
+        """``compute(self)``, computed on the first call for ``name`` and kept on this object;
+        each call returns its own copy.
+
+        For quantities of the inputs alone that several steps of one solve need (the band
+        noise, :func:`~.estimators.endmember_mixture.band_noise_sigma`: the spectral prior,
+        its band evidence and the set model). The arrays are not changed after
+        construction (a changed input is a new object, e.g. ``dataclasses.replace``), so a
+        kept value stays the inputs' own.
+        """
+        kept = self.__dict__.setdefault("_cached", {})
+        if name not in kept:
+            kept[name] = np.asarray(compute(self))
+        return kept[name].copy()
 
     def rgb_pixels(self) -> np.ndarray:
         """``R`` as ``(3, n_pixels)`` over all pixels of all images (solver pixel order)."""

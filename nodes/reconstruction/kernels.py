@@ -50,6 +50,8 @@ __all__ = [
     "mix_atoms",
     "box_mean_rows",
     "box_mean_columns",
+    "group_sums",
+    "GROUP_SUM_MEMBERS",
 ]
 
 _jit = njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
@@ -58,6 +60,10 @@ floating-point maths, numpy's error model (no exceptions for division by zero)."
 
 _jit_inline = njit(inline="always", cache=True, nogil=True, fastmath=True, error_model="numpy")
 """:data:`_jit` for helpers inlined into the kernels that call them."""
+
+_jit_exact = njit(cache=True, nogil=True, error_model="numpy")
+""":data:`_jit` without fast maths: every addition in the order written, for a kernel that
+must give numpy's own result bit for bit."""
 
 
 @_jit
@@ -811,3 +817,39 @@ def box_mean_columns(planes, width, out):  # pragma: no cover - compiled
             for x in range(size):
                 total[x] += planes[k, entering, x] - planes[k, leaving, x]
                 out[k, y, x] = total[x] * scale
+
+
+GROUP_SUM_MEMBERS = 8
+"""The most columns a group of :func:`group_sums` may have: up to it numpy adds a group's
+columns after the first one by one (its pairwise sum starts unrolling at eight)."""
+
+
+@_jit_exact
+def group_sums(x, columns, indptr, target, out):  # pragma: no cover - compiled
+    """``out[r, target[j]] = x[r, c_0] + (x[r, c_1] + x[r, c_2] + ...)`` for the columns
+    ``c = columns[indptr[j]:indptr[j + 1]]`` of each group ``j``: the sums
+    ``numpy.add.reduceat`` gives along a row of at most :data:`GROUP_SUM_MEMBERS` columns
+    per group, in its order of additions (the first column, plus the others summed from
+    ``-0.0``), so bit for bit the same, in one pass over ``x`` with no reordered copy.
+
+    Parameters
+    ----------
+    x
+        ``(n, n_columns)`` float64.
+    columns, indptr
+        The groups' columns (``int64``), group ``j``'s at ``indptr[j]:indptr[j + 1]``, each
+        group non-empty.
+    target
+        ``(n_groups,)`` the column of ``out`` each group's sum goes to.
+    out
+        ``(n, n_targets)`` float64; the targets' columns overwritten, the others kept.
+    """
+    n = x.shape[0]
+    n_groups = target.shape[0]
+    for r in range(n):
+        for j in range(n_groups):
+            first = indptr[j]
+            rest = -0.0
+            for i in range(first + 1, indptr[j + 1]):
+                rest += x[r, columns[i]]
+            out[r, target[j]] = x[r, columns[first]] + rest

@@ -333,7 +333,15 @@ def band_noise_sigma(inputs: ReconstructionInputs) -> np.ndarray:
     band noise is not), by the median absolute deviation (robust to the edges that one
     linear fit leaves). The high-pass part alone takes texture for noise: it overestimates
     the noise where materials mix below a pixel.
+
+    Computed once per inputs object (:meth:`~..inputs.ReconstructionInputs.cached`): the
+    spectral prior's mixture, its band evidence and the set model each ask for it.
     """
+    return inputs.cached("band_noise_sigma", _band_noise_sigma)
+
+
+def _band_noise_sigma(inputs: ReconstructionInputs) -> np.ndarray:
+    """:func:`band_noise_sigma`, computed."""
     from scipy import ndimage
 
     sigma = np.empty(len(inputs.band))

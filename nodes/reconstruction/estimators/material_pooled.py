@@ -327,10 +327,14 @@ def material_pooled_refine(
         shapes = pooled[label]
         weights = texel_weights(shapes, ell, *terms)
     # a_m E + h_m L, written wavelength by wavelength into the (w, m, y, x) cube (one cube
-    # in memory, not the (n, m, w) products, their sum and its transposed copy)
+    # in memory, not the (n, m, w) products, their sum and its transposed copy), from the
+    # weights and shapes transposed once: each wavelength's plane is then computed in place
+    shading, shine = weights[:, :, 0].T.copy(), weights[:, :, 1].T.copy()  # (m, n)
+    columns = shapes.T.copy()  # (w, n)
     fit = np.empty((n_w, n_m, h * w))
     for band in range(n_w):
-        fit[band] = (weights[:, :, 0] * shapes[:, band, None] + weights[:, :, 1] * ell[band]).T
+        np.multiply(shading, columns[band], out=fit[band])
+        fit[band] += shine * ell[band]
     prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(x0.mean(axis=(0, 2)), 1e-12)
     return _rgb_update(fit, inputs, sigma, prior_sigma).reshape(n_w, n_m, h, w)
 
@@ -538,11 +542,21 @@ def _rgb_rhs(a: np.ndarray, weighted_rgb: np.ndarray, cams: np.ndarray) -> np.nd
 
 def _group_sum(x: np.ndarray, group: np.ndarray, size: int) -> np.ndarray:
     """``(n, size)``: the columns of ``x`` ``(n, shots)`` summed by ``group`` (per shot
-    ``0 .. size - 1``); ufunc sums, not a matrix product (no BLAS threads)."""
+    ``0 .. size - 1``), in the shots' order within a group; ufunc sums, not a matrix product
+    (no BLAS threads). Groups of at most :data:`~..kernels.GROUP_SUM_MEMBERS` shots (a
+    band's shots, an image's) are summed by :func:`~..kernels.group_sums` in one pass over
+    ``x``, the same sums bit for bit as ``numpy.add.reduceat`` over the reordered columns,
+    which sums larger groups."""
+    from ..kernels import GROUP_SUM_MEMBERS, group_sums
+
     order = np.argsort(group, kind="stable")
     g = np.asarray(group)[order]
     starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
     out = np.zeros((x.shape[0], size))
+    indptr = np.r_[starts, g.size]
+    if x.dtype == np.float64 and np.diff(indptr).max(initial=0) <= GROUP_SUM_MEMBERS:
+        group_sums(x, order.astype(np.int64), indptr.astype(np.int64), g[starts].astype(np.int64), out)
+        return out
     out[:, g[starts]] = np.add.reduceat(x[:, order], starts, axis=1)
     return out
 

@@ -204,6 +204,10 @@ def fit_terms(
     :func:`~.material_pooled.material_pooled_refine`."""
     n_w, n_m, h, w = inputs.cube_shape
     n = h * w
+    cube = initial.reshape(n_w, n_m, n)
+    # every texel: the cube itself, transposed in one copy (an index array would copy it
+    # first into a layout whose transpose is slow to gather)
+    x0 = cube.transpose(2, 1, 0) if active is None else cube[:, :, active].transpose(2, 1, 0)
     active = np.arange(n) if active is None else active
     if band_sigma is None:
         band_sigma = band_noise_sigma(inputs)
@@ -217,7 +221,7 @@ def fit_terms(
     shot_band = np.asarray(inputs.band, dtype=np.int64)
     return FitTerms(
         ell=highlight / np.linalg.norm(highlight),
-        x0=np.ascontiguousarray(initial.reshape(n_w, n_m, n)[:, :, active].transpose(2, 1, 0)),
+        x0=np.ascontiguousarray(x0),
         rgb=inputs.rgb.reshape(n_m, n, 3)[:, active].transpose(1, 0, 2).astype(np.float64),
         cams=cams,
         rgb_weight=rgb_weight,

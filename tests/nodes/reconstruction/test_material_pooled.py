@@ -283,3 +283,52 @@ def test_texel_shapes_in_blocks_are_the_one_block_shapes_in_less_memory(monkeypa
     np.testing.assert_allclose(blocked, whole, rtol=1e-12, atol=1e-15 * np.abs(whole).max())
     systems = n * n_w * n_w * 8  # every texel's W x W system in float64
     assert peak < systems / 2, (peak, systems)
+
+
+def _reduceat_group_sum(x, group, size):
+    """The shots' columns summed by group as numpy's ``add.reduceat`` sums them."""
+    order = np.argsort(group, kind="stable")
+    g = np.asarray(group)[order]
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    out = np.zeros((x.shape[0], size))
+    out[:, g[starts]] = np.add.reduceat(x[:, order], starts, axis=1)
+    return out
+
+
+@pytest.mark.parametrize("members", [1, 2, 3, 4, 8, 9, 13])
+def test_group_sums_are_numpys_reduceat_sums_bit_for_bit(members):
+    """A band's or an image's shots summed in one compiled pass: the same sums, bit for bit,
+    as numpy's ``add.reduceat`` over the reordered columns (the set model's results do not
+    change), for groups of any size (larger than the kernel's: numpy's own), any layout."""
+    from spectralize.nodes.reconstruction.estimators.material_pooled import _group_sum
+    from spectralize.nodes.reconstruction.kernels import GROUP_SUM_MEMBERS, group_sums
+
+    rng = np.random.default_rng(members)
+    size = 5
+    group = rng.permutation(np.repeat(np.arange(size - 1), members))  # the last group: empty
+    x = rng.normal(size=(300, group.size)) * rng.uniform(1e-3, 1e3, size=group.size)
+    x[rng.random(x.shape) < 0.1] = 0.0
+    expected = _reduceat_group_sum(x, group, size)
+    for layout in (x, np.asfortranarray(x)):
+        assert np.array_equal(_group_sum(layout, group, size), expected)
+    if members <= GROUP_SUM_MEMBERS:
+        order = np.argsort(group, kind="stable").astype(np.int64)
+        indptr = np.arange(0, group.size + 1, members, dtype=np.int64)
+        out = np.full((x.shape[0], size), 7.0)
+        group_sums(x, order, indptr, np.arange(size - 1, dtype=np.int64), out)
+        assert np.array_equal(out[:, :-1], expected[:, :-1])
+        assert np.all(out[:, -1] == 7.0)  # a column no group goes to is kept
+
+
+def test_fit_terms_of_every_texel_are_those_of_all_texels_named():
+    """The set models' texel-major start ``x0`` of every texel (the cube transposed in one
+    copy) is the one of all texels given by index."""
+    from spectralize.nodes.reconstruction.estimators.shared_texel import fit_terms
+
+    inputs, _, initial, sigma, _ = _two_material_set(3)
+    n = initial.shape[2] * initial.shape[3]
+    every = fit_terms(inputs, initial, LIGHT, 1.0, sigma)
+    named = fit_terms(inputs, initial, LIGHT, 1.0, sigma, np.arange(n))
+    assert every.x0.flags["C_CONTIGUOUS"]
+    for name, value in every._asdict().items():
+        assert np.array_equal(value, getattr(named, name)), name

@@ -261,6 +261,34 @@ def test_band_noise_sigma_is_the_noise_and_not_the_texture():
     assert high_pass > 1.5 * sigma  # the texture is there to be mistaken for noise
 
 
+def test_band_noise_sigma_is_computed_once_per_inputs():
+    """The spectral prior's mixture, its band evidence and the set model each ask for the
+    band noise of the same inputs: it is computed on the first call and kept on the inputs
+    (each caller gets its own copy); new inputs compute their own."""
+    import dataclasses
+
+    from spectralize.nodes.reconstruction.estimators.endmember_mixture import _band_noise_sigma
+
+    rng = np.random.default_rng(3)
+    truth = smooth_spectra(rng, WAVELENGTH, 1)[0][:, None, None] * rng.uniform(0.5, 1.5, (24, 24))
+    rgb, bands, c = _arrays(truth[None], [0])
+    noisy = bands.copy(data=bands.values + rng.normal(scale=0.01, size=bands.shape).astype(np.float32))
+    inputs = inputs_from_xarray(rgb, noisy, c)
+    computed = []
+
+    def counted(given):
+        computed.append(given)
+        return _band_noise_sigma(given)
+
+    first = inputs.cached("band_noise_sigma", counted)
+    first[:] = -1.0  # a caller's copy: the kept value does not change
+    again = band_noise_sigma(inputs)
+    assert computed == [inputs]
+    assert np.array_equal(again, _band_noise_sigma(inputs))
+    changed = dataclasses.replace(inputs, band_data=inputs.band_data * 2.0)
+    np.testing.assert_allclose(band_noise_sigma(changed), 2.0 * again, rtol=1e-6)
+
+
 def _spot_scene(seed: int):
     """One material; a 3 x 3 spot of its metamer (the same RGB, another spectrum) that the
     mixture took for the material: the truth, its noisy band shots, that mixture, the
