@@ -324,9 +324,9 @@ def _band_series_table(
     """The spectral camera's smooth response (:func:`band_series_response`) from the white
     reference's band series ``counts`` (wavelength, spectral_exposure, y, x) and its dark
     frames ``darks`` (shot per exposure), as a response over dark-subtracted codes for
-    :func:`~.linearise`; the frames that enter are those :func:`spectral_flat_field` averages
-    (unsaturated, mean signal at least :data:`MIN_SNR` times the dark ``noise``). None where
-    that fit declines."""
+    :func:`~.linearise`; the frames that enter are those without a saturated pixel whose mean
+    signal is at least :data:`MIN_SNR` times the dark ``noise`` (a hot pixel's block mean is
+    not the light's, so its frame stays out here). None where that fit declines."""
     n_bands = counts.sizes["wavelength"]
     means = variances = sizes = None
     for part, positions, shots in series_pieces(counts, range(times.size)):
