@@ -52,6 +52,7 @@ __all__ = [
     "box_mean_columns",
     "group_sums",
     "GROUP_SUM_MEMBERS",
+    "laplacian_rows",
 ]
 
 _jit = njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
@@ -853,3 +854,92 @@ def group_sums(x, columns, indptr, target, out):  # pragma: no cover - compiled
             for i in range(first + 1, indptr[j + 1]):
                 rest += x[r, columns[i]]
             out[r, target[j]] = x[r, columns[first]] + rest
+
+
+@_jit_exact
+def laplacian_rows(
+    neighbours, ratios, degree, reverse_ptr, reverse_pair, indptr, indices, data
+):  # pragma: no cover
+    """The neighbour Laplacian ``L = diag(degree) - (W + W^T)`` in CSR, ``W[p, N_p[j]] =
+    r_pj``, with scipy's values bit for bit: per entry ``0 - ((0 + sum of W's) + (0 + sum of
+    W^T's))`` (``degree - ...`` on the diagonal), each sum in the order scipy's general CSR
+    sum adds a row's duplicates, entries equal to 0 left out, columns increasing.
+
+    Two passes over the rows: with ``indices`` of size 0 it only counts each row's entries
+    into ``indptr[p + 1]``; then, with ``indptr`` its running sum, it writes them.
+
+    Parameters
+    ----------
+    neighbours, ratios
+        ``(n, k)`` the pairs ``(p, N_p[j])`` and their ``r`` (float64).
+    degree
+        ``(n,)`` float64, the diagonal before ``W + W^T``.
+    reverse_ptr, reverse_pair
+        The pairs ending at each pixel, ``p * k + j`` increasing, pixel ``q``'s at
+        ``reverse_ptr[q]:reverse_ptr[q + 1]``.
+    indptr, indices, data
+        ``(n + 1,)``, then ``(nnz,)`` each: the CSR arrays, written.
+    """
+    n, k = neighbours.shape
+    count_only = indices.shape[0] == 0
+    slot = np.full(n, -1, dtype=np.int64)
+    longest = 1 + k
+    for q in range(n):
+        longest = max(longest, 1 + k + reverse_ptr[q + 1] - reverse_ptr[q])
+    columns = np.empty(longest, dtype=np.int64)
+    own = np.empty(longest)
+    other = np.empty(longest)
+    values = np.empty(longest)
+    for p in range(n):
+        used = 0
+        for j in range(k):  # W's row p, its duplicates summed in order
+            q = neighbours[p, j]
+            if slot[q] < 0:
+                slot[q] = used
+                columns[used] = q
+                own[used] = 0.0
+                other[used] = 0.0
+                used += 1
+            own[slot[q]] += ratios[p, j]
+        for i in range(reverse_ptr[p], reverse_ptr[p + 1]):  # W^T's row p
+            pair = reverse_pair[i]
+            q = pair // k
+            if slot[q] < 0:
+                slot[q] = used
+                columns[used] = q
+                own[used] = 0.0
+                other[used] = 0.0
+                used += 1
+            other[slot[q]] += ratios[q, pair % k]
+        diagonal = slot[p]
+        for e in range(used):
+            slot[columns[e]] = -1
+        kept = 0
+        for e in range(used):  # W + W^T, zeros dropped; then the diagonal minus it
+            total = own[e] + other[e]
+            if total != 0.0:
+                columns[kept] = columns[e]
+                values[kept] = (degree[p] if e == diagonal else 0.0) - total
+                if values[kept] != 0.0:
+                    kept += 1
+            elif e == diagonal and degree[p] != 0.0:
+                columns[kept] = p
+                values[kept] = degree[p]
+                kept += 1
+        if diagonal < 0 and degree[p] != 0.0:
+            columns[kept] = p
+            values[kept] = degree[p]
+            kept += 1
+        if count_only:
+            indptr[p + 1] = kept
+            continue
+        start = indptr[p]
+        for e in range(kept):  # insertion sort by column (a row holds a few entries)
+            column, value = columns[e], values[e]
+            at = start + e
+            while at > start and indices[at - 1] > column:
+                indices[at] = indices[at - 1]
+                data[at] = data[at - 1]
+                at -= 1
+            indices[at] = column
+            data[at] = value

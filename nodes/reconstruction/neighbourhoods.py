@@ -244,22 +244,33 @@ class NeighbourGraph:
     def _assemble_laplacian(self) -> sp.csr_array:
         """``L = D^T D = sum over pairs (e_p - r e_n)(e_p - r e_n)^T``.
 
-        The pairs' weights as a CSR matrix ``W`` with k entries per row, ``L = diag - (W +
-        W^T)``, the diagonal :attr:`degree`: built straight from the neighbour lists (``k``
-        entries per row), without the COO triplets that would cost a tile's set-up time and
-        its peak memory.
+        With the pairs' weights ``W`` (``W[p, N_p[j]] = r``), ``L = diag - (W + W^T)``, the
+        diagonal :attr:`degree`: each row built straight from the pixel's neighbour list
+        and the pairs that end at it, in one compiled pass that counts the rows' entries
+        and one that writes them (:func:`~.kernels.laplacian_rows`; scipy's sums of ``W``,
+        ``W^T`` and the diagonal bit for bit), without the COO triplets or the sparse sums'
+        intermediate matrices that would cost a tile's set-up time and its peak memory.
         """
+        from .kernels import laplacian_rows
+
         n_pixels, k = self.neighbours.shape
-        there = self.neighbours.ravel()
-        weights = sp.csr_array(
-            (self._ratios(), there, np.arange(0, there.size + 1, max(k, 1))[: n_pixels + 1]),
-            shape=(n_pixels, n_pixels),
+        neighbours = np.ascontiguousarray(self.neighbours, dtype=np.int64)
+        ratios = np.ascontiguousarray(self._ratios().reshape(n_pixels, k), dtype=np.float64)
+        ending = neighbours.ravel()  # pair p * k + j ends at N_p[j]
+        reverse_pair = np.argsort(ending, kind="stable")
+        reverse_ptr = np.zeros(n_pixels + 1, dtype=np.int64)
+        np.cumsum(np.bincount(ending, minlength=n_pixels), out=reverse_ptr[1:])
+        degree = np.ascontiguousarray(self.degree, dtype=np.float64)
+        indptr = np.zeros(n_pixels + 1, dtype=np.int64)
+        none = np.empty(0, dtype=np.int64)
+        laplacian_rows(
+            neighbours, ratios, degree, reverse_ptr, reverse_pair, indptr, none, none.astype(self.dtype)
         )
-        laplacian = (sp.diags_array(self.degree, format="csr") - (weights + weights.T)).tocsr()
-        laplacian = laplacian.astype(self.dtype)
-        laplacian.sum_duplicates()
-        laplacian.sort_indices()
-        return laplacian
+        np.cumsum(indptr, out=indptr)
+        indices = np.empty(int(indptr[-1]), dtype=np.int64)
+        data = np.empty(int(indptr[-1]), dtype=self.dtype)
+        laplacian_rows(neighbours, ratios, degree, reverse_ptr, reverse_pair, indptr, indices, data)
+        return sp.csr_array((data, indices, indptr), shape=(n_pixels, n_pixels))
 
     @property
     def difference_operator(self) -> sp.csr_array:
