@@ -15,9 +15,11 @@ result). The LAST line is one JSON object, also written to
 ``--profile`` instead profiles one interior 256 px tile of the 512^2 capture mirrored to
 768^2 (``solve_tile`` as the flow calls it: the set's endmembers, the confidence, the run's
 illuminant), before and after, each in a fresh process under cProfile timed in CPU seconds
-(the process's, not the wall clock's: other work on a shared machine shows less in it): the
-cumulative seconds of the tile's stages (:data:`TILE_SECTIONS`), its resident peak, whether
-both sides' spectra and confidence are bit-identical, and both sides' 128^2 accuracy;
+(the process's, not the wall clock's: other work on a shared machine shows less in it; its
+user and system parts apart, the system part mostly the kernel's page faults on fresh
+memory): the cumulative seconds of the tile's stages (:data:`TILE_SECTIONS`), its resident
+peak, whether both sides' spectra and confidence are bit-identical, and both sides' 128^2
+accuracy;
 stored under the key ``profile_256`` of the same file (the other rows are kept).
 ``--after-commit REV`` takes the "after" side from a worktree of ``REV`` too, instead of
 this checkout (a comparison of two commits while the checkout holds other work).
@@ -115,7 +117,7 @@ def profile_tile_case(folder: str, package: str | None, keep: str | None = None)
     _warm_training()
     oy, ox = window.outer
     profile = cProfile.Profile(time.process_time)
-    started, cpu_started = time.perf_counter(), time.process_time()
+    started, cpu_started, times = time.perf_counter(), time.process_time(), os.times()
     with _as_a_run():
         profile.enable()
         spectra, iterations, spread = solve_tile(
@@ -129,6 +131,7 @@ def profile_tile_case(folder: str, package: str | None, keep: str | None = None)
         )
         profile.disable()
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
+    done = os.times()
     if keep:  # the tile's results, for the other side to compare with
         np.savez(keep, spectra=spectra, confidence=spread)
     sections: dict[str, float] = {}
@@ -141,6 +144,8 @@ def profile_tile_case(folder: str, package: str | None, keep: str | None = None)
         "window": list(window.outer_shape),
         "wall_s": round(wall, 2),
         "cpu_s": round(cpu, 2),
+        "user_s": round(done.user - times.user, 2),  # the CPU seconds: the code's own
+        "system_s": round(done.system - times.system, 2),  # and the kernel's (page faults)
         "iterations": int(iterations.max()),
         "peak_rss_gb": round(resident_gb(), 3),
         "load_average_1min": round(os.getloadavg()[0], 1),
@@ -223,6 +228,8 @@ def profile_tile(args: argparse.Namespace, report: dict) -> None:
         "command": report["command"],
         "bit_identical": identical,
         "cpu_ratio": round(before["cpu_s"] / after["cpu_s"], 3),
+        "user_ratio": round(before["user_s"] / after["user_s"], 3),
+        "system_ratio": round(before["system_s"] / max(after["system_s"], 0.01), 3),
         "before": before,
         "after": after,
         "sections": [
