@@ -467,7 +467,9 @@ reason (the measurements: ``benchmarks/results/reconstruction.json``):
     Each texel's materials chosen over all images of its set: with a run's library pooled
     from several sets (``endmembers``) a lower median than the default on the woven,
     halftone and glossy sets, but a higher p95 on most; not the default for that, and for
-    needing a library better than one set gives.
+    needing a library better than one set gives. Its ``context`` options (off by default)
+    let each texel's RGB-similar neighbours add their evidence and their chosen endmembers
+    to its choice.
 
 The default's ``set_model`` is ``"material-pooled"``: a set of more than one image given
 the illuminant is refitted with one spectral shape per material (:data:`SET_MODELS`; better

@@ -95,10 +95,16 @@ DEFAULT_SUPPORT_PENALTY = 30.0
 DEFAULT_CONTEXT_RADIUS = 2
 """Half-width of the window a texel's RGB-similar neighbours come from."""
 
-DEFAULT_CONTEXT_BANDWIDTH = 1.0
-"""Non-local means' bandwidth of the neighbours' weights, in units of the RGB distance."""
+DEFAULT_CONTEXT_BANDWIDTH = 30.0
+"""Non-local means' bandwidth of the neighbours' weights, in units of the RGB distance (the
+RGB misfit per value in units of its noise and model error: neighbours of one material in
+different fractions or shading are tens of units apart)."""
 
-CONTEXT_TERMS = ("band", "rgb+band", "band-sum")
+
+DEFAULT_CANDIDATE_PENALTY = 100.0
+"""Further cost of an endmember a texel's neighbours offered, in units of chi^2."""
+
+CONTEXT_TERMS = ("band", "rgb+band", "band-sum", "none")
 """What a texel's support costs pool from its neighbours."""
 
 RGB_NOISE = 0.004
@@ -335,7 +341,9 @@ def _context_costs(
     (``terms="band"``; the texel's own RGB cost is added unpooled) or of both chi^2
     (``"rgb+band"``), so the penalty per atom keeps its scale; ``"band-sum"`` adds the
     neighbours' band chi^2 to the texel's own cost unnormalised (the neighbours' shots as
-    more evidence of the texel's materials, weighing the bands more against the RGB).
+    more evidence of the texel's materials, weighing the bands more against the RGB);
+    ``"none"`` keeps the texel's own costs (the neighbours only offer candidates:
+    :func:`neighbour_candidates`).
     """
     subsets, children = _subsets(candidates.shape[1], int(max_support))
 
@@ -350,6 +358,8 @@ def _context_costs(
         return rgb_total, band_total
 
     own_rgb, own_band = summed(evidence)
+    if terms == "none":
+        return own_rgb + own_band, subsets
     pooled_rgb, pooled_band, total_weight = own_rgb.copy(), own_band.copy(), np.ones(candidates.shape[0])
     for k in range(index.shape[1]):
         rgb_cost, band_cost = summed(evidence.at(index[:, k]))
@@ -370,6 +380,9 @@ def neighbour_candidates(
     index: np.ndarray,
     weight: np.ndarray,
     extra: int,
+    *,
+    min_weight: float = 0.0,
+    fill: bool = True,
 ) -> np.ndarray:
     """Each texel's ``count`` own candidates, then ``extra`` endmembers its RGB-similar
     neighbours chose, then the highlight atom, ``(n_texel, count + extra + 1)``.
@@ -388,13 +401,17 @@ def neighbour_candidates(
         theirs = support[index[:, k]]
         for s in range(theirs.shape[1]):
             new = (theirs[:, s : s + 1] != theirs[:, :s]).all(axis=1)
-            score[rows[:, 0], theirs[:, s]] += np.where(new, weight[:, k], 0.0)
-    fill = ranked[:, count:-1]
-    tiny = 1e-200 * (fill.shape[1] - np.arange(fill.shape[1]))
-    score[rows, fill] = np.maximum(score[rows, fill], tiny)
+            similar = new & (weight[:, k] >= min_weight)
+            score[rows[:, 0], theirs[:, s]] += np.where(similar, weight[:, k], 0.0)
+    spare = ranked[:, count:-1]
+    if fill:
+        tiny = 1e-200 * (spare.shape[1] - np.arange(spare.shape[1]))
+        score[rows, spare] = np.maximum(score[rows, spare], tiny)
     score[rows, ranked[:, :count]] = -np.inf
     score[:, light] = -np.inf
-    picked = np.argsort(-score, axis=1, kind="stable")[:, :extra]
+    order = np.argsort(-score, axis=1, kind="stable")[:, :extra]
+    offered = np.take_along_axis(score, order, axis=1) > 0
+    picked = np.where(offered, order, ranked[:, :1])
     return np.hstack([ranked[:, :count], picked, ranked[:, -1:]])
 
 
@@ -403,11 +420,18 @@ def _choose(
     costs: tuple[np.ndarray, list[tuple[int, ...]]],
     penalty: float,
     max_support: int,
+    borrowed: tuple[range, float] = (range(0), 0.0),
 ) -> np.ndarray:
-    """Step 3: each texel's support of least cost plus penalty (:func:`_chosen_support`)."""
+    """Step 3: each texel's support of least cost plus penalty (:func:`_chosen_support`);
+    ``borrowed``: the candidate positions a texel's neighbours offered and the further cost
+    of each in a support."""
     cost, subsets = costs
     size = np.array([len(s) for s in subsets], dtype=np.float64)
-    choice = np.argmin(cost + float(penalty) * size[:, None], axis=0)
+    total = cost + float(penalty) * size[:, None]
+    if borrowed[1]:
+        lent = np.array([sum(p in borrowed[0] for p in s) for s in subsets], dtype=np.float64)
+        total = total + borrowed[1] * lent[:, None]
+    choice = np.argmin(total, axis=0)
     return _chosen_support(candidates, subsets, choice, max_support)
 
 
@@ -455,8 +479,9 @@ def sparse_choice(
     context: int = 0,
     context_radius: int = DEFAULT_CONTEXT_RADIUS,
     context_bandwidth: float = DEFAULT_CONTEXT_BANDWIDTH,
-    context_terms: str = "band",
+    context_terms: str = "band-sum",
     context_candidates: int = 0,
+    context_candidate_penalty: float = DEFAULT_CANDIDATE_PENALTY,
     seed: int = 0,
 ) -> np.ndarray:
     """Spectra of a set whose texels choose their materials over all images (module docstring).
@@ -490,12 +515,16 @@ def sparse_choice(
         context_bandwidth)``.
     context_terms
         What the neighbours' costs add: ``"band"`` (their band chi^2, averaged with the
-        texel's), ``"rgb+band"`` (both chi^2, averaged) or ``"band-sum"`` (their band chi^2,
-        summed onto the texel's cost).
+        texel's), ``"rgb+band"`` (both chi^2, averaged), ``"band-sum"`` (their band chi^2,
+        summed onto the texel's cost) or ``"none"`` (nothing: with ``context_candidates``
+        the neighbours only offer candidates).
     context_candidates
         Endmembers added to each texel's candidates from the supports its RGB-similar
         neighbours chose in a first pass (:func:`neighbour_candidates`), then chosen again;
         needs ``context``.
+    context_candidate_penalty
+        Further cost, in chi^2 units, of each such borrowed endmember in a support: the
+        texel's own evidence must favour it clearly over its own candidates.
     seed
         Seed of a library learnt here.
 
@@ -525,13 +554,15 @@ def sparse_choice(
         int(context) < 0
         or int(context_radius) < 1
         or context_bandwidth <= 0
+        or context_candidate_penalty < 0
         or int(context_candidates) < 0
         or (int(context_candidates) > 0 and int(context) == 0)
     ):
         raise ReconstructionError(
-            "sparse-choice: expected context >= 0, context_radius >= 1, context_bandwidth > 0 "
-            "and context_candidates >= 0 (> 0 only with context), found "
-            f"{context}, {context_radius}, {context_bandwidth}, {context_candidates}"
+            "sparse-choice: expected context >= 0, context_radius >= 1, context_bandwidth > 0, "
+            "context_candidates >= 0 (> 0 only with context) and context_candidate_penalty >= 0, "
+            f"found {context}, {context_radius}, {context_bandwidth}, {context_candidates}, "
+            f"{context_candidate_penalty}"
         )
     if context_terms not in CONTEXT_TERMS:
         raise ParameterError.single("context_terms", f"one of {CONTEXT_TERMS}", repr(context_terms))
@@ -558,7 +589,8 @@ def sparse_choice(
             pooled = _context_costs(
                 evidence, inputs, atoms, near, *setting, index, weight, context_terms
             )
-            support = _choose(near, pooled, penalty, int(max_support))
+            lent = (range(own, own + extra), float(context_candidate_penalty))
+            support = _choose(near, pooled, penalty, int(max_support), lent)
     else:
         near = dichromatic_candidates(atoms_rgb, rgb, variance, candidates)
         costs = support_costs(

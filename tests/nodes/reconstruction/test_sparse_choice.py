@@ -166,3 +166,15 @@ def test_neighbour_candidates_add_the_atoms_the_neighbours_chose():
     # where the neighbours offer fewer than asked, the texel's own next ranks fill the places
     few = neighbour_candidates(ranked, 2, np.zeros((3, 2), dtype=int), index, weight, 2)
     assert few[0].tolist() == [0, 1, 2, 3, 6] and few[1].tolist() == [2, 3, 0, 1, 6]
+
+
+def test_borrowed_endmembers_pay_the_candidate_penalty(woven):
+    _, inputs, library, _ = woven
+    settings = {"endmembers": library, "candidates": 2, "context": 2, "context_radius": 1}
+    first = sparse_choice(inputs, **settings)
+    free = sparse_choice(inputs, **settings, context_candidates=2, context_candidate_penalty=0.0)
+    barred = sparse_choice(inputs, **settings, context_candidates=2, context_candidate_penalty=1e12)
+    # free, the neighbours' endmembers change some texels' choice; at a prohibitive cost none
+    # is taken and the choice is the first pass's
+    assert not np.array_equal(free, first)
+    np.testing.assert_array_equal(barred, first)
