@@ -303,13 +303,13 @@ def rgb_similar_neighbours(
     offsets = [
         (dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1) if dy or dx
     ]
-    distance = np.full((len(offsets), height, width), np.inf)
+    grid = np.full((len(offsets), height, width), np.inf)
     for o, (dy, dx) in enumerate(offsets):
         here = (slice(max(-dy, 0), height - max(dy, 0)), slice(max(-dx, 0), width - max(dx, 0)))
         there = (slice(max(dy, 0), height + min(dy, 0)), slice(max(dx, 0), width + min(dx, 0)))
         misfit = ((r[:, here[0], here[1]] - r[:, there[0], there[1]]) ** 2).mean(-1)
-        distance[o][here] = (misfit / (v[:, here[0], here[1]] + v[:, there[0], there[1]])).mean(0)
-    distance = distance.reshape(len(offsets), -1)
+        grid[o][here] = (misfit / (v[:, here[0], here[1]] + v[:, there[0], there[1]])).mean(0)
+    distance = grid.reshape(len(offsets), -1)
     count = min(int(count), len(offsets))
     nearest = np.argsort(distance, axis=0, kind="stable")[:count].T  # (texel, count)
     step = np.array([dy * width + dx for dy, dx in offsets])
