@@ -25,7 +25,10 @@ choice is made per texel over all images of the set:
    cuts the pooling; :func:`rgb_similar_neighbours`).
 3. **Choice**: ``argmin_T rgb_cost + band_cost + penalty |T|``. Four atoms fit three RGB
    equations in many ways; the size penalty keeps the sparsest support that the evidence
-   allows (the Bayesian information criterion's form).
+   allows (the Bayesian information criterion's form). With ``context_candidates`` the
+   endmembers the texel's RGB-similar neighbours chose join its candidates (a material its
+   own dichromatic fits miss, :func:`neighbour_candidates`), each at a further cost
+   ``context_candidate_penalty`` in a support, and steps 2 and 3 run again.
 4. Per image the abundances on the chosen support from its RGB (non-negative least squares,
    :func:`~.endmember_mixture.rgb_abundances`), the mixture projected onto ``C S = R`` and
    ``S >= 0``.
