@@ -396,6 +396,8 @@ def neighbour_candidates(
     neighbours chose, weighted, rank the extra candidates (an atom a texel misses by its own
     RGB, such as a thin material whose colour its neighbours show better); where the
     neighbours offer fewer, the texel's own next-ranked endmembers fill the places.
+    ``min_weight``: neighbours of less weight offer nothing; ``fill=False``: places left
+    over repeat the texel's first candidate (a repeated atom adds no support) instead.
     """
     n_texel, light = ranked.shape[0], int(ranked[0, -1])
     rows = np.arange(n_texel)[:, None]
