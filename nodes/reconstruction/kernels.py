@@ -856,6 +856,19 @@ def group_sums(x, columns, indptr, target, out):  # pragma: no cover - compiled
             out[r, target[j]] = x[r, columns[first]] + rest
 
 
+@_jit_inline
+def _row_slot(q, slot, columns, own, other, used):
+    """Give column ``q`` a place in the row being assembled if it has none (its sums from
+    zero); returns the number of places used."""
+    if slot[q] < 0:
+        slot[q] = used
+        columns[used] = q
+        own[used] = 0.0
+        other[used] = 0.0
+        return used + 1
+    return used
+
+
 @_jit_exact
 def laplacian_rows(
     neighbours, ratios, degree, reverse_ptr, reverse_pair, indptr, indices, data
@@ -894,22 +907,12 @@ def laplacian_rows(
         used = 0
         for j in range(k):  # W's row p, its duplicates summed in order
             q = neighbours[p, j]
-            if slot[q] < 0:
-                slot[q] = used
-                columns[used] = q
-                own[used] = 0.0
-                other[used] = 0.0
-                used += 1
+            used = _row_slot(q, slot, columns, own, other, used)
             own[slot[q]] += ratios[p, j]
         for i in range(reverse_ptr[p], reverse_ptr[p + 1]):  # W^T's row p
             pair = reverse_pair[i]
             q = pair // k
-            if slot[q] < 0:
-                slot[q] = used
-                columns[used] = q
-                own[used] = 0.0
-                other[used] = 0.0
-                used += 1
+            used = _row_slot(q, slot, columns, own, other, used)
             other[slot[q]] += ratios[q, pair % k]
         diagonal = slot[p]
         for e in range(used):
