@@ -228,7 +228,7 @@ RECOVER_SPECTRAL_OECF = Node(
 
 CALIBRATE_SPECTRAL = Node(
     name="calibrate_spectral",
-    version="10",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
+    version="11",  # 3: C, its map onto the paired camera and the cross-check per RGB camera;
     # 4: C held to zero where the targets had little light (weak_light); 5: the measured
     # illuminant L on the band wavelengths (illuminant), which set_model 'shared-texel' reads;
     # 6: the targets' RGB series saturated at each camera's saturation (calibration/oecf_rgb);
@@ -237,7 +237,8 @@ CALIBRATE_SPECTRAL = Node(
     # mean of its channels' maps); 9: the RGB flat field through the white reference's own
     # smooth response, fitted jointly with it (flat_field_response); 10: each band's flat
     # field through one smooth spectral response fitted on the band series by the exposures'
-    # ratios (band_series_response), not the recovered spectral OECF
+    # ratios (band_series_response), not the recovered spectral OECF; 11: the bands' flat
+    # fields smoothed across wavelength, weighted by their noise floors (smooth_across_bands)
     function=calibrate_spectral,
     inputs={
         "white_reference": "raw/white_reference",

@@ -21,7 +21,8 @@ series through one smooth response fitted on the ratios between its exposures.
   its own smooth response.
 - :func:`spectral_flat_field`: the spectral camera's map per band from the white
   reference's band series (dark subtracted, linearised through one smooth response fitted
-  on the series itself, time-weighted over the exposures).
+  on the series itself, time-weighted over the exposures), smoothed across the bands in
+  wavelength (:func:`~.smooth_across_bands`).
 - :func:`flat_field_variables`: the maps' variables of ``calibration/spectral``.
 
 Why a polynomial, not a Gaussian filter: falloff is smooth across the whole frame and
@@ -62,6 +63,7 @@ from spectralize.nodes.calibration.camera_matrices import (
 from spectralize.nodes.calibration.dark import dark_frames_at
 from spectralize.nodes.calibration.exposure_series import target_spectral_series
 from spectralize.nodes.calibration.flat_field_maps import (
+    BAND_BANDWIDTH,
     BLOCKS,
     DEGREE,
     FlatField,
@@ -70,6 +72,7 @@ from spectralize.nodes.calibration.flat_field_maps import (
     flat_field_basis,
     from_calibration,
     legendre_powers,
+    smooth_across_bands,
 )
 from spectralize.nodes.calibration.flat_field_response import (
     band_block_statistics,
@@ -202,6 +205,7 @@ def spectral_flat_field(
     oecf_spectral: xr.Dataset | None,
     *,
     own_response: bool = True,
+    bandwidth: float = BAND_BANDWIDTH,
 ) -> tuple[FlatField, list[FlatFieldFit]]:
     """The spectral camera's flat field per band from the white reference's band series.
 
@@ -216,7 +220,10 @@ def spectral_flat_field(
     (:func:`~spectralize.nodes.calibration.flat_field_response.band_series_response`: the
     camera's recovered OECF ripples where its samples are few, and a ripple over the codes
     between a band's centre and its corners reads as falloff), with ``own_response`` false
-    (or where that fit has too few blocks) ``oecf_spectral``. Read in the pieces of
+    (or where that fit has too few blocks) ``oecf_spectral``. The bands' maps are then fitted
+    as a smooth function of wavelength (:func:`~.smooth_across_bands`, a Gaussian kernel of
+    ``bandwidth`` nm; 0: each band its own map): the white reference gives the bands at the
+    ends of the range little light, and their own maps are noisy. Read in the pieces of
     :func:`~.series_pieces`: a batch of bands (one band of a large sensor) and the dark
     frames are in memory at a time (the series read twice with ``own_response``).
 
@@ -292,7 +299,8 @@ def spectral_flat_field(
                 coefficients.append(fit.coefficients)
                 fits.append(fit)
     wavelengths = np.asarray(counts["wavelength"].values, dtype=float)
-    return FlatField(np.stack(coefficients), legendre_powers(), frame, wavelengths), fits
+    smoothed, fits = smooth_across_bands(np.stack(coefficients), fits, wavelengths, bandwidth=bandwidth)
+    return FlatField(smoothed, legendre_powers(), frame, wavelengths), fits
 
 
 def _entering_pixels(codes: np.ndarray, dark_mean: np.ndarray, top: int) -> np.ndarray | None:

@@ -6,6 +6,9 @@
 - :class:`FlatField`: the fitted maps of one camera per row (RGB cameras, per channel) or
   of one spectral band per row, and :meth:`FlatField.divide`, which takes them out of
   images or band shots block by block (lazy stays lazy; the maps are never stored whole).
+- :func:`smooth_across_bands`: the spectral camera's per-band maps, each a local linear fit
+  over its neighbouring bands in wavelength weighted by their noise floors (a weak band
+  borrows the falloff of its better-lit neighbours).
 - :func:`from_calibration`: the maps stored in ``calibration/spectral``.
 
 Nothing of the calibration's other modules is imported here, so that the HDR merge, the band
@@ -21,7 +24,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import dask.array as da
 import numpy as np
@@ -40,6 +43,8 @@ __all__ = [
     "legendre_powers",
     "flat_field_basis",
     "fit_flat_field",
+    "BAND_BANDWIDTH",
+    "smooth_across_bands",
     "from_calibration",
 ]
 
@@ -52,6 +57,10 @@ BLOCKS = 32
 OUTLIER_SIGMAS = 5.0
 """Blocks further than this many robust standard deviations from the first fit are left out
 of the second (a shadow or a smudge does not bend the map)."""
+
+BAND_BANDWIDTH = 30.0
+"""Standard deviation [nm] of the Gaussian kernel in wavelength over which
+:func:`smooth_across_bands` fits each band's map from its neighbours'."""
 
 
 def legendre_powers(degree: int = DEGREE) -> np.ndarray:
@@ -198,6 +207,68 @@ def fit_flat_field(frame: np.ndarray, *, degree: int = DEGREE, blocks: int = BLO
         gradient=float(np.abs(design @ (coefficients * odd)).max()),
         corner=float(corner_values[np.argmax(np.abs(corner_values - 1.0))]),
     )
+
+
+def smooth_across_bands(
+    coefficients: np.ndarray,
+    fits: list[FlatFieldFit],
+    wavelengths: np.ndarray,
+    *,
+    bandwidth: float = BAND_BANDWIDTH,
+) -> tuple[np.ndarray, list[FlatFieldFit]]:
+    """The spectral camera's per-band maps fitted as a smooth function of wavelength.
+
+    A lens's falloff and a tunable filter's off-axis loss change slowly with the wavelength,
+    while the white reference's light does not: the bands at the ends of the range get a
+    small share of it, and each one's own map is noisy there. Each band's coefficients (and
+    so its map at every pixel, the maps being linear in them) are replaced by the value at
+    its wavelength of a local linear fit over the bands, weighted least squares with weights
+    ``exp(-(lambda_j - lambda_k)^2 / (2 h^2)) / sigma_j^2`` (``sigma_j`` band ``j``'s noise
+    floor, :attr:`FlatFieldFit.noise`; ``h`` the ``bandwidth``): a well-lit band keeps
+    nearly its own map, up to the noise its neighbours average out, a weak one takes the
+    falloff its better-lit neighbours trace towards it. The fit reproduces a map that is
+    the same at every band, so each map stays 1 at the frame centre.
+
+    Parameters
+    ----------
+    coefficients
+        (band, term) each band's Legendre coefficients (:func:`fit_flat_field`).
+    fits
+        (band,) each band's :class:`FlatFieldFit`.
+    wavelengths
+        (band,) the bands' wavelengths [nm].
+    bandwidth
+        Standard deviation of the kernel [nm]; 0 leaves every band its own map.
+
+    Returns
+    -------
+    tuple
+        (band, term) the smoothed coefficients, and the fits with :attr:`FlatFieldFit.noise`
+        the smoothed map's (``sqrt(sum_j L_kj^2 sigma_j^2)``, ``L`` the fit's weights; the
+        evenness measures stay the band's own frame's).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and eq. 5.
+    .. [2] W. S. Cleveland, S. J. Devlin, "Locally weighted regression: an approach to
+       regression analysis by local fitting", Journal of the American Statistical
+       Association 83(403), 1988.
+    """
+    wavelengths = np.asarray(wavelengths, dtype=np.float64)
+    if not bandwidth > 0 or np.unique(wavelengths).size < 2:
+        return coefficients, fits
+    noise = np.maximum(np.array([f.noise for f in fits], dtype=np.float64), 1e-9)
+    smoother = np.empty((wavelengths.size, wavelengths.size))
+    for k, centre in enumerate(wavelengths):
+        offset = (wavelengths - centre) / bandwidth
+        weight = np.exp(-0.5 * offset**2) / noise**2
+        design = np.stack([np.ones_like(offset), offset], axis=1)
+        normal = design.T @ (weight[:, None] * design)
+        smoother[k] = np.linalg.solve(normal, design.T * weight)[0]  # the fit's value at k
+    smoothed = [
+        replace(f, noise=float(np.sqrt(np.sum(smoother[k] ** 2 * noise**2)))) for k, f in enumerate(fits)
+    ]
+    return smoother @ coefficients, smoothed
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from spectralize.nodes.calibration.flat_field import (
     rgb_flat_field,
     spectral_flat_field,
 )
+from spectralize.nodes.calibration.flat_field_maps import smooth_across_bands
 from spectralize.nodes.calibration.hdr import merge_hdr
 from spectralize.nodes.calibration.result_checks import flat_field_warnings
 from spectralize.schemas import CalibrationError
@@ -340,3 +341,43 @@ def test_a_hot_pixel_saturated_by_its_dark_current_keeps_the_longest_exposure():
     bright["spectral_counts"][1, -1, NY // 2, NX // 2] = 4095
     _, bright_fits = spectral_flat_field(bright, darks, None)
     assert bright_fits[1].noise == pytest.approx(dropped_fits[1].noise, rel=0.01)
+
+
+def test_the_weak_end_bands_borrow_their_falloff_from_their_neighbours():
+    # a band series whose end bands get under 1 % of the others' light: each band's own map
+    # is noisy there; fitted as a smooth function of wavelength, weighted by each band's
+    # noise floor, every band is within half a per cent away from the border
+    rng = np.random.default_rng(1)
+    wavelengths = np.arange(450.0, 520.0, 10.0)
+    corner = 0.75 - 0.1 * (wavelengths - wavelengths.mean()) / 30  # 0.85 .. 0.65
+    truth = 1.0 / (1.0 + (corner[:, None, None] ** -0.5 - 1.0) * R2) ** 2
+    light = np.array([0.008, 1, 1, 1, 1, 1, 0.008])
+    times = np.array([0.01, 0.02, 0.06, 0.12])
+    signal = light[:, None, None, None] * truth[:, None] * times[None, :, None, None] * 3e4
+    counts = np.round(signal + 100 + rng.normal(0, 2, signal.shape))
+    white = xr.Dataset(
+        {
+            "spectral_counts": (
+                ("wavelength", "spectral_exposure", "y", "x"),
+                np.clip(counts, 0, 4095).astype(np.uint16),
+            )
+        },
+        coords={"wavelength": wavelengths, "spectral_exposure_time": ("spectral_exposure", times)},
+        attrs={"spectral_bit_depth": 12},
+    )
+    errors, noise = {}, {}
+    for bandwidth in (0.0, 30.0):
+        flat, fits = spectral_flat_field(white, dark_frames(times), None, bandwidth=bandwidth)
+        errors[bandwidth] = np.array(
+            [np.abs(flat.maps([r])[0] / truth[r] - 1)[INNER].max() for r in range(wavelengths.size)]
+        )
+        noise[bandwidth] = np.array([f.noise for f in fits])
+        np.testing.assert_allclose(
+            flat.maps(range(wavelengths.size))[:, NY // 2, NX // 2], 1, atol=0.002
+        )
+    assert errors[0.0][[0, -1]].min() > 0.01 and errors[30.0].max() < 0.005, errors
+    assert np.all(noise[30.0][[0, -1]] < 0.1 * noise[0.0][[0, -1]])
+    # a map the same at every band stays that map
+    same = np.repeat(fit_flat_field(falloff(0.7)).coefficients[None], wavelengths.size, axis=0)
+    smoothed, _ = smooth_across_bands(same, fits, wavelengths)
+    np.testing.assert_allclose(smoothed, same, atol=1e-12)
