@@ -231,7 +231,7 @@ def spectral_flat_field(
     -------
     tuple
         The :class:`FlatField` (rows: the bands, (wavelength, term)) and the
-        :class:`FlatFieldFit` of every band.
+        :class:`FlatFieldFit` of every band (its noise floor the smoothed map's).
 
     Raises
     ------
