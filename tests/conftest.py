@@ -24,9 +24,8 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 #: follow in collection order; a stale list only costs balance, never a test.
 LONG_MODULES = (
     "flows/test_safety_corpus.py",
-    "test_packaging.py",
     "notebooks/test_notebook.py",
-    "flows/test_cli.py",
+    "test_packaging.py",
     "flows/test_foreign_capture.py",
     "flows/test_store_safety.py",
     "flows/test_resume_after_kill.py",
@@ -40,6 +39,7 @@ LONG_MODULES = (
     "flows/test_node_listing.py",
     "flows/test_dask_worker_loss.py",
     "flows/test_cli_fast.py",
+    "flows/test_cli.py",
     "flows/ingest/test_write.py",
     "nodes/reconstruction/test_endmember_library.py",
     "store/test_staging.py",

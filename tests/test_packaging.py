@@ -11,6 +11,7 @@ import sys
 import sysconfig
 import tomllib
 import zipfile
+from dataclasses import dataclass
 from importlib.metadata import Distribution, distributions, version
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import pytest
 from packaging.requirements import Requirement
 
 import spectralize
+from spectralize.store import RunStore
 
 ROOT = Path(__file__).resolve().parents[1]
 ROOMS = ("schemas", "store", "engine", "nodes", "datasets", "flows")
@@ -150,32 +152,48 @@ def _link(site: Path, target: Path, wanted: set[tuple[str, ...]], others: set[tu
             _link(site / name, target / name, mine - {()}, theirs - {()})
 
 
-@pytest.mark.slow
-def test_wheel_installs_into_a_clean_environment_and_runs_a_flow(wheel, prefect_api, tmp_path):
+@dataclass
+class Installed:
+    """The wheel installed into a new environment, and how to run its command line."""
+
+    venv: Path
+    site: Path  # its site-packages
+    unmet: list[str]  # the wheel's requirements this environment's versions miss
+    env: dict[str, str]  # the environment of its commands: none of the suite's Prefect settings
+    work: Path  # their working folder
+
+    def run(self, *args: str, api: str | None = None, timeout: int = 300, **env: str):
+        """``spectralize *args`` of the new environment, with ``env`` added to its variables;
+        with ``api``, on that Prefect API, else on its own embedded one, as a user's first run."""
+        if api is not None:
+            env["PREFECT_API_URL"] = api
+        return subprocess.run(
+            [str(self.venv / "bin" / "spectralize"), *args],
+            cwd=self.work,
+            env={**self.env, **env},
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+        )
+
+
+@pytest.fixture(scope="module")
+def installed(wheel, tmp_path_factory) -> Installed:
     """The wheel installed alone (no checkout on the path) into an environment that holds only
-    what its metadata requires: every node loads and the demo flow runs on the tiny recipe.
+    what its metadata requires.
 
     The requirements are not downloaded again: the environment gets links to this one's
-    installed copies of the wheel's requirements, followed transitively, each checked against
-    the wheel's version ranges; nothing else of this environment (the test tools, the
-    checkout's editable install) is linked, so a missing requirement still fails the flow.
-    The demo runs on the session's Prefect API (no embedded server to start: the first demo
-    of tests/flows/test_cli.py runs on its own one).
+    installed copies of the wheel's requirements, followed transitively from the wheel's own
+    metadata; nothing else of this environment (the test tools, the checkout's editable
+    install) is linked, so a requirement missing from the metadata still fails the flow.
     """
-    from prefect.settings import PREFECT_API_URL
-
-    requires = _wheel_requirements(wheel)
-    assert any(line.startswith("prefect") for line in requires)  # the metadata is the wheel's
+    root = tmp_path_factory.mktemp("installed")
     site = Path(sysconfig.get_paths()["purelib"])
-    needed, unmet = _requirement_closure(requires, site)
-    assert unmet == []
-    assert "spectralize" not in needed and "pytest" not in needed
-
-    venv = tmp_path / "venv"
+    needed, unmet = _requirement_closure(_wheel_requirements(wheel), site)
+    venv = root / "venv"
     # without pip of its own: this pip installs into it (``--python``), as the installer only;
     # the new environment sees none of this one's packages but the linked requirements
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=300)
-    python = venv / "bin" / "python"
     (venv_site,) = venv.glob("lib/python*/site-packages")
     others = [d for d in distributions(path=[str(site)]) if _key(d.metadata["Name"]) not in needed]
     _link(site, venv_site, _files(needed.values()), _files(others))
@@ -185,7 +203,7 @@ def test_wheel_installs_into_a_clean_environment_and_runs_a_flow(wheel, prefect_
             "-m",
             "pip",
             "--python",
-            str(python),
+            str(venv / "bin" / "python"),
             "install",
             "--quiet",
             "--no-compile",
@@ -199,25 +217,40 @@ def test_wheel_installs_into_a_clean_environment_and_runs_a_flow(wheel, prefect_
         timeout=600,
     )
     assert install.returncode == 0, install.stderr[-3000:]
-
-    work = tmp_path / "work"
-    work.mkdir()
     env = {
         k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "PREFECT_", "VIRTUAL_ENV"))
     }
-    env["PREFECT_HOME"] = str(tmp_path / "prefect")
-    env["PREFECT_API_URL"] = PREFECT_API_URL.value()
-    env["SPECTRALIZE_CACHE_DIR"] = str(tmp_path / "cache")
+    env["PREFECT_HOME"] = str(root / "prefect")
+    env["SPECTRALIZE_CACHE_DIR"] = str(root / "cache")
+    (root / "work").mkdir()
+    return Installed(venv, venv_site, unmet, env, root / "work")
 
+
+@pytest.fixture(scope="module")
+def first_demo(installed):
+    """``spectralize demo`` of the installed wheel on the tiny recipe, as a user runs it first:
+    on its own embedded Prefect server. Run once for the module: the tests below read its
+    output and its store (the demo run is the longest command of the suite)."""
+    return installed.run("demo", "--set", "simulate.recipe=tiny", timeout=900)
+
+
+@pytest.mark.slow
+def test_wheel_installs_into_a_clean_environment_and_runs_a_flow(wheel, installed, first_demo, tmp_path):
+    """pip install of the wheel alone (no checkout on the path), into an environment of only
+    its requirements, each in its version range: every node loads and the demo flow runs on
+    the tiny recipe."""
+    requires = _wheel_requirements(wheel)
+    assert any(line.startswith("prefect") for line in requires)  # the metadata is the wheel's
+    assert installed.unmet == []
     where = subprocess.run(
         [
-            str(python),
+            str(installed.venv / "bin" / "python"),
             "-c",
             "import importlib.util, spectralize, spectralize.flows; print(spectralize.__version__, "
             "spectralize.__file__, spectralize.flows.__file__, importlib.util.find_spec('pytest'))",
         ],
-        cwd=work,
-        env=env,
+        cwd=installed.work,
+        env=installed.env,
         capture_output=True,
         text=True,
         timeout=120,
@@ -225,26 +258,82 @@ def test_wheel_installs_into_a_clean_environment_and_runs_a_flow(wheel, prefect_
     assert where.returncode == 0, where.stderr
     installed_version, package, flows, pytest_spec = where.stdout.split()
     assert installed_version == spectralize.__version__
-    assert all(Path(p).is_relative_to(venv_site) for p in (package, flows))  # not the checkout
+    assert all(Path(p).is_relative_to(installed.site) for p in (package, flows))  # not the checkout
     assert pytest_spec == "None"  # the suite's tools are out of the environment's reach
 
-    spectralize_cli = str(venv / "bin" / "spectralize")
-    nodes = subprocess.run(
-        [spectralize_cli, "nodes"], cwd=work, env=env, capture_output=True, text=True, timeout=300
-    )
+    # an empty cache: the listing is made by loading every node (not the demo's cached one)
+    nodes = installed.run("nodes", SPECTRALIZE_CACHE_DIR=str(tmp_path / "cache"))
     assert nodes.returncode == 0, nodes.stderr
     assert "failed to load" not in nodes.stdout + nodes.stderr
     for name in _entry_point_nodes():
         assert f"{name}  (version" in nodes.stdout, f"node {name} missing from the installed listing"
 
-    demo = subprocess.run(
-        [spectralize_cli, "demo", "--set", "simulate.recipe=tiny"],
-        cwd=work,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=900,
+    assert first_demo.returncode == 0, first_demo.stderr[-3000:]
+    assert "reconstruct_image_sets   ran" in first_demo.stdout
+    assert (installed.work / "demo" / "run-report" / "index.html").is_file()
+
+
+def tree(path: Path):
+    return sorted(
+        (p.relative_to(path).as_posix(), p.stat().st_mtime_ns) for p in path.rglob("*") if p.is_file()
     )
-    assert demo.returncode == 0, demo.stderr[-3000:]
-    assert "reconstruct_image_sets   ran" in demo.stdout
-    assert (work / "demo" / "run-report" / "index.html").is_file()
+
+
+@pytest.mark.slow
+def test_demo_runs_then_skips(installed, first_demo, prefect_api):
+    """The command line end to end, from the installed wheel (real Prefect, real zarr): the
+    first demo (the module's, shared with the test above rather than run twice), the runs
+    after it on the session's API, as what they check (skips, a changed parameter) is the
+    store's; bad input."""
+    from prefect.settings import PREFECT_API_URL
+
+    api = PREFECT_API_URL.value()
+    work = installed.work
+    first = first_demo
+    assert first.returncode == 0, first.stderr
+    assert "simulate                 ran" in first.stdout
+    assert "dark_average             ran" in first.stdout
+    store = work / "demo" / "run.zarr"
+    assert f"results: {store}" in first.stdout
+    for node in ("recover_rgb_oecf", "calibrate_bands", "reconstruct_image_sets", "evaluate"):
+        assert f"{node:<24} ran" in first.stdout
+    report = work / "demo" / "run-report" / "index.html"
+    assert f"report: {report}" in first.stdout and report.is_file()
+    # not a terminal: progress as plain lines on stderr, the images written (the time left
+    # from the second region on: tests/flows/test_progress.py); Prefect's INFO lines stay off
+    assert "[1/14] simulate" in first.stderr and "[14/14] report" in first.stderr
+    written = re.findall(
+        r"reconstruct_image_sets: spectra: ([\d,]+)/([\d,]+) images written", first.stderr
+    )
+    assert len(written) >= 2 and written[0][0] != written[0][1] and written[-1][0] == written[-1][1]
+    assert "Finished in state" not in first.stderr and "| INFO" not in first.stderr
+
+    second = installed.run("demo", "--set", "simulate.recipe=tiny", api=api)
+    assert second.returncode == 0, second.stderr
+    assert "simulate                 skipped" in second.stdout
+    assert "dark_average             skipped" in second.stdout
+    assert "ran " not in second.stdout
+
+    valid = installed.run("validate", str(store))
+    assert valid.returncode == 0 and "valid" in valid.stdout
+
+    # bad input: unknown flow, unknown parameter, bad value -> non-zero, all listed, no writes
+    before = tree(store)
+    unknown = installed.run("run", "nope", str(store))
+    assert unknown.returncode == 2
+    assert "unknown flow or node 'nope'" in unknown.stderr
+    assert "flows: btf, calibrate, dark, demo" in unknown.stderr  # nodes: counted, not listed
+    bad = installed.run(
+        "run", "dark", str(store), "--set", "bogus=1", "--set", "dark_average.frames_per_chunk=0"
+    )
+    assert bad.returncode == 2
+    assert "--set bogus" in bad.stderr and "dark_average.frames_per_chunk" in bad.stderr
+    assert tree(store) == before
+
+    # a changed parameter re-runs the node through `run`
+    rerun = installed.run("run", "dark", str(store), "--set", "ddof=0", "-v", api=api)
+    assert rerun.returncode == 0, rerun.stderr
+    assert "| INFO" in rerun.stderr  # -v: Prefect's lines instead of the progress lines
+    assert not re.search(r"^\[1/1\] dark_average", rerun.stderr, re.MULTILINE)
+    assert "dark_average             ran" in rerun.stdout
+    assert RunStore.open(store).provenance("dark")["parameters"]["ddof"] == 0

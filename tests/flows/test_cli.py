@@ -1,10 +1,8 @@
 """The command line, end to end, in real subprocesses (real Prefect, real zarr)."""
 
 import os
-import re
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -23,74 +21,9 @@ def cli(*args, cwd, api=None):
     return subprocess.run([*EXE, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
-def tree(path: Path):
-    return sorted(
-        (p.relative_to(path).as_posix(), p.stat().st_mtime_ns) for p in path.rglob("*") if p.is_file()
-    )
-
-
-@pytest.mark.slow
-def test_demo_runs_then_skips(prefect_api, tmp_path):
-    from prefect.settings import PREFECT_API_URL
-
-    # the first demo as a user runs it (its own embedded Prefect server); the runs after it
-    # on the session's API, as what they check (skips, a changed parameter) is the store's
-    api = PREFECT_API_URL.value()
-    first = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path)
-    assert first.returncode == 0, first.stderr
-    assert "simulate                 ran" in first.stdout
-    assert "dark_average             ran" in first.stdout
-    store = tmp_path / "demo" / "run.zarr"
-    assert f"results: {store}" in first.stdout
-    for node in ("recover_rgb_oecf", "calibrate_bands", "reconstruct_image_sets", "evaluate"):
-        assert f"{node:<24} ran" in first.stdout
-    report = tmp_path / "demo" / "run-report" / "index.html"
-    assert f"report: {report}" in first.stdout and report.is_file()
-    # not a terminal: progress as plain lines on stderr, the images written (the time left
-    # from the second region on: tests/flows/test_progress.py); Prefect's INFO lines stay off
-    assert "[1/14] simulate" in first.stderr and "[14/14] report" in first.stderr
-    written = re.findall(
-        r"reconstruct_image_sets: spectra: ([\d,]+)/([\d,]+) images written", first.stderr
-    )
-    assert len(written) >= 2 and written[0][0] != written[0][1] and written[-1][0] == written[-1][1]
-    assert "Finished in state" not in first.stderr and "| INFO" not in first.stderr
-
-    second = cli("demo", "--set", "simulate.recipe=tiny", cwd=tmp_path, api=api)
-    assert second.returncode == 0, second.stderr
-    assert "simulate                 skipped" in second.stdout
-    assert "dark_average             skipped" in second.stdout
-    assert "ran " not in second.stdout
-
-    valid = cli("validate", str(store), cwd=tmp_path)
-    assert valid.returncode == 0 and "valid" in valid.stdout
-
-    # bad input: unknown flow, unknown parameter, bad value -> non-zero, all listed, no writes
-    before = tree(store)
-    unknown = cli("run", "nope", str(store), cwd=tmp_path)
-    assert unknown.returncode == 2
-    assert "unknown flow or node 'nope'" in unknown.stderr
-    assert "flows: btf, calibrate, dark, demo" in unknown.stderr  # nodes: counted, not listed
-    bad = cli(
-        "run",
-        "dark",
-        str(store),
-        "--set",
-        "bogus=1",
-        "--set",
-        "dark_average.frames_per_chunk=0",
-        cwd=tmp_path,
-    )
-    assert bad.returncode == 2
-    assert "--set bogus" in bad.stderr and "dark_average.frames_per_chunk" in bad.stderr
-    assert tree(store) == before
-
-    # a changed parameter re-runs the node through `run`
-    rerun = cli("run", "dark", str(store), "--set", "ddof=0", "-v", cwd=tmp_path, api=api)
-    assert rerun.returncode == 0, rerun.stderr
-    assert "| INFO" in rerun.stderr  # -v: Prefect's lines instead of the progress lines
-    assert not re.search(r"^\[1/1\] dark_average", rerun.stderr, re.MULTILINE)
-    assert "dark_average             ran" in rerun.stdout
-    assert RunStore.open(store).provenance("dark")["parameters"]["ddof"] == 0
+# The demo's first run, the runs that skip after it, bad input and a changed parameter:
+# tests/test_packaging.py::test_demo_runs_then_skips, on the installed wheel's command line
+# (its first demo is the one the wheel's own test checks, run once for both).
 
 
 def test_nodes_lists_the_dark_node_from_its_entry_point(tmp_path):
