@@ -471,6 +471,34 @@ def low_level_error(hdr: xr.Dataset, oracle: xr.Dataset, rgb: xr.Dataset, camera
     return out
 
 
+def against_clean_split(results: dict, twins: dict) -> dict:
+    """Per lab of ``twins`` and camera key, :func:`falloff_against_clean`'s ratio in two
+    factors (median, p95): ``oracle``, the twin's oracle nRMSE over its clean twin's (what the
+    capture itself costs with the truth's calibration), and ``calibration``, the twin's
+    calibrated / oracle over the clean twin's (what the calibration costs); their product is
+    the calibrated ratio."""
+    out = {}
+    for lab, twin in twins.items():
+        if lab not in results or twin not in results:
+            continue
+        clean = results[twin]["spectra"]
+        out[lab] = {
+            key: {
+                part: {
+                    stat: value["oracle"][stat] / clean[key]["oracle"][stat]
+                    if part == "oracle"
+                    else (value["calibrated"][stat] / value["oracle"][stat])
+                    / (clean[key]["calibrated"][stat] / clean[key]["oracle"][stat])
+                    for stat in ("median", "p95")
+                }
+                for part in ("oracle", "calibration")
+            }
+            for key, value in results[lab]["spectra"].items()
+            if key in clean
+        }
+    return out
+
+
 def white_level_against_clean(results: dict) -> dict:
     """Per lab of :data:`WHITE_TWINS` and camera key: calibrated nRMSE (median, p95) over its
     twin's without the white level; the target is at most 1.1."""
@@ -638,6 +666,8 @@ def main(argv: list[str] | None = None) -> dict:
     print("falloff / clean (calibrated nRMSE):", json.dumps(result["falloff_against_clean"]))
     result["white_level_against_clean"] = white_level_against_clean(result["labs"])
     print("white level / clean (calibrated nRMSE):", json.dumps(result["white_level_against_clean"]))
+    for name, twins in (("falloff", FALLOFF_TWINS), ("white_level", WHITE_TWINS)):
+        result[f"{name}_against_clean_split"] = against_clean_split(result["labs"], twins)
     if not args.quick:
         RESULTS.parent.mkdir(parents=True, exist_ok=True)
         RESULTS.write_text(json.dumps(result, indent=2) + "\n")
