@@ -190,7 +190,15 @@ def _set_endmembers(rgb, shots, camera) -> tuple[object, float]:
 @contextlib.contextmanager
 def _as_a_run():
     """The threads' inner BLAS/OpenMP threads as a run on local threads sets them
-    (``spectralize.flows.runtime.INNER_THREADS``; code from before it: the libraries' own)."""
+    (``spectralize.flows.runtime.INNER_THREADS``; code from before it: the libraries' own),
+    and its heap kept for the next tile before the threads start
+    (``spectralize.nodes.reconstruction.heap.keep_freed_memory``, where the code has it)."""
+    try:
+        from spectralize.nodes.reconstruction.heap import keep_freed_memory
+    except ImportError:  # code from before it
+        pass
+    else:
+        keep_freed_memory()
     try:
         from spectralize.flows.runtime import INNER_THREADS
     except ImportError:

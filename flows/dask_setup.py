@@ -1,12 +1,14 @@
 """Where a run's dask work computes: local threads, or an existing ``dask.distributed`` cluster.
 
 On local threads (the default) as many tasks run at once as the machine has cores, so each
-task's BLAS and OpenMP run one thread (:data:`INNER_THREADS`) and glibc's malloc keeps few
-arenas (:data:`MALLOC_ARENAS`): the cores go to the tasks, and a long run's resident set
-stays flat. On a cluster the workers bring their own settings; a watchdog reports lost
-workers and ends a run that has none left instead of waiting for ever
-(:data:`LOST_WORKERS_SECONDS`). What these settings were measured to change:
-``docs/benchmarks_notes.md`` (full_run).
+task's BLAS and OpenMP run one thread (:data:`INNER_THREADS`), and the tasks' threads share
+one glibc malloc arena (:data:`MALLOC_ARENAS`) that keeps the memory a tile frees for the
+next tile (:func:`~spectralize.nodes.reconstruction.heap.keep_freed_memory`): the cores go
+to the tasks, a long run's resident set stays flat, and the kernel does not fault each
+tile's cubes in afresh. On a cluster the workers bring their own settings but for that one,
+made as each worker starts; a watchdog reports lost workers and ends a run that has none
+left instead of waiting for ever (:data:`LOST_WORKERS_SECONDS`). What these settings were
+measured to change: ``docs/benchmarks_notes.md`` (full_run, paper_scale_throughput).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from typing import Any
 from prefect import get_run_logger
 from threadpoolctl import threadpool_limits
 
+from spectralize.nodes.reconstruction.heap import keep_freed_memory
 from spectralize.schemas import StoreError
 
 __all__ = [
@@ -32,14 +35,17 @@ __all__ = [
     "LOST_WORKERS_SECONDS",
 ]
 
-MALLOC_ARENAS = 2
+MALLOC_ARENAS = 1
 """glibc malloc arenas of a run on local threads (unless ``MALLOC_ARENA_MAX`` is set).
 
 glibc gives each thread that allocates concurrently an arena of its own (up to 8 per core)
 and hands freed memory back to the system only from an arena's top: in a long run of
 thousands of small tasks on dask threads, the resident set grew with the images solved
-while the Python objects did not. Two arenas keep it flat; the threads' numpy work holds no
-lock of malloc's for long (the arrays are allocated once per call)."""
+while the Python objects did not. Few arenas keep it flat, and one is the heap that keeps a
+tile's freed blocks for the next tile
+(:func:`~spectralize.nodes.reconstruction.heap.keep_freed_memory`: glibc's other arenas map
+large blocks afresh); the threads' numpy work holds no lock of malloc's for long (the
+arrays are allocated once per call)."""
 
 
 INNER_THREADS = 1
@@ -95,6 +101,7 @@ def dask_scheduler(address: str | None, log: Callable[[str], None] = print) -> I
     """
     if not address:
         bound_malloc_arenas()  # a long threaded run's resident set stays flat (MALLOC_ARENAS)
+        keep_freed_memory()  # before the tasks' threads start: they share the heap that keeps it
         with threadpool_limits(limits=INNER_THREADS):  # the cores go to the tasks
             yield max(1, os.cpu_count() or 1)
         return
@@ -115,6 +122,8 @@ def dask_scheduler(address: str | None, log: Callable[[str], None] = print) -> I
             "check --dask-address and that `dask scheduler` and its workers run"
         ) from None
     with client:
+        # each worker, now and as it joins, keeps its tiles' freed memory (before its threads)
+        client.register_worker_callbacks(setup=keep_freed_memory)
         watchdog = _WorkerWatchdog(client, address, warn)
         threads = client.nthreads()
         log(f"dask cluster {address}: {len(threads)} worker(s), {sum(threads.values())} thread(s)")

@@ -52,6 +52,7 @@ from spectralize.schemas.run import SPECTRA
 
 from .api import reconstruct
 from .estimators.endmember_mixture import Endmembers, sample_stride, set_endmembers
+from .heap import keep_freed_memory
 from .inputs import inputs_from_xarray
 from .methods import MethodLike, resolve_method
 from .solvers.common import counting_iterations
@@ -482,6 +483,9 @@ def solve_tile(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Solve one set on one tile's outer window (:func:`solve_set`) and keep the tile's core.
 
+    The process keeps the memory a tile frees for its next one
+    (:func:`~.heap.keep_freed_memory`, glibc only; the results do not depend on it).
+
     Parameters
     ----------
     rgb, shots, camera_matrix
@@ -519,6 +523,7 @@ def solve_tile(
         image (int32), and their confidence ``(image, y, x)`` float32 (None without
         ``confidence``).
     """
+    keep_freed_memory()  # the process's next tile reuses this one's freed memory (glibc)
     keep = np.ones(rgb.sizes["image"], dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
     method = resolve_method(method)
     initial = None

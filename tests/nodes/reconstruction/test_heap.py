@@ -1,0 +1,90 @@
+"""A tile solver's freed memory kept in the heap: taken in a fresh worker process (its
+threads included), left alone where the user set it, and a tile's result unchanged on
+reused memory."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spectralize.nodes.reconstruction import heap
+from spectralize.nodes.reconstruction.heap import MALLOPT_SETTINGS, keep_freed_memory
+from spectralize.nodes.reconstruction.methods import resolve_method
+from spectralize.nodes.reconstruction.tiling import solve_tile
+from spectralize.nodes.simulation.scenes import get_scene
+
+GLIBC = sys.platform.startswith("linux") and os.confstr("CS_GNU_LIBC_VERSION") is not None
+
+# a worker process: the setting made at its start, then a thread (as a dask worker's task)
+# frees a block far above glibc's mmap threshold; glibc's counters say where it went
+WORKER = f"""
+import ctypes, importlib.util, sys, threading
+spec = importlib.util.spec_from_file_location("heap", {str(Path(heap.__file__))!r})
+module = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(module)  # the module alone: no package import in the worker
+taken = module.keep_freed_memory()
+libc = ctypes.CDLL("libc.so.6")
+libc.malloc.restype = ctypes.c_void_p
+libc.free.argtypes = [ctypes.c_void_p]
+
+class Mallinfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in (
+        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks",
+        "fordblks", "keepcost")]
+
+libc.mallinfo2.restype = Mallinfo2
+size = 96 << 20
+def task():
+    block = libc.malloc(size)
+    ctypes.memset(block, 1, size)
+    libc.free(block)
+thread = threading.Thread(target=task)
+thread.start()
+thread.join()
+print(taken, libc.mallinfo2().fordblks >= size)  # the freed block still in the heap
+"""
+
+
+def _worker(env: dict[str, str]) -> list[str]:
+    done = subprocess.run(
+        [sys.executable, "-c", WORKER], capture_output=True, text=True, env=env, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.split()
+
+
+@pytest.mark.skipif(not GLIBC, reason="mallopt is glibc's; elsewhere keep_freed_memory is a no-op")
+def test_a_worker_keeps_a_freed_large_block_in_its_heap_and_a_user_setting_is_left_alone():
+    plain = {k: v for k, v in os.environ.items() if k not in MALLOPT_SETTINGS}
+    assert _worker(plain) == ["True", "True"]
+    # the user's own settings (here glibc's defaults) win: the block goes back to the system
+    users = {**plain, "MALLOC_MMAP_MAX_": "65536", "MALLOC_TRIM_THRESHOLD_": "131072"}
+    assert _worker(users)[1] == "False"
+
+
+def test_keep_freed_memory_is_set_once_per_process():
+    assert keep_freed_memory() is keep_freed_memory()
+
+
+def test_a_tile_on_reused_memory_is_bit_identical():
+    """The solve's memory comes from freed blocks (a tile's own, or poisoned ones) instead of
+    fresh zeroed pages: nothing it reads before writing may differ."""
+    scene = get_scene("glossy-mosaic", size=40, n_images=2, seed=3)
+    inner = (slice(8, 32), slice(8, 32))
+    method = resolve_method(None, max_iterations=30)
+
+    def solve(poison: float) -> tuple[np.ndarray, np.ndarray]:
+        freed = np.full(8 << 20, poison)  # 64 MB, freed into the heap before the solve
+        del freed
+        spectra, _, spread = solve_tile(
+            scene.rgb, scene.bands, scene.camera_matrix, inner, method=method, confidence=True
+        )
+        return spectra, spread
+
+    keep_freed_memory()
+    first, second = solve(0.0), solve(np.nan)
+    assert np.isfinite(first[0]).all()
+    assert np.array_equal(first[0], second[0]) and np.array_equal(first[1], second[1])
