@@ -1,6 +1,8 @@
 """Reliability: SIGKILL the flow process in the middle of reconstruction, then rerun.
 
-Real processes: the CLI in a subprocess (its own embedded Prefect API), a real zarr store.
+Real processes: the CLI in a subprocess, a real zarr store. Every run is on the session's
+Prefect API (no embedded server to start; the killed run's flow run is marked crashed there by
+the rerun): tests/flows/test_store_safety.py kills a run together with its embedded server.
 """
 
 import os
@@ -76,13 +78,14 @@ def test_killed_reconstruction_resumes_without_recomputing_finished_sets(prefect
     clean = tmp_path / "clean.zarr"
     shutil.copytree(killed, clean)
 
-    # an uninterrupted run, for comparison (on the session's API: no embedded server to start)
-    reference = cli("run", "reconstruct_image_sets", str(clean), *SETTINGS, api=PREFECT_API_URL.value())
+    # an uninterrupted run, for comparison
+    api = PREFECT_API_URL.value()
+    reference = cli("run", "reconstruct_image_sets", str(clean), *SETTINGS, api=api)
     out, _ = reference.communicate(timeout=600)
     assert reference.returncode == 0, out
 
     # the same run, killed with SIGKILL once some sets are written and others are not
-    process = cli("run", "reconstruct_image_sets", str(killed), *SETTINGS)
+    process = cli("run", "reconstruct_image_sets", str(killed), *SETTINGS, api=api)
     n_sets = int(RunStore.open(killed).read("image_sets").sizes["set"])
     deadline = time.time() + 600
     try:
@@ -90,7 +93,7 @@ def test_killed_reconstruction_resumes_without_recomputing_finished_sets(prefect
             assert process.poll() is None, "the flow ended before any set was written"
             time.sleep(0.02)
     finally:
-        os.killpg(process.pid, signal.SIGKILL)  # the flow and its embedded Prefect server
+        os.killpg(process.pid, signal.SIGKILL)  # the flow process and any child of it
         process.wait()
     finished = [int(p.name) for p in region_flags(killed)]
     assert finished and len(finished) < n_sets, finished
@@ -100,7 +103,7 @@ def test_killed_reconstruction_resumes_without_recomputing_finished_sets(prefect
     }
     assert not RunStore.open(killed).has("spectra")  # nothing looks finished
 
-    rerun = cli("run", "reconstruct_image_sets", str(killed), *SETTINGS)
+    rerun = cli("run", "reconstruct_image_sets", str(killed), *SETTINGS, api=api)
     out, _ = rerun.communicate(timeout=600)
     assert rerun.returncode == 0, out
     # the store's message, or the progress display's rendering of it
