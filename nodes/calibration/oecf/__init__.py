@@ -11,6 +11,8 @@ module                  what
 ``low_end``             the RGB response's codes just above black (a toe) from it
 ``response``            response algebra: :func:`apply_response`,
                         :func:`response_at_codes`, :func:`combine_responses`
+``log_spline``          a response smoothed to a spline in the log code:
+                        :func:`log_spline_response` (what a chart's patch means read through)
 ======================  ===================================================================
 
 References
