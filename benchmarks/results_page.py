@@ -859,16 +859,34 @@ def calibration_oracle(data: Json) -> list[str]:
             )
             + _flat_field_line(result.get("flat_field")),
         ]
-    for lab, ratios in data.get("falloff_against_clean", {}).items():
-        out += [
-            f"**{lab} against its clean twin** (calibrated nRMSE with lens falloff over without; "
-            "target at most 1.1)",
-            table(
-                ["images", "median", "p95"],
-                [[key, num(v["median"]), num(v["p95"])] for key, v in ratios.items()],
-            ),
-        ]
+    for kind, what in (("falloff", "lens falloff"), ("white_level", "an undeclared white level")):
+        split = data.get(f"{kind}_against_clean_split", {})
+        for lab, ratios in data.get(f"{kind}_against_clean", {}).items():
+            out += [_twin_table(lab, what, ratios, split.get(lab, {}))]
     return out
+
+
+def _twin_table(lab: str, what: str, ratios: dict, split: dict) -> str:
+    """A twin capture against its clean twin: the calibrated ratio and, where the benchmark
+    split it, the capture's own part (oracle over oracle) and the calibration's part."""
+    header = ["images", "median", "p95"]
+    if split:
+        header += ["oracle twin / clean (median / p95)", "calibration's part (median / p95)"]
+    rows = []
+    for key, v in ratios.items():
+        row = [key, num(v["median"]), num(v["p95"])]
+        if split:
+            parts = split.get(key, {})
+            row += [
+                f"{num(parts[part]['median'])} / {num(parts[part]['p95'])}" if part in parts else ""
+                for part in ("oracle", "calibration")
+            ]
+        rows.append(row)
+    return (
+        f"**{lab} against its clean twin** (calibrated nRMSE with {what} over without; target at "
+        "most 1.1; the capture's own part is what the twin costs with the writer's true "
+        "calibration)\n\n" + table(header, rows)
+    )
 
 
 def _flat_field_line(flat: dict | None) -> str:
