@@ -2,7 +2,6 @@
 ground truth, the store the capture path makes (sample capture folder -> ingest -> btf: no
 truth) and a simulated run."""
 
-import os
 import subprocess
 import sys
 from html.parser import HTMLParser
@@ -166,24 +165,34 @@ def test_notebook_executes_against_a_run_with_truth(tmp_path, monkeypatch):
     assert all(source.startswith("data:image/png;base64,") for source in page.sources)  # one file
 
 
-def cli(*args: str, cwd: Path, env: dict | None = None) -> None:
+def cli(*args: str, cwd: Path) -> None:
     done = subprocess.run(
-        [sys.executable, "-m", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600
+        [sys.executable, "-m", *args], cwd=cwd, capture_output=True, text=True, timeout=600
     )
     assert done.returncode == 0, done.stderr[-3000:]
 
 
+def run_without_report(name: str, store: Path, parameters: dict | None = None) -> None:
+    """The steps of flow ``name`` on ``store``, as ``run_flow`` runs them (in this process, on
+    the session's Prefect API), but without the flow's HTML report: the notebook writes its
+    own report from the store and reads nothing of the flow's (which the first demo of
+    tests/test_packaging.py and the btf runs of tests/flows/test_safety_corpus.py check)."""
+    from spectralize.flows.pipelines import get_flow, step_parameters
+    from spectralize.flows.runtime import run_steps
+
+    problems: list = []
+    steps = step_parameters(get_flow(name).steps, dict(parameters or {}), problems=problems)
+    run_steps(store, steps, flow_name=name, problems=problems)
+
+
 @pytest.fixture(scope="module")
 def capture_store(prefect_api, tmp_path_factory) -> Path:
-    """The capture path, as a user takes it: a sample capture folder, ingested, btf run (on the
-    session's Prefect API: no embedded server to start)."""
-    from prefect.settings import PREFECT_API_URL
-
+    """The capture path, as a user takes it: a sample capture folder, ingested (both on the
+    command line), the btf flow's steps run on it."""
     work = tmp_path_factory.mktemp("capture-path")
     cli("spectralize.datasets.capture.sample", "capture", "--recipe", "tiny", cwd=work)
     cli("spectralize.flows.cli", "ingest", "capture", "run.zarr", cwd=work)
-    api = {**os.environ, "PREFECT_API_URL": PREFECT_API_URL.value()}
-    cli("spectralize.flows.cli", "run", "btf", "run.zarr", cwd=work, env=api)
+    run_without_report("btf", work / "run.zarr")
     return work / "run.zarr"
 
 
@@ -203,9 +212,7 @@ def test_notebook_executes_on_the_store_the_capture_path_makes(capture_store, tm
 
 @pytest.mark.slow
 def test_notebook_executes_on_a_simulated_run(prefect_api, tmp_path, monkeypatch):
-    from spectralize.flows import run_flow
-
-    run_flow("demo", tmp_path / "run.zarr", parameters={"simulate.recipe": "tiny"})
+    run_without_report("demo", tmp_path / "run.zarr", parameters={"simulate.recipe": "tiny"})
     code = execute(tmp_path / "run.zarr", tmp_path / "report", tmp_path, monkeypatch)
     text = printed(code)
     assert "simulated, with ground truth" in text
