@@ -12,7 +12,8 @@ module                  what
 ``response``            response algebra: :func:`apply_response`,
                         :func:`response_at_codes`, :func:`combine_responses`
 ``log_spline``          a response smoothed to a spline in the log code:
-                        :func:`log_spline_response` (what a chart's patch means read through)
+                        :func:`log_spline_response`, its coefficients chosen per channel
+                        on the camera's own series: :func:`chosen_log_spline_response`
 ======================  ===================================================================
 
 References

@@ -28,7 +28,14 @@ import numpy as np
 
 from spectralize.schemas import CalibrationError
 
-__all__ = ["CHART_RESPONSE_KNOTS", "codes_reached", "log_spline_response"]
+__all__ = [
+    "CHART_RESPONSE_KNOTS",
+    "LOG_SPLINE_CANDIDATES",
+    "chosen_log_spline_response",
+    "code_residual",
+    "codes_reached",
+    "log_spline_response",
+]
 
 CHART_RESPONSE_KNOTS = 8
 """Cubic B-spline coefficients per channel of the response the chart's patch means are read
@@ -118,3 +125,132 @@ def log_spline_response(
         )[0]
         table[ch, in_range] = np.exp(_spline_design(u[in_range], u_lo, u_hi, knots) @ coefficients)
     return table
+
+
+LOG_SPLINE_CANDIDATES = (5, 6, 8, 10, 12, 14, 16, 20, 24)
+"""Spline coefficients :func:`chosen_log_spline_response` chooses among per channel (and the
+recovered response itself): from a power law's few to a shoulder's many."""
+
+
+def code_residual(
+    response: np.ndarray,
+    codes: np.ndarray,
+    times: np.ndarray,
+    weights: np.ndarray,
+    reached: tuple[float, float],
+) -> float:
+    """Weighted mean squared residual [DN^2] of an exposure series' codes under one response.
+
+    Each pixel's exposure is Robertson's estimate under ``response``,
+    ``x_i = sum_j w(y_ij) t_j f(y_ij) / sum_j w(y_ij) t_j^2``; each sample's predicted code is
+    the response's inverse at ``t_j x_i``; the residual ``y_ij - f^-1(t_j x_i)`` is weighted
+    by ``w(y_ij)`` over the samples in ``reached`` of non-zero weight. The noise of a camera
+    is in its codes, so a response nearer the truth predicts the codes better, while
+    Robertson's own objective (residuals in exposure) is the one the recovered response's
+    ripple already minimises.
+
+    Parameters
+    ----------
+    response
+        (code,) relative exposure per code.
+    codes
+        (image, exposure, pixel) integer codes of one channel.
+    times
+        (image, exposure) exposure times [s].
+    weights
+        (code,) certainty weight per code (:func:`~.weighting.weighting_function`).
+    reached
+        (lowest, highest) code [DN] whose samples count.
+
+    Returns
+    -------
+    float
+        The weighted mean squared residual [DN^2]; ``inf`` with no sample.
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and eq. 5.
+    .. [2] M. A. Robertson, S. Borman, R. L. Stevenson, Journal of Electronic Imaging 12(2),
+       2003 (the exposure estimate).
+    """
+    f = np.asarray(response, dtype=np.float64)
+    w = weights[codes]
+    t = np.asarray(times, dtype=np.float64)[:, :, None]
+    num = (w * t * f[codes]).sum(axis=1)
+    den = (w * t * t).sum(axis=1)
+    x = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+    predicted = np.interp(t * x[:, None, :], np.maximum.accumulate(f), np.arange(f.size))
+    use = (w > 0) & (codes >= reached[0]) & (codes <= reached[1])
+    if not use.any():
+        return float("inf")
+    return float(((codes - predicted) ** 2 * w)[use].sum() / w[use].sum())
+
+
+def chosen_log_spline_response(
+    response: np.ndarray,
+    black_level: float,
+    reached: tuple[float, float],
+    codes: np.ndarray,
+    times: np.ndarray,
+    weights: np.ndarray,
+    candidates: tuple[int, ...] = LOG_SPLINE_CANDIDATES,
+) -> tuple[np.ndarray, list[int]]:
+    """``response`` (channel, code) smoothed by :func:`log_spline_response` with, per channel,
+    the number of coefficients the camera's own exposure series chooses.
+
+    A fixed flexibility suits one camera's response and not another's (a late, gentle
+    shoulder needs few coefficients in the log code, an early one more). Per channel every
+    candidate in ``candidates`` (those the codes in ``reached`` allow) and the recovered
+    response itself are scored by :func:`code_residual` on ``codes``, and the one of least
+    residual is kept: a response the spline cannot follow keeps its freedom.
+
+    Parameters
+    ----------
+    response
+        (channel, code) the recovered response.
+    black_level
+        ``b`` [DN].
+    reached
+        (lowest, highest) code [DN] the camera's frames reach (:func:`codes_reached`).
+    codes
+        (image, exposure, pixel, channel) integer codes of the camera's exposure series.
+    times
+        (image, exposure) exposure times [s].
+    weights
+        (code,) certainty weight per code.
+    candidates
+        Spline coefficients to choose among (each at least 4).
+
+    Returns
+    -------
+    tuple of numpy.ndarray and list of int
+        The (channel, code) float64 table and the coefficients chosen per channel (0: the
+        recovered response kept).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and eq. 5.
+    """
+    table = np.array(response, dtype=np.float64, copy=True)
+    lo = max(float(reached[0]), black_level + 1.0)
+    chosen = []
+    for ch in range(table.shape[0]):
+        usable = int(
+            (
+                (np.arange(table.shape[-1]) >= lo)
+                & (np.arange(table.shape[-1]) <= reached[1])
+                & (table[ch] > 0)
+            ).sum()
+        )
+        options = {0: table[ch]}
+        for k in candidates:
+            if usable >= 2 * k:
+                options[k] = log_spline_response(table[ch : ch + 1], black_level, reached, k)[0]
+        scores = {
+            k: code_residual(f, codes[..., ch], times, weights, (lo, reached[1]))
+            for k, f in options.items()
+        }
+        best = min(scores, key=lambda k: scores[k])
+        table[ch] = options[best]
+        chosen.append(int(best))
+    return table, chosen

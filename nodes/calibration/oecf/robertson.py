@@ -42,6 +42,7 @@ from spectralize.nodes.calibration.exposure_series import (
     refused,
     warn_if_geometric,
 )
+from spectralize.nodes.calibration.oecf.log_spline import chosen_log_spline_response, codes_reached
 from spectralize.nodes.calibration.oecf.low_end import low_end_response
 from spectralize.nodes.calibration.oecf.response import response_dataarray
 from spectralize.nodes.calibration.oecf.weighting import (
@@ -69,6 +70,8 @@ __all__ = [
     "with_target_series",
     "rgb_oecf_refusals",
     "SMOOTH_RGB",
+    "LOG_SPLINE_PIXELS",
+    "log_spline_smoothed",
 ]
 
 Operator = Literal["auto", "dense", "sparse", "samples"]
@@ -1159,6 +1162,14 @@ def recover_rgb_oecf(
             "follow)"
         ),
     ] = True,
+    log_spline: Annotated[
+        bool,
+        Field(
+            description="smooth each channel's response to a cubic spline in the log code, of "
+            "the number of coefficients that best predicts the camera's own exposure series' "
+            "codes (or keep the recovered one where it predicts them best)"
+        ),
+    ] = False,
 ) -> xr.Dataset:
     """RGB camera response per channel (Robertson 2003) from the raw/rgb exposure series.
 
@@ -1195,6 +1206,11 @@ def recover_rgb_oecf(
         The codes just above the black level from the reverse regression
         (:func:`~.low_end.low_end_response`), see :func:`robertson_response`: a camera whose
         response has a strong toe keeps it.
+    log_spline
+        Each camera's response smoothed over the codes its series reaches by
+        :func:`~.log_spline.chosen_log_spline_response` (the spline's coefficients per channel
+        chosen on the series itself, :func:`log_spline_smoothed`): the code-to-code ripple a
+        crowded series leaves goes, for the scene's HDR and the chart's patch means alike.
     tolerance, max_pixels
         See :func:`recover_oecf`; ``max_pixels`` is lowered for a camera with so many
         images that images x positions exceed :data:`MAX_SAMPLES`.
@@ -1270,6 +1286,8 @@ def recover_rgb_oecf(
             saturation=saturation,
             **{**options, "max_pixels": _capped(series, max_pixels)},
         )
+        if log_spline:
+            own[c] = log_spline_smoothed(own[c], series, level, saturation, weighting)
     black_level = min(levels.values())
     if per_camera:
         result = xr.concat([own[c] for c in levels], dim="camera", combine_attrs="override")
@@ -1279,6 +1297,10 @@ def recover_rgb_oecf(
         result["response"].attrs["converged"] = all(
             bool(r["response"].attrs.get("converged", True)) for r in own.values()
         )
+        if log_spline:
+            result["response"].attrs["log_spline_knots"] = [
+                k for c in levels for k in own[c]["response"].attrs.get("log_spline_knots", [])
+            ]
     else:
         pooled = data.drop_vars("camera")  # the sample, in memory
         result = recover_oecf(
@@ -1288,6 +1310,10 @@ def recover_rgb_oecf(
             **{**options, "max_pixels": _capped(pooled, max_pixels)},
         )
         _warn_pooled(own, result, "recover_rgb_oecf: raw/rgb")
+        if log_spline:
+            result = log_spline_smoothed(
+                result, pooled, black_level, min(w.saturation for w in whites.values()), weighting
+            )
     response = result["response"]
     samples = response["samples"].drop_vars("samples", errors="ignore")
     response = response.drop_vars("samples")
@@ -1329,6 +1355,81 @@ def recover_rgb_oecf(
         },
     )
     out["camera"].attrs.update(long_name="RGB camera index")
+    return out
+
+
+LOG_SPLINE_PIXELS = 4000
+"""Pixel positions per image whose samples score :func:`log_spline_smoothed`'s candidates."""
+
+
+def log_spline_smoothed(
+    recovered: xr.Dataset, series: xr.Dataset, black_level: int, saturation: int, weighting: Weighting
+) -> xr.Dataset:
+    """:func:`recover_oecf`'s result for one camera (or the pooled cameras), its response
+    smoothed by :func:`~.log_spline.chosen_log_spline_response` over the codes ``series``
+    reaches, the coefficients per channel chosen on ``series`` (at most
+    :data:`LOG_SPLINE_PIXELS` positions per image, a reproducible subset).
+
+    Parameters
+    ----------
+    recovered
+        :func:`recover_oecf`'s result: ``response`` ([camera,] channel, code).
+    series
+        The exposure series it was recovered from: ``counts`` (image, exposure, y, x, channel)
+        and ``exposure_time`` ((image,) exposure) [s].
+    black_level, saturation
+        The levels it was recovered with [DN].
+    weighting
+        Its weighting function.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``recovered`` with the smoothed ``response``; attr ``log_spline_knots`` of the
+        response: the coefficients chosen per channel (0: the recovered response kept).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 4 and eq. 5.
+    """
+    counts = series["counts"].transpose("image", "exposure", "y", "x", "channel")
+    values = np.asarray(counts.values)
+    reached = codes_reached(values, black_level, saturation)
+    if reached is None:
+        return recovered
+    flat = values.reshape(values.shape[0], values.shape[1], -1, values.shape[-1])
+    if flat.shape[2] > LOG_SPLINE_PIXELS:
+        pick = np.sort(np.random.default_rng(0).choice(flat.shape[2], LOG_SPLINE_PIXELS, replace=False))
+        flat = flat[:, :, pick]
+    times = series["exposure_time"]
+    if "image" not in times.dims:
+        times = times.expand_dims(image=flat.shape[0])
+    n_codes = recovered.sizes["code"]
+    weights = weighting_function(
+        np.arange(n_codes), black_level=black_level, saturation=saturation, kind=weighting
+    )
+    response = recovered["response"]
+    order = [d for d in response.dims if d not in ("channel", "code")] + ["channel", "code"]
+    table = np.array(response.transpose(*order).values, dtype=np.float64).reshape(
+        -1, response.sizes["channel"], n_codes
+    )
+    knots = []
+    for k in range(table.shape[0]):
+        table[k], chosen = chosen_log_spline_response(
+            table[k],
+            black_level,
+            reached,
+            flat.astype(np.intp),
+            np.asarray(times.transpose("image", "exposure").values, dtype=np.float64),
+            weights,
+        )
+        knots.extend(chosen)
+    out = recovered.copy()
+    out["response"] = response.transpose(*order).copy(
+        data=table.reshape(response.transpose(*order).shape)
+    )
+    out["response"] = out["response"].transpose(*response.dims)
+    out["response"].attrs["log_spline_knots"] = knots
     return out
 
 

@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spectralize.nodes.calibration.oecf.log_spline import codes_reached, log_spline_response
+from spectralize.nodes.calibration.oecf.log_spline import (
+    chosen_log_spline_response,
+    code_residual,
+    codes_reached,
+    log_spline_response,
+)
+from spectralize.nodes.calibration.oecf.weighting import weighting_function
 from spectralize.schemas import CalibrationError
 
 BLACK = 60.0
@@ -43,3 +49,52 @@ def test_codes_reached_between_the_levels():
     counts = np.array([[0, 60, 61, 2000], [4095, 4094, 3000, 59]])
     assert codes_reached(counts, BLACK, 4095) == (61.0, 4094.0)
     assert codes_reached(np.array([10, 60, 4095]), BLACK, 4095) is None
+
+
+def _series(shapes, pixels: int = 8000):
+    """(truth (channel, code), codes (1, exposure, pixel, channel), times (1, exposure)): an
+    exposure series of unequal ratios through each response ``shapes[ch]`` (level -> exposure
+    inverse), shot noise and 1.2 DN read noise, as a camera writes it."""
+    rng = np.random.default_rng(3)
+    times = np.array([[1, 3, 8, 25, 60]], float) / 60
+    exposure = times[0][:, None] * np.exp(rng.uniform(np.log(2e-3), np.log(1.2), pixels))[None, :]
+    fine = np.linspace(0.0, 1.3, 100_001)
+    level = (CODES - BLACK) / (4095 - BLACK)
+    tables, counts = [], []
+    for h in shapes:
+        table = np.interp(level, h(fine), fine)
+        tables.append(np.where(CODES <= BLACK, 0.0, table))
+        noisy = exposure + rng.normal(0, 1, exposure.shape) * np.sqrt(exposure / 5000)
+        dn = BLACK + (4095 - BLACK) * h(np.clip(noisy, 0, None)) + rng.normal(0, 1.2, exposure.shape)
+        counts.append(np.clip(np.round(dn), 0, 4095).astype(np.intp))
+    return np.stack(tables), np.stack(counts, -1)[None], times
+
+
+def test_each_channel_chooses_its_flexibility_a_shoulder_keeps_more():
+    """Two channels recovered with the same 2 % ripple (period 300 DN): one with a linear
+    response, one with an early shoulder the fixed 8-coefficient log spline cannot follow
+    (over 5 % off). Scored on their own exposure series, the linear channel is smoothed with
+    few coefficients to within 0.5 % of its truth, the shoulder keeps more than 8 and gets
+    within 2.5 %, under half of the fixed spline's error."""
+    shoulder = 0.15**1.15
+    shapes = [lambda y: y, lambda y: y**1.15 / (y**1.15 + shoulder) * (1 + shoulder)]
+    truth, codes, times = _series(shapes)
+    recovered = truth * (1 + 0.02 * np.sin(2 * np.pi * CODES / 300.0))
+    weights = weighting_function(CODES.astype(int), black_level=BLACK, saturation=4095)
+    reached = (BLACK + 2, 4094.0)
+    table, chosen = chosen_log_spline_response(recovered, BLACK, reached, codes, times, weights)
+    fixed = log_spline_response(recovered, BLACK, reached, 8)
+
+    def error(t: np.ndarray) -> np.ndarray:
+        mid = (CODES >= 200) & (CODES <= 3900)
+        ratio = t[:, mid] / truth[:, mid]
+        return np.abs(ratio / np.median(ratio, axis=1, keepdims=True) - 1).max(axis=1)
+
+    assert chosen[0] <= 8 < chosen[1]
+    assert error(table)[0] < 0.005 and error(recovered)[0] > 0.019
+    assert error(fixed)[1] > 0.05
+    assert error(table)[1] < min(0.025, error(fixed)[1] / 2)
+    # the residual the choice rests on: the truth predicts the codes better than the ripple
+    assert code_residual(truth[1], codes[..., 1], times, weights, reached) < code_residual(
+        recovered[1], codes[..., 1], times, weights, reached
+    )
