@@ -11,8 +11,9 @@ never trimmed), and has the threads started afterwards share that one heap (``M_
 1: glibc's other arenas map a block larger than their own heaps afresh whatever the
 setting). The numbers a tile computes do not change, only where their memory comes from;
 the process's resident set no longer shrinks after a tile's peak, the memory stays ready
-for the next one. What it was measured to change: ``docs/benchmarks_notes.md``
-(paper_scale_throughput).
+for the next one, and the peak itself can rise: a kept heap grows past the arrays alive
+at once where a freed block is too small for the next request. What it was measured to
+change: ``docs/benchmarks_notes.md`` (paper_scale_throughput).
 
 References
 ----------
