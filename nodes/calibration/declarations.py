@@ -203,8 +203,10 @@ RECOVER_RGB_OECF = Node(
     # (white_level, saturation over camera), which the fit, the targets' series and the HDR
     # merge use; 6: the white level found in each source's longest exposures apart (the
     # scene's, each target's), and frames entirely at or above it refused before computing;
-    # 7: the codes under the low end's anchor from the reverse regression (low_end)
-    version="7",
+    # 7: the codes under the low end's anchor from the reverse regression (low_end); 8: each
+    # channel's response smoothed to a spline in the log code of the coefficients its series
+    # chooses (log_spline)
+    version="8",
     function=recover_rgb_oecf,
     inputs={
         "raw_rgb": "raw/rgb",

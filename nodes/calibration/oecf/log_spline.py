@@ -13,6 +13,13 @@ there), so :func:`log_spline_response` replaces the recovered response over the 
 target reaches by its least-squares cubic spline in ``ln(c - b)``, of few coefficients:
 the same response without the ripple, for the patch means the matrix is fitted to.
 
+How many coefficients a response needs is the camera's: a power law is a line in the log
+code, an early shoulder bends over few of its codes. :func:`chosen_log_spline_response`
+chooses them per channel on the camera's own exposure series (:func:`code_residual`: the
+series' codes predicted through the candidate response), keeping the recovered response where
+no spline predicts them better; ``recover_rgb_oecf`` smooths every camera's response so by
+default, so the scene's HDR and the chart's patch means are read through the same curve.
+
 References
 ----------
 .. [1] Fast Capture of Spectral Image Series, section 4 (the camera matrix ``C`` from a
@@ -200,9 +207,11 @@ def chosen_log_spline_response(
 
     A fixed flexibility suits one camera's response and not another's (a late, gentle
     shoulder needs few coefficients in the log code, an early one more). Per channel every
-    candidate in ``candidates`` (those the codes in ``reached`` allow) and the recovered
-    response itself are scored by :func:`code_residual` on ``codes``, and the one of least
-    residual is kept: a response the spline cannot follow keeps its freedom.
+    candidate in ``candidates`` (those the codes in ``reached`` allow, the spline fitted from
+    the first code of a positive response up, made non-decreasing above the black level by a
+    running maximum, as a response does not fall; one that is not finite is left out) and the
+    recovered response itself are scored by :func:`code_residual` on ``codes``, and the one of
+    least residual is kept: a response the spline cannot follow keeps its freedom.
 
     Parameters
     ----------
@@ -233,19 +242,23 @@ def chosen_log_spline_response(
     """
     table = np.array(response, dtype=np.float64, copy=True)
     lo = max(float(reached[0]), black_level + 1.0)
+    codes_all = np.arange(table.shape[-1])
+    rising = codes_all > black_level
     chosen = []
     for ch in range(table.shape[0]):
-        usable = int(
-            (
-                (np.arange(table.shape[-1]) >= lo)
-                & (np.arange(table.shape[-1]) <= reached[1])
-                & (table[ch] > 0)
-            ).sum()
-        )
+        positive = (codes_all >= lo) & (codes_all <= reached[1]) & (table[ch] > 0)
+        if not positive.any():
+            chosen.append(0)
+            continue
+        span = (float(codes_all[positive][0]), float(reached[1]))  # from the first positive code
         options = {0: table[ch]}
         for k in candidates:
-            if usable >= 2 * k:
-                options[k] = log_spline_response(table[ch : ch + 1], black_level, reached, k)[0]
+            if int(positive.sum()) >= 2 * k:
+                with np.errstate(over="ignore"):
+                    smoothed = log_spline_response(table[ch : ch + 1], black_level, span, k)[0]
+                if np.isfinite(smoothed).all():
+                    smoothed[rising] = np.maximum.accumulate(smoothed[rising])
+                    options[k] = smoothed
         scores = {
             k: code_residual(f, codes[..., ch], times, weights, (lo, reached[1]))
             for k, f in options.items()

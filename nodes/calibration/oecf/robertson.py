@@ -1169,7 +1169,7 @@ def recover_rgb_oecf(
             "the number of coefficients that best predicts the camera's own exposure series' "
             "codes (or keep the recovered one where it predicts them best)"
         ),
-    ] = False,
+    ] = True,
 ) -> xr.Dataset:
     """RGB camera response per channel (Robertson 2003) from the raw/rgb exposure series.
 

@@ -20,6 +20,7 @@ DEFAULTS = {
         "max_pixels": 200_000,
         "smooth": 16,
         "low_end": True,
+        "log_spline": True,
     },
     "RECOVER_SPECTRAL_OECF": {
         "band": None,

@@ -98,3 +98,23 @@ def test_each_channel_chooses_its_flexibility_a_shoulder_keeps_more():
     assert code_residual(truth[1], codes[..., 1], times, weights, reached) < code_residual(
         recovered[1], codes[..., 1], times, weights, reached
     )
+
+
+def test_the_chosen_response_never_falls_above_the_black_level():
+    """A recovered response whose first codes above the black level are flat (a toe the
+    recovery could not resolve): a spline in the log code dips there, a response does not, so
+    the chosen one rises (or stays) from the black level to the highest code reached."""
+    truth, codes, times = _series([lambda y: y, lambda y: y])
+    recovered = truth * (1 + 0.02 * np.sin(2 * np.pi * CODES / 300.0))
+    recovered[:, 61:64] = recovered[:, 64:65]
+    recovered = np.maximum.accumulate(recovered, axis=1)
+    reached = (BLACK + 1, 4094.0)
+    weights = weighting_function(CODES.astype(int), black_level=BLACK, saturation=4095)
+    table, chosen = chosen_log_spline_response(recovered, BLACK, reached, codes, times, weights)
+    dips = [
+        (np.diff(log_spline_response(recovered[ch : ch + 1], BLACK, reached, k)[0, 61:4095]) < 0).any()
+        for ch, k in enumerate(chosen)
+        if k
+    ]
+    assert any(dips)  # the spline alone would fall here
+    assert (np.diff(table[:, 61:4095], axis=1) >= 0).all()
