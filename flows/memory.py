@@ -137,6 +137,12 @@ class PeakMemory:
 
     def __exit__(self, *exc: object) -> None:
         self.peak_bytes = resident_bytes() if self._measuring else None
+        if self.peak_bytes is not None:
+            # the kernel's resident-set counters are approximate (batched per thread or CPU),
+            # so a later reading can come out a page batch lower: keep what this block saw, and
+            # the process's peak is never below a block's
+            with _LOCK:
+                _EARLIER_PEAK[0] = max(_EARLIER_PEAK[0], self.peak_bytes)
 
     @property
     def peak_gb(self) -> float | None:
