@@ -1394,13 +1394,16 @@ def log_spline_smoothed(
     """
     counts = series["counts"].transpose("image", "exposure", "y", "x", "channel")
     values = np.asarray(counts.values)
-    reached = codes_reached(values, black_level, saturation)
-    if reached is None:
+    # image by image: no temporaries the size of the whole series
+    spans = [r for r in (codes_reached(v, black_level, saturation) for v in values) if r]
+    if not spans:
         return recovered
-    flat = values.reshape(values.shape[0], values.shape[1], -1, values.shape[-1])
-    if flat.shape[2] > LOG_SPLINE_PIXELS:
-        pick = np.sort(np.random.default_rng(0).choice(flat.shape[2], LOG_SPLINE_PIXELS, replace=False))
-        flat = flat[:, :, pick]
+    reached = (min(r[0] for r in spans), max(r[1] for r in spans))
+    height, width = values.shape[2], values.shape[3]
+    pick = np.arange(height * width)
+    if pick.size > LOG_SPLINE_PIXELS:
+        pick = np.sort(np.random.default_rng(0).choice(pick.size, LOG_SPLINE_PIXELS, replace=False))
+    flat = values[:, :, pick // width, pick % width, :]  # (image, exposure, pixel, channel)
     times = series["exposure_time"]
     if "image" not in times.dims:
         times = times.expand_dims(image=flat.shape[0])
