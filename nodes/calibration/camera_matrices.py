@@ -30,7 +30,6 @@ from spectralize.nodes.calibration.cross_validation import cross_validate
 from spectralize.nodes.calibration.exposure_series import check_bit_depth, frame_flags
 from spectralize.nodes.calibration.flat_field_maps import FlatField
 from spectralize.nodes.calibration.hdr import merge_hdr
-from spectralize.nodes.calibration.oecf.log_spline import codes_reached, log_spline_response
 from spectralize.nodes.calibration.rgb_transform import rgb_transform
 from spectralize.schemas import CalibrationError
 
@@ -81,11 +80,6 @@ class CameraFitSettings(NamedTuple):
     """Fit ``C`` to the white reference as one more patch."""
     patch_margin: int
     """Pixels removed at every patch border before patch means."""
-    chart_response_knots: int | None = None
-    """The chart's and the white reference's RGB read through the camera's response smoothed
-    to a cubic spline of this many coefficients in the log code over the codes they reach
-    (:func:`~spectralize.nodes.calibration.oecf.log_spline.log_spline_response`); None: the
-    recovered response as it is."""
 
 
 class CameraFit(NamedTuple):
@@ -250,39 +244,6 @@ def _borrowed(value: object) -> dict[str, str]:
     return {str(k): str(v) for k, v in dict(value or {}).items()}
 
 
-def _chart_response(
-    response: xr.DataArray, oecf_rgb: xr.Dataset, camera: int, series: list[np.ndarray], knots: int
-) -> xr.DataArray:
-    """``response`` (channel, code) of ``camera`` smoothed to a cubic spline of ``knots``
-    coefficients in the log code over the codes the targets' exposure ``series`` reach
-    (:func:`~spectralize.nodes.calibration.oecf.log_spline.log_spline_response`), above the
-    camera's black level and below its saturation."""
-    black = (
-        int(oecf_rgb["black_level"].sel(camera=camera))
-        if "black_level" in oecf_rgb.data_vars and camera in oecf_rgb["camera"].values.tolist()
-        else int(oecf_rgb.attrs.get("black_level", 0))
-    )
-    saturation = camera_saturation(oecf_rgb, camera)
-    if saturation is None:
-        saturation = int(oecf_rgb.attrs.get("saturation", response.sizes["code"] - 1))
-    spans = [codes_reached(counts, black, saturation) for counts in series]
-    spans = [span for span in spans if span is not None]
-    if not spans:
-        raise CalibrationError(
-            f"raw/colour_checker: no code of camera {camera} between its black level {black} "
-            f"and saturation {saturation} DN"
-        )
-    reached = (min(span[0] for span in spans), max(span[1] for span in spans))
-    table = response.transpose("channel", "code")
-    if not np.array_equal(np.asarray(table["code"].values), np.arange(table.sizes["code"])):
-        raise CalibrationError(
-            f"calibration/oecf_rgb: response of camera {camera} not tabulated on the codes "
-            f"0 .. {table.sizes['code'] - 1} DN"
-        )
-    smoothed = log_spline_response(np.asarray(table.values, dtype=np.float64), black, reached, knots)
-    return table.copy(data=smoothed)
-
-
 def _fit_camera(
     camera: int,
     white_reference: xr.Dataset,
@@ -294,7 +255,7 @@ def _fit_camera(
     """``C`` of one RGB camera from its own HDR RGB of the chart (and the white reference),
     through its own response and patch label image, divided by its ``flat_field`` (the map
     of this camera alone) where given."""
-    method, ridge, weak_light, smoothness, nonnegative, white_patch, patch_margin, knots = settings
+    method, ridge, weak_light, smoothness, nonnegative, white_patch, patch_margin = settings
     group = "raw/colour_checker"
     saturation = camera_saturation(oecf_rgb, camera)
     rgb_raw = _rgb_series(colour_checker, group, camera, saturation)
@@ -303,12 +264,6 @@ def _fit_camera(
         response = response.sel(
             camera=camera if camera in response["camera"].values.tolist() else response["camera"][0]
         )
-    if knots is not None:
-        series = [rgb_raw["counts"].values]
-        if white_patch:
-            white = _rgb_series(white_reference, "raw/white_reference", camera, saturation)
-            series.append(white["counts"].values)
-        response = _chart_response(response, oecf_rgb, camera, series, knots)
     hdr = merge_hdr(
         rgb_raw.drop_vars("camera"),
         response.assign_attrs(oecf_rgb.attrs | response.attrs),

@@ -7,11 +7,8 @@ import pytest
 import xarray as xr
 
 from spectralize.nodes.calibration.band_radiance import calibrate_bands
-from spectralize.nodes.calibration.camera_lobes import WEAK_LIGHT_WEIGHT
-from spectralize.nodes.calibration.camera_matrices import CameraFitSettings, fit_camera_matrices
 from spectralize.nodes.calibration.dark import average_dark_frames
 from spectralize.nodes.calibration.declarations import merge_hdr_node
-from spectralize.nodes.calibration.flat_field import rgb_flat_field
 from spectralize.nodes.calibration.oecf.low_snr import recover_spectral_oecf
 from spectralize.nodes.calibration.oecf.robertson import recover_rgb_oecf
 from spectralize.nodes.calibration.registration import estimate_registration
@@ -152,23 +149,3 @@ def test_white_reference_darker_than_noise_is_named(cal):
         calibrate_spectral(
             white, cal["run"]["raw/colour_checker"], cal["dark"], cal["oecf_rgb"], cal["oecf_spectral"]
         )
-
-
-def test_camera_matrix_through_the_chart_response_smoothed_in_the_log_code(cal):
-    """``chart_response_knots``: the chart's and the white reference's RGB read through the
-    camera's response smoothed to a spline in the log code; C changes and keeps the truth's
-    shape (one ridge given: the cross-validated choice is not what is tested)."""
-    white, checker = cal["run"]["raw/white_reference"], cal["run"]["raw/colour_checker"]
-    flat, _ = rgb_flat_field(white, cal["oecf_rgb"])
-    settings = CameraFitSettings("lobes", 1e-3, WEAK_LIGHT_WEIGHT, None, True, True, 2)
-    plain = fit_camera_matrices(white, checker, cal["oecf_rgb"], settings, flat_field=flat)
-    smooth = fit_camera_matrices(
-        white, checker, cal["oecf_rgb"], settings._replace(chart_response_knots=8), flat_field=flat
-    )
-    c0 = plain.fits[plain.reference].cm["camera_matrix"].values
-    c1 = smooth.fits[smooth.reference].cm["camera_matrix"].values
-    assert not np.array_equal(c0, c1)
-    ct = cal["truth"]["camera_matrix"].sel(channel=cal["spectral"]["channel"].values).values
-    per_channel = (c1 * ct).sum(1) / (c1 * c1).sum(1)
-    error = np.sqrt(np.mean((per_channel[:, None] * c1 - ct) ** 2, axis=1)) / ct.max(1)
-    assert np.all(c1 >= 0) and error.max() < 0.1, error
