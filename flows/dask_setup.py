@@ -24,7 +24,7 @@ from typing import Any
 from prefect import get_run_logger
 from threadpoolctl import threadpool_limits
 
-from spectralize.nodes.reconstruction.heap import keep_freed_memory
+from spectralize.nodes.reconstruction.heap import glibc_mallopt, keep_freed_memory
 from spectralize.schemas import StoreError
 
 __all__ = [
@@ -73,18 +73,11 @@ def bound_malloc_arenas(arenas: int = MALLOC_ARENAS) -> bool:
     bool
         Whether the limit was set.
     """
-    if "MALLOC_ARENA_MAX" in os.environ or not sys.platform.startswith("linux"):
-        return False
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc
+    mallopt = None if "MALLOC_ARENA_MAX" in os.environ else glibc_mallopt()
+    if mallopt is None:
         return False
     m_arena_max = -8  # <malloc.h>
-    return bool(mallopt(ctypes.c_int(m_arena_max), ctypes.c_int(int(arenas))))
+    return mallopt(m_arena_max, int(arenas))
 
 
 @contextlib.contextmanager

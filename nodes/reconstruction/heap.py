@@ -28,8 +28,9 @@ import ctypes
 import ctypes.util
 import os
 import sys
+from collections.abc import Callable
 
-__all__ = ["keep_freed_memory", "MALLOPT_SETTINGS"]
+__all__ = ["glibc_mallopt", "keep_freed_memory", "MALLOPT_SETTINGS"]
 
 MALLOPT_SETTINGS: dict[str, tuple[int, int]] = {
     "MALLOC_MMAP_MAX_": (-4, 0),  # M_MMAP_MAX: no block in a mapping of its own
@@ -66,17 +67,26 @@ def keep_freed_memory() -> bool:
     return _applied
 
 
-def _set_mallopt() -> bool:
-    """:data:`MALLOPT_SETTINGS` through glibc's ``mallopt`` (False: not glibc, or refused)."""
+def glibc_mallopt() -> Callable[[int, int], bool] | None:
+    """glibc's ``mallopt(parameter, value)``, or None where the C library is not glibc
+    (macOS, musl, Windows): whether glibc took the setting."""
     if not sys.platform.startswith("linux"):
-        return False
+        return None
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        function = libc.mallopt
     except (OSError, AttributeError):  # not glibc
+        return None
+    return lambda parameter, value: bool(function(ctypes.c_int(parameter), ctypes.c_int(value)))
+
+
+def _set_mallopt() -> bool:
+    """:data:`MALLOPT_SETTINGS` through glibc's ``mallopt`` (False: not glibc, or refused)."""
+    mallopt = glibc_mallopt()
+    if mallopt is None:
         return False
     taken = True
     for variable, (parameter, value) in MALLOPT_SETTINGS.items():
         if variable not in os.environ:
-            taken &= bool(mallopt(ctypes.c_int(parameter), ctypes.c_int(value)))
+            taken &= mallopt(parameter, value)
     return taken
