@@ -19,7 +19,11 @@ set solved with its own library (the hard suite's default row). Both with the sc
 illuminant. The same with ``"sparse-choice"`` (each texel's materials chosen over its set),
 with the set's own and the run's library, and a blend of :data:`BLEND` x the choice and the
 rest the default, both with the run's library, and a blend weighted per texel by which of
-the two fits the texel's band shots better (:data:`BAND_WEIGHTS`). Per row: the per-pixel
+the two fits the texel's band shots better (:data:`BAND_WEIGHTS`), and the posterior
+blend: per texel the probability that the default's spectra rather than the choice's
+explain the texel's band shots of all its images, pooled over texels that look alike, the
+default holding prior log-odds of 3 (``evidence-blend``; its seconds are the two solves'
+and the blend's). Per row: the per-pixel
 nRMSE (median, p95, fraction < 0.03; images with and without band shots), relit CIEDE2000
 under A, FL11 and D65 (median / p95), wall seconds; per library: the spectral angle of each
 true endmember to the nearest learnt one (median over all materials, area-weighted median,
@@ -82,9 +86,12 @@ ROWS = (
     f"{CHOICE}+run-library",
     "blend+run-library",
     "band-weighted-blend+run-library",
+    "evidence-blend+run-library",
 )
 """The rows of each case: the default and ``"sparse-choice"``, each with the set's own
-library and with the run's, and their blend with the run's."""
+library and with the run's, and their blends with the run's (fixed, band-weighted, and
+weighed per texel by the posterior of the band evidence,
+:func:`~spectralize.nodes.reconstruction.estimators.evidence_blend.evidence_blend`)."""
 TURN_DEG = 37.0
 """Azimuth by which set ``k``'s lights are turned (``k`` times)."""
 
@@ -218,6 +225,23 @@ def band_weights(capture, chosen: np.ndarray, default: np.ndarray) -> xr.DataArr
     return xr.DataArray(weight, dims=("y", "x"))
 
 
+def posterior_blend(capture, chosen: xr.DataArray, default: xr.DataArray, wall: float) -> dict:
+    """Scores of the evidence blend of the choice's and the default's spectra (both with the
+    run's library), and the share of texels the choice holds more than half of."""
+    from spectralize.nodes.reconstruction import inputs_from_xarray
+    from spectralize.nodes.reconstruction.estimators.evidence_blend import evidence_blend
+
+    started = time.perf_counter()
+    inputs = inputs_from_xarray(capture.rgb, capture.bands, capture.camera_matrix)
+    order = ("wavelength", "image", "y", "x")
+    cube, pi = evidence_blend(inputs, default.transpose(*order).values, chosen.transpose(*order).values)
+    spectra = default.transpose("image", "wavelength", "y", "x").copy(data=np.moveaxis(cube, 0, 1))
+    row = scores(spectra, capture, wall + time.perf_counter() - started)
+    row["choice_weight_mean"] = round(float(np.mean(1.0 - pi)), 4)
+    row["choice_majority_fraction"] = round(float(np.mean(pi < 0.5)), 4)
+    return row
+
+
 def oracles(capture) -> dict:
     """``present`` and ``nearest-3`` of the set: mixtures of the true endmembers and the LED
     weighted by each image's RGB alone (exact NNLS), projected onto ``C S = R``."""
@@ -276,6 +300,7 @@ def run_case(name: str, seed: int, size: int, others: int, with_oracles: bool) -
     weight = band_weights(capture, chosen.values, run_spectra.values)
     mixed = (weight * chosen + (1.0 - weight) * run_spectra).transpose(*chosen.dims)
     rows["band-weighted-blend+run-library"] = scores(mixed, capture, wall)
+    rows["evidence-blend+run-library"] = posterior_blend(capture, chosen, run_spectra, wall)
     case = {
         "scene": name,
         "seed": seed,
