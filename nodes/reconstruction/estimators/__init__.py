@@ -11,6 +11,9 @@ of the default solver; each is also a method of
     Each texel of a set chooses its few endmembers once, with the evidence of all its
     images; the abundances per image from the RGB.
 
+Not a method: :mod:`.evidence_blend` weighs a set's two estimates, the default's spectra and
+the choice's, per texel by the posterior of its band shots.
+
 References
 ----------
 .. [1] Fast Capture of Spectral Image Series, sections 2 and 3.
