@@ -8,7 +8,9 @@ regions keep their sizes and get on-disk chunks of 1 while they are staged
 (:func:`region_encoding`), so that no two regions share a chunk. A finished group is laid out
 for a full run (:func:`shard_layout`): small variables (per-image coordinates, bookkeeping)
 in one chunk each, large ones in zarr 3 shards of about :data:`SHARD_BYTES` along their
-first dim, so files grow with shards, not with images x chunks. Text becomes zarr 3's
+first dim, so files grow with shards, not with images x chunks; a resumable write's group is
+packed with the chunks along its region dim that a write in one piece gets
+(:func:`rows_per_chunk`), so that it is read like one. Text becomes zarr 3's
 specified variable-length ``string`` type (:func:`variable_length_strings`). Read:
 :func:`friendly` gives the convenient view of :meth:`~spectralize.store.RunStore.read`.
 """
@@ -30,6 +32,7 @@ __all__ = [
     "label_order",
     "label_permutations",
     "shard_layout",
+    "rows_per_chunk",
     "variable_length_strings",
     "friendly",
     "SMALL_BYTES",
@@ -92,8 +95,8 @@ def shard_layout(
             enc.get("chunks") or (tuple(max(c) for c in var.chunks) if var.chunks else var.shape)
         )
         per_index = math.prod(chunks[1:]) * var.dtype.itemsize
-        if "chunks" not in enc and chunks[0] * per_index > CHUNK_BYTES:  # not asked for
-            chunks = (max(1, min(chunks[0], CHUNK_BYTES // max(per_index, 1))), *chunks[1:])
+        if "chunks" not in enc:  # not asked for
+            chunks = (rows_per_chunk(per_index, chunks[0]), *chunks[1:])
         rest = tuple(math.ceil(n / c) * c for n, c in zip(var.shape[1:], chunks[1:], strict=True))
         row = chunks[0] * math.prod(rest) * var.dtype.itemsize
         first = min(
@@ -105,6 +108,18 @@ def shard_layout(
     coords = {k: v for k, v in rechunk.items() if k in ds.coords}
     data = {k: v for k, v in rechunk.items() if k not in ds.coords}
     return ds.assign_coords(coords).assign(data)
+
+
+def rows_per_chunk(row_bytes: int, rows: int) -> int:
+    """Indices of a large variable's dim in one stored chunk, where nobody asked for chunks:
+    as many as fit in :data:`CHUNK_BYTES` (and in a shard, :data:`SHARD_BYTES`), at least one,
+    at most ``rows`` (the dask chunk, or the whole dim).
+
+    ``row_bytes`` is the size of one index of that dim within a chunk (the chunk's extent
+    along the other dims). A reader of one index decodes one such chunk; a reader of the
+    whole variable decodes as many chunks as fit, not one per index.
+    """
+    return max(1, min(int(rows), min(CHUNK_BYTES, SHARD_BYTES) // max(int(row_bytes), 1)))
 
 
 def regular_chunks(

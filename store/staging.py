@@ -29,11 +29,12 @@ is a few hundred files, not one per image and variable, and is read back image b
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import shutil
 import time
 import uuid
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -45,7 +46,7 @@ import zarr
 from spectralize.schemas import Precision
 
 from .integrity import PARTIAL_SUFFIX
-from .layout import label_permutations, shard_layout
+from .layout import label_permutations, rows_per_chunk, shard_layout
 from .precision import apply_precision, round_mantissa, round_precision
 
 __all__ = [
@@ -363,8 +364,9 @@ def pack_staged(
     (:func:`stage_region`), the others from the staged group. The packed copy (beside it,
     then renamed over it) has every dim whose index was not increasing sorted and the chunks
     and shards of :func:`~.layout.shard_layout` (the staged chunks kept along the dims of
-    ``keep``, which the writer chunked on request; along the region dim ``dim``, chunks of 1
-    inside the shards), the codecs the writer asked for per variable (``codecs``: its
+    ``keep``, which the writer chunked on request; along the region dim ``dim``, the chunks a
+    write of the whole data in one piece gets, :func:`_packed_chunks`, many indices each,
+    whatever the regions were), the codecs the writer asked for per variable (``codecs``: its
     ``compressors``, ``filters``, ``serializer``), and the variables of ``precisions``
     rounded to their mantissa bits (:func:`~.precision.round_mantissa`) and stating it in
     their attrs: every region alike, whichever write staged it. The arrays are copied shard
@@ -377,14 +379,19 @@ def pack_staged(
         for key in ("chunks", "preferred_chunks", "shards"):
             var.encoding.pop(key, None)
     encoding: dict[str, dict[str, Any]] = {}
+    packed_chunks: dict[Hashable, xr.Variable] = {}
     for name, var in template.variables.items():
         asked = {k: v for k, v in (codecs or {}).get(str(name), {}).items() if k in _CODEC_KEYS}
         if asked and name not in template.indexes:
             encoding[str(name)] = dict(asked)
         if dim is not None and dim in var.dims and name not in template.indexes and var.chunks:
-            encoding.setdefault(str(name), {})["chunks"] = tuple(
-                1 if d == dim else max(c) for d, c in zip(var.dims, var.chunks, strict=True)
-            )
+            chunks = _packed_chunks(var, dim)
+            encoding.setdefault(str(name), {})["chunks"] = chunks
+            packed_chunks[name] = var.chunk(dict(zip(var.dims, chunks, strict=True)))
+    # the template's dask chunks (which only lay out the packed copy) match its stored ones
+    template = template.assign_coords(
+        {k: v for k, v in packed_chunks.items() if k in template.coords}
+    ).assign({k: v for k, v in packed_chunks.items() if k not in template.coords})
     template = shard_layout(
         apply_precision(template, precisions or {}, round_values=False), encoding, keep=keep
     )
@@ -420,6 +427,24 @@ def pack_staged(
     shutil.rmtree(staged)
     os.rename(packed, staged)
     shutil.rmtree(regions_path(staged), ignore_errors=True)
+
+
+def _packed_chunks(var: xr.Variable, dim: str) -> tuple[int, ...]:
+    """The stored chunks of a staged variable once packed: its staged chunks along every dim
+    but the region dim ``dim``, and along ``dim`` as many indices as a write of the whole
+    variable in one piece gets (:func:`~.layout.rows_per_chunk`).
+
+    The regions are staged in chunks of one index (no two regions of unequal size share a
+    chunk), but the finished group is read as a whole: kept, they would make a reader's
+    dask array one task per image of the run and a sample of the run decode one chunk per
+    image; packed like a write in one piece, a reader of one image decodes the one chunk
+    that holds it, a few images' worth for small frames and one image of a large frame.
+    """
+    chunks = [max(c) for c in var.chunks or [(n,) for n in var.shape]]
+    axis = var.dims.index(dim)
+    row = math.prod(chunks[:axis] + chunks[axis + 1 :]) * var.dtype.itemsize
+    chunks[axis] = rows_per_chunk(row, var.shape[axis])
+    return tuple(chunks)
 
 
 def replace_group(staged: Path, target: Path, staging: Path, group: str) -> None:

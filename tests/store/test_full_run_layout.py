@@ -173,3 +173,53 @@ def test_a_large_variable_in_one_dask_chunk_is_stored_in_small_chunks_inside_its
     reads = sorted(k[1] for k in graph if isinstance(k, tuple) and "open_dataset-radiance" in k[0])
     assert reads == [0, 5]  # the chunks of images 3 and 57, not all 20
     assert some.values[:, 0, 0, 0].tolist() == [3, 57]
+
+
+def test_a_resumable_write_is_packed_like_a_write_in_one_piece_in_chunks_of_many_images(
+    tmp_path, monkeypatch
+):
+    """Regions of unequal size (image sets in set order), the write killed after some of them
+    and resumed, are packed with the chunks and shards a write of the whole cube in one piece
+    gets: many images per stored chunk, so a reader's dask array is a task per chunk, not per
+    image; the values bit-identical to that write's."""
+    monkeypatch.setattr(layout, "SMALL_BYTES", 4096)
+    monkeypatch.setattr(layout, "CHUNK_BYTES", 10 * 192)  # 10 images of 192 B per chunk
+    monkeypatch.setattr(layout, "SHARD_BYTES", 100 * 192)
+    rng = np.random.default_rng(3)
+    labels = rng.permutation(250)
+    sizes = np.diff([0, *sorted(rng.choice(np.arange(1, 250), 49, replace=False)), 250])
+    values = rng.random((250, 3, 4, 4), dtype=np.float32)  # in set order, as computed
+
+    def cube(fail_after=None):
+        done = []
+
+        def region(block):
+            done.append(1)
+            if fail_after is not None and len(done) > fail_after:
+                raise RuntimeError("killed while writing")
+            return block
+
+        data = da.from_array(values, chunks=(tuple(sizes), 3, 4, 4)).map_blocks(region)
+        return xr.Dataset(
+            {"radiance": (("image", "wavelength", "y", "x"), data, {"units": "1"})},
+            coords={"image": labels, "wavelength": ("wavelength", [450.0, 550.0, 650.0])},
+        )
+
+    store = RunStore.create(tmp_path / "run.zarr")
+    with pytest.raises(RuntimeError, match="killed"):
+        store.write("cube", cube(fail_after=20), fingerprint="s", resumable_along="image")
+    messages = []
+    store.write("cube", cube(), fingerprint="s", resumable_along="image", progress=messages.append)
+    assert any("already written" in m for m in messages)  # resumed, not started over
+    store.write("whole", cube().chunk({"image": -1}), fingerprint="w")  # in one piece
+    packed, whole = (
+        json.loads((store.path / g / "radiance" / "zarr.json").read_text()) for g in ("cube", "whole")
+    )
+    assert packed["codecs"][0]["configuration"]["chunk_shape"] == [10, 3, 4, 4]
+    assert packed["codecs"] == whole["codecs"] and packed["chunk_grid"] == whole["chunk_grid"]
+    read = store.read("cube", friendly=False)
+    assert read.radiance.chunks[0] == (10,) * 25  # a task per stored chunk of 10 images
+    expected = values[np.argsort(labels)]
+    assert read.radiance.values.tobytes() == expected.tobytes()
+    assert store.read("whole", friendly=False).radiance.values.tobytes() == expected.tobytes()
+    assert store.verify("cube") == [] and store.validate() == []
