@@ -11,6 +11,8 @@ once).
     OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py cache    # ~2 min
     OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py grid
     OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py final
+    OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py cache 2 3   # more seeds,
+    OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py final 2 3   # variant frozen
 
 Variants (``evidence``): the texel's own log-likelihood ratio over all its shots (``own``), the
 appearance bins' evidence as ``n_b`` x the bin mean per shot (``pooled``: the multiple), the
@@ -150,10 +152,10 @@ def grid() -> None:
         )
 
 
-def final() -> None:
+def final(seeds=SEEDS) -> None:
     """The chosen variant (own + pooled 1, prior 3) on every scene x seed, dark last."""
     for name in (*TUNING, HELD_OUT):
-        for seed in SEEDS:
+        for seed in seeds:
             d = load(name, seed)
             base, choice = score(d, d["a"]), score(d, d["b"])
             cube, w = blend(d, evidence(d, prior=3.0))
@@ -169,9 +171,12 @@ def final() -> None:
 
 if __name__ == "__main__":
     step = sys.argv[1] if len(sys.argv) > 1 else "final"
+    seeds = tuple(int(s) for s in sys.argv[2:]) or SEEDS
     if step == "cache":
         for name in (*TUNING, HELD_OUT):
-            for seed in SEEDS:
+            for seed in seeds:
                 cache(name, seed)
+    elif step == "final":
+        final(seeds)
     else:
-        {"grid": grid, "final": final}[step]()
+        grid()
