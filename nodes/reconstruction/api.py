@@ -26,6 +26,7 @@ from spectralize.schemas.errors import ReconstructionError
 from spectralize.schemas.run import SPECTRA
 
 from .confidence import CONFIDENCE_NEIGHBOURS, neighbourhood_spread
+from .estimators.evidence_blend import material_choice_blend
 from .estimators.material_pooled import material_pooled_refine
 from .estimators.shared_texel import shared_texel_refine
 from .inputs import ReconstructionInputs, inputs_from_xarray
@@ -252,6 +253,20 @@ def _set_model_applies(
     return True
 
 
+def _material_choice_step(
+    inputs: ReconstructionInputs, cube: np.ndarray, used: dict[str, Any]
+) -> np.ndarray:
+    """``set_model="evidence-blend"`` after the pooled refit: the material choice from the
+    run's library (``endmembers``) weighed in per texel by the band evidence
+    (:func:`~.estimators.evidence_blend.material_choice_blend`). Without a library, or
+    without band shots, the pooled refit is kept and recorded as ``"material-pooled"``."""
+    endmembers = used.get("endmembers")
+    if endmembers is None or len(inputs.band) == 0:
+        used["set_model"] = "material-pooled"
+        return cube
+    return material_choice_blend(inputs, cube, endmembers)
+
+
 class _Solved(NamedTuple):
     """What one reconstruction gave, before it is dressed as xarray."""
 
@@ -304,6 +319,8 @@ def _solve(
         refit_started = time.perf_counter()
         refine = shared_texel_refine if used["set_model"] == "shared-texel" else material_pooled_refine
         cube = refine(inputs, cube, inputs.illuminant)
+        if used["set_model"] == "evidence-blend":
+            cube = _material_choice_step(inputs, cube, used)
         set_model_time = time.perf_counter() - refit_started
     wall_time = time.perf_counter() - started
     weights = problem.weights
@@ -408,7 +425,8 @@ def reconstruct(
         ``(wavelength,)`` with a ``wavelength`` coordinate [nm] (a calibration's
         ``illuminant``; interpolated onto the bands' wavelengths) or one value per band
         wavelength (:func:`~.inputs.inputs_from_xarray`). Needed by
-        ``set_model="shared-texel"`` or ``"material-pooled"`` on a set, unused otherwise.
+        ``set_model="shared-texel"``, ``"material-pooled"`` or ``"evidence-blend"`` on a set,
+        unused otherwise.
     full_output
         Return a :class:`ReconstructionResult` (spectra, iterations, residual history,
         timings, the problem, the confidence) instead of the spectra alone.
@@ -447,9 +465,13 @@ def reconstruct(
         :func:`~.estimators.shared_texel.shared_texel_refine` with its defaults; or
         ``"material-pooled"``: one shape per material, the texels clustered by their shapes
         and each material's shape fitted to its texels' pooled band shots,
-        :func:`~.estimators.material_pooled.material_pooled_refine` with its defaults; both
+        :func:`~.estimators.material_pooled.material_pooled_refine` with its defaults;
+        or ``"evidence-blend"``: ``"material-pooled"``, then, given the run's library
+        (``endmembers``), each texel's materials chosen over the set from it and the
+        spectra moved towards the choice's by the posterior of its band shots,
+        :func:`~.estimators.evidence_blend.material_choice_blend`; the last three
         need ``illuminant``; a single image is left as solved; the default preset's is
-        ``"material-pooled"``, every other preset's ``"independent"``; a preset's own set
+        ``"evidence-blend"``, every other preset's ``"independent"``; a preset's own set
         model without ``illuminant`` keeps the solver's spectra, a given one raises); the
         PCG solvers also ``dtype``,
         ``ridge``, ``prior`` (the guided prior's weight) and ``precondition``, the prior

@@ -57,7 +57,9 @@ RECONSTRUCT_SEED_SET = Node(
     # 10: the run's endmember library (input endmember_library) mixed instead of the set's own
     # 11: 'material-pooled' trusts the RGB as far as the set shows (its noise per image, the
     # sandwich variance in the gain, the fit moved towards the RGB by that noise)
-    version="11",
+    # 12: the default's set model 'evidence-blend' (with the run's library, the material
+    # choice weighed in per texel by the band evidence)
+    version="12",
     function=reconstruct_seed_set,
     inputs={
         "hdr": "hdr",
@@ -76,8 +78,8 @@ RECONSTRUCT_IMAGE_SETS = Node(
     # 2: tiled (parameter ``tile``), warm start from a strided seed sample; 3: as the seed
     # set's version 4; 4: as the seed set's version 5; 5: as the seed set's version 6;
     # 6: as the seed set's version 7; 7: as the seed set's version 8; 8: as its version 9;
-    # 9: as its version 10; 10: as its version 11
-    version="10",
+    # 9: as its version 10; 10: as its version 11; 11: as its version 12
+    version="11",
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",

@@ -111,13 +111,18 @@ SETUP_OPTIONS: Mapping[str, inspect.Parameter] = MappingProxyType(
 ``normalize_camera_matrix``, ``appearance``, ``scale_invariant``."""
 
 
-SET_MODELS = ("independent", "shared-texel", "material-pooled")
+SET_MODELS = ("independent", "shared-texel", "material-pooled", "evidence-blend")
 """The values of a solver's ``set_model`` setting: ``"independent"`` keeps the solver's
 spectra; ``"shared-texel"`` refits a set of more than one image with per-texel spectral
 shapes shared by its images (:func:`~.estimators.shared_texel.shared_texel_refine`);
 ``"material-pooled"`` refits it with one shape per material (texels clustered by their
 shapes), fitted to the pooled band shots of the material's texels
-(:func:`~.estimators.material_pooled.material_pooled_refine`). Both need the illuminant
+(:func:`~.estimators.material_pooled.material_pooled_refine`); ``"evidence-blend"`` is
+``"material-pooled"`` and then, given the run's endmember library (``endmembers``), each
+texel's materials chosen over the set from it and the spectra moved towards the choice's by
+the posterior of the texel's band shots
+(:func:`~.estimators.evidence_blend.material_choice_blend`; without a library it is
+``"material-pooled"``). All need the illuminant
 (:func:`~spectralize.nodes.reconstruction.reconstruct`)."""
 
 SET_MODEL_OPTIONS: Mapping[str, inspect.Parameter] = MappingProxyType(
@@ -403,7 +408,7 @@ RECONSTRUCTION_METHODS: dict[str, ReconstructionMethod] = {
                 **_MIXTURE_PRIOR_SETTINGS,
                 "prior_source": "natural",
                 "natural_prior": 0.001,
-                "set_model": "material-pooled",
+                "set_model": "evidence-blend",
             },
         ),
         _method(
@@ -467,15 +472,19 @@ reason (the measurements: ``benchmarks/results/reconstruction.json``):
     Each texel's materials chosen over all images of its set: with a run's library pooled
     from several sets (``endmembers``) a lower median than the default on the woven,
     halftone and glossy sets, but a higher p95 on most; not the default for that, and for
-    needing a library better than one set gives. Its ``context`` options (off by default)
-    let each texel's RGB-similar neighbours add their evidence and their chosen endmembers
-    to its choice.
+    needing a library better than one set gives; the default's set model weighs it in per
+    texel where the band evidence favours it (``"evidence-blend"``). Its ``context`` options
+    (off by default) let each texel's RGB-similar neighbours add their evidence and their
+    chosen endmembers to its choice.
 
-The default's ``set_model`` is ``"material-pooled"``: a set of more than one image given
-the illuminant is refitted with one spectral shape per material (:data:`SET_MODELS`; better
-than ``"independent"`` on the hard sets); without the illuminant it keeps its spectra
-(``"independent"``, recorded in the result's attrs). Every other preset's is
-``"independent"``; ``"shared-texel"`` and ``"material-pooled"`` are opt-in there.
+The default's ``set_model`` is ``"evidence-blend"``: a set of more than one image given
+the illuminant is refitted with one spectral shape per material (``"material-pooled"``,
+better than ``"independent"`` on the hard sets) and, given the run's library, weighed per
+texel against the material choice by the band evidence (:data:`SET_MODELS`; lower error than
+``"material-pooled"`` on the hard sets with the run's library); without the illuminant it
+keeps its spectra (``"independent"``), without a library it stops after the pooled refit
+(``"material-pooled"``), as recorded in the result's attrs. Every other preset's is
+``"independent"``; the other set models are opt-in there.
 
 Retired: ``"material-prior-pcg"``, the prior PCG without the spectral prior, never best on
 the benchmark; it is ``method="spectral-prior-pcg", spectral_prior=0``.

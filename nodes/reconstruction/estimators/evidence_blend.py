@@ -39,6 +39,13 @@ texel keeps the default; where its shots or its bin clearly prefer the choice (a
 the library holds, which the default's pooling smeared), the choice. Without band shots
 there is no evidence and the default is kept.
 
+As the default's set step (:func:`material_choice_blend`, ``set_model="evidence-blend"``)
+the choice is made from the run's library (a set's own is too coarse for it) among each
+texel's :data:`CHOICE_CANDIDATES` nearest endmembers by the dichromatic fit and the
+highlight: the blend leans on the choice only where the evidence is strong, and there the
+nearest endmembers are the ones the texel's RGB lines meet, so more candidates add cost
+(their supports grow combinatorially) rather than weight.
+
 References
 ----------
 .. [1] Kass, R. E., Raftery, A. E. (1995). Bayes factors. Journal of the American
@@ -58,14 +65,17 @@ import numpy as np
 from spectralize.schemas.errors import ReconstructionError
 
 from ..inputs import ReconstructionInputs
-from .endmember_mixture import band_noise_sigma
+from .endmember_mixture import Endmembers, band_noise_sigma
+from .sparse_choice import sparse_choice
 
 __all__ = [
+    "material_choice_blend",
     "evidence_blend",
     "choice_log_odds",
     "set_appearance_bins",
     "DEFAULT_PRIOR_LOG_ODDS",
     "APPEARANCE_BINS",
+    "CHOICE_CANDIDATES",
 ]
 
 DEFAULT_PRIOR_LOG_ODDS = 3.0
@@ -75,6 +85,9 @@ evidence, ``2 ln B >= 6``)."""
 APPEARANCE_BINS = (32, 8)
 """``(n_c, n_l)``: chromaticity bins per axis and brightness bins (log2 steps from 1/16 of
 the set's mean) of the texels' appearance histogram."""
+
+CHOICE_CANDIDATES = 2
+"""Endmembers each texel's choice picks from besides the highlight atom, as the set step."""
 
 MAX_LOG_ODDS = 50.0
 """``|Lambda_p - c|`` is clipped here before the exponential."""
@@ -205,3 +218,64 @@ def evidence_blend(
     a = np.asarray(default, dtype=np.float64)
     b = np.asarray(choice, dtype=np.float64)
     return b + pi * (a - b), pi
+
+
+def material_choice_blend(
+    inputs: ReconstructionInputs,
+    cube: np.ndarray,
+    endmembers: Endmembers,
+    *,
+    candidates: int = CHOICE_CANDIDATES,
+    prior_log_odds: float = DEFAULT_PRIOR_LOG_ODDS,
+) -> np.ndarray:
+    """The set step after the default's set model: each texel's materials chosen over its
+    set from the run's library (:func:`~.sparse_choice.sparse_choice`), and the set's
+    spectra moved towards the choice's by the posterior of the band evidence
+    (:func:`evidence_blend`).
+
+    Parameters
+    ----------
+    inputs
+        The checked inputs of one set, its images on one texel grid.
+    cube
+        ``a``, the set's spectra ``(n_wavelength, n_image, height, width)`` after the set
+        model; overwritten by the blend.
+    endmembers
+        The run's library (:mod:`~..endmember_library`), on the bands' wavelengths.
+    candidates
+        Endmembers each texel chooses from besides the highlight atom.
+    prior_log_odds
+        ``c``, the default's prior log-odds.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``cube``, blended in place: ``a + (1 - pi) (b - a)`` per texel. Left as it was
+        where the set has no band shots.
+
+    Raises
+    ------
+    ReconstructionError
+        If ``cube`` is not ``inputs.cube_shape`` or the library is on other wavelengths.
+
+    References
+    ----------
+    .. [1] Kass, R. E., Raftery, A. E. (1995). Bayes factors. Journal of the American
+       Statistical Association 90(430).
+    .. [2] Iordache, M.-D., Bioucas-Dias, J. M., Plaza, A. (2011). Sparse unmixing of
+       hyperspectral data. IEEE Transactions on Geoscience and Remote Sensing 49(6).
+    .. [3] Fast Capture of Spectral Image Series, section 3 (the image sets, eq. 2).
+    """
+    if np.shape(cube) != inputs.cube_shape:
+        raise ReconstructionError.single(
+            "cube", f"shape {inputs.cube_shape} (wavelength, image, y, x)", np.shape(cube)
+        )
+    if len(inputs.band) == 0:
+        return cube
+    choice = sparse_choice(inputs, endmembers=endmembers, candidates=int(candidates))
+    log_odds = choice_log_odds(inputs, cube, choice, prior_log_odds=prior_log_odds)
+    weight = 1.0 - 1.0 / (1.0 + np.exp(np.clip(log_odds, -MAX_LOG_ODDS, MAX_LOG_ODDS)))
+    for b in range(inputs.n_wavelength):  # plane by plane: no temporary of the cube's size
+        plane = cube[b]
+        np.add(plane, weight * (choice[b] - plane), out=plane, casting="same_kind")
+    return cube

@@ -5,16 +5,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from spectralize.nodes.reconstruction import inputs_from_xarray
+from spectralize.nodes.reconstruction import inputs_from_xarray, reconstruct
+from spectralize.nodes.reconstruction.estimators.endmember_mixture import set_endmembers
 from spectralize.nodes.reconstruction.estimators.evidence_blend import (
     DEFAULT_PRIOR_LOG_ODDS,
     choice_log_odds,
     evidence_blend,
+    material_choice_blend,
     set_appearance_bins,
 )
 from spectralize.schemas.errors import ReconstructionError
 
+from .conftest import make_scene
 from .test_material_prior import _arrays
+from .test_set_model import _light, _wavelength
 from .test_spectral_prior import _mixed_truth
 
 
@@ -94,3 +98,31 @@ def test_one_image_and_no_band_shots():
     kept, pi = evidence_blend(none, wrong, truth)
     np.testing.assert_array_equal(kept, wrong)
     np.testing.assert_array_equal(pi, 1.0)
+
+
+def test_the_defaults_set_step_weighs_in_the_choice_from_the_runs_library():
+    scene = make_scene(size=14, n_wavelength=6, n_images=3, shading=True, noise=0.1, seed=3)
+    args = (scene.rgb, scene.bands, scene.camera_matrix)
+    light = _light(_wavelength(scene))
+    inputs = inputs_from_xarray(*args, illuminant=light)
+    library = set_endmembers(inputs, n_endmembers=4)  # stands for the run's library
+    pooled = reconstruct(*args, illuminant=light, set_model="material-pooled", endmembers=library)
+    blended = reconstruct(*args, illuminant=light, endmembers=library)
+    assert blended.attrs["set_model"] == "evidence-blend"
+    expected = material_choice_blend(inputs, np.moveaxis(pooled.values, 0, 1).copy(), library)
+    np.testing.assert_allclose(np.moveaxis(blended.values, 0, 1), expected, rtol=1e-6, atol=1e-7)
+    assert not np.array_equal(blended.values, pooled.values)
+    # without the run's library the pooled refit is kept, and recorded so
+    own = reconstruct(*args, illuminant=light)
+    assert own.attrs["set_model"] == "material-pooled"
+    np.testing.assert_array_equal(
+        own.values, reconstruct(*args, illuminant=light, set_model="material-pooled").values
+    )
+    # one image: no set step, the solve as it is
+    single = (scene.rgb.isel(image=[0]), scene.bands.where(scene.bands["image"] == 0, drop=True))
+    one = reconstruct(*single, scene.camera_matrix, illuminant=light, endmembers=library)
+    alone = reconstruct(
+        *single, scene.camera_matrix, illuminant=light, endmembers=library, set_model="independent"
+    )
+    assert one.sizes["image"] == 1
+    np.testing.assert_array_equal(one.values, alone.values)

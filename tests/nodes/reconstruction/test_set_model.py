@@ -80,7 +80,7 @@ def test_a_calibration_illuminant_is_put_on_the_bands_wavelengths(set_scene):
 def test_the_default_pools_materials_and_every_other_preset_is_independent():
     for name, record in RECONSTRUCTION_METHODS.items():
         if name == DEFAULT_METHOD:
-            assert record.settings["set_model"] == "material-pooled" in SET_MODELS
+            assert record.settings["set_model"] == "evidence-blend" in SET_MODELS
         elif record.kind == "solver":
             assert record.settings["set_model"] == "independent" == SET_MODELS[0]
         else:
