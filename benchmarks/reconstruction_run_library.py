@@ -16,14 +16,16 @@ library is learnt from all of them pooled, as the ``endmember_library`` node lea
 (:func:`~spectralize.nodes.reconstruction.endmember_library.library_from_sample`), and the
 hard suite's set is solved with it (``reconstruct(..., endmembers=...)``), beside the same
 set solved with its own library (the hard suite's default row). Both with the scene's true
-illuminant. The same with ``"sparse-choice"`` (each texel's materials chosen over its set),
-with the set's own and the run's library, and a blend of :data:`BLEND` x the choice and the
-rest the default, both with the run's library, and a blend weighted per texel by which of
-the two fits the texel's band shots better (:data:`BAND_WEIGHTS`), and the posterior
-blend: per texel the probability that the default's spectra rather than the choice's
-explain the texel's band shots of all its images, pooled over texels that look alike, the
-default holding prior log-odds of 3 (``evidence-blend``; its seconds are the two solves'
-and the blend's). Per row: the per-pixel
+illuminant. With the run's library the default's set model ``"evidence-blend"`` weighs in
+each texel's material choice by the band evidence; with the set's own it stops after the
+pooled refit, and ``material-pooled+run-library`` is the default with that set model (the
+default before the choice was weighed in). The same with ``"sparse-choice"`` (each texel's
+materials chosen over its set, six candidates), with the set's own and the run's library,
+and, mixed with ``material-pooled+run-library``: a blend of :data:`BLEND` x the choice, a
+blend weighted per texel by which of the two fits the texel's band shots better
+(:data:`BAND_WEIGHTS`), and the posterior blend of the default's set step with this
+six-candidate choice (``evidence-blend``; its seconds are the two solves' and the blend's).
+Per row: the per-pixel
 nRMSE (median, p95, fraction < 0.03; images with and without band shots), relit CIEDE2000
 under A, FL11 and D65 (median / p95), wall seconds; per library: the spectral angle of each
 true endmember to the nearest learnt one (median over all materials, area-weighted median,
@@ -79,9 +81,13 @@ the run library): chosen on woven, halftone and glossy (the largest weight of 0.
 BAND_WEIGHTS = (0.5, 0.1)
 """Weights of the choice in the band-weighted blend where its spectra fit the texel's band
 shots better than the default's, and elsewhere (chosen as :data:`BLEND`)."""
+POOLED = "material-pooled"
+"""The default's set model before ``"evidence-blend"`` (its set step without the choice): the
+blends below mix the choice with the default solved with it."""
 ROWS = (
     "default",
     "default+run-library",
+    f"{POOLED}+run-library",
     CHOICE,
     f"{CHOICE}+run-library",
     "blend+run-library",
@@ -175,11 +181,11 @@ def library_angles(atoms: np.ndarray, capture) -> dict:
 
 
 def solve(
-    capture, endmembers: Endmembers | None, method: str = DEFAULT_METHOD
+    capture, endmembers: Endmembers | None, method: str = DEFAULT_METHOD, **given
 ) -> tuple[dict, xr.DataArray]:
-    """``method`` on ``capture`` (its own library, or ``endmembers``): scores and seconds,
-    and the spectra."""
-    options = {} if endmembers is None else {"endmembers": endmembers}
+    """``method`` on ``capture`` (its own library, or ``endmembers``; ``given`` options):
+    scores and seconds, and the spectra."""
+    options = {**given} if endmembers is None else {"endmembers": endmembers, **given}
     wall = time.perf_counter()
     spectra = reconstruct(
         capture.rgb,
@@ -290,12 +296,13 @@ def run_case(name: str, seed: int, size: int, others: int, with_oracles: bool) -
     wall = time.perf_counter()
     library = pooled_library(sets)
     library_s = time.perf_counter() - wall
-    run, run_spectra = solve(capture, library)
-    rows = {"default": own, "default+run-library": run}
+    run, _ = solve(capture, library)
+    pooled, run_spectra = solve(capture, library, set_model=POOLED)
+    rows = {"default": own, "default+run-library": run, f"{POOLED}+run-library": pooled}
     rows[CHOICE], _ = solve(capture, None, CHOICE)
     rows[f"{CHOICE}+run-library"], chosen = solve(capture, library, CHOICE)
     blend = BLEND * chosen + (1.0 - BLEND) * run_spectra
-    wall = rows["default+run-library"]["wall_s"] + rows[f"{CHOICE}+run-library"]["wall_s"]
+    wall = rows[f"{POOLED}+run-library"]["wall_s"] + rows[f"{CHOICE}+run-library"]["wall_s"]
     rows["blend+run-library"] = scores(blend, capture, wall)
     weight = band_weights(capture, chosen.values, run_spectra.values)
     mixed = (weight * chosen + (1.0 - weight) * run_spectra).transpose(*chosen.dims)

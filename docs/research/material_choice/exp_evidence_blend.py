@@ -13,6 +13,12 @@ once).
     OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py final
     OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py cache 2 3   # more seeds,
     OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py final 2 3   # variant frozen
+    OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py candidates 0 1   # tuning
+    OMP_NUM_THREADS=1 ../../../.venv/bin/python exp_evidence_blend.py candidates-held-out 0 1 2 3
+
+``candidates``: the frozen blend with a cheaper choice (fewer candidates, smaller supports),
+its CPU seconds and the blend's ratios; the set step takes the cheapest that keeps the
+tuning scenes' worst ratio (``candidates-held-out`` runs that one, 2, on dark-still-life).
 
 Variants (``evidence``): the texel's own log-likelihood ratio over all its shots (``own``), the
 appearance bins' evidence as ``n_b`` x the bin mean per shot (``pooled``: the multiple), the
@@ -169,6 +175,38 @@ def final(seeds=SEEDS) -> None:
             )
 
 
+def candidates(seeds=SEEDS, scenes=TUNING, variants=None) -> None:
+    """The blend (prior 3) with the choice re-solved with fewer candidates: CPU and ratios."""
+    import time
+
+    from spectralize.nodes.reconstruction import reconstruct
+    from spectralize.nodes.reconstruction.estimators.evidence_blend import evidence_blend
+
+    variants = variants or [{}, {"candidates": 4}, {"candidates": 3}, {"candidates": 4, "max_support": 2}, {"candidates": 2}]
+    for name in scenes:
+        for seed in seeds:
+            d = load(name, seed)
+            with open(CACHE / f"eb_{name}_{SIZE}_{seed}_capture.pkl", "rb") as f:
+                stored = pickle.load(f)
+            capture, library = stored["capture"], stored["library"]
+            base = score(d, d["a"])
+            for options in variants:
+                started = time.process_time()
+                chosen = reconstruct(
+                    capture.rgb, capture.bands, capture.camera_matrix, method=B.CHOICE,
+                    illuminant=scene_illuminant(capture), endmembers=library, **options,
+                )
+                cpu = time.process_time() - started
+                b = chosen.transpose("wavelength", "image", "y", "x").values.astype(np.float64)
+                cube, _ = evidence_blend(d["inputs"], np.moveaxis(d["a"], 1, 0), b)
+                s = score(d, np.moveaxis(cube, 0, 1))
+                print(
+                    f"{name:15s} {seed} {str(options):35s} choice cpu {cpu:.2f} s blend ratio "
+                    f"{s['median'] / base['median']:.3f}/{s['p95'] / base['p95']:.3f}",
+                    flush=True,
+                )
+
+
 if __name__ == "__main__":
     step = sys.argv[1] if len(sys.argv) > 1 else "final"
     seeds = tuple(int(s) for s in sys.argv[2:]) or SEEDS
@@ -178,5 +216,9 @@ if __name__ == "__main__":
                 cache(name, seed)
     elif step == "final":
         final(seeds)
+    elif step == "candidates":
+        candidates(seeds)
+    elif step == "candidates-held-out":
+        candidates(seeds, (HELD_OUT,), [{"candidates": 2}])
     else:
         grid()
