@@ -5,7 +5,8 @@ a pixel, dim, glossy, metamers placed apart, band SNR at or below 1), each with 
 seeds, as a single image with all 32 band shots and as a 20-image BTF-like set (10 images
 with bands, 10 without). The sets are given the scene's true illuminant (the simulation's
 LED, :func:`~spectralize.nodes.simulation.scenes.materials.sharp_led`, as a run's
-calibration would measure it), so the default applies its set model ``"material-pooled"``;
+calibration would measure it), so the default applies its set model (``"evidence-blend"``,
+which without a run's endmember library, as here, is ``"material-pooled"``);
 it runs on them again with the set models ``"independent"`` and ``"shared-texel"``
 (:data:`SET_VARIANTS`), side by side. Per method: median, p95, p99 and the fraction under
 0.03 of the per-pixel nRMSE (RMSE over bands / the image's mean truth, paper Fig. 5), for a
@@ -46,8 +47,8 @@ SET_VARIANTS = {
     f"{DEFAULT_METHOD}+{model}": (DEFAULT_METHOD, {"set_model": model})
     for model in ("independent", "shared-texel")
 }
-"""Extra set rows: a name -> (method, options); the default (whose set model is
-``"material-pooled"``: a material's shape shared across its texels' band shots) with its
+"""Extra set rows: a name -> (method, options); the default (whose set model here, without a
+run library, is ``"material-pooled"``: a material's shape shared across its texels' band shots) with its
 spectra kept as solved and with a texel's shapes shared across the set's images instead
 (issue 29, part 2)."""
 

@@ -124,9 +124,11 @@ SetModel = Annotated[
     Choices(SET_MODELS, "set model"),
     Field(
         description="how a set's images share spectra after the solve: 'independent', "
-        "'shared-texel' (per-texel shapes shared by the set's images) or 'material-pooled' "
-        "(one shape per material, fitted to its texels' pooled band shots); both need the "
-        "calibration's illuminant; None: the method's (the default's: 'material-pooled' "
+        "'shared-texel' (per-texel shapes shared by the set's images), 'material-pooled' "
+        "(one shape per material, fitted to its texels' pooled band shots) or "
+        "'evidence-blend' ('material-pooled', then, with the run's library, each texel's "
+        "material choice weighed in by its band evidence); all but 'independent' need the "
+        "calibration's illuminant; None: the method's (the default's: 'evidence-blend' "
         "where the calibration has the illuminant, else 'independent'); solvers only",
     ),
 ]
@@ -295,8 +297,8 @@ def _illuminant(
     Raises
     ------
     ReconstructionError
-        A given ``"shared-texel"`` or ``"material-pooled"`` without a usable illuminant in
-        the calibration.
+        A given set model other than ``"independent"`` without a usable illuminant in the
+        calibration.
     """
     set_model = method.given.get("set_model")
     needs_light = set_model not in (None, "independent")  # given: refused without L
