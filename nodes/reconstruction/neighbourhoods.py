@@ -267,10 +267,14 @@ class NeighbourGraph:
             neighbours, ratios, degree, reverse_ptr, reverse_pair, indptr, none, none.astype(self.dtype)
         )
         np.cumsum(indptr, out=indptr)
-        indices = np.empty(int(indptr[-1]), dtype=np.int64)
-        data = np.empty(int(indptr[-1]), dtype=self.dtype)
+        # 32-bit column indices where they fit (scipy's choice too): the solvers read the
+        # Laplacian in every pass and hold it for the whole solve
+        entries = int(indptr[-1])
+        index = np.int32 if max(entries, n_pixels) <= np.iinfo(np.int32).max else np.int64
+        indices = np.empty(entries, dtype=index)
+        data = np.empty(entries, dtype=self.dtype)
         laplacian_rows(neighbours, ratios, degree, reverse_ptr, reverse_pair, indptr, indices, data)
-        return sp.csr_array((data, indices, indptr), shape=(n_pixels, n_pixels))
+        return sp.csr_array((data, indices, indptr.astype(index)), shape=(n_pixels, n_pixels))
 
     @property
     def difference_operator(self) -> sp.csr_array:

@@ -393,9 +393,11 @@ class PixelOrder:
     image
         ``(n_pixels,)`` int32: the image of the pixel at each position.
     graph
-        The neighbour graph on positions.
+        The neighbour graph on pixels (the problem's, in (image, y, x) order).
     shape
         The cube's ``(n_wavelength, n_image, height, width)``.
+    natural
+        Whether ``order`` is the (image, y, x) order itself.
     """
 
     order: np.ndarray
@@ -403,6 +405,8 @@ class PixelOrder:
     image: np.ndarray
     graph: NeighbourGraph
     shape: tuple[int, int, int, int]
+    natural: bool = False
+    _laplacians: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(
@@ -413,18 +417,28 @@ class PixelOrder:
         n_image = shape[1]
         position = np.empty_like(order)
         position[order] = np.arange(order.size)
-        natural = np.array_equal(order, np.arange(order.size))
         return cls(
             order,
             position.reshape(n_image, -1),
             (order // (shape[2] * shape[3])).astype(np.int32),
-            graph if natural else graph.permuted(order),
+            graph,
             shape,
+            bool(np.array_equal(order, np.arange(order.size))),
         )
 
     def laplacian(self, dtype: np.dtype) -> sp.csr_array:
-        """The neighbour Laplacian on positions, in ``dtype``."""
-        return self.graph.astype(dtype).laplacian
+        """The neighbour Laplacian on positions, in ``dtype``, built once per dtype.
+
+        In a permuted order it is assembled from the graph moved to positions
+        (:meth:`~.neighbourhoods.NeighbourGraph.permuted`), which is not kept: the solvers
+        read only its Laplacian, and its neighbour lists would stay beside the problem's own
+        for the whole solve."""
+        if self.natural:
+            return self.graph.astype(dtype).laplacian
+        key = np.dtype(dtype).name
+        if key not in self._laplacians:
+            self._laplacians[key] = self.graph.permuted(self.order).astype(dtype).laplacian
+        return self._laplacians[key]
 
     def to_pixels(self, cube: np.ndarray) -> np.ndarray:
         """``(n_wavelength, n_image, height, width)`` -> C-contiguous ``(n_pixels, n_wavelength)``
@@ -610,6 +624,13 @@ class ReconstructionProblem:
                 )
             cache[key] = PixelOrder.build(order, self.shape, self.neighbours)
         return cache[key]
+
+    def release_pixel_orders(self) -> None:
+        """Drop the pixel orders :meth:`pixel_order` keeps (their index arrays and
+        Laplacians): a solver calls it when its solve is done, so that what runs next (a
+        set model, the confidence) does not hold them; a later call builds them again, the
+        same."""
+        self.extras.pop("pixel_orders", None)
 
     def normal_pixels(
         self,

@@ -282,12 +282,12 @@ def material_pooled_refine(
         ``labels`` of the wrong shape or negative, or an ``rgb_sigma`` of the wrong shape or
         not positive.
     """
-    initial = np.asarray(initial, dtype=np.float64)
+    initial = np.asarray(initial)  # a float32 cube is cast once, into the fit's ``x0``
     highlight = np.asarray(highlight, dtype=np.float64)
     _check(inputs, initial, highlight, int(clusters))
     n_w, n_m, h, w = inputs.cube_shape
     t = fit_terms(inputs, initial, highlight, prior, band_sigma)
-    del initial  # the float64 copy: the fit holds it as ``x0`` (texel-major)
+    del initial  # the fit holds it as ``x0`` (texel-major, float64)
     ell, x0, rgb, cams, rgb_weight, prior_weight, shot_image, shot_band, data, shot_weight, ctc = t
     rgb_terms = (rgb * rgb_weight, cams)  # C_m^T W R_m, applied per texel as needed
     terms = (cams, rgb_weight, rgb, x0, prior_weight, data, shot_image, shot_band, shot_weight)
@@ -322,21 +322,33 @@ def material_pooled_refine(
     shape_terms = (ell, ctc, rgb_terms, x0, prior_weight, data, shot_image, shot_band, shot_weight)
 
     # 4. pooled shapes (empirical Bayes between S^0 and the pooled bands), then weights
+    prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(x0.mean(axis=(0, 2)), 1e-12)
     for _ in range(int(rounds)):
         pooled = _pooled_shapes(weights, label, k, *shape_terms, rgb_weight=rgb_weight)
         shapes = pooled[label]
         weights = texel_weights(shapes, ell, *terms)
-    # a_m E + h_m L, written wavelength by wavelength into the (w, m, y, x) cube (one cube
-    # in memory, not the (n, m, w) products, their sum and its transposed copy), from the
-    # weights and shapes transposed once: each wavelength's plane is then computed in place
+    # S^0 (two float32 cubes' worth) is done with: the fitted cube takes its place
+    del t, x0, terms, shape_terms, rgb_terms, rgb, data
+    fit = _fitted_cube(weights, shapes, ell, inputs.cube_shape)
+    return _rgb_update(fit, inputs, sigma, prior_sigma).reshape(n_w, n_m, h, w)
+
+
+def _fitted_cube(
+    weights: np.ndarray, shapes: np.ndarray, ell: np.ndarray, shape: tuple[int, int, int, int]
+) -> np.ndarray:
+    """``(w, m, n)``: ``a_m E + h_m L`` per texel and image from the weights ``(n, m, 2)``
+    and shapes ``(n, w)``, written wavelength by wavelength into the cube (one cube in
+    memory, not the ``(n, m, w)`` products, their sum and its transposed copy), from the
+    weights and shapes transposed once: each wavelength's plane is then computed in
+    place."""
+    n_w, n_m, h, w = shape
     shading, shine = weights[:, :, 0].T.copy(), weights[:, :, 1].T.copy()  # (m, n)
     columns = shapes.T.copy()  # (w, n)
     fit = np.empty((n_w, n_m, h * w))
     for band in range(n_w):
         np.multiply(shading, columns[band], out=fit[band])
         fit[band] += shine * ell[band]
-    prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(x0.mean(axis=(0, 2)), 1e-12)
-    return _rgb_update(fit, inputs, sigma, prior_sigma).reshape(n_w, n_m, h, w)
+    return fit
 
 
 def _checked(rgb_sigma: np.ndarray, n_image: int) -> np.ndarray:

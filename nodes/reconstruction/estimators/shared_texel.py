@@ -191,6 +191,23 @@ class FitTerms(NamedTuple):
     ctc: np.ndarray  # (m, w, w) C_m^T W_R C_m
 
 
+def image_means(initial: np.ndarray) -> np.ndarray:
+    """``(n_image,)``: each image's mean of a cube ``(n_wavelength, n_image, height, width)``
+    in float64, the same bits as ``initial.astype(np.float64).mean(axis=(0, 2, 3))``.
+
+    A C-contiguous cube in another dtype (the solvers' float32) is summed band by band,
+    each band cast on its own, instead of through a float64 copy of the whole cube: numpy
+    sums a C-contiguous float64 cube over these axes band after band, each band's plane
+    pairwise, which a cast made during the sum would change (its buffer splits the planes
+    into other blocks)."""
+    if initial.dtype == np.float64 or not initial.flags.c_contiguous or initial.ndim != 4:
+        return np.asarray(initial, dtype=np.float64).mean(axis=(0, 2, 3))
+    total = np.add.reduce(initial[0].astype(np.float64), axis=(1, 2))
+    for band in initial[1:]:
+        total += np.add.reduce(band.astype(np.float64), axis=(1, 2))
+    return total / (initial.shape[0] * initial.shape[2] * initial.shape[3])
+
+
 def fit_terms(
     inputs: ReconstructionInputs,
     initial: np.ndarray,
@@ -205,8 +222,8 @@ def fit_terms(
     n_w, n_m, h, w = inputs.cube_shape
     n = h * w
     cube = initial.reshape(n_w, n_m, n)
-    # every texel: the cube itself, transposed in one copy (an index array would copy it
-    # first into a layout whose transpose is slow to gather)
+    # every texel: the cube itself, transposed (and a float32 cube cast) in one copy (an
+    # index array would copy it first into a layout whose transpose is slow to gather)
     x0 = cube.transpose(2, 1, 0) if active is None else cube[:, :, active].transpose(2, 1, 0)
     active = np.arange(n) if active is None else active
     if band_sigma is None:
@@ -217,11 +234,11 @@ def fit_terms(
         np.abs(inputs.rgb.reshape(n_m, -1, 3).mean(axis=1)), 1e-12
     )
     rgb_weight = 1.0 / rgb_sigma**2
-    prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(initial.mean(axis=(0, 2, 3)), 1e-12)
+    prior_sigma = PRIOR_RELATIVE_SIGMA * np.maximum(image_means(initial), 1e-12)
     shot_band = np.asarray(inputs.band, dtype=np.int64)
     return FitTerms(
         ell=highlight / np.linalg.norm(highlight),
-        x0=np.ascontiguousarray(x0),
+        x0=np.ascontiguousarray(x0, dtype=np.float64),
         rgb=inputs.rgb.reshape(n_m, n, 3)[:, active].transpose(1, 0, 2).astype(np.float64),
         cams=cams,
         rgb_weight=rgb_weight,

@@ -185,3 +185,34 @@ def test_one_pass_projection_equals_alternating_passes(per_image):
     index = np.arange(n_image) if per_image else np.zeros(n_image, dtype=np.intp)
     project_rgb_nonnegative(cube, np.ascontiguousarray(cameras), pseudo, index, rgb, 4)
     np.testing.assert_allclose(cube, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_a_pixel_order_keeps_its_laplacian_not_a_permuted_copy_of_the_graph(problem):
+    """The appearance order's Laplacian is the permuted graph's, bit for bit, built once per
+    dtype; the order holds the problem's own graph, not a permuted copy of its neighbour
+    lists (they would stay beside the problem's for the whole solve)."""
+    from spectralize.nodes.reconstruction.neighbourhoods import NeighbourGraph
+
+    order = problem.pixel_order("appearance")
+    expected = problem.neighbours.permuted(order.order).laplacian
+    built = order.laplacian(problem.dtype)
+    for name in ("indptr", "indices", "data"):
+        assert np.array_equal(getattr(built, name), getattr(expected, name)), name
+    assert order.laplacian(problem.dtype) is built  # once per dtype
+    graphs = [value for value in vars(order).values() if isinstance(value, NeighbourGraph)]
+    assert graphs == [problem.neighbours]
+
+
+@pytest.mark.parametrize("solver", ["prior_pcg", "block_jacobi_pcg"])
+def test_a_solver_drops_its_pixel_orders_when_it_is_done(scene_factory, solver):
+    """The solve's pixel orders (index arrays, Laplacian) are not kept in the problem after
+    it (a set model or the confidence runs next); a second solve builds them again and gives
+    the same bits."""
+    from spectralize.nodes.reconstruction import solvers
+
+    scene = scene_factory(size=16, n_wavelength=5, n_images=2, noise=0.05, shots={0: [0, 1, 2, 3, 4]})
+    problem = build_problem(inputs_from_xarray(scene.rgb, scene.bands, scene.camera_matrix))
+    solve = getattr(solvers, solver)
+    first = solve(problem, max_iterations=5).cube
+    assert not problem.extras.get("pixel_orders")
+    assert np.array_equal(solve(problem, max_iterations=5).cube, first)

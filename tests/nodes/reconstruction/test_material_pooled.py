@@ -332,3 +332,43 @@ def test_fit_terms_of_every_texel_are_those_of_all_texels_named():
     assert every.x0.flags["C_CONTIGUOUS"]
     for name, value in every._asdict().items():
         assert np.array_equal(value, getattr(named, name)), name
+
+
+def test_a_float32_start_is_cast_once_into_the_fit():
+    """The solver's float32 cube becomes the fit's texel-major float64 ``x0`` in one cast
+    copy (no float64 copy of the whole cube beside it), and every fixed term, the prior's
+    per-image means included, is the float64 cube's bit for bit: so is the refit."""
+    import tracemalloc
+
+    from spectralize.nodes.reconstruction.estimators.shared_texel import fit_terms
+
+    inputs, _, initial, sigma, _ = _two_material_set(5, size=24, n_image=12)
+    start = initial.astype(np.float32)
+    wide = fit_terms(inputs, start.astype(np.float64), LIGHT, 1.0, sigma)
+    tracemalloc.start()
+    try:
+        cast = fit_terms(inputs, start, LIGHT, 1.0, sigma)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert cast.x0.dtype == np.float64 and cast.x0.flags["C_CONTIGUOUS"]
+    for name, value in wide._asdict().items():
+        assert np.array_equal(value, getattr(cast, name)), name
+    assert peak < 1.75 * cast.x0.nbytes, (peak, cast.x0.nbytes)  # a float64 copy: over 2
+    refit = material_pooled_refine(inputs, start, LIGHT, band_sigma=sigma)
+    assert np.array_equal(
+        refit, material_pooled_refine(inputs, start.astype(np.float64), LIGHT, band_sigma=sigma)
+    )
+
+
+@pytest.mark.parametrize("shape", [(32, 20, 30, 26), (5, 3, 7, 9), (3, 2, 1, 1), (8, 3, 100, 3)])
+def test_image_means_of_a_float32_cube_are_the_float64_cubes_bit_for_bit(shape):
+    """Summed band by band, each band cast on its own, the per-image means are numpy's
+    means of the float64 copy bit for bit (C-contiguous or not)."""
+    from spectralize.nodes.reconstruction.estimators.shared_texel import image_means
+
+    rng = np.random.default_rng(sum(shape))
+    cube = (rng.random(shape) * rng.uniform(0.1, 100.0, size=shape[1])[:, None, None]).astype(np.float32)
+    for layout in (cube, np.asfortranarray(cube), cube.astype(np.float64)):
+        expected = layout.astype(np.float64).mean(axis=(0, 2, 3))
+        assert np.array_equal(image_means(layout), expected)
