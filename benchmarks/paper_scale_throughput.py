@@ -18,11 +18,12 @@ illuminant), before and after, each in a fresh process under cProfile timed in C
 (the process's, not the wall clock's: other work on a shared machine shows less in it; its
 user and system parts apart, the system part mostly the kernel's page faults on fresh
 memory): the cumulative seconds of the tile's stages (:data:`TILE_SECTIONS`), its resident
-peak, whether both sides' spectra and confidence are bit-identical, and both sides' 128^2
-accuracy;
+peak and per stage the resident set it had reached (:class:`StagePeaks`), whether both sides'
+spectra and confidence are bit-identical, and both sides' 128^2 accuracy;
 stored under the key ``profile_256`` of the same file (the other rows are kept).
-``--after-commit REV`` takes the "after" side from a worktree of ``REV`` too, instead of
-this checkout (a comparison of two commits while the checkout holds other work).
+``--after-commit REV`` (here and in the 2048^2 case) takes the "after" side from a worktree of
+``REV`` too, instead of this checkout (a comparison of two commits while the checkout holds
+other work).
 
 ``--mixture-tile`` instead times the mixture prior's centre (the endmember mixture) and the
 whole tile (``solve_tile``, with the set's endmembers and the confidence) on one 256^2 x
@@ -40,6 +41,7 @@ import platform
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -84,6 +86,55 @@ TILE_SECTIONS = {
 """The stages of a tile in ``--profile``: (module, function) -> the row's name."""
 
 
+class StagePeaks:
+    """The resident set (``VmRSS``) sampled while one thread solves a tile, each sample
+    given to the stage of :data:`TILE_SECTIONS` innermost on that thread's stack: per stage
+    the largest resident set seen (GB), and the first stage that came within 10 MB of the
+    peak.
+
+    With the heap kept between tiles (``keep_freed_memory``) the resident set only grows,
+    so a stage's value is the heap the tile had grown to by its end, and the stages where
+    it grows are where the peak forms."""
+
+    def __init__(self, thread_id: int, interval: float = 0.02) -> None:
+        self.thread_id, self.interval = thread_id, interval
+        self.peaks: dict[str, float] = {}
+        self.peak_stage = ""
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _stage(self) -> str:
+        frame = sys._current_frames().get(self.thread_id)
+        stage = "other"
+        while frame is not None:  # innermost first
+            code = frame.f_code
+            key = (Path(code.co_filename).stem, code.co_name)
+            if key in TILE_SECTIONS and "reconstruction" in code.co_filename:
+                return TILE_SECTIONS[key].strip()
+            frame = frame.f_back
+        return stage
+
+    def _sample(self) -> None:
+        page = os.sysconf("SC_PAGE_SIZE") / 2**30
+        trace = []
+        while not self._done.wait(self.interval):
+            resident = int(Path("/proc/self/statm").read_text().split()[1]) * page
+            stage = self._stage()
+            self.peaks[stage] = round(max(self.peaks.get(stage, 0.0), resident), 3)
+            trace.append((resident, stage))
+        top = max((resident for resident, _ in trace), default=0.0)
+        # the first stage within 10 MB of the peak (a kept heap stays there afterwards)
+        self.peak_stage = next((stage for resident, stage in trace if resident >= top - 0.01), "")
+
+    def __enter__(self) -> StagePeaks:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self._done.set()
+        self._thread.join()
+
+
 def profile_tile_case(folder: str, package: str | None, keep: str | None = None) -> dict:
     """In this process: one interior 256 px tile of the set in ``folder`` under cProfile (CPU
     seconds); its spectra and confidence saved to ``keep`` (``.npz``) where given."""
@@ -118,7 +169,7 @@ def profile_tile_case(folder: str, package: str | None, keep: str | None = None)
     oy, ox = window.outer
     profile = cProfile.Profile(time.process_time)
     started, cpu_started, times = time.perf_counter(), time.process_time(), os.times()
-    with _as_a_run():
+    with _as_a_run(), StagePeaks(threading.get_ident()) as stages:
         profile.enable()
         spectra, iterations, spread = solve_tile(
             rgb.isel(y=oy, x=ox),
@@ -148,6 +199,8 @@ def profile_tile_case(folder: str, package: str | None, keep: str | None = None)
         "system_s": round(done.system - times.system, 2),  # and the kernel's (page faults)
         "iterations": int(iterations.max()),
         "peak_rss_gb": round(resident_gb(), 3),
+        "stage_peak_rss_gb": stages.peaks,  # sampled (StagePeaks)
+        "peak_stage": stages.peak_stage,
         "load_average_1min": round(os.getloadavg()[0], 1),
         "sections_s": sections,
     }
@@ -343,7 +396,7 @@ def main() -> None:
     parser.add_argument("--tile-case", help=argparse.SUPPRESS)
     parser.add_argument("--package", help=argparse.SUPPRESS)
     parser.add_argument("--keep", help=argparse.SUPPRESS)
-    parser.add_argument("--after-commit", help="--profile: the 'after' side from this commit")
+    parser.add_argument("--after-commit", help="the 'after' side from this commit (not the checkout)")
     parser.add_argument(
         "--into-mixture-tile",
         action="store_true",
@@ -370,7 +423,7 @@ def main() -> None:
     report: dict = {
         "benchmark": "paper_scale_throughput",
         "command": " ".join(sys.argv),
-        "commit": head,
+        "commit": args.after_commit or head,
         "date": time.strftime("%Y-%m-%d", time.gmtime()),
         "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version()},
         "method": DEFAULT_METHOD,
@@ -392,7 +445,12 @@ def main() -> None:
         capture_inputs(args.scene, 128, 0, work / "set128.npz", truth=True)
         folder = work / f"mirrored{args.size}"
         run_case("mirror", work / "set512.npz", args.size, folder)
-        for label, where in ((f"before ({args.baseline_commit})", package), (f"after ({head})", None)):
+        after_package = _after_package(args.after_commit, work)
+        after = args.after_commit or head
+        for label, where in (
+            (f"before ({args.baseline_commit})", package),
+            (f"after ({after})", after_package),
+        ):
             # first the small solve: it also fills the code's compiled-kernel cache, so the
             # timed case compiles nothing (a fresh worktree has none)
             accuracy = run_case("accuracy", work / "set128.npz", package=where)
@@ -401,8 +459,9 @@ def main() -> None:
             row = run_case("throughput", folder, args.size, 256, 2, 2, package=where)
             log(f"{label}: {row['seconds_per_mpx_image']} s/Mpx-image, peak {row['peak_rss_gb']} GB")
             row["accuracy_128"] = accuracy
-            report["before" if where is not None else "after"] = {"commit": label, **row}
-        subprocess.run(["git", "worktree", "remove", "--force", str(work / "baseline")], check=False)
+            report["before" if where is package else "after"] = {"commit": label, **row}
+        for tree in ("baseline", "after"):
+            subprocess.run(["git", "worktree", "remove", "--force", str(work / tree)], check=False)
     before, after = report["before"], report["after"]
     report["speedup"] = round(before["seconds_per_mpx_image"] / after["seconds_per_mpx_image"], 2)
     from paper_scale import FULL_RUN_IMAGES, FULL_RUN_MPX_PER_IMAGE
