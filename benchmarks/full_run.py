@@ -28,6 +28,9 @@ object, also kept in ``benchmarks/results/full_run.json`` (one entry per image c
                                     count the other work too)
 ``open_and_read_coordinates_s``     a fresh process: ``open_run(store).read("spectra")`` and
                                     its per-image coordinates in memory (imports excluded)
+``report_s``, ``report_cpu_s``      a fresh process: ``write_run_report`` of the store (wall
+                                    and CPU seconds, imports excluded; the flow writes the
+                                    same report at its end, timed to the second in its log)
 """
 
 from __future__ import annotations
@@ -141,6 +144,26 @@ print(json.dumps({"seconds": time.perf_counter() - start, "coords": sorted(coord
 """
 
 
+REPORT = """
+import sys, time, json, tempfile
+from spectralize.flows.report import write_run_report
+start, cpu = time.perf_counter(), time.process_time()
+with tempfile.TemporaryDirectory() as directory:
+    write_run_report(sys.argv[1], directory=directory)
+print(json.dumps({"seconds": time.perf_counter() - start, "cpu_s": time.process_time() - cpu}))
+"""
+
+
+def fresh_process(code: str, store: Path) -> dict:
+    """The last line (JSON) of ``code`` run on ``store`` in a fresh Python process."""
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(store)], cwd=ROOT, capture_output=True, text=True
+    )
+    if done.returncode:
+        raise SystemExit(done.stderr)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def record(output: Path, result: dict) -> None:
     """Keep ``result`` in ``output`` beside the runs of other image counts (one per count)."""
     try:
@@ -210,12 +233,9 @@ def main(argv: list[str] | None = None) -> dict:
         resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6, process_peak_rss_gb(summary) or 0.0
     )
 
-    done = subprocess.run(
-        [sys.executable, "-c", OPEN_AND_READ, str(store)], cwd=ROOT, capture_output=True, text=True
-    )
-    if done.returncode:
-        raise SystemExit(done.stderr)
-    opened = json.loads(done.stdout.strip().splitlines()[-1])
+    opened = fresh_process(OPEN_AND_READ, store)
+    report = fresh_process(REPORT, store)
+    log(f"report in {report['seconds']:.1f} s (CPU {report['cpu_s']:.1f} s)")
 
     from spectralize.store import open_run
 
@@ -245,6 +265,8 @@ def main(argv: list[str] | None = None) -> dict:
         "node_peak_rss_gb": node_peak_rss_gb(summary),
         "peak_rss_gb": round(peak, 2),
         "open_and_read_coordinates_s": round(opened["seconds"], 2),
+        "report_s": round(report["seconds"], 1),
+        "report_cpu_s": round(report["cpu_s"], 1),
         "cpu_count": os.cpu_count(),
         "targets": {
             "files_per_image": 3,
@@ -252,6 +274,7 @@ def main(argv: list[str] | None = None) -> dict:
             "seconds_per_1000_images": 60,
             "peak_rss_gb": 4,
             "open_and_read_coordinates_s": 2,
+            "report_s": 10,
         },
     }
     output = args.output or RESULTS / "full_run.json"

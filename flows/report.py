@@ -827,7 +827,8 @@ def _thumbnail_caption(ds: xr.Dataset, position: int) -> str:
 #: more has them computed over images spread evenly over the run (and every few pixels of an
 #: image larger than this), so the report reads a bounded amount whatever the image count.
 STATISTICS_PIXELS = 2**20
-#: Images those statistics are computed over at most (each is a stored chunk read on its own).
+#: Images those statistics are computed over at most (each read with the stored chunk that
+#: holds it: its own, or a few neighbours' too in a run of small frames).
 STATISTICS_IMAGES = 512
 #: Stored shards those images come from at most (a shard is read whole once, to check it
 #: against its checksum), spread over the run like the images.

@@ -638,7 +638,8 @@ class RunStore:
             are the dask chunks of ``ds`` along the dim (they may differ in size; small ones
             are written together), each staged as files of its own
             (:func:`~.staging.stage_region`); finished, the group is packed into shards
-            (:mod:`.layout`).
+            (:mod:`.layout`) with the chunks a write of the data in one piece gets, whatever
+            the regions were.
         concurrent_regions
             How many regions are computed and written at the same time (resumable writes).
         progress
