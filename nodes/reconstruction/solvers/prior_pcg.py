@@ -226,14 +226,11 @@ def _prior_system(
     :func:`prior_pcg`."""
     work = problem.astype(dtype)
     mask = shot_mask(problem)  # (w, m, 1, 1)
-    # epsilon_p f_p M / mean(diag A^T A), and f_p where the prior is weighted by brightness
-    guided, brightness = _guided_prior_weight(
-        problem, prior * mask, prior=prior, prior_weighting=prior_weighting, dtype=dtype
-    )
     mean_diagonal = normal_mean_diagonal(work)
-    term, relative = _spectral_prior(
+    # the spectral prior first: the estimates its centre is made from (float64 cubes) are
+    # gone before the guided prior's cubes are made
+    term = _spectral_prior(
         problem,
-        ridge + guided,
         mean_diagonal,
         dtype,
         weight=spectral_prior,
@@ -242,6 +239,11 @@ def _prior_system(
         endmembers=endmembers,
         natural_prior=natural_prior,
     )
+    # epsilon_p f_p M / mean(diag A^T A), and f_p where the prior is weighted by brightness
+    guided, brightness = _guided_prior_weight(
+        problem, prior * mask, prior=prior, prior_weighting=prior_weighting, dtype=dtype
+    )
+    relative = _preconditioner_ridge(term, ridge + guided, mean_diagonal, dtype)
     if term is not None and prior_source in ("mixture", "natural"):
         centre = term.centre  # the guided prior pulls towards the same estimate (read only)
     else:
@@ -314,7 +316,6 @@ def _guided_prior_weight(
 
 def _spectral_prior(
     problem: ReconstructionProblem,
-    relative: np.ndarray,
     mean_diagonal: float,
     dtype: np.dtype,
     *,
@@ -323,13 +324,11 @@ def _spectral_prior(
     source: str,
     endmembers: Endmembers | None,
     natural_prior: float,
-) -> tuple[SpectralPrior | None, np.ndarray]:
+) -> SpectralPrior | None:
     """The spectral prior term in ``dtype`` (None for ``weight=0``, or where its source
-    has none, :func:`~.spectral_prior.spectral_prior_term`) and the preconditioner's ridge
-    relative to the mean diagonal of ``A^T A``: the ridges ``relative``, plus the prior's
-    diagonal where it has one (one cube in ``dtype``)."""
+    has none, :func:`~.spectral_prior.spectral_prior_term`)."""
     if not weight > 0:
-        return None, relative
+        return None
     term = spectral_prior_term(
         problem,
         weight,
@@ -339,13 +338,21 @@ def _spectral_prior(
         endmembers=endmembers,
         natural_prior=natural_prior,
     )
+    return None if term is None else term.astype(dtype)
+
+
+def _preconditioner_ridge(
+    term: SpectralPrior | None, relative: np.ndarray, mean_diagonal: float, dtype: np.dtype
+) -> np.ndarray:
+    """The preconditioner's ridge relative to the mean diagonal of ``A^T A``: the ridges
+    ``relative``, plus the spectral prior's diagonal where it has one (one cube in
+    ``dtype``)."""
     if term is None:
-        return None, relative
-    term = term.astype(dtype)
+        return relative
     diagonal = term.diagonal()
     diagonal *= dtype.type(1.0 / mean_diagonal)
     diagonal += np.asarray(relative, dtype=dtype)
-    return term, diagonal
+    return diagonal
 
 
 def _guided_prior_terms(
