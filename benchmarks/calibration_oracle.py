@@ -15,6 +15,12 @@ twice in this process, on one machine, with the same settings:
   LED powers (band radiance on the scale of the RGB image it pairs with). The registration
   is the estimated one in both (it is not calibration of the response).
 
+Each reconstruction gets the run's endmember library as ``run btf`` passes it (the
+``endmember_library`` node): the calibrated one the store's, the oracle (and each ablation)
+one learnt by the same node, with its defaults, from its own groups: what ``run btf`` would
+pass had the calibration been the truth. Without it the default's set model falls back to
+``material-pooled`` and each set mixes its own endmembers, which the chain does not do.
+
 Reported per lab, per RGB camera, for images with and without band shots: per-pixel nRMSE
 ``|S - T| / |T|`` against the writer's radiance of that image (median, p95, share below
 0.03), the same after one scale per pixel (spectral shape), the ratio calibrated / oracle;
@@ -156,15 +162,20 @@ def truth_radiance(base, rgb: xr.Dataset, image: int) -> np.ndarray:
 
 
 # -- the reconstruction, twice -------------------------------------------------------------------
-def reconstruct(hdr, bands, calibration, image_sets) -> xr.DataArray:
-    """The chain's reconstruction (both nodes, their defaults) in this process."""
+def reconstruct(hdr, bands, calibration, image_sets, library=None) -> xr.DataArray:
+    """The chain's reconstruction (the run's library and both set nodes, their defaults) in
+    this process; ``library`` (the store's ``endmember_library``) or, without it, the library
+    the ``endmember_library`` node learns from these groups, passed as ``run btf`` passes it."""
+    from spectralize.nodes.reconstruction.endmember_library import endmember_library
     from spectralize.nodes.reconstruction.set_reconstruction import (
         reconstruct_image_sets,
         reconstruct_seed_set,
     )
 
-    seed = reconstruct_seed_set(hdr, bands, calibration, image_sets).compute()
-    spectra = reconstruct_image_sets(hdr, bands, calibration, image_sets, seed)
+    if library is None:
+        library = endmember_library(hdr, bands, calibration, image_sets)
+    seed = reconstruct_seed_set(hdr, bands, calibration, image_sets, library).compute()
+    spectra = reconstruct_image_sets(hdr, bands, calibration, image_sets, seed, library)
     return spectra["radiance"].compute()
 
 
@@ -280,7 +291,8 @@ def measure_lab(root: Path, lab: str) -> dict:
 
     timings = {}
     start = time.perf_counter()
-    calibrated = reconstruct(read["hdr"], read["bands"], calibration, image_sets)
+    library = store.read("endmember_library").load()  # the one run btf passed
+    calibrated = reconstruct(read["hdr"], read["bands"], calibration, image_sets, library)
     timings["reconstruct_calibrated_s"] = time.perf_counter() - start
     start = time.perf_counter()
     oracle = reconstruct(hdr_oracle, bands_oracle, oracle_cal, image_sets)
@@ -292,7 +304,7 @@ def measure_lab(root: Path, lab: str) -> dict:
         one_c = {
             "calibrated": reconstruct(
                 read["hdr"], read["bands"], calibration.drop_vars("camera_matrices"), image_sets
-            ),
+            ),  # the library learnt through the paired camera's C, as the set nodes see it
             "oracle": reconstruct(
                 hdr_oracle, bands_oracle, oracle_cal.drop_vars("camera_matrices"), image_sets
             ),
@@ -630,6 +642,9 @@ def main(argv: list[str] | None = None) -> dict:
             "oracle": "true OECF and black offset per camera, true C per camera (and its maps onto "
             "the paired camera), true spectral response, dark pattern and QE, true LED powers; "
             "estimated registration in both",
+            "endmember_library": "each reconstruction gets the run's library as run btf passes it: "
+            "the calibrated one the store's, the oracle, ablation and one-C ones the library the "
+            "endmember_library node (defaults) learns from their own groups",
             "one_c_with_3x3_map": "the same two reconstructions with one C (the paired camera's) "
             "for every image and each image's RGB mapped by the 3 x 3 map onto the paired camera "
             "(the chain before one C per image), images without bands",
