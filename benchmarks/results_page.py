@@ -687,10 +687,30 @@ def _throughput_profile(profile: Json | None) -> list[str]:
     if not profile:
         return []
     rows = [[r["section"], num(r["before_s"]), num(r["after_s"])] for r in profile["sections"]]
-    return [
+    out = [
         f"**Where a tile's time goes** ({profile['note']})",
         table(["section", "before s", "after s"], rows),
     ]
+    before, after = profile["before"], profile["after"]
+    if "stage_peak_rss_gb" in after:  # the resident set each stage had reached (kept heap)
+        stages = dict.fromkeys([*before.get("stage_peak_rss_gb", {}), *after["stage_peak_rss_gb"]])
+        out += [
+            f"**Where a tile's peak forms**: the resident set (GB) a stage had reached; peak "
+            f"{num(before['peak_rss_gb'])} -> {num(after['peak_rss_gb'])} GB, formed in "
+            f"{before.get('peak_stage', '-')} -> {after['peak_stage']}.",
+            table(
+                ["stage", "before GB", "after GB"],
+                (
+                    [
+                        stage,
+                        num(before.get("stage_peak_rss_gb", {}).get(stage)),
+                        num(after["stage_peak_rss_gb"].get(stage)),
+                    ]
+                    for stage in stages
+                ),
+            ),
+        ]
+    return out
 
 
 def node_table(seconds: dict[str, float], peaks: dict[str, float] | None) -> str:
