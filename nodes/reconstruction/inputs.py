@@ -129,6 +129,26 @@ class ReconstructionInputs:
             kept[name] = np.asarray(compute(self))
         return kept[name].copy()
 
+    def check_cubes(self, **cubes: object) -> None:
+        """Raise :class:`~spectralize.schemas.errors.ReconstructionError` naming the first of
+        ``cubes`` (name -> array) whose shape is not :attr:`cube_shape`."""
+        for name, cube in cubes.items():
+            if np.shape(cube) != self.cube_shape:
+                raise ReconstructionError.single(
+                    name, f"shape {self.cube_shape} (wavelength, image, y, x)", np.shape(cube)
+                )
+
+    def shot_log_ratio_terms(self, shot: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """``(D_i - a)^2 - (D_i - b)^2`` over the plane of band shot ``i``, as
+        ``(b - a)(2 D_i - a - b)`` (float64), ``a`` and ``b`` two cubes of :attr:`cube_shape`
+        read at the shot's wavelength and image: twice the shot's log-likelihood ratio of
+        ``b`` over ``a`` times its noise variance (Gaussian noise)."""
+        band, image = int(self.band[shot]), int(self.image[shot])
+        data = self.band_data[shot].astype(np.float64)
+        a_plane = np.asarray(a[band, image], dtype=np.float64)
+        b_plane = np.asarray(b[band, image], dtype=np.float64)
+        return (b_plane - a_plane) * (2.0 * data - a_plane - b_plane)
+
     def rgb_pixels(self) -> np.ndarray:
         """``R`` as ``(3, n_pixels)`` over all pixels of all images (solver pixel order)."""
         return np.moveaxis(self.rgb, -1, 0).reshape(3, -1)

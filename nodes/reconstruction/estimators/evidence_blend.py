@@ -62,8 +62,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from spectralize.schemas.errors import ReconstructionError
-
 from ..inputs import ReconstructionInputs
 from .endmember_mixture import Endmembers, band_noise_sigma
 from .sparse_choice import sparse_choice
@@ -151,11 +149,7 @@ def choice_log_odds(
     ReconstructionError
         If an estimate's shape is not ``inputs.cube_shape``.
     """
-    for name, cube in (("default", default), ("choice", choice)):
-        if np.shape(cube) != inputs.cube_shape:
-            raise ReconstructionError.single(
-                name, f"shape {inputs.cube_shape} (wavelength, image, y, x)", np.shape(cube)
-            )
+    inputs.check_cubes(default=default, choice=choice)
     log_ratio = np.zeros((inputs.height, inputs.width))
     n_shot = len(inputs.band)
     if n_shot == 0:
@@ -163,15 +157,8 @@ def choice_log_odds(
     if sigma is None:
         sigma = band_noise_sigma(inputs)
     for i in range(n_shot):
-        b, m = int(inputs.band[i]), int(inputs.image[i])
-        shot = inputs.band_data[i].astype(np.float64)
-        a_plane = np.asarray(default[b, m], dtype=np.float64)
-        b_plane = np.asarray(choice[b, m], dtype=np.float64)
-        # (D - a)^2 - (D - b)^2 = (b - a)(2 D - a - b)
-        log_ratio += (
-            (b_plane - a_plane)
-            * (2.0 * shot - a_plane - b_plane)
-            / (2.0 * max(float(sigma[i]), 1e-30) ** 2)
+        log_ratio += inputs.shot_log_ratio_terms(i, default, choice) / (
+            2.0 * max(float(sigma[i]), 1e-30) ** 2
         )
     bins = set_appearance_bins(inputs.rgb).ravel()
     size = APPEARANCE_BINS[0] ** 2 * APPEARANCE_BINS[1]
@@ -266,10 +253,7 @@ def material_choice_blend(
        hyperspectral data. IEEE Transactions on Geoscience and Remote Sensing 49(6).
     .. [3] Fast Capture of Spectral Image Series, section 3 (the image sets, eq. 2).
     """
-    if np.shape(cube) != inputs.cube_shape:
-        raise ReconstructionError.single(
-            "cube", f"shape {inputs.cube_shape} (wavelength, image, y, x)", np.shape(cube)
-        )
+    inputs.check_cubes(cube=cube)
     if len(inputs.band) == 0:
         return cube
     choice = sparse_choice(inputs, endmembers=endmembers, candidates=int(candidates))

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from spectralize.schemas.errors import ParameterError, ReconstructionError
+from spectralize.schemas.errors import ParameterError
 
 from ..estimators.endmember_mixture import band_noise_sigma
 from ..inputs import ReconstructionInputs
@@ -109,11 +109,7 @@ def band_evidence(
     """
     from scipy import ndimage
 
-    for name, cube in (("natural", natural), ("learnt", learnt)):
-        if np.shape(cube) != inputs.cube_shape:
-            raise ReconstructionError.single(
-                name, f"shape {inputs.cube_shape} (wavelength, image, y, x)", np.shape(cube)
-            )
+    inputs.check_cubes(natural=natural, learnt=learnt)
     if window < 1:
         raise ParameterError.single("window", ">= 1 (pixels)", window)
     if sigma is None:
@@ -123,16 +119,12 @@ def band_evidence(
     information = np.zeros(shape)  # sum_i a_{b_i}^2 / sigma_i^2 per pixel
     for i in range(len(inputs.band)):
         b, m = int(inputs.band[i]), int(inputs.image[i])
-        shot = inputs.band_data[i].astype(np.float64)
-        a_plane = np.asarray(natural[b, m], dtype=np.float64)
-        b_plane = np.asarray(learnt[b, m], dtype=np.float64)
         variance = max(float(sigma[i]), 1e-30) ** 2
-        # (D - a)^2 - (D - b)^2 = (b - a)(2 D - a - b)
-        difference = (b_plane - a_plane) * (2.0 * shot - a_plane - b_plane)
+        difference = inputs.shot_log_ratio_terms(i, natural, learnt)
         if window > 1:
             difference = ndimage.uniform_filter(difference, window, mode="reflect") * window**2
         log_ratio[m] += difference / (2.0 * variance)
-        information[m] += a_plane**2 / variance
+        information[m] += np.asarray(natural[b, m], dtype=np.float64) ** 2 / variance
     band = np.asarray(inputs.band)
     shots = np.array(  # n_p: shots of distinct wavelengths per image
         [np.unique(band[np.asarray(inputs.image) == m]).size for m in range(inputs.n_image)],
