@@ -129,7 +129,7 @@ class ReconstructionInputs:
             kept[name] = np.asarray(compute(self))
         return kept[name].copy()
 
-    def check_cubes(self, **cubes: object) -> None:
+    def check_cubes(self, **cubes: np.ndarray) -> None:
         """Raise :class:`~spectralize.schemas.errors.ReconstructionError` naming the first of
         ``cubes`` (name -> array) whose shape is not :attr:`cube_shape`."""
         for name, cube in cubes.items():
