@@ -80,6 +80,9 @@ TILE_SECTIONS = {
     ("material_pooled", "material_pooled_refine"): "set model (material-pooled)",
     ("material_pooled", "texel_shapes"): "  its shapes steps",
     ("material_pooled", "texel_weights"): "  its weights steps",
+    ("evidence_blend", "material_choice_blend"): "set step (evidence-blend)",
+    ("sparse_choice", "sparse_choice"): "  the material choice",
+    ("evidence_blend", "choice_log_odds"): "  the band evidence",
     ("confidence", "neighbourhood_spread"): "confidence",
     ("operators", "to_pixels"): "pixel-major copies (to_pixels)",
 }
