@@ -308,6 +308,7 @@ def _solve(
     problem = build_problem(inputs, **setup, dtype=used.get("dtype", resolved.method.dtype))
     setup_time = time.perf_counter() - started
     solved = resolved.method.function(problem, **own)
+    problem.release_pixel_orders()  # the solve's: the set model and the confidence do not hold them
     cube, iterations, history, converged = (
         solved.cube,
         int(solved.iterations),

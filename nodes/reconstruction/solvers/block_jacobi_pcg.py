@@ -137,7 +137,6 @@ def block_jacobi_pcg(
         max_iterations=max_iterations,
         callback=callback,
     )
-    problem.release_pixel_orders()  # the solve's: a set model after it does not hold them
     return SolverResult(
         order.to_cube(x),
         iterations,

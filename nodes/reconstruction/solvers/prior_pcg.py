@@ -186,7 +186,6 @@ def prior_pcg(
             int(projected_iterations),
             gradient=lambda vector, out: operator(vector, out, rhs)[0],
         )
-    problem.release_pixel_orders()  # the solve's: a set model after it does not hold them
     return SolverResult(
         operator.order.to_cube(x),
         iterations + int(projected_iterations),
