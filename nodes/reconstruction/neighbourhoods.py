@@ -27,6 +27,7 @@ __all__ = [
     "appearance_features",
     "brightness_ratios",
     "appearance_order",
+    "appearance_bins",
     "NeighbourGraph",
     "APPEARANCE_SPACES",
 ]
@@ -34,6 +35,30 @@ __all__ = [
 APPEARANCE_SPACES = ("rgb", "chromaticity-spatial")
 """Appearance spaces of :func:`appearance_features`: the paper's RGB, and chromaticity with
 spatial proximity (the paper's own fix for metamers, section 6)."""
+
+
+def appearance_bins(
+    rgb: np.ndarray, mean_level: np.ndarray | float, bins: tuple[int, int]
+) -> np.ndarray:
+    """Per colour of ``rgb`` ``(..., 3)`` (non-negative) its bin of an appearance histogram:
+    the chromaticity ``(r, g) / (r + g + b)`` in ``n_c x n_c`` bins and the brightness
+    ``(r + g + b) / mean_level`` in ``n_l`` bins of log2 steps from 1/16, ``bins = (n_c,
+    n_l)``; integers in ``[0, n_c^2 n_l)``.
+
+    Pixels of one bin look alike, so they mostly hold the same material: the band evidence
+    pools over them (:mod:`~.solvers.band_evidence`, :mod:`~.estimators.evidence_blend`).
+
+    References
+    ----------
+    .. [1] Fast Capture of Spectral Image Series, section 3 (appearance neighbours).
+    """
+    n_c, n_l = bins
+    total = rgb.sum(axis=-1)
+    chroma = rgb[..., :2] / np.maximum(total, 1e-300)[..., None]
+    level = total / np.maximum(mean_level, 1e-300)
+    c = np.clip((chroma * n_c).astype(np.intp), 0, n_c - 1)
+    b = np.clip(np.floor(np.log2(np.maximum(level, 1e-300)) + 4).astype(np.intp), 0, n_l - 1)
+    return (c[..., 0] * n_c + c[..., 1]) * n_l + b
 
 
 def appearance_neighbours(

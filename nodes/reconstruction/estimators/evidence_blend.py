@@ -63,6 +63,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..inputs import ReconstructionInputs
+from ..neighbourhoods import appearance_bins
 from .endmember_mixture import Endmembers, band_noise_sigma
 from .sparse_choice import sparse_choice
 
@@ -104,16 +105,10 @@ def set_appearance_bins(rgb: np.ndarray) -> np.ndarray:
     numpy.ndarray
         ``(height, width)`` bin indices in ``[0, n_c^2 n_l)``.
     """
-    n_c, n_l = APPEARANCE_BINS
     rgb = np.maximum(np.asarray(rgb, dtype=np.float64), 0.0)
     level = rgb.sum(axis=-1).mean(axis=(1, 2), keepdims=True)
     relative = (rgb / np.maximum(level, 1e-300)[..., None]).mean(axis=0)  # (y, x, 3)
-    total = relative.sum(axis=-1)
-    chroma = relative[..., :2] / np.maximum(total, 1e-300)[..., None]
-    brightness = total / max(float(total.mean()), 1e-300)
-    c = np.clip((chroma * n_c).astype(np.intp), 0, n_c - 1)
-    b = np.floor(np.log2(np.maximum(brightness, 1e-300)) + 4)
-    return (c[..., 0] * n_c + c[..., 1]) * n_l + np.clip(b.astype(np.intp), 0, n_l - 1)
+    return appearance_bins(relative, relative.sum(axis=-1).mean(), APPEARANCE_BINS)
 
 
 def choice_log_odds(

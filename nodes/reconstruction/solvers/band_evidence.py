@@ -56,6 +56,7 @@ from spectralize.schemas.errors import ParameterError
 
 from ..estimators.endmember_mixture import band_noise_sigma
 from ..inputs import ReconstructionInputs
+from ..neighbourhoods import appearance_bins
 
 __all__ = ["band_evidence", "EVIDENCE_WINDOW", "MAX_LOG_RATIO", "TRANSFER_BINS"]
 
@@ -146,12 +147,7 @@ def band_evidence(
 
 def _appearance_bins(rgb: np.ndarray) -> np.ndarray:
     """Per pixel of ``rgb`` ``(n_image, height, width, 3)`` its histogram bin (module
-    docstring), ``(n_image, height, width)`` integers."""
-    n_c, n_b = TRANSFER_BINS
+    docstring; brightness relative to its image's mean), ``(n_image, height, width)``
+    integers."""
     rgb = np.maximum(np.asarray(rgb, dtype=np.float64), 0)
-    total = rgb.sum(axis=-1)
-    chroma = rgb[..., :2] / np.maximum(total, 1e-300)[..., None]
-    level = total / np.maximum(total.mean(axis=(1, 2), keepdims=True), 1e-300)
-    c = np.clip((chroma * n_c).astype(np.intp), 0, n_c - 1)
-    b = np.clip(np.floor(np.log2(np.maximum(level, 1e-300)) + 4).astype(np.intp), 0, n_b - 1)
-    return (c[..., 0] * n_c + c[..., 1]) * n_b + b
+    return appearance_bins(rgb, rgb.sum(axis=-1).mean(axis=(1, 2), keepdims=True), TRANSFER_BINS)
