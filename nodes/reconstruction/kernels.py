@@ -53,6 +53,8 @@ __all__ = [
     "group_sums",
     "GROUP_SUM_MEMBERS",
     "laplacian_rows",
+    "dichromatic_costs",
+    "support_costs_pixels",
 ]
 
 _jit = njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
@@ -946,3 +948,198 @@ def laplacian_rows(
                 at -= 1
             indices[at] = column
             data[at] = value
+
+
+@_jit_exact
+def dichromatic_costs(atoms_rgb, light_rgb, rgb, variance, cost):  # pragma: no cover - compiled
+    """``cost[j, p] += min chi^2`` of the dichromatic fit ``R_mp ~ a E_mj + h L_m`` (``a, h
+    >= 0``) summed over the images ``m``: the material ``j``'s line through the texel's RGB.
+
+    Where the unconstrained two-atom fit has a negative weight, the better of the fits on
+    one atom (material or highlight, each clipped at zero) is taken: the exact non-negative
+    least squares on two atoms.
+
+    Parameters
+    ----------
+    atoms_rgb
+        ``(n_image, n_material, 3)``: each material's RGB through each image's camera.
+    light_rgb
+        ``(n_image, 3)``: the highlight atom's RGB per image.
+    rgb
+        ``(n_image, n_texel, 3)``.
+    variance
+        ``(n_image, n_texel)``: the RGB variance the squared residuals are divided by.
+    cost
+        ``(n_material, n_texel)``, added to.
+    """
+    n_image, n_material = atoms_rgb.shape[0], atoms_rgb.shape[1]
+    n_texel = rgb.shape[1]
+    for m in range(n_image):
+        l0, l1, l2 = light_rgb[m, 0], light_rgb[m, 1], light_rgb[m, 2]
+        ll = l0 * l0 + l1 * l1 + l2 * l2
+        for p in range(n_texel):
+            r0, r1, r2 = rgb[m, p, 0], rgb[m, p, 1], rgb[m, p, 2]
+            rl = r0 * l0 + r1 * l1 + r2 * l2
+            h = max(rl / max(ll, 1e-300), 0.0)
+            d0, d1, d2 = r0 - h * l0, r1 - h * l1, r2 - h * l2
+            light_only = d0 * d0 + d1 * d1 + d2 * d2
+            v = variance[m, p]
+            for j in range(n_material):
+                e0, e1, e2 = atoms_rgb[m, j, 0], atoms_rgb[m, j, 1], atoms_rgb[m, j, 2]
+                ee = e0 * e0 + e1 * e1 + e2 * e2
+                el = e0 * l0 + e1 * l1 + e2 * l2
+                ridge = 1e-12 * (ee + ll) + 1e-300
+                g00, g11 = ee + ridge, ll + ridge
+                det = g00 * g11 - el * el
+                re = r0 * e0 + r1 * e1 + r2 * e2
+                w0 = (g11 * re - el * rl) / det
+                w1 = (g00 * rl - el * re) / det
+                if w0 >= 0.0 and w1 >= 0.0:
+                    d0 = r0 - w0 * e0 - w1 * l0
+                    d1 = r1 - w0 * e1 - w1 * l1
+                    d2 = r2 - w0 * e2 - w1 * l2
+                    best = d0 * d0 + d1 * d1 + d2 * d2
+                else:
+                    a = max(re / max(ee, 1e-300), 0.0)
+                    d0, d1, d2 = r0 - a * e0, r1 - a * e1, r2 - a * e2
+                    best = min(d0 * d0 + d1 * d1 + d2 * d2, light_only)
+                cost[j, p] += best / v
+
+
+@_jit_inline
+def _solve_small(gram, rhs, size, pivot_row, w):  # pragma: no cover - compiled
+    """``w[:size] = gram^-1 rhs`` by Gaussian elimination with partial pivoting; ``gram``
+    and ``rhs`` are overwritten."""
+    for c in range(size):
+        best = c
+        for i in range(c + 1, size):
+            if abs(gram[i, c]) > abs(gram[best, c]):
+                best = i
+        pivot_row[c] = best
+        if best != c:
+            for k in range(size):
+                gram[c, k], gram[best, k] = gram[best, k], gram[c, k]
+            rhs[c], rhs[best] = rhs[best], rhs[c]
+        inverse = 1.0 / gram[c, c]
+        for i in range(c + 1, size):
+            factor = gram[i, c] * inverse
+            for k in range(c + 1, size):
+                gram[i, k] -= factor * gram[c, k]
+            rhs[i] -= factor * rhs[c]
+    for c in range(size - 1, -1, -1):
+        total = rhs[c]
+        for k in range(c + 1, size):
+            total -= gram[c, k] * w[k]
+        w[c] = total / gram[c, c]
+
+
+@_jit_exact
+def support_costs_pixels(
+    atoms_rgb,
+    atoms,
+    candidates,
+    subsets,
+    sizes,
+    children,
+    rgb,
+    variance,
+    shots,
+    shot_variance,
+    shot_band,
+    shot_start,
+    shot_order,
+    band_model_error,
+    total,
+):  # pragma: no cover - compiled
+    """``total[s, p] += rgb_cost + band_cost`` of support ``s`` of texel ``p`` per image: the
+    exact non-negative least squares of the image's RGB on the support, the best feasible
+    of its sub-supports by RGB cost (each support keeps the best of itself and its
+    children, visited by size), and its band shots' chi^2.
+
+    Parameters
+    ----------
+    atoms_rgb
+        ``(n_image, n_atoms, 3)``: every atom's RGB through each image's camera.
+    atoms
+        ``(n_atoms, n_wavelength)``.
+    candidates
+        ``(n_texel, n_candidates)`` int64: each texel's candidate atoms.
+    subsets, sizes, children
+        ``(n_subset, max_size)`` candidate positions of each support, its size, and the
+        indices of its supports one smaller (``-1``: the empty support; as many as its
+        size), supports ordered by size.
+    rgb, variance
+        ``(n_image, n_texel, 3)`` and ``(n_image, n_texel)``.
+    shots, shot_variance, shot_band
+        ``(n_shot, n_texel)`` band shots, their noise variance and band ``(n_shot,)``.
+    shot_start, shot_order
+        Image ``m``'s shots are ``shot_order[shot_start[m]:shot_start[m + 1]]``.
+    band_model_error
+        Relative error of the atoms' spectra added to the shots' noise.
+    total
+        ``(n_subset, n_texel)``, added to.
+    """
+    n_image, n_texel = variance.shape
+    n_subset, max_size = subsets.shape
+    rgb_cost = np.empty(n_subset)
+    band_cost = np.empty(n_subset)
+    gram = np.empty((max_size, max_size))
+    rhs = np.empty(max_size)
+    w = np.empty(max_size)
+    pivot_row = np.empty(max_size, dtype=np.int64)
+    index = np.empty(max_size, dtype=np.int64)
+    for m in range(n_image):
+        first, stop = shot_start[m], shot_start[m + 1]
+        for p in range(n_texel):
+            r0, r1, r2 = rgb[m, p, 0], rgb[m, p, 1], rgb[m, p, 2]
+            v = variance[m, p]
+            empty_rgb = (r0 * r0 + r1 * r1 + r2 * r2) / v
+            empty_band = 0.0
+            for q in range(first, stop):
+                k = shot_order[q]
+                empty_band += shots[k, p] ** 2 / shot_variance[k]
+            for s in range(n_subset):
+                size = sizes[s]
+                for i in range(size):
+                    index[i] = candidates[p, subsets[s, i]]
+                trace = 0.0
+                for i in range(size):
+                    a = index[i]
+                    rhs[i] = atoms_rgb[m, a, 0] * r0 + atoms_rgb[m, a, 1] * r1 + atoms_rgb[m, a, 2] * r2
+                    for k in range(size):
+                        b = index[k]
+                        gram[i, k] = (
+                            atoms_rgb[m, a, 0] * atoms_rgb[m, b, 0]
+                            + atoms_rgb[m, a, 1] * atoms_rgb[m, b, 1]
+                            + atoms_rgb[m, a, 2] * atoms_rgb[m, b, 2]
+                        )
+                    trace += gram[i, i]
+                ridge = 1e-12 * trace + 1e-300
+                for i in range(size):
+                    gram[i, i] += ridge
+                _solve_small(gram, rhs, size, pivot_row, w)
+                feasible = True
+                d0, d1, d2 = r0, r1, r2
+                for i in range(size):
+                    feasible = feasible and w[i] >= 0.0
+                    a = index[i]
+                    d0 -= w[i] * atoms_rgb[m, a, 0]
+                    d1 -= w[i] * atoms_rgb[m, a, 1]
+                    d2 -= w[i] * atoms_rgb[m, a, 2]
+                own_rgb = (d0 * d0 + d1 * d1 + d2 * d2) / v if feasible else np.inf
+                own_band = 0.0
+                for q in range(first, stop):
+                    k = shot_order[q]
+                    predicted = 0.0
+                    for i in range(size):
+                        predicted += w[i] * atoms[index[i], shot_band[k]]
+                    spread = shot_variance[k] + (band_model_error * predicted) ** 2
+                    own_band += (predicted - shots[k, p]) ** 2 / spread
+                for c in range(size):
+                    child = children[s, c]
+                    other_rgb = empty_rgb if child < 0 else rgb_cost[child]
+                    if other_rgb < own_rgb:
+                        own_rgb = other_rgb
+                        own_band = empty_band if child < 0 else band_cost[child]
+                rgb_cost[s], band_cost[s] = own_rgb, own_band
+                total[s, p] += own_rgb + own_band

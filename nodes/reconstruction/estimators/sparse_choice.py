@@ -138,26 +138,20 @@ def dichromatic_candidates(
     the lowest summed chi^2, then the highlight atom (the last); ``(n_texel, count + 1)``.
 
     ``atoms_rgb`` ``(n_image, n_atoms, 3)``: every atom's RGB through each image's camera;
-    ``rgb`` ``(n_image, n_texel, 3)``; ``variance`` ``(n_image, n_texel)``.
+    ``rgb`` ``(n_image, n_texel, 3)``; ``variance`` ``(n_image, n_texel)``. The fits run in
+    one compiled pass (:func:`~..kernels.dichromatic_costs`).
     """
+    from ..kernels import dichromatic_costs
+
     n_atoms = atoms_rgb.shape[1]
     cost = np.zeros((n_atoms - 1, rgb.shape[1]))
-    for m in range(rgb.shape[0]):
-        light = atoms_rgb[m, -1]
-        r = rgb[m]
-        one_light = np.maximum(r @ light / max(float(light @ light), 1e-300), 0.0)
-        light_only = ((r - one_light[:, None] * light) ** 2).sum(-1)
-        for j in range(n_atoms - 1):
-            e = atoms_rgb[m, j]
-            pair = np.stack([e, light])
-            gram = pair @ pair.T
-            gram += (1e-12 * np.trace(gram) + 1e-300) * np.eye(2)
-            w = (r @ pair.T) @ np.linalg.inv(gram)
-            both = ((r - w @ pair) ** 2).sum(-1)
-            alone = np.maximum(r @ e / max(float(e @ e), 1e-300), 0.0)
-            material_only = ((r - alone[:, None] * e) ** 2).sum(-1)
-            best = np.where((w >= 0).all(-1), both, np.minimum(material_only, light_only))
-            cost[j] += best / variance[m]
+    dichromatic_costs(
+        np.ascontiguousarray(atoms_rgb[:, :-1], dtype=np.float64),
+        np.ascontiguousarray(atoms_rgb[:, -1], dtype=np.float64),
+        np.ascontiguousarray(rgb, dtype=np.float64),
+        np.ascontiguousarray(variance, dtype=np.float64),
+        cost,
+    )
     count = min(int(count), n_atoms - 1)
     near = np.argsort(cost, axis=0, kind="stable")[:count].T
     return np.hstack([near, np.full((near.shape[0], 1), n_atoms - 1)])
@@ -224,14 +218,41 @@ def support_costs(
 ) -> tuple[np.ndarray, list[tuple[int, ...]]]:
     """Step 2: ``rgb_cost + band_cost`` of every support of each texel's ``candidates``,
     summed over the set's images, ``(n_subset, n_texel)``, and the supports (tuples of
-    positions in ``candidates``)."""
+    positions in ``candidates``).
+
+    The fits of every texel, image and support run in one compiled pass
+    (:func:`~..kernels.support_costs_pixels`), the same fits as :func:`_image_costs` (which
+    the pooled costs of :func:`_context_costs` use) without its temporaries."""
+    from ..kernels import support_costs_pixels
+
     evidence = _Evidence.of(inputs, rgb_model_error)
     subsets, children = _subsets(candidates.shape[1], int(max_support))
+    size = max(len(s) for s in subsets)
+    positions = np.array([list(s) + [0] * (size - len(s)) for s in subsets], dtype=np.int64)
+    below = np.array([c + [-1] * (size - len(c)) for c in children], dtype=np.int64)
+    cameras = _cameras(inputs)
+    atoms = np.ascontiguousarray(atoms, dtype=np.float64)
+    images, bands = np.asarray(inputs.image), np.asarray(inputs.band, dtype=np.int64)
+    order = np.argsort(images, kind="stable").astype(np.int64)
+    start = np.searchsorted(images[order], np.arange(inputs.n_image + 1)).astype(np.int64)
     total = np.zeros((len(subsets), candidates.shape[0]))
-    for rgb_cost, band_cost in evidence.image_costs(
-        inputs, atoms, candidates, subsets, children, float(band_model_error)
-    ):
-        total += rgb_cost + band_cost
+    support_costs_pixels(
+        np.stack([atoms @ cameras[m].T for m in range(inputs.n_image)]),
+        atoms,
+        np.ascontiguousarray(candidates, dtype=np.int64),
+        positions,
+        np.array([len(s) for s in subsets], dtype=np.int64),
+        below,
+        np.ascontiguousarray(evidence.rgb),
+        np.ascontiguousarray(evidence.variance),
+        np.ascontiguousarray(evidence.shots),
+        np.ascontiguousarray(evidence.shot_variance, dtype=np.float64),
+        bands,
+        start,
+        order,
+        float(band_model_error),
+        total,
+    )
     return total, subsets
 
 

@@ -178,3 +178,146 @@ def test_borrowed_endmembers_pay_the_candidate_penalty(woven):
     # is taken and the choice is the first pass's
     assert not np.array_equal(free, first)
     np.testing.assert_array_equal(barred, first)
+
+
+def _mixed_set(rng: np.random.Generator) -> tuple[ReconstructionInputs, np.ndarray, np.ndarray]:
+    """A 5 x 5 set of 3 images whose RGB are mixtures of library atoms with some negative
+    weights (so that many unconstrained fits go negative), band shots in no image order;
+    the atoms (the light last) and each texel's candidates (two materials and the light)."""
+    n_wl, size, n_image, n_atoms = 6, 5, 3, 6
+    camera = rng.uniform(0.1, 1.0, (3, n_wl))
+    atoms = rng.uniform(0.05, 1.0, (n_atoms, n_wl))
+    n_texel = size * size
+    picks = np.stack([rng.choice(n_atoms - 1, 2, replace=False) for _ in range(n_texel)])
+    candidates = np.hstack([picks, np.full((n_texel, 1), n_atoms - 1)]).astype(np.int64)
+    weights = rng.uniform(-0.4, 1.0, (n_image, n_texel, 3))
+    rgb = np.einsum("mpa,paw,cw->mpc", weights, atoms[candidates], camera)
+    rgb += 0.05 * rng.standard_normal(rgb.shape)
+    image = np.array([2, 0, 2, 1, 0, 2])
+    band = rng.integers(0, n_wl, image.size)
+    spectra = np.einsum("mpa,paw->mpw", weights, atoms[candidates])
+    shots = spectra[image, :, band] + 0.01 * rng.standard_normal((image.size, n_texel))
+    inputs = ReconstructionInputs(
+        rgb=rgb.reshape(n_image, size, size, 3),
+        band_data=shots.reshape(image.size, size, size),
+        band=band,
+        image=image,
+        filter_size=np.ones(image.size),
+        camera_matrix=camera,
+        wavelength=np.linspace(450.0, 650.0, n_wl),
+        illuminant=atoms[-1],
+    )
+    return inputs, atoms, candidates
+
+
+def _nnls_costs(inputs: ReconstructionInputs, atoms: np.ndarray, candidates: np.ndarray):
+    """Reference step 2: per image and support the best feasible (all weights >= 0) of all
+    its sub-supports by RGB cost, the empty one included, found by enumerating them with
+    plain least squares; its rgb + band cost summed over the images ``(n_subset, n_texel)``,
+    the supports, and how many (support, texel, image) triples took a sub-support of size 0,
+    1 and 2 where the support had 3 atoms."""
+    from itertools import combinations
+
+    from spectralize.nodes.reconstruction.estimators.endmember_mixture import band_noise_sigma
+    from spectralize.nodes.reconstruction.estimators.sparse_choice import _rgb_variance
+
+    rgb = inputs.rgb.reshape(inputs.n_image, -1, 3)
+    variance = _rgb_variance(rgb, 0.03)
+    shots = inputs.band_data.reshape(inputs.band_data.shape[0], -1)
+    shot_variance = band_noise_sigma(inputs) ** 2
+    subsets = [s for k in (1, 2, 3) for s in combinations(range(3), k)]
+    total = np.zeros((len(subsets), candidates.shape[0]))
+    taken = np.zeros(3, dtype=int)
+    for m in range(inputs.n_image):
+        mine = np.flatnonzero(inputs.image == m)
+        for p in range(candidates.shape[0]):
+            for s, subset in enumerate(subsets):
+                best = (np.sum(rgb[m, p] ** 2) / variance[m, p], np.zeros(0), ())
+                for k in range(1, len(subset) + 1):
+                    for sub in combinations(subset, k):
+                        a = atoms[candidates[p, list(sub)]]
+                        w = np.linalg.lstsq((a @ inputs.camera_matrix.T).T, rgb[m, p], rcond=None)[0]
+                        fit = np.sum((rgb[m, p] - w @ a @ inputs.camera_matrix.T) ** 2) / variance[m, p]
+                        if (w >= 0).all() and fit < best[0]:
+                            best = (fit, w, sub)
+                fit, w, sub = best
+                predicted = w @ atoms[candidates[p, list(sub)]][:, inputs.band[mine]] if sub else 0.0
+                spread = shot_variance[mine] + (0.1 * predicted) ** 2
+                total[s, p] += fit + np.sum((predicted - shots[mine, p]) ** 2 / spread)
+                if len(subset) == 3 and len(sub) < 3:
+                    taken[len(sub)] += 1
+    return total, subsets, taken
+
+
+def test_the_compiled_support_costs_are_the_exact_nnls_over_the_sub_supports():
+    from spectralize.nodes.reconstruction.estimators.sparse_choice import support_costs
+
+    inputs, atoms, candidates = _mixed_set(np.random.default_rng(5))
+    expected, subsets, taken = _nnls_costs(inputs, atoms, candidates)
+    assert (taken > 0).all()  # the case has 3-atom supports whose best fit has 0, 1 or 2 atoms
+    found, found_subsets = support_costs(inputs, atoms, candidates, max_support=3)
+    assert found_subsets == subsets
+    # the fits' small ridge moves the costs of near-singular supports a little
+    np.testing.assert_allclose(found, expected, rtol=1e-5)
+
+
+def test_the_compiled_support_costs_and_choice_are_the_numpy_fits():
+    from spectralize.nodes.reconstruction.estimators.sparse_choice import (
+        _choose,
+        _Evidence,
+        _subsets,
+        support_costs,
+    )
+
+    inputs, atoms, candidates = _mixed_set(np.random.default_rng(6))
+    subsets, children = _subsets(3, 3)
+    expected = np.zeros((len(subsets), candidates.shape[0]))
+    for rgb_cost, band_cost in _Evidence.of(inputs, 0.03).image_costs(
+        inputs, atoms, candidates, subsets, children, 0.1
+    ):
+        expected += rgb_cost + band_cost
+    found = support_costs(inputs, atoms, candidates, max_support=3)
+    np.testing.assert_allclose(found[0], expected, rtol=1e-10)
+    for penalty in (0.0, 3.0, 30.0):
+        np.testing.assert_array_equal(
+            _choose(candidates, found, penalty, 3), _choose(candidates, (expected, subsets), penalty, 3)
+        )
+
+
+def _dichromatic_reference(atoms_rgb, rgb, variance, count):
+    """Step 1 with numpy: every material's two-atom NNLS with the light, per image."""
+    n_atoms = atoms_rgb.shape[1]
+    cost = np.zeros((n_atoms - 1, rgb.shape[1]))
+    for m in range(rgb.shape[0]):
+        light = atoms_rgb[m, -1]
+        h = np.maximum(rgb[m] @ light / (light @ light), 0.0)
+        light_only = ((rgb[m] - h[:, None] * light) ** 2).sum(-1)
+        for j in range(n_atoms - 1):
+            pair = np.stack([atoms_rgb[m, j], light])
+            w = np.linalg.solve(pair @ pair.T, pair @ rgb[m].T).T
+            both = ((rgb[m] - w @ pair) ** 2).sum(-1)
+            e = atoms_rgb[m, j]
+            alone = np.maximum(rgb[m] @ e / (e @ e), 0.0)
+            material_only = ((rgb[m] - alone[:, None] * e) ** 2).sum(-1)
+            cost[j] += (
+                np.where((w >= 0).all(-1), both, np.minimum(material_only, light_only)) / variance[m]
+            )
+    near = np.argsort(cost, axis=0, kind="stable")[:count].T
+    return np.hstack([near, np.full((near.shape[0], 1), n_atoms - 1)])
+
+
+def test_the_compiled_dichromatic_candidates_are_the_numpy_ranking():
+    from spectralize.nodes.reconstruction.estimators.sparse_choice import (
+        _rgb_variance,
+        dichromatic_candidates,
+    )
+
+    inputs, atoms, _ = _mixed_set(np.random.default_rng(7))
+    rgb = inputs.rgb.reshape(inputs.n_image, -1, 3)
+    atoms_rgb = np.einsum("aw,cw->ac", atoms, inputs.camera_matrix)[None].repeat(inputs.n_image, 0)
+    variance = _rgb_variance(rgb, 0.03)
+    for count in (1, 3, 5):
+        np.testing.assert_array_equal(
+            dichromatic_candidates(atoms_rgb, rgb, variance, count),
+            _dichromatic_reference(atoms_rgb, rgb, variance, count),
+        )
