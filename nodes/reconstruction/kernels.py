@@ -974,9 +974,16 @@ def dichromatic_costs(atoms_rgb, light_rgb, rgb, variance, cost):  # pragma: no 
     """
     n_image, n_material = atoms_rgb.shape[0], atoms_rgb.shape[1]
     n_texel = rgb.shape[1]
+    pair = np.empty((n_material, 4))  # per material: e.e, e.l and the ridged gram's diagonal
     for m in range(n_image):
         l0, l1, l2 = light_rgb[m, 0], light_rgb[m, 1], light_rgb[m, 2]
         ll = l0 * l0 + l1 * l1 + l2 * l2
+        for j in range(n_material):
+            e0, e1, e2 = atoms_rgb[m, j, 0], atoms_rgb[m, j, 1], atoms_rgb[m, j, 2]
+            ee = e0 * e0 + e1 * e1 + e2 * e2
+            ridge = 1e-12 * (ee + ll) + 1e-300
+            pair[j, 0], pair[j, 1] = ee, e0 * l0 + e1 * l1 + e2 * l2
+            pair[j, 2], pair[j, 3] = ee + ridge, ll + ridge
         for p in range(n_texel):
             r0, r1, r2 = rgb[m, p, 0], rgb[m, p, 1], rgb[m, p, 2]
             rl = r0 * l0 + r1 * l1 + r2 * l2
@@ -986,10 +993,7 @@ def dichromatic_costs(atoms_rgb, light_rgb, rgb, variance, cost):  # pragma: no 
             v = variance[m, p]
             for j in range(n_material):
                 e0, e1, e2 = atoms_rgb[m, j, 0], atoms_rgb[m, j, 1], atoms_rgb[m, j, 2]
-                ee = e0 * e0 + e1 * e1 + e2 * e2
-                el = e0 * l0 + e1 * l1 + e2 * l2
-                ridge = 1e-12 * (ee + ll) + 1e-300
-                g00, g11 = ee + ridge, ll + ridge
+                ee, el, g00, g11 = pair[j, 0], pair[j, 1], pair[j, 2], pair[j, 3]
                 det = g00 * g11 - el * el
                 re = r0 * e0 + r1 * e1 + r2 * e2
                 w0 = (g11 * re - el * rl) / det
@@ -1088,6 +1092,9 @@ def support_costs_pixels(
     w = np.empty(max_size)
     pivot_row = np.empty(max_size, dtype=np.int64)
     index = np.empty(max_size, dtype=np.int64)
+    n_candidates = candidates.shape[1]
+    candidate_gram = np.empty((n_candidates, n_candidates))
+    candidate_rhs = np.empty(n_candidates)
     for m in range(n_image):
         first, stop = shot_start[m], shot_start[m + 1]
         for p in range(n_texel):
@@ -1098,21 +1105,27 @@ def support_costs_pixels(
             for q in range(first, stop):
                 k = shot_order[q]
                 empty_band += shots[k, p] ** 2 / shot_variance[k]
+            for i in range(n_candidates):
+                a = candidates[p, i]
+                candidate_rhs[i] = (
+                    atoms_rgb[m, a, 0] * r0 + atoms_rgb[m, a, 1] * r1 + atoms_rgb[m, a, 2] * r2
+                )
+                for k in range(i + 1):
+                    b = candidates[p, k]
+                    candidate_gram[i, k] = (
+                        atoms_rgb[m, a, 0] * atoms_rgb[m, b, 0]
+                        + atoms_rgb[m, a, 1] * atoms_rgb[m, b, 1]
+                        + atoms_rgb[m, a, 2] * atoms_rgb[m, b, 2]
+                    )
+                    candidate_gram[k, i] = candidate_gram[i, k]
             for s in range(n_subset):
                 size = sizes[s]
-                for i in range(size):
-                    index[i] = candidates[p, subsets[s, i]]
                 trace = 0.0
                 for i in range(size):
-                    a = index[i]
-                    rhs[i] = atoms_rgb[m, a, 0] * r0 + atoms_rgb[m, a, 1] * r1 + atoms_rgb[m, a, 2] * r2
+                    index[i] = candidates[p, subsets[s, i]]
+                    rhs[i] = candidate_rhs[subsets[s, i]]
                     for k in range(size):
-                        b = index[k]
-                        gram[i, k] = (
-                            atoms_rgb[m, a, 0] * atoms_rgb[m, b, 0]
-                            + atoms_rgb[m, a, 1] * atoms_rgb[m, b, 1]
-                            + atoms_rgb[m, a, 2] * atoms_rgb[m, b, 2]
-                        )
+                        gram[i, k] = candidate_gram[subsets[s, i], subsets[s, k]]
                     trace += gram[i, i]
                 ridge = 1e-12 * trace + 1e-300
                 for i in range(size):

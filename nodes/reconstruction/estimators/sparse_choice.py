@@ -223,9 +223,21 @@ def support_costs(
     The fits of every texel, image and support run in one compiled pass
     (:func:`~..kernels.support_costs_pixels`), the same fits as :func:`_image_costs` (which
     the pooled costs of :func:`_context_costs` use) without its temporaries."""
+    evidence = _Evidence.of(inputs, rgb_model_error)
+    return _support_costs(evidence, inputs, atoms, candidates, int(max_support), band_model_error)
+
+
+def _support_costs(
+    evidence: _Evidence,
+    inputs: ReconstructionInputs,
+    atoms: np.ndarray,
+    candidates: np.ndarray,
+    max_support: int,
+    band_model_error: float,
+) -> tuple[np.ndarray, list[tuple[int, ...]]]:
+    """:func:`support_costs` on the set's ``evidence`` (:meth:`_Evidence.of`)."""
     from ..kernels import support_costs_pixels
 
-    evidence = _Evidence.of(inputs, rgb_model_error)
     subsets, children = _subsets(candidates.shape[1], int(max_support))
     size = max(len(s) for s in subsets)
     positions = np.array([list(s) + [0] * (size - len(s)) for s in subsets], dtype=np.int64)
@@ -594,11 +606,10 @@ def sparse_choice(
         raise ParameterError.single("context_terms", f"one of {CONTEXT_TERMS}", repr(context_terms))
     atoms = _library(inputs, endmembers, n_endmembers=int(n_endmembers), seed=int(seed))
     cameras = _cameras(inputs)
-    rgb = inputs.rgb.reshape(inputs.n_image, -1, 3).astype(np.float64)
+    evidence = _Evidence.of(inputs, rgb_model_error)
+    rgb, variance = evidence.rgb, evidence.variance
     atoms_rgb = np.einsum("aw,mcw->mac", atoms, cameras)
-    variance = _rgb_variance(rgb, rgb_model_error)
     if int(context) > 0:
-        evidence = _Evidence.of(inputs, rgb_model_error)
         index, distance = rgb_similar_neighbours(
             evidence.rgb, evidence.variance, inputs.height, inputs.width, context, context_radius
         )
@@ -619,14 +630,7 @@ def sparse_choice(
             support = _choose(near, pooled, penalty, int(max_support), lent)
     else:
         near = dichromatic_candidates(atoms_rgb, rgb, variance, candidates)
-        costs = support_costs(
-            inputs,
-            atoms,
-            near,
-            max_support=int(max_support),
-            rgb_model_error=rgb_model_error,
-            band_model_error=band_model_error,
-        )
+        costs = _support_costs(evidence, inputs, atoms, near, int(max_support), float(band_model_error))
         support = _choose(near, costs, penalty, int(max_support))
     library = Endmembers(atoms, np.zeros((atoms.shape[0] - 1, 2)), np.ones(3))
     per_image = np.tile(support, (inputs.n_image, 1))
