@@ -59,7 +59,8 @@ RECONSTRUCT_SEED_SET = Node(
     # sandwich variance in the gain, the fit moved towards the RGB by that noise)
     # 12: the default's set model 'evidence-blend' (with the run's library, the material
     # choice weighed in per texel by the band evidence)
-    version="12",
+    # 13: the material choice's fits compiled (float noise in its support costs)
+    version="13",
     function=reconstruct_seed_set,
     inputs={
         "hdr": "hdr",
@@ -78,8 +79,8 @@ RECONSTRUCT_IMAGE_SETS = Node(
     # 2: tiled (parameter ``tile``), warm start from a strided seed sample; 3: as the seed
     # set's version 4; 4: as the seed set's version 5; 5: as the seed set's version 6;
     # 6: as the seed set's version 7; 7: as the seed set's version 8; 8: as its version 9;
-    # 9: as its version 10; 10: as its version 11; 11: as its version 12
-    version="11",
+    # 9: as its version 10; 10: as its version 11; 11: as its version 12; 12: as its version 13
+    version="12",
     function=reconstruct_image_sets,
     inputs={
         "hdr": "hdr",
