@@ -214,8 +214,8 @@ def _nnls_costs(inputs: ReconstructionInputs, atoms: np.ndarray, candidates: np.
     """Reference step 2: per image and support the best feasible (all weights >= 0) of all
     its sub-supports by RGB cost, the empty one included, found by enumerating them with
     plain least squares; its rgb + band cost summed over the images ``(n_subset, n_texel)``,
-    the supports, and how many (support, texel, image) triples took a sub-support of size 0,
-    1 and 2 where the support had 3 atoms."""
+    the supports, and how many (support, texel, image) triples of a support of 2 and 3 atoms
+    took a sub-support of each smaller size (``taken[support size - 2, sub-support size]``)."""
     from itertools import combinations
 
     from spectralize.nodes.reconstruction.estimators.endmember_mixture import band_noise_sigma
@@ -227,7 +227,7 @@ def _nnls_costs(inputs: ReconstructionInputs, atoms: np.ndarray, candidates: np.
     shot_variance = band_noise_sigma(inputs) ** 2
     subsets = [s for k in (1, 2, 3) for s in combinations(range(3), k)]
     total = np.zeros((len(subsets), candidates.shape[0]))
-    taken = np.zeros(3, dtype=int)
+    taken = np.zeros((2, 3), dtype=int)
     for m in range(inputs.n_image):
         mine = np.flatnonzero(inputs.image == m)
         for p in range(candidates.shape[0]):
@@ -244,8 +244,8 @@ def _nnls_costs(inputs: ReconstructionInputs, atoms: np.ndarray, candidates: np.
                 predicted = w @ atoms[candidates[p, list(sub)]][:, inputs.band[mine]] if sub else 0.0
                 spread = shot_variance[mine] + (0.1 * predicted) ** 2
                 total[s, p] += fit + np.sum((predicted - shots[mine, p]) ** 2 / spread)
-                if len(subset) == 3 and len(sub) < 3:
-                    taken[len(sub)] += 1
+                if len(subset) > 1 and len(sub) < len(subset):
+                    taken[len(subset) - 2, len(sub)] += 1
     return total, subsets, taken
 
 
@@ -254,7 +254,8 @@ def test_the_compiled_support_costs_are_the_exact_nnls_over_the_sub_supports():
 
     inputs, atoms, candidates = _mixed_set(np.random.default_rng(5))
     expected, subsets, taken = _nnls_costs(inputs, atoms, candidates)
-    assert (taken > 0).all()  # the case has 3-atom supports whose best fit has 0, 1 or 2 atoms
+    # the case has 2- and 3-atom supports whose best fits have each fewer number of atoms
+    assert (taken[0, :2] > 0).all() and (taken[1] > 0).all()
     found, found_subsets = support_costs(inputs, atoms, candidates, max_support=3)
     assert found_subsets == subsets
     # the fits' small ridge moves the costs of near-singular supports a little
