@@ -105,16 +105,20 @@ def appearance_neighbours(
     # consecutive queries walk the same branches of the tree, so its nodes stay in cache
     # (each query's answer does not depend on the order they are asked in)
     order = appearance_order(points, features=points.shape[1])
-    _, answers = tree.query(np.ascontiguousarray(points[order]), k=k + 1)
+    # squared distances: pykdtree's own, no square roots of answers that are dropped
+    _, answers = tree.query(np.ascontiguousarray(points[order]), k=k + 1, sqr_dists=True)
     del points
-    found = np.empty((asked.size, k + 1), dtype=np.intp)
-    found[order] = np.asarray(answers, dtype=np.intp).reshape(asked.size, k + 1)
-    del answers
+    # back to the asked order by a gather through the inverse permutation, in the tree's
+    # compact index type (one pass, no scatter of rows, no full-width copy before it)
+    inverse = np.empty(asked.size, dtype=np.intp)
+    inverse[order] = np.arange(asked.size, dtype=np.intp)
+    found = answers.reshape(asked.size, k + 1).take(inverse, axis=0)
+    del answers, inverse
     # the pixel itself is nearly always its own first answer: the next k are its neighbours
     mixed = np.flatnonzero(found[:, 0] != asked)
-    neighbours = np.ascontiguousarray(found[:, 1 : k + 1])
+    neighbours = found[:, 1 : k + 1].astype(np.intp)
     if mixed.size:  # ties among duplicates: the others first, in distance order, keep k
-        rows = found[mixed]
+        rows = found[mixed].astype(np.intp)
         order = np.argsort(rows == asked[mixed][:, None], axis=1, kind="stable")
         neighbours[mixed] = np.take_along_axis(rows, order, axis=1)[:, :k]
     return neighbours
@@ -212,8 +216,13 @@ def appearance_order(appearance: np.ndarray, *, bits: int = 10, features: int = 
     low = np.nanmin(features_used, axis=0) if features_used.size else 0.0
     span = (np.nanmax(features_used, axis=0) - low) if features_used.size else 1.0
     levels = (1 << bits) - 1
-    scaled = np.nan_to_num((features_used - low) / np.where(span > 0, span, 1.0) * levels)
-    quantised = np.clip(scaled, 0, levels).astype(np.uint64)
+    # ((f - low) / span) * levels, clipped to [0, levels]: in one buffer, step by step
+    scaled = np.subtract(features_used, low)
+    scaled /= np.where(span > 0, span, 1.0)
+    scaled *= levels
+    np.nan_to_num(scaled, copy=False)
+    np.clip(scaled, 0, levels, out=scaled)
+    quantised = scaled.astype(np.uint64)
     del scaled
     # bit ``b`` of a quantised value goes to bit ``b * n_axes`` of the code: spread once for
     # every value a feature can take, then one table look-up per feature and pixel

@@ -143,3 +143,18 @@ def test_the_query_order_runs_through_every_feature():
     points[:, 4] = [5.0, 1.0, 4.0, 0.0, 3.0, 2.0]
     assert appearance_order(points).tolist() == list(range(6))  # the storage order: 3 features
     assert appearance_order(points, features=5).tolist() == [3, 1, 5, 4, 2, 0]
+
+
+def test_neighbours_come_back_as_contiguous_intp_rows_in_the_asked_order():
+    # the tree answers in its compact index type and in the query order: both are undone
+    rng = np.random.default_rng(5)
+    points = np.round(rng.normal(size=(400, 3)), 1)  # duplicates: some rows take the tie path
+    queries = np.array([399, 3, 250, 3, 0])
+    for asked in (None, queries):
+        found = appearance_neighbours(points, k=3, queries=asked)
+        assert found.dtype == np.intp and found.flags.c_contiguous
+        rows = np.arange(400) if asked is None else queries
+        distances = np.linalg.norm(points[rows][:, None] - points[None], axis=-1)
+        distances[np.arange(rows.size), rows] = np.inf
+        nearest = np.sort(distances, axis=1)[:, :3]
+        np.testing.assert_allclose(np.take_along_axis(distances, found, axis=1), nearest, atol=1e-12)
