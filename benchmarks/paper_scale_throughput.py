@@ -272,7 +272,8 @@ def profile_tile(args: argparse.Namespace, report: dict) -> None:
         rows = _before_and_after(work, package, "--profile-case", work / "mirrored768", after_package)
         identical = _identical(work / "before.npz", work / "after.npz")
         for tree in ("baseline", "after"):
-            subprocess.run(["git", "worktree", "remove", "--force", str(work / tree)], check=False)
+            if (work / tree).exists():  # "after" is a worktree only with --after-commit
+                subprocess.run(["git", "worktree", "remove", "--force", str(work / tree)], check=False)
     before, after = rows["before"], rows["after"]
     previous["profile_256"] = {
         "note": f"cProfile of one interior 256 px tile ({before['window'][0]}^2 window x 20 images, "
@@ -464,7 +465,8 @@ def main() -> None:
             row["accuracy_128"] = accuracy
             report["before" if where is package else "after"] = {"commit": label, **row}
         for tree in ("baseline", "after"):
-            subprocess.run(["git", "worktree", "remove", "--force", str(work / tree)], check=False)
+            if (work / tree).exists():  # "after" is a worktree only with --after-commit
+                subprocess.run(["git", "worktree", "remove", "--force", str(work / tree)], check=False)
     before, after = report["before"], report["after"]
     report["speedup"] = round(before["seconds_per_mpx_image"] / after["seconds_per_mpx_image"], 2)
     from paper_scale import FULL_RUN_IMAGES, FULL_RUN_MPX_PER_IMAGE
